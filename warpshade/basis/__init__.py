@@ -1,0 +1,9 @@
+"""Spherical-function algebra: pure maths, no scene objects.
+
+Submodules: :mod:`~warpshade.basis.sh` (real spherical harmonics), :mod:`~warpshade.basis.sh_warp`
+(the same operations as Warp functions), :mod:`~warpshade.basis.quadrature` (sample sets).
+"""
+
+from . import quadrature, sh
+
+__all__ = ["quadrature", "sh"]

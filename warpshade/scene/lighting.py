@@ -1,0 +1,232 @@
+"""Lights: environment maps (lat-long), distant lights and sphere lights, and their SH projection.
+
+Conventions:
+
+* Radiance is linear RGB.
+* An :class:`Environment` stores a lat-long image in its own *map frame*, z-up, with the
+  layout of :func:`warpshade.basis.quadrature.latlong_directions` (row 0 = +z pole, azimuth
+  from +x towards +y). ``to_world`` is the rotation that takes map-frame directions to world
+  directions (``d_world = to_world @ d_map``); rotating an environment over time changes only
+  ``to_world``.
+* SH lighting coefficients have shape (3, n*n): one row per RGB channel, in the world frame.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from ..basis import quadrature, sh
+
+__all__ = ["Environment", "DistantLight", "SphereLight", "up_rotation", "lights_to_sh"]
+
+
+def up_rotation(up_axis: str) -> np.ndarray:
+    """Rotation taking the z-up map frame to a world whose up axis is ``up_axis`` ("Y" or "Z").
+
+    For "Y" this maps map +z to world +y and map +x to world +x (right-handed).
+    """
+    if up_axis.upper() == "Z":
+        return np.eye(3)
+    if up_axis.upper() == "Y":
+        # columns are the world images of map x, y, z: x -> x, y -> -z, z -> y
+        return np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
+    raise ValueError(f"up_rotation: up axis must be 'Y' or 'Z', got {up_axis!r}")
+
+
+@dataclass
+class Environment:
+    """A distant environment given as a lat-long radiance image.
+
+    Attributes:
+        image: radiance, shape (H, W, 3), float32, linear RGB, lat-long in the map frame.
+        to_world: rotation (3, 3) taking map-frame directions to world directions.
+        path: file the image came from (None for procedural environments).
+    """
+
+    image: np.ndarray
+    to_world: np.ndarray = field(default_factory=lambda: np.eye(3))
+    path: str | None = None
+
+    def __post_init__(self):
+        img = np.asarray(self.image, dtype=np.float32)
+        if img.ndim != 3 or img.shape[2] != 3 or img.shape[0] < 1 or img.shape[1] < 1:
+            raise ValueError(f"environment {self.path or '<array>'}: image must be (H, W, 3), got {img.shape}")
+        if not np.all(np.isfinite(img)):
+            raise ValueError(f"environment {self.path or '<array>'}: image has NaN or infinite texels")
+        self.image = img
+        self.to_world = np.asarray(self.to_world, dtype=np.float64).reshape(3, 3)
+
+    # ---- construction -------------------------------------------------------------------
+    @classmethod
+    def constant(cls, rgb=(1.0, 1.0, 1.0), height: int = 8, width: int = 16) -> "Environment":
+        """A uniform environment of radiance ``rgb``."""
+        img = np.broadcast_to(np.asarray(rgb, np.float32).reshape(1, 1, 3), (height, width, 3)).copy()
+        return cls(img)
+
+    @classmethod
+    def sky(
+        cls,
+        height: int = 64,
+        width: int = 128,
+        sun_direction=(0.4, 0.3, 0.866),
+        sun_radiance=(40.0, 36.0, 30.0),
+        sun_angle_deg: float = 12.0,
+        zenith=(0.35, 0.55, 1.0),
+        horizon=(1.0, 0.95, 0.85),
+        ground=(0.25, 0.22, 0.2),
+        to_world=None,
+    ) -> "Environment":
+        """A smooth procedural sky with a soft sun disc (map frame z-up), for demos and tests.
+
+        The sun is a disc of half-angle ``sun_angle_deg`` with a smooth edge; the sky blends
+        from ``horizon`` to ``zenith`` with elevation and is ``ground`` below the horizon.
+        """
+        d = quadrature.latlong_directions(height, width)
+        z = d[..., 2:3]
+        t = np.clip(z, 0.0, 1.0) ** 0.5
+        img = np.where(z >= 0.0, (1 - t) * np.asarray(horizon) + t * np.asarray(zenith), np.asarray(ground))
+        s = np.asarray(sun_direction, np.float64)
+        s = s / np.linalg.norm(s)
+        cosang = d @ s
+        edge = np.cos(np.radians(sun_angle_deg))
+        w = np.clip((cosang - edge) / (1.0 - edge), 0.0, 1.0) ** 0.5
+        img = img + w[..., None] * np.asarray(sun_radiance)
+        return cls(img.astype(np.float32), np.eye(3) if to_world is None else to_world)
+
+    def rotated(self, rotation) -> "Environment":
+        """The same environment rotated in world space by ``rotation`` (3, 3)."""
+        return replace(self, to_world=np.asarray(rotation, np.float64) @ self.to_world)
+
+    # ---- queries (float64 reference path) -----------------------------------------------
+    @property
+    def height(self) -> int:
+        return int(self.image.shape[0])
+
+    @property
+    def width(self) -> int:
+        return int(self.image.shape[1])
+
+    def radiance(self, directions) -> np.ndarray:
+        """Bilinearly filtered radiance in world directions, shape (..., 3), float64.
+
+        Interpolation wraps in azimuth and clamps at the poles (texel centres).
+        """
+        d = np.asarray(directions, np.float64)
+        batch = d.shape[:-1]
+        local = d.reshape(-1, 3) @ self.to_world  # = (to_world.T @ d.T).T
+        local /= np.maximum(np.linalg.norm(local, axis=1, keepdims=True), 1e-300)
+        theta = np.arccos(np.clip(local[:, 2], -1.0, 1.0))
+        phi = np.mod(np.arctan2(local[:, 1], local[:, 0]), 2.0 * np.pi)
+        h, w = self.height, self.width
+        v = theta / np.pi * h - 0.5
+        u = phi / (2.0 * np.pi) * w - 0.5
+        v0 = np.floor(v)
+        u0 = np.floor(u)
+        fv = (v - v0)[:, None]
+        fu = (u - u0)[:, None]
+        r0 = np.clip(v0, 0, h - 1).astype(np.int64)
+        r1 = np.clip(v0 + 1, 0, h - 1).astype(np.int64)
+        c0 = np.mod(u0, w).astype(np.int64)
+        c1 = np.mod(u0 + 1, w).astype(np.int64)
+        img = self.image.astype(np.float64)
+        out = (
+            (1 - fv) * ((1 - fu) * img[r0, c0] + fu * img[r0, c1])
+            + fv * ((1 - fu) * img[r1, c0] + fu * img[r1, c1])
+        )
+        return out.reshape(*batch, 3)
+
+    def to_sh(self, order: int, window: str | None = None, **window_args) -> np.ndarray:
+        """Project the environment onto SH in the world frame, shape (3, order**2), float64.
+
+        Each texel is weighted by its exact solid angle (:func:`quadrature.latlong`); the
+        texel-centre value is used (the piecewise-constant image), so a constant map projects
+        exactly. ``window`` optionally applies :func:`warpshade.basis.sh.window` (e.g. to
+        reduce ringing of a sharp sun).
+        """
+        q = quadrature.latlong(self.height, self.width)
+        dirs_world = q.directions @ self.to_world.T
+        y = sh.basis(dirs_world, order)
+        coeffs = (self.image.reshape(-1, 3).astype(np.float64) * q.weights[:, None]).T @ y
+        if window is not None:
+            coeffs = sh.window(coeffs, window, **window_args)
+        return coeffs
+
+
+@dataclass
+class DistantLight:
+    """A distant (directional) light.
+
+    Attributes:
+        direction: unit vector from the scene *towards* the light, world space (3,).
+        irradiance: RGB irradiance on a surface facing the light (radiance times solid angle).
+        angle_deg: angular diameter in degrees (0 = a delta light).
+        path: USD prim path or None.
+    """
+
+    direction: np.ndarray
+    irradiance: np.ndarray
+    angle_deg: float = 0.53
+    path: str | None = None
+
+    def __post_init__(self):
+        d = np.asarray(self.direction, np.float64).reshape(3)
+        self.direction = d / np.linalg.norm(d)
+        self.irradiance = np.asarray(self.irradiance, np.float64).reshape(3)
+
+    def to_sh(self, order: int) -> np.ndarray:
+        """SH of the light's radiance (a delta, or a uniform disc when ``angle_deg`` > 0), (3, n*n)."""
+        half = np.radians(self.angle_deg) / 2.0
+        if half <= 0.0:
+            zh = np.array([np.sqrt((2 * l + 1) / (4 * np.pi)) for l in range(order)])
+        else:
+            solid = 2.0 * np.pi * (1.0 - np.cos(half))
+            zh = sh.cap_zh(half, order) / solid
+        coeffs = sh.zh_to_sh(self.direction, zh)
+        return self.irradiance[:, None] * coeffs[None, :]
+
+
+@dataclass
+class SphereLight:
+    """A spherical area light of uniform radiance.
+
+    Attributes:
+        position: centre, world space (3,).
+        radius: radius in scene units.
+        radiance: RGB radiance emitted from its surface.
+        path: USD prim path or None.
+    """
+
+    position: np.ndarray
+    radius: float
+    radiance: np.ndarray
+    path: str | None = None
+
+    def __post_init__(self):
+        self.position = np.asarray(self.position, np.float64).reshape(3)
+        self.radiance = np.asarray(self.radiance, np.float64).reshape(3)
+        if not self.radius > 0.0:
+            raise ValueError(f"sphere light {self.path or '<array>'}: radius must be > 0, got {self.radius}")
+
+    def to_sh_at(self, point, order: int) -> np.ndarray:
+        """SH of the light's radiance as seen from ``point`` (a cap), shape (3, n*n)."""
+        offset = self.position - np.asarray(point, np.float64)
+        dist = np.linalg.norm(offset)
+        half = np.pi if dist <= self.radius else np.arcsin(self.radius / dist)
+        coeffs = sh.zh_to_sh(offset / max(dist, 1e-300), sh.cap_zh(half, order))
+        return self.radiance[:, None] * coeffs[None, :]
+
+
+def lights_to_sh(lights, order: int) -> np.ndarray:
+    """Sum the SH of all distant lights (environments and distant lights), shape (3, n*n).
+
+    Sphere lights are local (their SH depends on the receiver) and are skipped here.
+    """
+    total = np.zeros((3, order * order))
+    for light in lights:
+        if isinstance(light, Environment):
+            total += light.to_sh(order)
+        elif isinstance(light, DistantLight):
+            total += light.to_sh(order)
+    return total

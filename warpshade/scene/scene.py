@@ -1,0 +1,374 @@
+"""The static scene description and the per-frame state.
+
+:class:`Scene` holds everything that does not change per frame: meshes (rest pose, topology,
+UVs, albedo), skeletons and skin bindings, lights, camera and the time range. It is built by
+:func:`warpshade.load_usd` (or directly from arrays with :meth:`Scene.from_meshes`, which is
+what tests and generators use) and contains only NumPy data, so it never depends on pxr.
+
+:meth:`Scene.evaluate` produces a :class:`FrameState`: what changes per frame (deformed points
+and normals in world space, per-mesh transforms, joint transforms) as Warp arrays on the chosen
+device. Per-frame animation is stored sampled at ``scene.frames`` (the stage's time codes).
+
+All shaded meshes are concatenated in scene order: mesh ``k`` owns vertices
+``mesh.vertex_offset : mesh.vertex_offset + mesh.vertex_count`` of every per-vertex array.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+import numpy as np
+
+__all__ = ["Mesh", "Skeleton", "SkinBinding", "Camera", "Scene", "FrameState", "ANIMATION_KINDS"]
+
+#: How a mesh moves: not at all, by a per-frame rigid transform, by per-frame points, by skinning.
+ANIMATION_KINDS = ("static", "rigid", "deforming", "skinned")
+
+
+@dataclass
+class SkinBinding:
+    """Linear-blend-skinning weights of one mesh.
+
+    Attributes:
+        skeleton: index into ``Scene.skeletons``.
+        joint_indices: per-vertex influencing joints, shape (vertex_count, K), int32, indices
+            into the skeleton's joint order.
+        joint_weights: matching weights, shape (vertex_count, K), float32, rows sum to 1.
+        geom_bind_transform: the mesh's bind-time local-to-skeleton-space transform (4, 4),
+            float64, row-vector convention (``p_skel = [p, 1] @ M``) as in USD.
+    """
+
+    skeleton: int
+    joint_indices: np.ndarray
+    joint_weights: np.ndarray
+    geom_bind_transform: np.ndarray = field(default_factory=lambda: np.eye(4))
+
+
+@dataclass
+class Skeleton:
+    """A joint hierarchy with its animation sampled at the scene's frames.
+
+    Matrices follow USD's row-vector convention: a point transforms as ``[p, 1] @ M`` and
+    ``world = local @ parent_world``.
+
+    Attributes:
+        path: prim path of the UsdSkel.Skeleton.
+        joint_names: joint paths in skeleton order, length J.
+        parents: parent index per joint, shape (J,), int, -1 for roots.
+        bind_transforms: skeleton-space bind transforms, shape (J, 4, 4), float64.
+        rest_transforms: joint-local rest transforms, shape (J, 4, 4), float64.
+        local_transforms: joint-local animated transforms per frame, shape (T, J, 4, 4).
+        skel_to_world: the skeleton prim's local-to-world transform per frame, shape (T, 4, 4).
+    """
+
+    path: str
+    joint_names: list[str]
+    parents: np.ndarray
+    bind_transforms: np.ndarray
+    rest_transforms: np.ndarray
+    local_transforms: np.ndarray
+    skel_to_world: np.ndarray
+
+    @property
+    def joint_count(self) -> int:
+        return len(self.joint_names)
+
+    def skel_space_transforms(self, frame_index: int) -> np.ndarray:
+        """Joint transforms in skeleton space at a frame, shape (J, 4, 4), float64."""
+        local = self.local_transforms[frame_index]
+        out = np.empty_like(local)
+        for j in range(self.joint_count):  # joints are ordered parents-first (USD requirement)
+            p = int(self.parents[j])
+            out[j] = local[j] if p < 0 else local[j] @ out[p]
+        return out
+
+    def skinning_transforms(self, frame_index: int) -> np.ndarray:
+        """``inverse(bind) @ skel_space`` per joint at a frame, shape (J, 4, 4), float64."""
+        return np.linalg.inv(self.bind_transforms) @ self.skel_space_transforms(frame_index)
+
+    def joint_angles(self, frame_index: int) -> np.ndarray:
+        """Joint rotations relative to the rest pose as rotation vectors, shape (J, 3), radians.
+
+        These are the per-frame pose parameters the data-driven methods learn from.
+        """
+        from scipy.spatial.transform import Rotation
+
+        rest = self.rest_transforms[:, :3, :3]
+        cur = self.local_transforms[frame_index][:, :3, :3]
+
+        def _rot(m):
+            # strip scale; row-vector matrices are the transpose of column-vector rotations
+            u, _, vt = np.linalg.svd(m)
+            return u @ vt
+
+        rel = np.stack([_rot(cur[j]) @ _rot(rest[j]).T for j in range(self.joint_count)])
+        return Rotation.from_matrix(np.transpose(rel, (0, 2, 1))).as_rotvec()
+
+
+@dataclass
+class Mesh:
+    """One triangulated mesh prim.
+
+    Attributes:
+        path: USD prim path (or a name for meshes built from arrays).
+        points: rest/authored points in the mesh's local space, shape (V, 3), float64.
+        faces: triangles, shape (F, 3), int32, indices into this mesh's points.
+        animation: one of :data:`ANIMATION_KINDS`.
+        transforms: local-to-world per frame, shape (T, 4, 4) float64 (row-vector convention),
+            or (1, 4, 4) when constant.
+        point_samples: per-frame local points for ``"deforming"`` meshes, shape (T, V, 3).
+        normals: authored normals (V, 3) or None (then area-weighted normals are computed).
+        uvs: per-vertex UVs (V, 2) or None.
+        albedo: per-vertex diffuse albedo, shape (V, 3), float32, linear RGB.
+        skin: the :class:`SkinBinding` of a ``"skinned"`` mesh.
+        vertex_offset: index of this mesh's first vertex in the scene's concatenated arrays.
+    """
+
+    path: str
+    points: np.ndarray
+    faces: np.ndarray
+    animation: str = "static"
+    transforms: np.ndarray = field(default_factory=lambda: np.eye(4)[None])
+    point_samples: np.ndarray | None = None
+    normals: np.ndarray | None = None
+    uvs: np.ndarray | None = None
+    albedo: np.ndarray | None = None
+    skin: SkinBinding | None = None
+    vertex_offset: int = 0
+
+    def __post_init__(self):
+        self.points = np.asarray(self.points, dtype=np.float64).reshape(-1, 3)
+        self.faces = np.asarray(self.faces, dtype=np.int32).reshape(-1, 3)
+        self.transforms = np.asarray(self.transforms, dtype=np.float64).reshape(-1, 4, 4)
+        if self.animation not in ANIMATION_KINDS:
+            raise ValueError(f"mesh {self.path}: unknown animation kind {self.animation!r}")
+        if self.albedo is None:
+            self.albedo = np.full((self.vertex_count, 3), 0.8, dtype=np.float32)
+        else:
+            a = np.asarray(self.albedo, dtype=np.float32)
+            self.albedo = np.broadcast_to(a.reshape(-1, 3) if a.size != 3 else a.reshape(1, 3), (self.vertex_count, 3)).copy()
+
+    @property
+    def vertex_count(self) -> int:
+        return int(self.points.shape[0])
+
+    @property
+    def triangle_count(self) -> int:
+        return int(self.faces.shape[0])
+
+
+@dataclass
+class Camera:
+    """A pinhole camera (world space, y-up image).
+
+    Attributes:
+        position: eye position (3,).
+        target: point looked at (3,).
+        up: up vector (3,).
+        vertical_fov: vertical field of view in degrees.
+        path: USD prim path, or None for a camera framed automatically.
+    """
+
+    position: np.ndarray
+    target: np.ndarray
+    up: np.ndarray
+    vertical_fov: float = 40.0
+    path: str | None = None
+
+
+@dataclass
+class FrameState:
+    """What changes per frame, as Warp arrays on one device.
+
+    Attributes:
+        frame: the time code.
+        frame_index: index of ``frame`` in ``scene.frames``.
+        points: world-space vertex positions, wp.array(vec3), shape (vertex_count,).
+        normals: world-space unit vertex normals, wp.array(vec3), shape (vertex_count,).
+        mesh_transforms: local-to-world per mesh, shape (mesh_count, 4, 4), float64 (NumPy).
+        joint_transforms: skeleton-space joint transforms per skeleton, list of (J, 4, 4).
+        extras: method-specific per-frame data (sphere centres, lighting coefficients, ...).
+    """
+
+    frame: float
+    frame_index: int
+    points: Any
+    normals: Any
+    mesh_transforms: np.ndarray
+    joint_transforms: list
+    device: Any = None
+    extras: dict = field(default_factory=dict)
+
+
+class Scene:
+    """Static description of an animated scene (see module docstring).
+
+    Attributes:
+        meshes: the shaded meshes, in scene order.
+        skeletons: UsdSkel skeletons referenced by skinned meshes.
+        lights: light objects from :mod:`warpshade.scene.lighting`.
+        camera: a :class:`Camera` or None.
+        frames: time codes, shape (T,), float64.
+        fps: time codes per second.
+        up_axis: "Y" or "Z".
+        source: path of the file the scene was loaded from, or None.
+    """
+
+    def __init__(
+        self,
+        meshes: Sequence[Mesh],
+        frames: Sequence[float] = (0.0,),
+        fps: float = 24.0,
+        skeletons: Sequence[Skeleton] = (),
+        lights: Sequence[Any] = (),
+        camera: Camera | None = None,
+        up_axis: str = "Z",
+        source: str | None = None,
+    ):
+        if len(meshes) == 0:
+            raise ValueError(f"scene {source or '<arrays>'}: contains no meshes")
+        self.meshes = list(meshes)
+        self.skeletons = list(skeletons)
+        self.lights = list(lights)
+        self.camera = camera
+        self.frames = np.asarray(frames, dtype=np.float64).reshape(-1)
+        self.fps = float(fps)
+        self.up_axis = up_axis
+        self.source = source
+        offset = 0
+        for mesh in self.meshes:
+            mesh.vertex_offset = offset
+            offset += mesh.vertex_count
+            t = self.frames.shape[0]
+            if mesh.transforms.shape[0] not in (1, t):
+                raise ValueError(
+                    f"mesh {mesh.path}: {mesh.transforms.shape[0]} transforms for {t} frames"
+                )
+            if mesh.animation == "deforming":
+                if mesh.point_samples is None or mesh.point_samples.shape[:2] != (t, mesh.vertex_count):
+                    raise ValueError(f"mesh {mesh.path}: deforming mesh needs point_samples of shape ({t}, {mesh.vertex_count}, 3)")
+            if mesh.animation == "skinned" and mesh.skin is None:
+                raise ValueError(f"mesh {mesh.path}: skinned mesh without a skin binding")
+        self._faces = np.concatenate([m.faces + m.vertex_offset for m in self.meshes]).astype(np.int32)
+        self._device_cache: dict = {}
+
+    # ---- construction -------------------------------------------------------------------
+    @classmethod
+    def from_meshes(cls, meshes: Sequence[Mesh], **kwargs) -> "Scene":
+        """Build a scene directly from :class:`Mesh` objects (no USD involved)."""
+        return cls(meshes, **kwargs)
+
+    # ---- static queries -----------------------------------------------------------------
+    @property
+    def vertex_count(self) -> int:
+        """Number of vertices of all shaded meshes, concatenated in scene order."""
+        return int(sum(m.vertex_count for m in self.meshes))
+
+    @property
+    def triangle_count(self) -> int:
+        return int(self._faces.shape[0])
+
+    @property
+    def faces(self) -> np.ndarray:
+        """All triangles with scene-global vertex indices, shape (F, 3), int32."""
+        return self._faces
+
+    @property
+    def albedo(self) -> np.ndarray:
+        """Per-vertex diffuse albedo, shape (vertex_count, 3), float32."""
+        return np.concatenate([m.albedo for m in self.meshes]).astype(np.float32)
+
+    @property
+    def is_static(self) -> bool:
+        """True when no mesh moves (static PRT applies)."""
+        return all(m.animation == "static" or (m.animation == "rigid" and m.transforms.shape[0] == 1) for m in self.meshes)
+
+    def frame_index(self, frame: float) -> int:
+        """Index of a time code in ``frames``; raises ValueError naming the valid range."""
+        idx = int(np.argmin(np.abs(self.frames - float(frame))))
+        if abs(self.frames[idx] - float(frame)) > 1e-6:
+            raise ValueError(
+                f"scene {self.source or '<arrays>'}: frame {frame} is not one of the sampled time codes "
+                f"({self.frames[0]:g}..{self.frames[-1]:g}, {len(self.frames)} frames)"
+            )
+        return idx
+
+    def points_at(self, frame: float) -> np.ndarray:
+        """World-space points at a time code, shape (vertex_count, 3), float64 (reference path)."""
+        t = self.frame_index(frame)
+        parts = []
+        for mesh in self.meshes:
+            xf = mesh.transforms[min(t, mesh.transforms.shape[0] - 1)]
+            if mesh.animation == "deforming":
+                local = mesh.point_samples[t]
+            elif mesh.animation == "skinned":
+                from ..geometry.skinning import skin_points_reference
+
+                skel = self.skeletons[mesh.skin.skeleton]
+                local = skin_points_reference(
+                    mesh.points, mesh.skin, skel.skinning_transforms(t)
+                )
+                xf = skel.skel_to_world[min(t, skel.skel_to_world.shape[0] - 1)]
+            else:
+                local = mesh.points
+            parts.append(local @ xf[:3, :3] + xf[3, :3])
+        return np.concatenate(parts)
+
+    def bounds(self, frame: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Axis-aligned bounds (lo, hi) of all points at a frame (default: first frame)."""
+        pts = self.points_at(self.frames[0] if frame is None else frame)
+        return pts.min(axis=0), pts.max(axis=0)
+
+    # ---- per-frame evaluation -----------------------------------------------------------
+    def evaluate(self, frame: float, device=None) -> FrameState:
+        """Evaluate deformed world-space points and normals at a time code on a Warp device.
+
+        Static and rigid meshes are transformed, deforming meshes read their point samples,
+        skinned meshes go through the linear-blend-skinning kernel; normals are the authored
+        normals transformed (static/rigid meshes with normals) or recomputed, area-weighted,
+        from the deformed points.
+
+        Returns:
+            :class:`FrameState` with ``points`` and ``normals`` of shape (vertex_count,) vec3.
+        """
+        from .._wp import resolve_device, wp
+        from ..geometry.normals import compute_vertex_normals
+
+        dev = resolve_device(device)
+        t = self.frame_index(frame)
+        points = self.points_at(frame).astype(np.float32)
+        pts_wp = wp.array(points, dtype=wp.vec3, device=dev)
+        key = ("faces", str(dev))
+        if key not in self._device_cache:
+            self._device_cache[key] = wp.array(self._faces, dtype=wp.int32, device=dev)
+        faces_wp = self._device_cache[key]
+        nrm_wp = wp.empty(self.vertex_count, dtype=wp.vec3, device=dev)
+        compute_vertex_normals(pts_wp, faces_wp, nrm_wp)
+        normals = None
+        if any(m.normals is not None and m.animation in ("static", "rigid") for m in self.meshes):
+            normals = nrm_wp.numpy()
+            for mesh in self.meshes:
+                if mesh.normals is not None and mesh.animation in ("static", "rigid"):
+                    xf = mesh.transforms[min(t, mesh.transforms.shape[0] - 1)]
+                    n = mesh.normals @ np.linalg.inv(xf[:3, :3]).T
+                    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
+                    normals[mesh.vertex_offset : mesh.vertex_offset + mesh.vertex_count] = n
+            nrm_wp = wp.array(normals.astype(np.float32), dtype=wp.vec3, device=dev)
+        mesh_xf = np.stack([m.transforms[min(t, m.transforms.shape[0] - 1)] for m in self.meshes])
+        joints = [s.skel_space_transforms(t) for s in self.skeletons]
+        return FrameState(
+            frame=float(self.frames[t]),
+            frame_index=t,
+            points=pts_wp,
+            normals=nrm_wp,
+            mesh_transforms=mesh_xf,
+            joint_transforms=joints,
+            device=dev,
+        )
+
+    def __repr__(self) -> str:
+        return (
+            f"Scene(source={self.source!r}, meshes={len(self.meshes)}, vertices={self.vertex_count}, "
+            f"triangles={self.triangle_count}, frames={len(self.frames)}, lights={len(self.lights)})"
+        )
