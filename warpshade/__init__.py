@@ -11,4 +11,13 @@ from __future__ import annotations
 
 __version__ = "0.1.0"
 
-__all__ = ["__version__"]
+__all__ = ["__version__", "load_usd", "load_scene"]
+
+
+def __getattr__(name):
+    # Loading USD pulls in pxr and Warp; keep ``import warpshade`` light until it is used.
+    if name in ("load_usd", "load_scene"):
+        from .io import usd
+
+        return getattr(usd, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -9,6 +9,14 @@ Conventions:
   directions (``d_world = to_world @ d_map``); rotating an environment over time changes only
   ``to_world``.
 * SH lighting coefficients have shape (3, n*n): one row per RGB channel, in the world frame.
+
+USD dome lights (UsdLux.DomeLight / DomeLight_1) use the OpenEXR lat-long convention in the
+dome's local frame: +Y is the top pole (image row 0), latitude 0 / longitude 0 is +Z,
+longitude +pi/2 is +X, and longitude runs from +pi at the left image edge to -pi at the right
+edge. Seen from inside, that layout is the mirror image of the map frame above, so
+:meth:`Environment.from_usd_dome` flips the texture's columns and sets
+``to_world = dome_to_world @ USD_DOME_FROM_MAP`` (a proper rotation); see
+:func:`usd_dome_texel_directions` for the file layout written out explicitly.
 """
 
 from __future__ import annotations
@@ -19,7 +27,73 @@ import numpy as np
 
 from ..basis import quadrature, sh
 
-__all__ = ["Environment", "DistantLight", "SphereLight", "up_rotation", "lights_to_sh"]
+__all__ = [
+    "Environment",
+    "DistantLight",
+    "SphereLight",
+    "up_rotation",
+    "lights_to_sh",
+    "sky_radiance",
+    "USD_DOME_FROM_MAP",
+    "usd_dome_texel_directions",
+]
+
+#: Rotation taking map-frame directions of a column-flipped USD dome texture to the dome's local
+#: frame: map +x -> dome -Z, map +y -> dome -X, map +z (pole) -> dome +Y. With the columns
+#: flipped, map azimuth ``phi`` equals USD longitude ``+ pi``.
+USD_DOME_FROM_MAP = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, 1.0], [-1.0, 0.0, 0.0]])
+
+
+def usd_dome_texel_directions(height: int, width: int) -> np.ndarray:
+    """Dome-local directions of the pixel centres of a USD lat-long texture, shape (H, W, 3).
+
+    Straight from the OpenEXR convention UsdLux documents: pixel (0, 0) has latitude +pi/2 and
+    longitude +pi, the last pixel latitude -pi/2 and longitude -pi; a direction at
+    (lat, lon) is ``(cos(lat) sin(lon), sin(lat), cos(lat) cos(lon))`` (+Y up, lon 0 = +Z,
+    lon pi/2 = +X). Used to write dome textures and as an independent check of
+    :meth:`Environment.from_usd_dome`.
+    """
+    lat = np.pi / 2.0 - (np.arange(height) + 0.5) * (np.pi / height)
+    lon = np.pi - (np.arange(width) + 0.5) * (2.0 * np.pi / width)
+    cl = np.cos(lat)[:, None]
+    return np.stack(
+        [
+            cl * np.sin(lon)[None, :],
+            np.broadcast_to(np.sin(lat)[:, None], (height, width)),
+            cl * np.cos(lon)[None, :],
+        ],
+        axis=-1,
+    )
+
+
+def sky_radiance(
+    directions,
+    sun_direction=(0.4, 0.3, 0.866),
+    sun_radiance=(40.0, 36.0, 30.0),
+    sun_angle_deg: float = 12.0,
+    zenith=(0.35, 0.55, 1.0),
+    horizon=(1.0, 0.95, 0.85),
+    ground=(0.25, 0.22, 0.2),
+    up=(0.0, 0.0, 1.0),
+) -> np.ndarray:
+    """Radiance of a smooth procedural sky with a soft sun disc, shape (..., 3), float64.
+
+    The sky blends from ``horizon`` to ``zenith`` with the square root of the elevation sine,
+    is ``ground`` below the horizon, and adds a sun disc of half-angle ``sun_angle_deg`` whose
+    radiance falls off smoothly to its edge. Directions and ``up`` share one frame.
+    """
+    d = np.asarray(directions, np.float64)
+    d = d / np.linalg.norm(d, axis=-1, keepdims=True)
+    u = np.asarray(up, np.float64)
+    z = (d @ (u / np.linalg.norm(u)))[..., None]
+    t = np.clip(z, 0.0, 1.0) ** 0.5
+    img = np.where(z >= 0.0, (1 - t) * np.asarray(horizon) + t * np.asarray(zenith), np.asarray(ground))
+    s = np.asarray(sun_direction, np.float64)
+    s = s / np.linalg.norm(s)
+    cosang = d @ s
+    edge = np.cos(np.radians(sun_angle_deg))
+    w = np.clip((cosang - edge) / (1.0 - edge), 0.0, 1.0) ** 0.5
+    return img + w[..., None] * np.asarray(sun_radiance)
 
 
 def up_rotation(up_axis: str) -> np.ndarray:
@@ -80,20 +154,35 @@ class Environment:
     ) -> "Environment":
         """A smooth procedural sky with a soft sun disc (map frame z-up), for demos and tests.
 
-        The sun is a disc of half-angle ``sun_angle_deg`` with a smooth edge; the sky blends
-        from ``horizon`` to ``zenith`` with elevation and is ``ground`` below the horizon.
+        See :func:`sky_radiance`; ``sun_direction`` is given in the map frame.
         """
-        d = quadrature.latlong_directions(height, width)
-        z = d[..., 2:3]
-        t = np.clip(z, 0.0, 1.0) ** 0.5
-        img = np.where(z >= 0.0, (1 - t) * np.asarray(horizon) + t * np.asarray(zenith), np.asarray(ground))
-        s = np.asarray(sun_direction, np.float64)
-        s = s / np.linalg.norm(s)
-        cosang = d @ s
-        edge = np.cos(np.radians(sun_angle_deg))
-        w = np.clip((cosang - edge) / (1.0 - edge), 0.0, 1.0) ** 0.5
-        img = img + w[..., None] * np.asarray(sun_radiance)
+        img = sky_radiance(
+            quadrature.latlong_directions(height, width),
+            sun_direction=sun_direction,
+            sun_radiance=sun_radiance,
+            sun_angle_deg=sun_angle_deg,
+            zenith=zenith,
+            horizon=horizon,
+            ground=ground,
+        )
         return cls(img.astype(np.float32), np.eye(3) if to_world is None else to_world)
+
+    @classmethod
+    def from_usd_dome(cls, texture, dome_to_world=None, path: str | None = None) -> "Environment":
+        """An environment from a UsdLux dome texture in its file layout (OpenEXR lat-long).
+
+        Args:
+            texture: radiance as stored in the file, shape (H, W, 3), row 0 = dome +Y pole,
+                left column = longitude +pi (see :func:`usd_dome_texel_directions`).
+            dome_to_world: rotation (3, 3) taking dome-local directions to world directions
+                (column-vector convention: ``d_world = dome_to_world @ d_dome``); identity when
+                None. For a USD prim this is the transpose of the rotation part of its
+                row-vector local-to-world matrix, with any DomeLight_1 pole-axis offset.
+            path: the texture file, for messages.
+        """
+        img = np.asarray(texture, np.float32)[:, ::-1]
+        rot = np.eye(3) if dome_to_world is None else np.asarray(dome_to_world, np.float64)
+        return cls(np.ascontiguousarray(img), rot @ USD_DOME_FROM_MAP, path)
 
     def rotated(self, rotation) -> "Environment":
         """The same environment rotated in world space by ``rotation`` (3, 3)."""
@@ -141,8 +230,8 @@ class Environment:
         """Project the environment onto SH in the world frame, shape (3, order**2), float64.
 
         Each texel is weighted by its exact solid angle (:func:`quadrature.latlong`); the
-        texel-centre value is used (the piecewise-constant image), so a constant map projects
-        exactly. ``window`` optionally applies :func:`warpshade.basis.sh.window` (e.g. to
+        texel-centre value is used (the piecewise-constant image), so the DC term of a constant
+        map is exact and smooth maps converge quadratically in the texel size. ``window`` optionally applies :func:`warpshade.basis.sh.window` (e.g. to
         reduce ringing of a sharp sun).
         """
         q = quadrature.latlong(self.height, self.width)

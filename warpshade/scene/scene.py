@@ -20,7 +20,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-__all__ = ["Mesh", "Skeleton", "SkinBinding", "Camera", "Scene", "FrameState", "ANIMATION_KINDS"]
+__all__ = ["Mesh", "Skeleton", "SkinBinding", "Camera", "Scene", "FrameState", "ANIMATION_KINDS", "ground_plane"]
 
 #: How a mesh moves: not at all, by a per-frame rigid transform, by per-frame points, by skinning.
 ANIMATION_KINDS = ("static", "rigid", "deforming", "skinned")
@@ -123,6 +123,7 @@ class Mesh:
         albedo: per-vertex diffuse albedo, shape (V, 3), float32, linear RGB.
         skin: the :class:`SkinBinding` of a ``"skinned"`` mesh.
         vertex_offset: index of this mesh's first vertex in the scene's concatenated arrays.
+        dropped_face_count: zero-area triangles removed when the mesh was loaded.
     """
 
     path: str
@@ -136,6 +137,7 @@ class Mesh:
     albedo: np.ndarray | None = None
     skin: SkinBinding | None = None
     vertex_offset: int = 0
+    dropped_face_count: int = 0
 
     def __post_init__(self):
         self.points = np.asarray(self.points, dtype=np.float64).reshape(-1, 3)
@@ -204,6 +206,9 @@ class FrameState:
 class Scene:
     """Static description of an animated scene (see module docstring).
 
+    A scene is treated as immutable once built: :meth:`evaluate` caches its static device
+    arrays (faces, rest points, skin weights, authored normals) per device on first use.
+
     Attributes:
         meshes: the shaded meshes, in scene order.
         skeletons: UsdSkel skeletons referenced by skinned meshes.
@@ -213,6 +218,8 @@ class Scene:
         fps: time codes per second.
         up_axis: "Y" or "Z".
         source: path of the file the scene was loaded from, or None.
+        skipped: ``(prim path, reason)`` for every prim the loader saw but did not turn into a
+            mesh or light (guide/proxy purpose, invisible, unsupported light type, ...).
     """
 
     def __init__(
@@ -225,6 +232,7 @@ class Scene:
         camera: Camera | None = None,
         up_axis: str = "Z",
         source: str | None = None,
+        skipped: Sequence[tuple[str, str]] = (),
     ):
         if len(meshes) == 0:
             raise ValueError(f"scene {source or '<arrays>'}: contains no meshes")
@@ -236,11 +244,20 @@ class Scene:
         self.fps = float(fps)
         self.up_axis = up_axis
         self.source = source
+        self.skipped = list(skipped)
+        if self.frames.shape[0] == 0:
+            raise ValueError(f"scene {source or '<arrays>'}: needs at least one frame")
+        t = self.frames.shape[0]
+        for skel in self.skeletons:
+            j = skel.joint_count
+            if skel.local_transforms.shape[1:] != (j, 4, 4) or skel.local_transforms.shape[0] not in (1, t):
+                raise ValueError(
+                    f"skeleton {skel.path}: local_transforms must be ({t}, {j}, 4, 4), got {skel.local_transforms.shape}"
+                )
         offset = 0
         for mesh in self.meshes:
             mesh.vertex_offset = offset
             offset += mesh.vertex_count
-            t = self.frames.shape[0]
             if mesh.transforms.shape[0] not in (1, t):
                 raise ValueError(
                     f"mesh {mesh.path}: {mesh.transforms.shape[0]} transforms for {t} frames"
@@ -248,16 +265,69 @@ class Scene:
             if mesh.animation == "deforming":
                 if mesh.point_samples is None or mesh.point_samples.shape[:2] != (t, mesh.vertex_count):
                     raise ValueError(f"mesh {mesh.path}: deforming mesh needs point_samples of shape ({t}, {mesh.vertex_count}, 3)")
-            if mesh.animation == "skinned" and mesh.skin is None:
-                raise ValueError(f"mesh {mesh.path}: skinned mesh without a skin binding")
+            if mesh.animation == "skinned":
+                if mesh.skin is None:
+                    raise ValueError(f"mesh {mesh.path}: skinned mesh without a skin binding")
+                self._check_skin(mesh)
+            if mesh.faces.size and (mesh.faces.min() < 0 or mesh.faces.max() >= mesh.vertex_count):
+                raise ValueError(
+                    f"mesh {mesh.path}: face indices must lie in 0..{mesh.vertex_count - 1}, "
+                    f"found {int(mesh.faces.min())}..{int(mesh.faces.max())}"
+                )
         self._faces = np.concatenate([m.faces + m.vertex_offset for m in self.meshes]).astype(np.int32)
         self._device_cache: dict = {}
+
+    def _check_skin(self, mesh: Mesh) -> None:
+        skin = mesh.skin
+        if not 0 <= skin.skeleton < len(self.skeletons):
+            raise ValueError(f"mesh {mesh.path}: skin refers to skeleton {skin.skeleton}, scene has {len(self.skeletons)}")
+        skel = self.skeletons[skin.skeleton]
+        idx = np.asarray(skin.joint_indices)
+        w = np.asarray(skin.joint_weights)
+        if idx.shape != w.shape or idx.ndim != 2 or idx.shape[0] != mesh.vertex_count:
+            raise ValueError(
+                f"mesh {mesh.path}: joint_indices {idx.shape} and joint_weights {w.shape} must both be "
+                f"({mesh.vertex_count}, K)"
+            )
+        if idx.size and (idx.min() < 0 or idx.max() >= skel.joint_count):
+            raise ValueError(
+                f"mesh {mesh.path}: joint indices {int(idx.min())}..{int(idx.max())} do not match skeleton "
+                f"{skel.path} with {skel.joint_count} joints"
+            )
 
     # ---- construction -------------------------------------------------------------------
     @classmethod
     def from_meshes(cls, meshes: Sequence[Mesh], **kwargs) -> "Scene":
         """Build a scene directly from :class:`Mesh` objects (no USD involved)."""
         return cls(meshes, **kwargs)
+
+    def with_ground_plane(
+        self,
+        resolution: int = 40,
+        size_factor: float = 3.0,
+        albedo=(0.8, 0.8, 0.8),
+        path: str = "/ground_plane",
+    ) -> "Scene":
+        """A new scene with a static square grid under everything, normal along the up axis.
+
+        The plane lies at the lowest point of the scene over all frames (along ``up_axis``),
+        is centred under the scene's horizontal centre and is ``size_factor`` times the
+        largest horizontal extent wide; it has ``resolution`` x ``resolution`` vertices so
+        per-vertex shadows on it are resolved. Meshes are shared with this scene, not copied.
+        """
+        lo, hi = self.bounds_over_frames()
+        plane = ground_plane(lo, hi, self.up_axis, resolution=resolution, size_factor=size_factor, albedo=albedo, path=path)
+        return Scene(
+            self.meshes + [plane],
+            frames=self.frames,
+            fps=self.fps,
+            skeletons=self.skeletons,
+            lights=self.lights,
+            camera=self.camera,
+            up_axis=self.up_axis,
+            source=self.source,
+            skipped=self.skipped,
+        )
 
     # ---- static queries -----------------------------------------------------------------
     @property
@@ -280,6 +350,11 @@ class Scene:
         return np.concatenate([m.albedo for m in self.meshes]).astype(np.float32)
 
     @property
+    def dropped_face_count(self) -> int:
+        """Zero-area triangles removed from all meshes at load time."""
+        return int(sum(m.dropped_face_count for m in self.meshes))
+
+    @property
     def is_static(self) -> bool:
         """True when no mesh moves (static PRT applies)."""
         return all(m.animation == "static" or (m.animation == "rigid" and m.transforms.shape[0] == 1) for m in self.meshes)
@@ -294,12 +369,19 @@ class Scene:
             )
         return idx
 
+    def _mesh_transform(self, mesh: Mesh, t: int) -> np.ndarray:
+        """Row-vector matrix taking the mesh's (skinned, if skinned) local points to world."""
+        if mesh.animation == "skinned":
+            skel = self.skeletons[mesh.skin.skeleton]
+            return skel.skel_to_world[min(t, skel.skel_to_world.shape[0] - 1)]
+        return mesh.transforms[min(t, mesh.transforms.shape[0] - 1)]
+
     def points_at(self, frame: float) -> np.ndarray:
         """World-space points at a time code, shape (vertex_count, 3), float64 (reference path)."""
         t = self.frame_index(frame)
         parts = []
         for mesh in self.meshes:
-            xf = mesh.transforms[min(t, mesh.transforms.shape[0] - 1)]
+            xf = self._mesh_transform(mesh, t)
             if mesh.animation == "deforming":
                 local = mesh.point_samples[t]
             elif mesh.animation == "skinned":
@@ -307,56 +389,133 @@ class Scene:
 
                 skel = self.skeletons[mesh.skin.skeleton]
                 local = skin_points_reference(
-                    mesh.points, mesh.skin, skel.skinning_transforms(t)
+                    mesh.points, mesh.skin, skel.skinning_transforms(min(t, skel.local_transforms.shape[0] - 1))
                 )
-                xf = skel.skel_to_world[min(t, skel.skel_to_world.shape[0] - 1)]
             else:
                 local = mesh.points
             parts.append(local @ xf[:3, :3] + xf[3, :3])
         return np.concatenate(parts)
+
+    def normals_at(self, frame: float) -> np.ndarray:
+        """World-space unit normals at a time code, shape (vertex_count, 3), float64 (reference).
+
+        Area-weighted normals of :meth:`points_at`, except static/rigid meshes with authored
+        normals, whose normals are transformed by the inverse transpose of their transform.
+        """
+        from ..geometry.normals import vertex_normals_reference
+
+        t = self.frame_index(frame)
+        normals = vertex_normals_reference(self.points_at(frame), self._faces)
+        for mesh in self.meshes:
+            if mesh.normals is not None and mesh.animation in ("static", "rigid"):
+                xf = self._mesh_transform(mesh, t)
+                n = np.asarray(mesh.normals, np.float64) @ np.linalg.inv(xf[:3, :3]).T
+                n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
+                normals[mesh.vertex_offset : mesh.vertex_offset + mesh.vertex_count] = n
+        return normals
 
     def bounds(self, frame: float | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Axis-aligned bounds (lo, hi) of all points at a frame (default: first frame)."""
         pts = self.points_at(self.frames[0] if frame is None else frame)
         return pts.min(axis=0), pts.max(axis=0)
 
+    def bounds_over_frames(self) -> tuple[np.ndarray, np.ndarray]:
+        """Axis-aligned bounds (lo, hi) of all points over every frame, float64 (3,) each."""
+        lo = np.full(3, np.inf)
+        hi = np.full(3, -np.inf)
+        frames = self.frames[:1] if self.is_static else self.frames
+        for f in frames:
+            a, b = self.bounds(f)
+            lo, hi = np.minimum(lo, a), np.maximum(hi, b)
+        return lo, hi
+
     # ---- per-frame evaluation -----------------------------------------------------------
+    def _device_data(self, dev) -> dict:
+        """Static arrays of this scene on one device, built on first use and kept."""
+        from .._wp import wp
+
+        key = str(dev)
+        data = self._device_cache.get(key)
+        if data is not None:
+            return data
+        data = {"faces": wp.array(self._faces, dtype=wp.int32, device=dev), "meshes": []}
+        for mesh in self.meshes:
+            entry = {}
+            if mesh.animation == "skinned":
+                bind = np.asarray(mesh.skin.geom_bind_transform, np.float64)
+                bound = mesh.points @ bind[:3, :3] + bind[3, :3]
+                entry["points"] = wp.array(bound.astype(np.float32), dtype=wp.vec3, device=dev)
+                entry["joint_indices"] = wp.array(np.asarray(mesh.skin.joint_indices, np.int32), dtype=wp.int32, device=dev)
+                entry["joint_weights"] = wp.array(np.asarray(mesh.skin.joint_weights, np.float32), dtype=wp.float32, device=dev)
+            elif mesh.animation == "deforming":
+                samples = np.asarray(mesh.point_samples, np.float32).reshape(-1, 3)
+                if samples.nbytes <= _DEVICE_SAMPLE_BYTES:
+                    entry["samples"] = wp.array(samples, dtype=wp.vec3, device=dev)
+            else:
+                entry["points"] = wp.array(mesh.points.astype(np.float32), dtype=wp.vec3, device=dev)
+            if mesh.normals is not None and mesh.animation in ("static", "rigid"):
+                entry["normals"] = wp.array(np.asarray(mesh.normals, np.float32), dtype=wp.vec3, device=dev)
+            data["meshes"].append(entry)
+        self._device_cache[key] = data
+        return data
+
     def evaluate(self, frame: float, device=None) -> FrameState:
         """Evaluate deformed world-space points and normals at a time code on a Warp device.
 
-        Static and rigid meshes are transformed, deforming meshes read their point samples,
-        skinned meshes go through the linear-blend-skinning kernel; normals are the authored
-        normals transformed (static/rigid meshes with normals) or recomputed, area-weighted,
-        from the deformed points.
+        Every per-vertex step runs in a Warp kernel on ``device``: static and rigid meshes
+        transform their (device-resident) rest points, deforming meshes transform their point
+        samples, skinned meshes go through the linear-blend-skinning kernel with the joint
+        matrices composed with the skeleton's local-to-world; normals are area-weighted from
+        the deformed points, except static/rigid meshes with authored normals, which are
+        transformed by the inverse transpose. Static arrays stay cached on the device.
 
         Returns:
-            :class:`FrameState` with ``points`` and ``normals`` of shape (vertex_count,) vec3.
+            :class:`FrameState` with ``points`` and ``normals`` of shape (vertex_count,) vec3,
+            world space, float32.
         """
         from .._wp import resolve_device, wp
         from ..geometry.normals import compute_vertex_normals
+        from ..geometry.skinning import (
+            joint_matrices_for_warp,
+            launch_skin_points,
+            launch_transform_normals,
+            launch_transform_points,
+        )
 
         dev = resolve_device(device)
         t = self.frame_index(frame)
-        points = self.points_at(frame).astype(np.float32)
-        pts_wp = wp.array(points, dtype=wp.vec3, device=dev)
-        key = ("faces", str(dev))
-        if key not in self._device_cache:
-            self._device_cache[key] = wp.array(self._faces, dtype=wp.int32, device=dev)
-        faces_wp = self._device_cache[key]
+        data = self._device_data(dev)
+        pts_wp = wp.empty(self.vertex_count, dtype=wp.vec3, device=dev)
+        skin_mats: dict[int, Any] = {}
+        for mesh, entry in zip(self.meshes, data["meshes"]):
+            xf = self._mesh_transform(mesh, t)
+            if mesh.animation == "skinned":
+                s = mesh.skin.skeleton
+                if s not in skin_mats:
+                    skel = self.skeletons[s]
+                    mats = skel.skinning_transforms(min(t, skel.local_transforms.shape[0] - 1)) @ xf
+                    skin_mats[s] = wp.array(joint_matrices_for_warp(mats), dtype=wp.mat44, device=dev)
+                launch_skin_points(
+                    entry["points"], entry["joint_indices"], entry["joint_weights"], skin_mats[s], pts_wp, mesh.vertex_offset
+                )
+                continue
+            if mesh.animation == "deforming":
+                if "samples" in entry:
+                    src, src_offset = entry["samples"], t * mesh.vertex_count
+                else:
+                    src = wp.array(np.asarray(mesh.point_samples[t], np.float32), dtype=wp.vec3, device=dev)
+                    src_offset = 0
+            else:
+                src, src_offset = entry["points"], 0
+            launch_transform_points(src, src_offset, mesh.vertex_count, xf, pts_wp, mesh.vertex_offset)
         nrm_wp = wp.empty(self.vertex_count, dtype=wp.vec3, device=dev)
-        compute_vertex_normals(pts_wp, faces_wp, nrm_wp)
-        normals = None
-        if any(m.normals is not None and m.animation in ("static", "rigid") for m in self.meshes):
-            normals = nrm_wp.numpy()
-            for mesh in self.meshes:
-                if mesh.normals is not None and mesh.animation in ("static", "rigid"):
-                    xf = mesh.transforms[min(t, mesh.transforms.shape[0] - 1)]
-                    n = mesh.normals @ np.linalg.inv(xf[:3, :3]).T
-                    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
-                    normals[mesh.vertex_offset : mesh.vertex_offset + mesh.vertex_count] = n
-            nrm_wp = wp.array(normals.astype(np.float32), dtype=wp.vec3, device=dev)
-        mesh_xf = np.stack([m.transforms[min(t, m.transforms.shape[0] - 1)] for m in self.meshes])
-        joints = [s.skel_space_transforms(t) for s in self.skeletons]
+        compute_vertex_normals(pts_wp, data["faces"], nrm_wp)
+        for mesh, entry in zip(self.meshes, data["meshes"]):
+            if "normals" in entry:
+                xf = self._mesh_transform(mesh, t)
+                launch_transform_normals(entry["normals"], xf, nrm_wp, mesh.vertex_offset)
+        mesh_xf = np.stack([self._mesh_transform(m, t) for m in self.meshes])
+        joints = [s.skel_space_transforms(min(t, s.local_transforms.shape[0] - 1)) for s in self.skeletons]
         return FrameState(
             frame=float(self.frames[t]),
             frame_index=t,
@@ -372,3 +531,57 @@ class Scene:
             f"Scene(source={self.source!r}, meshes={len(self.meshes)}, vertices={self.vertex_count}, "
             f"triangles={self.triangle_count}, frames={len(self.frames)}, lights={len(self.lights)})"
         )
+
+
+#: Deforming meshes whose point samples (all frames) fit in this many bytes are kept on the
+#: device; larger ones upload one frame per :meth:`Scene.evaluate` call.
+_DEVICE_SAMPLE_BYTES = 256 * 1024 * 1024
+
+
+def ground_plane(
+    lo,
+    hi,
+    up_axis: str = "Z",
+    resolution: int = 40,
+    size_factor: float = 3.0,
+    albedo=(0.8, 0.8, 0.8),
+    path: str = "/ground_plane",
+) -> Mesh:
+    """A static square grid mesh under the box ``lo``..``hi``, facing +``up_axis``.
+
+    Args:
+        lo, hi: world-space bounds of what stands on the plane, (3,) each.
+        up_axis: "Y" or "Z"; the plane lies at ``lo[up]`` with normals along +up.
+        resolution: vertices per side (>= 2); the grid has ``2 * (resolution - 1)**2`` triangles.
+        size_factor: side length as a multiple of the largest horizontal extent of the box.
+        albedo: RGB diffuse albedo of the plane.
+        path: name of the mesh.
+
+    Returns:
+        A static :class:`Mesh` (world-space points, identity transform).
+    """
+    if resolution < 2:
+        raise ValueError(f"ground_plane: resolution must be >= 2, got {resolution}")
+    up = {"Y": 1, "Z": 2}.get(str(up_axis).upper())
+    if up is None:
+        raise ValueError(f"ground_plane: up axis must be 'Y' or 'Z', got {up_axis!r}")
+    lo = np.asarray(lo, np.float64)
+    hi = np.asarray(hi, np.float64)
+    # Horizontal axes in right-handed order so that (a, b, up) is positively oriented.
+    a, b = (2, 0) if up == 1 else (0, 1)
+    centre = 0.5 * (lo + hi)
+    extent = max(hi[a] - lo[a], hi[b] - lo[b], 1e-6) * size_factor
+    s = np.linspace(-0.5, 0.5, resolution) * extent
+    ga, gb = np.meshgrid(s + centre[a], s + centre[b], indexing="ij")
+    pts = np.zeros((resolution * resolution, 3))
+    pts[:, a] = ga.ravel()
+    pts[:, b] = gb.ravel()
+    pts[:, up] = lo[up]
+    i, j = np.meshgrid(np.arange(resolution - 1), np.arange(resolution - 1), indexing="ij")
+    v00 = (i * resolution + j).ravel()
+    v10 = v00 + resolution  # +a
+    v01 = v00 + 1  # +b
+    v11 = v10 + 1
+    # (a, b) counter-clockwise seen from +up: cross(+a, +b) = +up.
+    faces = np.concatenate([np.stack([v00, v10, v11], 1), np.stack([v00, v11, v01], 1)])
+    return Mesh(path=path, points=pts, faces=faces, albedo=np.asarray(albedo, np.float32))

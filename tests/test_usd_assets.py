@@ -1,0 +1,97 @@
+"""The bundled scenes: the generator reproduces them byte for byte, their structure, `warpshade info`."""
+
+import importlib.util
+import os
+
+import numpy as np
+import pytest
+
+from warpshade.cli import main
+from warpshade.io.usd import bundled_asset_directory, load_usd
+
+ASSETS = bundled_asset_directory()
+FILES = ["sky.hdr", "blockers.usda", "figure.usda", "cloth.usda", "bend.usda"]
+MAX_BYTES = 2 * 1024 * 1024  # issue 3: each bundled file < 2 MB
+
+
+@pytest.fixture(scope="module")
+def generator():
+    spec = importlib.util.spec_from_file_location("usd_assets_generate", os.path.join(ASSETS, "generate.py"))
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_generator_reproduces_the_bundled_files(tmp_path, generator):
+    written = generator.generate(str(tmp_path))
+    assert sorted(os.path.basename(p) for p in written) == sorted(FILES)
+    for name in FILES:
+        bundled = os.path.join(ASSETS, name)
+        size = os.path.getsize(bundled)
+        assert size < MAX_BYTES, f"{name} is {size} bytes"
+        with open(bundled, "rb") as a, open(tmp_path / name, "rb") as b:
+            assert a.read() == b.read(), f"{name} differs from the generator's output: rerun python usd_assets/generate.py"
+
+
+def test_blockers_structure():
+    scene = load_usd("bundled:blockers")
+    assert scene.up_axis == "Z" and len(scene.frames) == 60 and scene.camera is not None
+    kinds = {m.path.split("/")[-2] if m.path.endswith("Mesh") else m.path: m.animation for m in scene.meshes}
+    assert kinds == {"/World/Ground": "static", "BigSphere": "rigid", "SmallSphere": "rigid", "Box": "rigid"}
+    assert scene.meshes[0].vertex_count == 40 * 40
+    # the blockers stay above the ground and pass over it
+    pts = np.stack([scene.points_at(f)[scene.meshes[1].vertex_offset :] for f in scene.frames])
+    assert pts[..., 2].min() > 0.0
+    big = scene.meshes[1]
+    centre_x = pts[:, : big.vertex_count, 0].mean(axis=1)
+    assert np.ptp(centre_x) > 3.0  # the big sphere crosses most of the 6 m plane
+
+
+def test_figure_structure_and_arms_cross_in_front_of_the_torso():
+    scene = load_usd("bundled:figure")
+    body = next(m for m in scene.meshes if m.animation == "skinned")
+    assert 1000 <= body.vertex_count <= 5000 and len(scene.frames) >= 60
+    assert scene.skeletons[0].joint_count >= 10
+    skel = scene.skeletons[0]
+    names = [n.rsplit("/", 1)[-1] for n in skel.joint_names]
+    forearm = np.isin(body.skin.joint_indices[:, 0], [names.index("LElbow"), names.index("RElbow")]) & (
+        body.skin.joint_weights[:, 0] > 0.99
+    )
+    from warpshade.geometry.skinning import skin_points_reference
+
+    in_front = []
+    for t in range(len(scene.frames)):
+        p = skin_points_reference(body.points, body.skin, skel.skinning_transforms(t))[forearm]
+        # skeleton space: the torso is the capsule of radius 0.15 around the z axis, front is -y
+        in_front.append(np.mean((np.abs(p[:, 0]) < 0.15) & (p[:, 1] < -0.15) & (p[:, 2] > 1.0) & (p[:, 2] < 1.5)))
+    assert max(in_front) > 0.2  # at some frames a good part of a forearm is right in front of the chest
+
+
+def test_cloth_and_bend_structure(generator):
+    cloth = load_usd("bundled:cloth")
+    sheet = next(m for m in cloth.meshes if m.animation == "deforming")
+    assert sheet.vertex_count == 900 and sheet.uvs is not None and sheet.point_samples.shape == (60, 900, 3)
+    np.testing.assert_allclose(sheet.point_samples[7], generator.cloth_points(7), atol=1e-4)
+    bend = load_usd("bundled:bend")
+    assert bend.skeletons[0].joint_count == 4 and bend.meshes[0].animation == "skinned"
+    np.testing.assert_allclose(bend.skeletons[0].joint_angles(20), generator.bend_joint_rotations(20), atol=1e-3)
+    for scene in (cloth, bend):
+        assert scene.lights and scene.lights[0].path.endswith("sky.hdr") and scene.camera is not None
+
+
+@pytest.mark.parametrize("spec", ["bundled:figure", "warp-example:bear"])
+def test_info_command(capsys, spec):
+    assert main(["info", spec]) == 0
+    out = capsys.readouterr().out
+    if spec == "bundled:figure":
+        assert "/World/Figure/Body" in out and "skinned" in out and "12 joints, 60 animated frame(s)" in out
+        assert "DomeLight" in out and "sky.hdr" in out and "camera  /World/Camera" in out
+        assert "frames 60 (time codes 0..59) at 24 fps" in out
+    else:
+        assert "/root/bear" in out and "1,986 v" in out and "up axis Y" in out
+
+
+def test_info_reports_bad_input_without_a_traceback(capsys, tmp_path):
+    assert main(["info", str(tmp_path / "missing.usda")]) == 2
+    err = capsys.readouterr().err
+    assert "error: USD file not found" in err and "missing.usda" in err and "Traceback" not in err

@@ -1,0 +1,605 @@
+"""Write the bundled test scenes of warpshade (run: ``python usd_assets/generate.py [--out DIR]``).
+
+Every scene is Z-up, in metres (``metersPerUnit = 1``), 24 frames per second, time codes
+0..59 (60 frames) for animated scenes, and has:
+
+* a ``DomeLight`` (/World/Sky) whose lat-long texture ``sky.hdr`` (64 x 128, Radiance RGBE) is
+  a procedural sky with a soft sun, written by this script; the dome carries USD's
+  ``rotateX:orientToStageUpAxis`` op so its +Y pole points up (+Z);
+* a ``Camera`` (/World/Camera) framing the action;
+* meshes only (no implicit prims), with per-vertex ``displayColor`` or a UsdPreviewSurface.
+
+Scenes:
+
+* ``blockers.usda`` -- a 40 x 40 vertex ground grid (6 m square, UsdPreviewSurface material)
+  and three rigid blockers animated over it with time-sampled transforms: two UV spheres of
+  radius 0.5 and 0.3 (quads with triangle fans at the poles) and a 0.7 m box (a 4 x 4 quad
+  grid per face) that spins while it travels.
+* ``figure.usda`` -- a UsdSkel figure: 12 joints (hips, spine, chest, head, two arms with
+  elbows, two legs with knees), 11 capsules merged into one skinned mesh (about 2,000
+  vertices, two influences per vertex blended near the joints), swinging its arms forward
+  and across the chest so they shadow the torso, while the spine twists and the legs step;
+  standing on a separate static 40 x 40 ground grid. The mesh lists its joints in its own
+  order (``skel:joints``, reversed) and has a non-identity ``geomBindTransform``; the
+  SkelRoot is translated and turned, so loading exercises every part of the binding.
+* ``cloth.usda`` -- a 30 x 30 sheet (faceVarying ``st`` UVs) with time-sampled points:
+  travelling waves plus finer wrinkles, sagging at the free edge, over a ground grid.
+* ``bend.usda`` -- a capped cylinder (24-gon caps) skinned to a 4-joint chain that bends and
+  twists over 60 frames (smooth two-joint weights), for local deformable PRT.
+
+Output is deterministic: coordinates, weights and quaternions are rounded to 1e-4 (camera
+matrices to 1e-6) before they are written, so the files only change when this script changes. A test regenerates them and compares bytes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+import numpy as np
+from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade, UsdSkel, Vt
+from scipy.spatial.transform import Rotation
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, os.path.dirname(HERE))
+
+from warpshade.io.images import write_hdr  # noqa: E402
+from warpshade.scene.lighting import sky_radiance, usd_dome_texel_directions  # noqa: E402
+
+FRAME_COUNT = 60
+FPS = 24.0
+DECIMALS = 4  # coordinates are rounded to 0.1 mm: small files, stable bytes
+SKY_FILE = "sky.hdr"
+SKY_SIZE = (64, 128)
+#: Sun direction (towards the sun), world space, Z-up: in front of the figure (-Y), high.
+SUN_DIRECTION = np.array([0.35, -0.6, 0.72]) / np.linalg.norm([0.35, -0.6, 0.72])
+SCENES = ("blockers", "figure", "cloth", "bend")
+
+
+# ---- small helpers --------------------------------------------------------------------------
+def _r(a) -> np.ndarray:
+    return np.round(np.asarray(a, dtype=np.float64), DECIMALS)
+
+
+def _vec3f(a) -> Vt.Vec3fArray:
+    return Vt.Vec3fArray.FromNumpy(_r(a).astype(np.float32).reshape(-1, 3))
+
+
+def _new_stage(animated: bool) -> Usd.Stage:
+    layer = Sdf.Layer.CreateAnonymous(".usda")
+    stage = Usd.Stage.Open(layer)
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
+    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+    stage.SetTimeCodesPerSecond(FPS)
+    stage.SetFramesPerSecond(FPS)
+    if animated:
+        stage.SetStartTimeCode(0)
+        stage.SetEndTimeCode(FRAME_COUNT - 1)
+    world = UsdGeom.Xform.Define(stage, "/World")
+    stage.SetDefaultPrim(world.GetPrim())
+    return stage
+
+
+def _save(stage: Usd.Stage, path: str) -> None:
+    text = stage.GetRootLayer().ExportToString()
+    tmp = path + ".tmp"
+    with open(tmp, "w", encoding="utf-8", newline="\n") as fh:
+        fh.write(text)
+    os.replace(tmp, path)
+
+
+def _mesh(stage, path, points, counts, indices, color=None):
+    mesh = UsdGeom.Mesh.Define(stage, path)
+    mesh.CreatePointsAttr(_vec3f(points))
+    mesh.CreateFaceVertexCountsAttr(Vt.IntArray([int(c) for c in counts]))
+    mesh.CreateFaceVertexIndicesAttr(Vt.IntArray([int(i) for i in indices]))
+    mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+    pts = np.asarray(points, np.float64).reshape(-1, 3)
+    mesh.CreateExtentAttr(Vt.Vec3fArray([Gf.Vec3f(*_r(pts.min(0))), Gf.Vec3f(*_r(pts.max(0)))]))
+    if color is not None:
+        mesh.CreateDisplayColorPrimvar(UsdGeom.Tokens.constant).Set(Vt.Vec3fArray([Gf.Vec3f(*map(float, color))]))
+    return mesh
+
+
+def _sky(stage) -> None:
+    dome = UsdLux.DomeLight.Define(stage, "/World/Sky")
+    dome.OrientToStageUpAxis()
+    dome.CreateTextureFileAttr(Sdf.AssetPath("./" + SKY_FILE))
+    dome.CreateTextureFormatAttr(UsdLux.Tokens.latlong)
+    dome.CreateIntensityAttr(1.0)
+
+
+def _camera(stage, eye, target, focal=35.0):
+    cam = UsdGeom.Camera.Define(stage, "/World/Camera")
+    cam.CreateFocalLengthAttr(focal)
+    cam.CreateHorizontalApertureAttr(36.0)
+    cam.CreateVerticalApertureAttr(24.0)
+    eye, target = np.asarray(eye, float), np.asarray(target, float)
+    cam.CreateFocusDistanceAttr(float(np.linalg.norm(target - eye)))
+    cam.CreateClippingRangeAttr(Gf.Vec2f(0.05, 1000.0))
+    view = Gf.Matrix4d().SetLookAt(Gf.Vec3d(*eye), Gf.Vec3d(*target), Gf.Vec3d(0, 0, 1))
+    UsdGeom.Xformable(cam).AddTransformOp().Set(_round_matrix(view.GetInverse()))
+
+
+def _round_matrix(m, decimals: int = 6) -> Gf.Matrix4d:
+    return Gf.Matrix4d(*[float(v) for v in np.round(np.array(m), decimals).ravel()])
+
+
+def write_sky(out_dir: str) -> str:
+    """The dome texture: sky_radiance at the world directions of the file's texels."""
+    height, width = SKY_SIZE
+    # Dome frame -> world for a DomeLight with rotateX:orientToStageUpAxis = 90 (column form).
+    dome_to_world = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+    dirs = usd_dome_texel_directions(height, width) @ dome_to_world.T
+    image = sky_radiance(dirs, sun_direction=SUN_DIRECTION, up=(0.0, 0.0, 1.0))
+    path = os.path.join(out_dir, SKY_FILE)
+    write_hdr(path, image.astype(np.float32))
+    return path
+
+
+# ---- geometry builders (numpy) -------------------------------------------------------------
+def grid(resolution: int, size: float, z: float = 0.0):
+    """A square quad grid in the XY plane, (points, counts, indices), normal +Z."""
+    s = np.linspace(-size / 2, size / 2, resolution)
+    x, y = np.meshgrid(s, s, indexing="ij")
+    pts = np.stack([x.ravel(), y.ravel(), np.full(x.size, z)], 1)
+    i, j = np.meshgrid(np.arange(resolution - 1), np.arange(resolution - 1), indexing="ij")
+    v00 = (i * resolution + j).ravel()
+    quads = np.stack([v00, v00 + resolution, v00 + resolution + 1, v00 + 1], 1)  # +x then +y: CCW from +Z
+    return pts, np.full(len(quads), 4), quads.ravel()
+
+
+def revolution(profile, around: int, cap_polygons: bool = False):
+    """Surface of revolution about +Z.
+
+    Args:
+        profile: (z, r) pairs from bottom to top; r == 0 at an end makes a pole (triangle fan).
+        around: segments around the axis.
+        cap_polygons: close open ends with one n-gon each instead of poles.
+
+    Returns:
+        points (N, 3), counts, indices, and each point's ring index.
+    """
+    ang = 2 * np.pi * np.arange(around) / around
+    pts, ring_of, ring_start = [], [], []
+    for k, (z, r) in enumerate(profile):
+        ring_start.append(len(pts))
+        if r == 0.0:
+            pts.append([0.0, 0.0, z])
+            ring_of.append(k)
+        else:
+            for a in ang:
+                pts.append([r * np.cos(a), r * np.sin(a), z])
+                ring_of.append(k)
+    counts, idx = [], []
+    for k in range(len(profile) - 1):
+        a0, a1 = ring_start[k], ring_start[k + 1]
+        r0, r1 = profile[k][1], profile[k + 1][1]
+        for j in range(around):
+            jn = (j + 1) % around
+            if r0 == 0.0:  # bottom pole
+                counts.append(3)
+                idx += [a0, a1 + jn, a1 + j]
+            elif r1 == 0.0:  # top pole
+                counts.append(3)
+                idx += [a0 + j, a0 + jn, a1]
+            else:
+                counts.append(4)
+                idx += [a0 + j, a0 + jn, a1 + jn, a1 + j]
+    if cap_polygons:
+        counts.append(around)
+        idx += [ring_start[0] + j for j in reversed(range(around))]  # bottom, facing -Z
+        counts.append(around)
+        idx += [ring_start[-1] + j for j in range(around)]  # top, facing +Z
+    return np.asarray(pts), np.asarray(counts), np.asarray(idx), np.asarray(ring_of)
+
+
+def uv_sphere(radius: float, around: int = 20, rings: int = 10):
+    theta = np.linspace(np.pi, 0.0, rings + 1)
+    profile = [(radius * np.cos(t), 0.0 if k in (0, rings) else radius * np.sin(t)) for k, t in enumerate(theta)]
+    pts, counts, idx, _ = revolution(profile, around)
+    return pts, counts, idx
+
+
+def capsule_profile(length: float, radius: float, cap_rings: int = 4, body_rings: int = 5):
+    """(z, r) profile of a capsule from z = -radius to z = length + radius."""
+    prof = []
+    for k in range(cap_rings + 1):  # bottom hemisphere, pole first
+        t = np.pi / 2 * k / cap_rings
+        prof.append((-radius * np.cos(t), radius * np.sin(t) if k else 0.0))
+    for k in range(1, body_rings):
+        prof.append((length * k / body_rings, radius))
+    for k in range(cap_rings, -1, -1):  # top hemisphere, pole last
+        t = np.pi / 2 * k / cap_rings
+        prof.append((length + radius * np.cos(t), radius * np.sin(t) if k else 0.0))
+    return prof
+
+
+def box(size: float, cells: int = 4):
+    """An axis-aligned cube centred at the origin; each face a cells x cells quad grid."""
+    pts, counts, idx = [], [], []
+    s = np.linspace(-size / 2, size / 2, cells + 1)
+    for axis in range(3):
+        for sign in (-1.0, 1.0):
+            u_axis, v_axis = (axis + 1) % 3, (axis + 2) % 3
+            if sign < 0:
+                u_axis, v_axis = v_axis, u_axis  # keep (u, v, outward) right-handed
+            base = len(pts)
+            for a in s:
+                for b in s:
+                    p = [0.0, 0.0, 0.0]
+                    p[axis] = sign * size / 2
+                    p[u_axis], p[v_axis] = a, b
+                    pts.append(p)
+            n = cells + 1
+            for i in range(cells):
+                for j in range(cells):
+                    v00 = base + i * n + j
+                    counts.append(4)
+                    idx += [v00, v00 + n, v00 + n + 1, v00 + 1]
+    return np.asarray(pts), np.asarray(counts), np.asarray(idx)
+
+
+def _ground(stage, path="/World/Ground", size=6.0, material=False):
+    pts, counts, idx = grid(40, size)
+    mesh = _mesh(stage, path, pts, counts, idx, color=None if material else (0.8, 0.8, 0.8))
+    if material:
+        mat = UsdShade.Material.Define(stage, "/World/Looks/Ground")
+        shader = UsdShade.Shader.Define(stage, "/World/Looks/Ground/Surface")
+        shader.CreateIdAttr("UsdPreviewSurface")
+        shader.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(0.7, 0.68, 0.62))
+        shader.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(0.9)
+        mat.CreateSurfaceOutput().ConnectToSource(shader.ConnectableAPI(), "surface")
+        UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(mat)
+    return mesh
+
+
+# ---- (a) blockers ---------------------------------------------------------------------------
+def blocker_paths(frame: int):
+    """World translations of the blockers and the box's spin angle (degrees) at a frame."""
+    t = frame / (FRAME_COUNT - 1)
+    big = np.array([-2.0 + 4.0 * t, 0.6 * np.sin(2 * np.pi * t), 0.5 + 0.25 + 0.3 * np.sin(np.pi * t)])
+    small = np.array([1.5 * np.cos(2 * np.pi * t), 1.5 * np.sin(2 * np.pi * t), 0.3 + 0.5])
+    cube = np.array([1.8 - 3.6 * t, -1.0 + 0.8 * t, 0.35 + 0.15 + 0.4 * np.sin(np.pi * t) ** 2])
+    return big, small, cube, 360.0 * t
+
+
+def make_blockers(out_dir: str) -> str:
+    stage = _new_stage(animated=True)
+    _sky(stage)
+    _ground(stage, material=True)
+    specs = [("BigSphere", uv_sphere(0.5), (0.85, 0.3, 0.25)), ("SmallSphere", uv_sphere(0.3, 16, 8), (0.25, 0.45, 0.85))]
+    xforms = []
+    for name, (pts, counts, idx), color in specs:
+        xf = UsdGeom.Xform.Define(stage, f"/World/Blockers/{name}")
+        _mesh(stage, f"/World/Blockers/{name}/Mesh", pts, counts, idx, color)
+        xforms.append(xf.AddTranslateOp())
+    cube_xf = UsdGeom.Xform.Define(stage, "/World/Blockers/Box")
+    pts, counts, idx = box(0.7)
+    _mesh(stage, "/World/Blockers/Box/Mesh", pts, counts, idx, (0.3, 0.75, 0.35))
+    cube_t = cube_xf.AddTranslateOp()
+    cube_r = cube_xf.AddRotateZOp()
+    for f in range(FRAME_COUNT):
+        big, small, cube, spin = blocker_paths(f)
+        xforms[0].Set(Gf.Vec3d(*_r(big)), f)
+        xforms[1].Set(Gf.Vec3d(*_r(small)), f)
+        cube_t.Set(Gf.Vec3d(*_r(cube)), f)
+        cube_r.Set(float(_r(spin)), f)
+    _camera(stage, eye=(4.5, -5.5, 3.8), target=(0.0, 0.0, 0.4))
+    path = os.path.join(out_dir, "blockers.usda")
+    _save(stage, path)
+    return path
+
+
+# ---- (b) figure -----------------------------------------------------------------------------
+#: name, parent, rest offset from the parent joint (skeleton space, no rest rotations)
+FIGURE_JOINTS = [
+    ("Hips", None, (0.0, 0.0, 0.95)),
+    ("Spine", "Hips", (0.0, 0.0, 0.12)),
+    ("Chest", "Spine", (0.0, 0.0, 0.25)),
+    ("Neck", "Chest", (0.0, 0.0, 0.2)),
+    ("LShoulder", "Chest", (0.25, 0.0, 0.1)),
+    ("LElbow", "LShoulder", (0.0, 0.0, -0.28)),
+    ("RShoulder", "Chest", (-0.25, 0.0, 0.1)),
+    ("RElbow", "RShoulder", (0.0, 0.0, -0.28)),
+    ("LHip", "Hips", (0.1, 0.0, -0.05)),
+    ("LKnee", "LHip", (0.0, 0.0, -0.42)),
+    ("RHip", "Hips", (-0.1, 0.0, -0.05)),
+    ("RKnee", "RHip", (0.0, 0.0, -0.42)),
+]
+#: capsule per joint: (joint, end point offset in the joint's frame or None for the child, radius)
+FIGURE_CAPSULES = [
+    ("Hips", ((-0.1, 0.0, 0.0), (0.1, 0.0, 0.0)), 0.12),
+    ("Spine", ((0.0, 0.0, 0.02), (0.0, 0.0, 0.42)), 0.15),
+    ("Neck", ((0.0, 0.0, 0.12), (0.0, 0.0, 0.22)), 0.11),
+    ("LShoulder", ((0.0, 0.0, 0.0), (0.0, 0.0, -0.26)), 0.05),
+    ("LElbow", ((0.0, 0.0, 0.0), (0.0, 0.0, -0.25)), 0.045),
+    ("RShoulder", ((0.0, 0.0, 0.0), (0.0, 0.0, -0.26)), 0.05),
+    ("RElbow", ((0.0, 0.0, 0.0), (0.0, 0.0, -0.25)), 0.045),
+    ("LHip", ((0.0, 0.0, 0.0), (0.0, 0.0, -0.4)), 0.075),
+    ("LKnee", ((0.0, 0.0, 0.0), (0.0, 0.0, -0.4)), 0.06),
+    ("RHip", ((0.0, 0.0, 0.0), (0.0, 0.0, -0.4)), 0.075),
+    ("RKnee", ((0.0, 0.0, 0.0), (0.0, 0.0, -0.4)), 0.06),
+]
+#: where the SkelRoot stands and which way it faces (degrees about +Z)
+FIGURE_ROOT_TRANSLATE = (0.3, -0.2, 0.0)
+FIGURE_ROOT_ROTATE_Z = 20.0
+#: geomBindTransform of the body mesh: its points are authored this far from skeleton space
+FIGURE_GEOM_BIND_OFFSET = np.array([0.0, 0.05, -0.1])
+
+
+def joint_paths(joints):
+    names = {}
+    for name, parent, _ in joints:
+        names[name] = name if parent is None else f"{names[parent]}/{name}"
+    return [names[n] for n, _, _ in joints]
+
+
+def figure_joint_rotations(frame: int) -> np.ndarray:
+    """Joint-local rotations (rotation vectors, radians) of the figure at a frame, shape (12, 3).
+
+    The arms swing forward (towards -Y, the figure's front) and across the chest, half a cycle
+    apart; elbows bend; the spine twists; the legs step. Rest rotations are identity, so these
+    are also the joint angles relative to the rest pose.
+    """
+    phase = 2 * np.pi * frame / FRAME_COUNT
+    rot = {name: np.zeros(3) for name, _, _ in FIGURE_JOINTS}
+
+    def arm(side: float, ph: float):
+        lift = 1.25 * (0.5 - 0.5 * np.cos(ph))  # 0 .. 1.25 rad forward
+        across = 0.8 * (0.5 - 0.5 * np.cos(ph))  # hand moves over to the other side
+        r = Rotation.from_rotvec([0.0, side * across, 0.0]) * Rotation.from_rotvec([-lift, 0.0, 0.0])
+        return r.as_rotvec()
+
+    rot["LShoulder"] = arm(1.0, phase)
+    rot["RShoulder"] = arm(-1.0, phase + np.pi)
+    rot["LElbow"] = np.array([-0.2 - 0.6 * (0.5 - 0.5 * np.cos(phase)), 0.0, 0.0])
+    rot["RElbow"] = np.array([-0.2 - 0.6 * (0.5 + 0.5 * np.cos(phase)), 0.0, 0.0])
+    rot["Spine"] = np.array([0.0, 0.0, 0.3 * np.sin(phase)])
+    rot["Chest"] = np.array([0.08 * np.sin(2 * phase), 0.0, 0.0])
+    rot["Neck"] = np.array([0.15 * np.sin(phase + 0.5), 0.0, 0.1 * np.sin(phase)])
+    rot["LHip"] = np.array([0.35 * np.sin(phase), 0.0, 0.0])
+    rot["RHip"] = np.array([-0.35 * np.sin(phase), 0.0, 0.0])
+    rot["LKnee"] = np.array([0.45 * max(0.0, np.sin(phase + 0.8)), 0.0, 0.0])
+    rot["RKnee"] = np.array([0.45 * max(0.0, -np.sin(phase + 0.8)), 0.0, 0.0])
+    return np.stack([rot[name] for name, _, _ in FIGURE_JOINTS])
+
+
+def _quat_array(rotvecs) -> Vt.QuatfArray:
+    q = Rotation.from_rotvec(rotvecs).as_quat()  # (x, y, z, w)
+    q = _r(q)
+    return Vt.QuatfArray([Gf.Quatf(float(w), Gf.Vec3f(float(x), float(y), float(z))) for x, y, z, w in q])
+
+
+def _figure_skin_geometry():
+    """Bind-pose (skeleton space) body points, faces, and 2-influence weights by joint name."""
+    index = {name: k for k, (name, _, _) in enumerate(FIGURE_JOINTS)}
+    parent = {name: p for name, p, _ in FIGURE_JOINTS}
+    world = {}
+    for name, par, off in FIGURE_JOINTS:
+        world[name] = np.asarray(off, float) + (world[par] if par else 0.0)
+    pts_all, counts_all, idx_all, infl_all, w_all = [], [], [], [], []
+    base = 0
+    for joint, (a, b), radius in FIGURE_CAPSULES:
+        a = world[joint] + np.asarray(a)
+        b = world[joint] + np.asarray(b)
+        axis = b - a
+        length = float(np.linalg.norm(axis))
+        pts, counts, idx, _ = revolution(capsule_profile(length, radius), 14)
+        # frame with +Z along the capsule axis
+        z = axis / length
+        helper = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+        x = np.cross(helper, z)
+        x /= np.linalg.norm(x)
+        y = np.cross(z, x)
+        s = pts[:, 2] / length  # 0 at a, 1 at b (caps beyond)
+        pts = a + pts[:, :1] * x + pts[:, 1:2] * y + pts[:, 2:3] * z
+        # Two influences: the capsule's joint, blended with a neighbour near the joints.
+        own = np.full(len(pts), index[joint])
+        other = own.copy()
+        w_other = np.zeros(len(pts))
+        if joint == "Spine":  # torso: hips below, chest above
+            lower = s < 0.5
+            other = np.where(lower, index["Hips"], index["Chest"])
+            w_other = np.where(lower, 0.5 * np.clip(1.0 - s / 0.2, 0.0, 1.0), 0.6 * np.clip((s - 0.45) / 0.4, 0.0, 1.0))
+        elif parent[joint] is not None and joint != "Neck":  # limbs blend with their parent
+            other = np.full(len(pts), index[parent[joint]])
+            w_other = 0.5 * np.clip(1.0 - s / 0.25, 0.0, 1.0)
+        infl = np.stack([own, other], 1)
+        w = np.stack([1.0 - w_other, w_other], 1)
+        pts_all.append(pts)
+        counts_all.append(counts)
+        idx_all.append(idx + base)
+        infl_all.append(infl)
+        w_all.append(w)
+        base += len(pts)
+    return (
+        np.concatenate(pts_all),
+        np.concatenate(counts_all),
+        np.concatenate(idx_all),
+        np.concatenate(infl_all),
+        np.concatenate(w_all),
+    )
+
+
+def make_figure(out_dir: str) -> str:
+    stage = _new_stage(animated=True)
+    _sky(stage)
+    _ground(stage)
+    root = UsdSkel.Root.Define(stage, "/World/Figure")
+    root.AddTranslateOp().Set(Gf.Vec3d(*FIGURE_ROOT_TRANSLATE))
+    root.AddRotateZOp().Set(FIGURE_ROOT_ROTATE_Z)
+    paths = joint_paths(FIGURE_JOINTS)
+    skel = UsdSkel.Skeleton.Define(stage, "/World/Figure/Skel")
+    skel.CreateJointsAttr(Vt.TokenArray(paths))
+    world = {}
+    local_rest, bind = [], []
+    for name, par, off in FIGURE_JOINTS:
+        world[name] = np.asarray(off, float) + (world[par] if par else 0.0)
+        local_rest.append(Gf.Matrix4d().SetTranslate(Gf.Vec3d(*_r(off))))
+        bind.append(Gf.Matrix4d().SetTranslate(Gf.Vec3d(*_r(world[name]))))
+    skel.CreateRestTransformsAttr(Vt.Matrix4dArray(local_rest))
+    skel.CreateBindTransformsAttr(Vt.Matrix4dArray(bind))
+    anim = UsdSkel.Animation.Define(stage, "/World/Figure/Anim")
+    anim.CreateJointsAttr(Vt.TokenArray(paths))
+    anim.CreateTranslationsAttr(Vt.Vec3fArray([Gf.Vec3f(*_r(off)) for _, _, off in FIGURE_JOINTS]))
+    anim.CreateScalesAttr(Vt.Vec3hArray([Gf.Vec3h(1.0, 1.0, 1.0)] * len(paths)))
+    rotations = anim.CreateRotationsAttr()
+    for f in range(FRAME_COUNT):
+        rotations.Set(_quat_array(figure_joint_rotations(f)), f)
+    UsdSkel.BindingAPI.Apply(skel.GetPrim()).CreateAnimationSourceRel().SetTargets([anim.GetPath()])
+
+    pts, counts, idx, infl, w = _figure_skin_geometry()
+    # Author points in a local frame offset from skeleton space; geomBindTransform undoes it.
+    body = _mesh(stage, "/World/Figure/Body", pts - FIGURE_GEOM_BIND_OFFSET, counts, idx, (0.78, 0.62, 0.5))
+    binding = UsdSkel.BindingAPI.Apply(body.GetPrim())
+    binding.CreateSkeletonRel().SetTargets([skel.GetPath()])
+    # The mesh names the joints in its own (reversed) order; indices refer to that order.
+    order = list(reversed(range(len(paths))))
+    binding.CreateJointsAttr(Vt.TokenArray([paths[k] for k in order]))
+    to_mesh_order = {k: i for i, k in enumerate(order)}
+    mesh_infl = np.vectorize(to_mesh_order.get)(infl)
+    binding.CreateJointIndicesPrimvar(False, 2).Set(Vt.IntArray([int(v) for v in mesh_infl.ravel()]))
+    binding.CreateJointWeightsPrimvar(False, 2).Set(Vt.FloatArray([float(v) for v in _r(w).ravel()]))
+    binding.CreateGeomBindTransformAttr(Gf.Matrix4d().SetTranslate(Gf.Vec3d(*FIGURE_GEOM_BIND_OFFSET)))
+    _camera(stage, eye=(1.2, -3.8, 1.6), target=(0.3, -0.2, 1.0))
+    path = os.path.join(out_dir, "figure.usda")
+    _save(stage, path)
+    return path
+
+
+# ---- (c) cloth ------------------------------------------------------------------------------
+CLOTH_RESOLUTION = 30
+
+
+def cloth_points(frame: int) -> np.ndarray:
+    """The sheet's points at a frame (world space), shape (900, 3)."""
+    n = CLOTH_RESOLUTION
+    s = np.linspace(-1.0, 1.0, n)
+    x, y = np.meshgrid(s, s, indexing="ij")
+    t = frame / FRAME_COUNT
+    phase = 2 * np.pi * t
+    # Pinned along y = -1 (amplitude grows with distance), travelling waves and wrinkles.
+    reach = (y + 1.0) / 2.0
+    wave = 0.18 * reach * np.sin(2.2 * x + 3.0 * y - phase)
+    wrinkles = 0.025 * reach * np.sin(9.0 * x + 1.5 * phase) * np.cos(7.0 * y - phase)
+    sag = -0.35 * reach**2 * (0.8 + 0.2 * np.cos(phase))
+    z = 1.1 + wave + wrinkles + sag
+    # The free edge drifts in x a little as the wave passes.
+    xs = x + 0.05 * reach * np.sin(phase + y)
+    return np.stack([xs.ravel(), y.ravel(), z.ravel()], 1)
+
+
+def make_cloth(out_dir: str) -> str:
+    stage = _new_stage(animated=True)
+    _sky(stage)
+    _ground(stage)
+    n = CLOTH_RESOLUTION
+    pts0 = cloth_points(0)
+    _, counts, idx = grid(n, 2.0)
+    mesh = _mesh(stage, "/World/Cloth", pts0, counts, idx, (0.35, 0.55, 0.75))
+    mesh.CreateDoubleSidedAttr(True)
+    attr = mesh.GetPointsAttr()
+    for f in range(FRAME_COUNT):
+        attr.Set(_vec3f(cloth_points(f)), f)
+    s = np.linspace(0.0, 1.0, n)
+    u, v = np.meshgrid(s, s, indexing="ij")
+    st_vertex = np.stack([u.ravel(), v.ravel()], 1)
+    st = UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.faceVarying)
+    st.Set(Vt.Vec2fArray.FromNumpy(_r(st_vertex[idx]).astype(np.float32)))
+    _camera(stage, eye=(2.6, -3.2, 2.4), target=(0.0, 0.0, 0.8))
+    path = os.path.join(out_dir, "cloth.usda")
+    _save(stage, path)
+    return path
+
+
+# ---- (d) bend -------------------------------------------------------------------------------
+BEND_JOINTS = [("Base", None, (0.0, 0.0, 0.0)), ("Mid1", "Base", (0.0, 0.0, 0.5)), ("Mid2", "Mid1", (0.0, 0.0, 0.5)), ("Tip", "Mid2", (0.0, 0.0, 0.5))]
+BEND_HEIGHT = 2.0
+BEND_RADIUS = 0.22
+
+
+def bend_joint_rotations(frame: int) -> np.ndarray:
+    """Joint-local rotation vectors of the bending cylinder at a frame, shape (4, 3)."""
+    t = frame / (FRAME_COUNT - 1)
+    bend = 0.55 * np.sin(np.pi * t)  # per joint, about x: the tube curls over
+    twist = 0.6 * np.sin(2 * np.pi * t)  # per joint, about the local z axis
+    rot = [np.zeros(3)]
+    for _ in range(3):
+        r = Rotation.from_rotvec([bend, 0.0, 0.0]) * Rotation.from_rotvec([0.0, 0.0, twist])
+        rot.append(r.as_rotvec())
+    return np.stack(rot)
+
+
+def make_bend(out_dir: str) -> str:
+    stage = _new_stage(animated=True)
+    _sky(stage)
+    root = UsdSkel.Root.Define(stage, "/World/Bend")
+    paths = joint_paths(BEND_JOINTS)
+    skel = UsdSkel.Skeleton.Define(stage, "/World/Bend/Skel")
+    skel.CreateJointsAttr(Vt.TokenArray(paths))
+    world = {}
+    rest, bind = [], []
+    for name, par, off in BEND_JOINTS:
+        world[name] = np.asarray(off, float) + (world[par] if par else 0.0)
+        rest.append(Gf.Matrix4d().SetTranslate(Gf.Vec3d(*off)))
+        bind.append(Gf.Matrix4d().SetTranslate(Gf.Vec3d(*world[name])))
+    skel.CreateRestTransformsAttr(Vt.Matrix4dArray(rest))
+    skel.CreateBindTransformsAttr(Vt.Matrix4dArray(bind))
+    anim = UsdSkel.Animation.Define(stage, "/World/Bend/Anim")
+    anim.CreateJointsAttr(Vt.TokenArray(paths))
+    anim.CreateTranslationsAttr(Vt.Vec3fArray([Gf.Vec3f(*off) for _, _, off in BEND_JOINTS]))
+    anim.CreateScalesAttr(Vt.Vec3hArray([Gf.Vec3h(1.0, 1.0, 1.0)] * len(paths)))
+    rotations = anim.CreateRotationsAttr()
+    for f in range(FRAME_COUNT):
+        rotations.Set(_quat_array(bend_joint_rotations(f)), f)
+    UsdSkel.BindingAPI.Apply(skel.GetPrim()).CreateAnimationSourceRel().SetTargets([anim.GetPath()])
+
+    rings = 33
+    profile = [(BEND_HEIGHT * k / (rings - 1), BEND_RADIUS) for k in range(rings)]
+    pts, counts, idx, _ = revolution(profile, 24, cap_polygons=True)
+    # Smooth two-joint weights: joint spacing 0.5, blend over the middle of each segment.
+    seg = np.clip(pts[:, 2] / 0.5, 0.0, 3.0)
+    lower = np.minimum(np.floor(seg), 2).astype(int)
+    frac = seg - lower
+    w_upper = np.clip((frac - 0.25) / 0.5, 0.0, 1.0)
+    w_upper = w_upper * w_upper * (3 - 2 * w_upper)  # smoothstep
+    infl = np.stack([lower, lower + 1], 1)
+    w = np.stack([1.0 - w_upper, w_upper], 1)
+    mesh = _mesh(stage, "/World/Bend/Tube", pts, counts, idx, (0.7, 0.7, 0.72))
+    binding = UsdSkel.BindingAPI.Apply(mesh.GetPrim())
+    binding.CreateSkeletonRel().SetTargets([skel.GetPath()])
+    binding.CreateJointIndicesPrimvar(False, 2).Set(Vt.IntArray([int(v) for v in infl.ravel()]))
+    binding.CreateJointWeightsPrimvar(False, 2).Set(Vt.FloatArray([float(v) for v in _r(w).ravel()]))
+    binding.CreateGeomBindTransformAttr(Gf.Matrix4d(1.0))
+    _camera(stage, eye=(3.5, -3.5, 2.2), target=(0.0, 0.0, 1.0))
+    path = os.path.join(out_dir, "bend.usda")
+    _save(stage, path)
+    return path
+
+
+MAKERS = {"blockers": make_blockers, "figure": make_figure, "cloth": make_cloth, "bend": make_bend}
+
+
+def generate(out_dir: str = HERE, scenes=SCENES) -> list[str]:
+    """Write the sky texture and the named scenes into ``out_dir``; returns the written paths."""
+    os.makedirs(out_dir, exist_ok=True)
+    written = [write_sky(out_dir)]
+    for name in scenes:
+        written.append(MAKERS[name](out_dir))
+    return written
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", default=HERE, help="output directory (default: this directory)")
+    parser.add_argument("--scenes", nargs="*", default=list(SCENES), choices=SCENES)
+    args = parser.parse_args(argv)
+    for path in generate(args.out, args.scenes):
+        print(f"{os.path.getsize(path):>9,d} bytes  {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
