@@ -1,0 +1,204 @@
+"""Stage-graph runtime: validation errors, artifact caching, stepping and outputs."""
+
+import json
+
+import numpy as np
+import pytest
+import trimesh
+
+from warpshade._wp import wp
+from warpshade.graph import GraphError, GraphSpec, Param, Port, Stage, StageSpec, load, register_stage
+from warpshade.scene import Environment, Mesh, Scene
+
+CALLS = {"const": 0}
+
+
+@register_stage
+class _Const(Stage):
+    """Precompute: a (V, K) array filled with ``value`` (counts its invocations)."""
+
+    type_name = "test.const"
+    kind = "precompute"
+    parameters = {"k": Param(2, int), "value": Param(1.0, float)}
+
+    def dims(self):
+        return {"K": self.params["k"]}
+
+    def output_ports(self):
+        return {"values": Port("float32", ("V", "K"))}
+
+    def precompute(self, ctx, inputs):
+        CALLS["const"] += 1
+        return {"values": np.full((ctx.dims["V"], self.params["k"]), self.params["value"], np.float32)}
+
+
+@wp.kernel
+def _sum_rows(values: wp.array2d(dtype=wp.float32), points: wp.array(dtype=wp.vec3), out: wp.array2d(dtype=wp.float32)):
+    v = wp.tid()
+    s = float(0.0)
+    for i in range(values.shape[1]):
+        s += values[v, i]
+    out[v, 0] = s
+    out[v, 1] = points[v][2]
+    out[v, 2] = 0.0
+
+
+@register_stage
+class _Sum(Stage):
+    """Frame stage: radiance = (row sum of values, point z, 0)."""
+
+    type_name = "test.sum"
+    kind = "frame"
+    parameters = {"k": Param(2, int)}
+
+    def dims(self):
+        return {"K": self.params["k"]}
+
+    def input_ports(self):
+        return {"values": Port("float32", ("V", "K")), "points": Port("vec3", ("V",))}
+
+    def output_ports(self):
+        return {"radiance": Port("float32", ("V", 3))}
+
+    def setup(self, ctx, inputs):
+        self.inputs = inputs
+        self.out = wp.zeros((ctx.dims["V"], 3), dtype=wp.float32, device=ctx.device)
+        return {"radiance": self.out}
+
+    def launch(self, ctx):
+        wp.launch(_sum_rows, dim=ctx.dims["V"], inputs=[self.inputs["values"], self.inputs["points"], self.out], device=ctx.device)
+
+
+@register_stage
+class _Loop(Stage):
+    type_name = "test.loop"
+    kind = "frame"
+
+    def input_ports(self):
+        return {"radiance": Port("float32", ("V", 3))}
+
+    def output_ports(self):
+        return {"radiance2": Port("float32", ("V", 3))}
+
+
+@pytest.fixture
+def moving_scene():
+    plane = trimesh.creation.box(extents=(1.0, 1.0, 0.1))
+    frames = np.arange(4, dtype=np.float64)
+    xf = np.tile(np.eye(4), (4, 1, 1))
+    xf[:, 3, 2] = frames * 0.5  # rises 0.5 per frame (row-vector translation)
+    mesh = Mesh("/box", plane.vertices, plane.faces, animation="rigid", transforms=xf)
+    return Scene.from_meshes([mesh], frames=frames, lights=[Environment.constant((1.0, 1.0, 1.0))])
+
+
+def _spec(k_const=2, k_sum=2, value=1.0, extra=(), inputs=None):
+    stages = [
+        StageSpec("bake", "test.const", {"k": k_const, "value": value}),
+        StageSpec("shade", "test.sum", {"k": k_sum}, inputs or {}),
+        *extra,
+    ]
+    return GraphSpec(stages=stages, output="shade.radiance", name="t")
+
+
+def test_runs_and_steps(moving_scene, tmp_path):
+    rt = _spec(value=0.25).compile(moving_scene, device="cpu", cache_dir=tmp_path, progress=False)
+    out = rt.step(2.0).numpy()
+    assert np.allclose(out[:, 0], 0.5)  # 2 columns of 0.25
+    expected_z = moving_scene.points_at(2.0)[:, 2]
+    assert np.allclose(out[:, 1], expected_z, atol=1e-6)
+    frames = rt.run("1:3")
+    assert list(frames) == [1.0, 2.0]
+    assert sorted(rt.results) == [1.0, 2.0]
+    summary = rt.timing_summary()
+    assert summary["stages"]["shade"]["median_frame_s"] is not None
+    assert summary["stages"]["bake"]["cache"] == "miss"
+
+
+def test_cache_reuse_and_invalidation(moving_scene, tmp_path):
+    CALLS["const"] = 0
+    _spec(value=1.0).compile(moving_scene, device="cpu", cache_dir=tmp_path, progress=False)
+    assert CALLS["const"] == 1
+    rt = _spec(value=1.0).compile(moving_scene, device="cpu", cache_dir=tmp_path, progress=False)
+    assert CALLS["const"] == 1, "unchanged inputs must reuse the cached artifact"
+    assert rt.timings["bake"].cache == "hit"
+    _spec(value=2.0).compile(moving_scene, device="cpu", cache_dir=tmp_path, progress=False)
+    assert CALLS["const"] == 2, "a changed parameter must recompute"
+    moved = Scene.from_meshes(
+        [Mesh("/box", moving_scene.meshes[0].points * 2.0, moving_scene.meshes[0].faces, animation="rigid",
+              transforms=moving_scene.meshes[0].transforms)],
+        frames=moving_scene.frames, lights=moving_scene.lights,
+    )
+    _spec(value=2.0).compile(moved, device="cpu", cache_dir=tmp_path, progress=False)
+    assert CALLS["const"] == 3, "a changed scene must recompute"
+    assert not [p for p in tmp_path.iterdir() if p.suffix == ".tmp"], "no temporary files left behind"
+    # a damaged artifact is a miss, never a crash or wrong data
+    for p in tmp_path.glob("*.npz"):
+        p.write_bytes(b"garbage")
+    rt = _spec(value=1.0).compile(moving_scene, device="cpu", cache_dir=tmp_path, progress=False)
+    assert rt.timings["bake"].cache == "miss"
+    assert np.allclose(rt.step(0.0).numpy()[:, 0], 2.0)
+
+
+@pytest.mark.parametrize(
+    "spec, message",
+    [
+        (GraphSpec([StageSpec("a", "no.such")], "a.x"), "unknown stage type 'no.such'"),
+        (_spec(extra=[]).__class__([StageSpec("bake", "test.const", {"kk": 1}), StageSpec("shade", "test.sum")], "shade.radiance"),
+         "unknown parameter"),
+        (GraphSpec([StageSpec("shade", "test.sum")], "shade.radiance"), "input 'values' is not connected"),
+        (_spec(extra=[StageSpec("bake2", "test.const")]), "input 'values' is ambiguous"),
+        (_spec(inputs={"values": "scene.points"}), "expects dtype float32"),
+        (_spec(k_const=3, k_sum=2), "expects shape"),
+        (_spec(extra=[StageSpec("loop", "test.loop", {}, {"radiance": "loop2.radiance2"}),
+                      StageSpec("loop2", "test.loop", {}, {"radiance": "loop.radiance2"})]), "cycle"),
+        (_spec(inputs={"values": "nowhere.values"}), "unknown stage 'nowhere'"),
+        (_spec(inputs={"values": "bake.nothing"}), "has no output 'nothing'"),
+        (GraphSpec([StageSpec("bake", "test.const"), StageSpec("shade", "test.sum")], "bake.values"),
+         "must come from a per-frame stage"),
+    ],
+)
+def test_validation_errors(spec, message):
+    with pytest.raises(GraphError, match=message) as info:
+        spec.build({"V": 8, "T": 1, "F": 12})
+    assert "stage" in str(info.value) or "graph" in str(info.value)
+
+
+def test_toml_loading_errors(tmp_path):
+    with pytest.raises(GraphError, match="does not exist"):
+        load(tmp_path / "missing.toml")
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[graph\nname=")
+    with pytest.raises(GraphError, match="invalid TOML"):
+        load(bad)
+    no_out = tmp_path / "noout.toml"
+    no_out.write_text('[graph]\nname = "x"\n[[stage]]\nname = "a"\ntype = "test.const"\n')
+    with pytest.raises(GraphError, match="output"):
+        load(no_out)
+
+
+def test_toml_roundtrip_and_outputs(moving_scene, tmp_path):
+    path = tmp_path / "g.toml"
+    path.write_text(
+        '[graph]\nname = "toml-graph"\noutput = "shade.radiance"\nframes = "0:3"\n'
+        '[[stage]]\nname = "bake"\ntype = "test.const"\nvalue = 0.5\n'
+        '[[stage]]\nname = "shade"\ntype = "test.sum"\ninputs = { values = "bake.values" }\n'
+    )
+    spec = load(path)
+    rt = spec.compile(moving_scene, device="cpu", cache_dir=None, progress=False)
+    assert rt.timings["bake"].cache == "off"
+    rt.run()
+    report = json.loads(rt.write_report(tmp_path / "report.json").read_text())
+    assert report["graph"] == "toml-graph" and report["frames_run"] == [0.0, 1.0, 2.0]
+    usd_path = rt.write_usd(tmp_path / "out" / "shaded.usda")
+    from pxr import Usd, UsdGeom
+
+    stage = Usd.Stage.Open(str(usd_path))
+    meshes = [p for p in stage.Traverse() if p.IsA(UsdGeom.Mesh)]
+    assert len(meshes) == 1
+    pv = UsdGeom.PrimvarsAPI(meshes[0]).GetPrimvar("displayColor")
+    assert pv.GetInterpolation() == UsdGeom.Tokens.vertex
+    assert pv.GetAttr().GetTimeSamples() == [0.0, 1.0, 2.0]
+    got = np.asarray(pv.Get(Usd.TimeCode(1.0)))
+    assert np.allclose(got, rt.results[1.0])
+    pts = np.asarray(UsdGeom.Mesh(meshes[0]).GetPointsAttr().Get(Usd.TimeCode(2.0)))
+    assert np.allclose(pts, moving_scene.points_at(2.0), atol=1e-6)

@@ -1,0 +1,100 @@
+"""On-disk cache of precompute artifacts, keyed by content hashes, written atomically.
+
+An artifact set (one precompute stage's outputs: a dict of NumPy arrays) is stored as one
+``.npz`` file named by its key. Files are written to a temporary name in the same directory
+and moved into place with ``os.replace``, so an interrupted run never leaves a truncated
+artifact behind and a concurrent reader sees either nothing or the complete file.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["ArtifactCache", "hash_arrays", "hash_json", "default_cache_dir"]
+
+
+def default_cache_dir() -> Path:
+    """``$WARPSHADE_CACHE`` if set, else ``~/.cache/warpshade``."""
+    env = os.environ.get("WARPSHADE_CACHE")
+    return Path(env) if env else Path.home() / ".cache" / "warpshade"
+
+
+def hash_arrays(arrays, h=None) -> str:
+    """SHA-256 over the dtype, shape and bytes of a sequence of arrays (None allowed)."""
+    h = h or hashlib.sha256()
+    for a in arrays:
+        if a is None:
+            h.update(b"<none>")
+            continue
+        a = np.ascontiguousarray(a)
+        h.update(str(a.dtype).encode())
+        h.update(str(a.shape).encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
+
+
+def hash_json(obj) -> str:
+    """SHA-256 of a canonical JSON encoding (sorted keys) of ``obj``."""
+    return hashlib.sha256(json.dumps(obj, sort_keys=True, default=repr).encode()).hexdigest()
+
+
+class ArtifactCache:
+    """A directory of ``<key>.npz`` artifact files.
+
+    Args:
+        root: cache directory (created on first write). None disables the cache.
+    """
+
+    def __init__(self, root: str | os.PathLike | None):
+        self.root = Path(root) if root is not None else None
+        self.hits = 0
+        self.misses = 0
+
+    @property
+    def enabled(self) -> bool:
+        return self.root is not None
+
+    def path(self, key: str) -> Path:
+        if self.root is None:
+            raise RuntimeError("artifact cache is disabled")
+        return self.root / f"{key}.npz"
+
+    def load(self, key: str) -> dict | None:
+        """Return the cached arrays for ``key``, or None (also for an unreadable file)."""
+        if self.root is None:
+            return None
+        p = self.path(key)
+        if not p.exists():
+            self.misses += 1
+            return None
+        try:
+            with np.load(p, allow_pickle=False) as data:
+                out = {k: data[k] for k in data.files}
+        except (OSError, ValueError):  # a damaged file is a miss, never a crash or wrong data
+            self.misses += 1
+            return None
+        self.hits += 1
+        return out
+
+    def store(self, key: str, arrays: dict) -> Path | None:
+        """Write ``arrays`` atomically under ``key``; returns the file path."""
+        if self.root is None:
+            return None
+        self.root.mkdir(parents=True, exist_ok=True)
+        final = self.path(key)
+        fd, tmp = tempfile.mkstemp(prefix=f".{key[:16]}-", suffix=".npz.tmp", dir=self.root)
+        try:
+            with os.fdopen(fd, "wb") as f:
+                np.savez(f, **{k: np.asarray(v) for k, v in arrays.items()})
+            os.replace(tmp, final)
+        except BaseException:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+            raise
+        return final

@@ -1,0 +1,345 @@
+"""Stage graphs: specification, TOML loading and validation.
+
+A graph names a scene, a lighting set-up, a frame range, a list of stages (each a registered
+stage type with parameters) and the output port that carries per-vertex radiance. Stage inputs
+are wired explicitly (``inputs = { transfer = "bake.transfer" }``) or, when omitted, to the one
+upstream output with the same port name; the implicit source ``scene`` provides:
+
+========== ======== =========== =====================================================
+port        dtype    shape       meaning
+========== ======== =========== =====================================================
+points      vec3     (V,)        world-space vertex positions of the frame
+normals     vec3     (V,)        world-space unit vertex normals of the frame
+albedo      float32  (V, 3)      per-vertex diffuse albedo (static)
+lighting    lighting ()          the frame's lights (environment, distant, sphere)
+========== ======== =========== =====================================================
+
+Validation happens before anything runs and raises :class:`GraphError` naming the stage and
+port: unknown stage types or parameters, missing or ambiguous inputs, dtype or shape mismatch,
+precompute stages fed by per-frame outputs, duplicate names and cycles.
+
+TOML layout (paths are relative to the TOML file)::
+
+    [graph]
+    name = "blockers-shexp"
+    description = "..."
+    scene = "../usd_assets/blockers.usda"     # or "warp-example:bunny"
+    ground_plane = false                      # optional scene option
+    frames = "0:60"                           # time codes A <= t < B (optional)
+    output = "shade.radiance"
+
+    [lighting]                                # optional; default: the scene's lights
+    source = "scene"                          # "scene" | "sky" | "constant" | path to .hdr/.exr
+    rotate_degrees_per_frame = 3.0
+    intensity = 1.0
+
+    [validate]                                # optional: error against ground truth
+    frames = [0, 30]
+    samples = 1024
+
+    [[stage]]
+    name = "bake"
+    type = "prt.transfer"
+    order = 4
+
+    [[stage]]
+    name = "shade"
+    type = "prt.shade"
+    inputs = { transfer = "bake.transfer" }
+"""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ..methods.stage import Port, Stage, StageError, get_stage_type
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - Python 3.10
+    import tomli as tomllib
+
+__all__ = ["GraphError", "StageSpec", "GraphSpec", "load", "SCENE_PORTS"]
+
+
+class GraphError(StageError):
+    """A graph that cannot run; the message names the stage and port (or file)."""
+
+
+SCENE_PORTS: dict[str, Port] = {
+    "points": Port("vec3", ("V",), "world-space vertex positions of the frame"),
+    "normals": Port("vec3", ("V",), "world-space unit vertex normals of the frame"),
+    "albedo": Port("float32", ("V", 3), "per-vertex diffuse albedo, linear RGB (static)"),
+    "lighting": Port("lighting", (), "the frame's lights"),
+}
+SCENE_STATIC_PORTS = ("albedo",)
+
+
+@dataclass
+class StageSpec:
+    """One stage of a graph: a unique name, a registered type, parameters and explicit inputs."""
+
+    name: str
+    type: str
+    params: dict = field(default_factory=dict)
+    inputs: dict = field(default_factory=dict)
+
+
+@dataclass
+class Wire:
+    """A resolved connection: ``provider`` ("scene" or a stage name) and its ``port``."""
+
+    provider: str
+    port: str
+
+    def __str__(self) -> str:
+        return f"{self.provider}.{self.port}"
+
+
+@dataclass
+class GraphSpec:
+    """A stage graph (see module docstring). Build from Python or with :func:`load`."""
+
+    stages: list
+    output: str
+    name: str = "graph"
+    description: str = ""
+    scene: str | None = None
+    scene_options: dict = field(default_factory=dict)
+    frames: str | None = None
+    lighting: dict = field(default_factory=dict)
+    validate_spec: dict = field(default_factory=dict)
+    source_path: Path | None = None
+
+    # ---- validation ---------------------------------------------------------------------
+    def build(self, dims: dict | None = None):
+        """Instantiate and validate the stages.
+
+        Args:
+            dims: concrete scene dimensions (``{"V": ..., "T": ..., "F": ...}``); when given,
+                symbolic shapes are checked against them too.
+
+        Returns:
+            (ordered stages, wiring) where wiring maps stage name -> {input port: Wire}.
+
+        Raises:
+            GraphError: naming the stage and port at fault.
+        """
+        where = f"graph {self.name!r}" + (f" ({self.source_path})" if self.source_path else "")
+        if not self.stages:
+            raise GraphError(f"{where}: has no stages")
+        stages: dict[str, Stage] = {}
+        for spec in self.stages:
+            if spec.name in stages or spec.name == "scene":
+                raise GraphError(f"{where}: stage name {spec.name!r} is used twice (or is reserved)")
+            try:
+                cls = get_stage_type(spec.type, spec.name)
+                stages[spec.name] = cls(spec.name, spec.params)
+            except StageError as exc:
+                raise GraphError(f"{where}: {exc}") from None
+
+        providers: dict[str, list[Wire]] = {}
+        for port in SCENE_PORTS:
+            providers.setdefault(port, []).append(Wire("scene", port))
+        for name, st in stages.items():
+            for port in st.output_ports():
+                providers.setdefault(port, []).append(Wire(name, port))
+
+        wiring: dict[str, dict[str, Wire]] = {}
+        explicit = {s.name: dict(s.inputs) for s in self.stages}
+        for name, st in stages.items():
+            wiring[name] = {}
+            declared = st.input_ports()
+            for port in explicit[name]:
+                if port not in declared:
+                    raise GraphError(
+                        f"{where}: stage {name!r} has no input port {port!r} (inputs: {sorted(declared)})"
+                    )
+            for port, want in declared.items():
+                if port in explicit[name]:
+                    target = str(explicit[name][port])
+                    if "." not in target:
+                        raise GraphError(f"{where}: stage {name!r} input {port!r}: {target!r} is not 'stage.port'")
+                    prov, pport = target.split(".", 1)
+                    if prov != "scene" and prov not in stages:
+                        raise GraphError(
+                            f"{where}: stage {name!r} input {port!r} names unknown stage {prov!r}"
+                        )
+                    outs = SCENE_PORTS if prov == "scene" else stages[prov].output_ports()
+                    if pport not in outs:
+                        raise GraphError(
+                            f"{where}: stage {name!r} input {port!r}: {prov!r} has no output {pport!r} "
+                            f"(outputs: {sorted(outs)})"
+                        )
+                    wire = Wire(prov, pport)
+                else:
+                    cands = [w for w in providers.get(port, []) if w.provider != name]
+                    if not cands:
+                        raise GraphError(f"{where}: stage {name!r} input {port!r} is not connected (no provider)")
+                    if len(cands) > 1:
+                        raise GraphError(
+                            f"{where}: stage {name!r} input {port!r} is ambiguous: "
+                            f"{', '.join(map(str, cands))}; wire it explicitly"
+                        )
+                    wire = cands[0]
+                if wire.provider == name:
+                    raise GraphError(f"{where}: stage {name!r} input {port!r} is wired to itself")
+                self._check_types(where, stages, name, port, want, wire, dims)
+                wiring[name][port] = wire
+
+        order = self._topological_order(where, stages, wiring)
+        if "." not in self.output:
+            raise GraphError(f"{where}: output {self.output!r} is not 'stage.port'")
+        oname, oport = self.output.split(".", 1)
+        if oname not in stages or oport not in stages[oname].output_ports():
+            raise GraphError(f"{where}: output {self.output!r} is not an output of any stage")
+        if stages[oname].kind != "frame":
+            raise GraphError(f"{where}: output {self.output!r} must come from a per-frame stage")
+        return [stages[n] for n in order], wiring
+
+    @staticmethod
+    def _check_types(where, stages, name, port, want: Port, wire: Wire, dims):
+        consumer = stages[name]
+        if wire.provider == "scene":
+            have = SCENE_PORTS[wire.port]
+            have_dims = {}
+            prov_kind = "static" if wire.port in SCENE_STATIC_PORTS else "frame"
+        else:
+            prov = stages[wire.provider]
+            have = prov.output_ports()[wire.port]
+            have_dims = prov.dims()
+            prov_kind = prov.kind
+        if consumer.kind == "precompute" and prov_kind == "frame":
+            raise GraphError(
+                f"{where}: precompute stage {name!r} input {port!r} is fed by per-frame output {wire}"
+            )
+        if want.dtype != "object" and have.dtype != want.dtype:
+            raise GraphError(
+                f"{where}: stage {name!r} input {port!r} expects dtype {want.dtype}, {wire} gives {have.dtype}"
+            )
+        if want.dtype in ("lighting", "object"):
+            return
+        scene_dims = dict(dims or {})
+
+        def concrete(shape, local):
+            out = []
+            for d in shape:
+                if isinstance(d, str):
+                    v = local.get(d, scene_dims.get(d))
+                    out.append(v if v is not None else d)
+                else:
+                    out.append(int(d))
+            return tuple(out)
+
+        a = concrete(want.shape, consumer.dims())
+        b = concrete(have.shape, have_dims)
+        if len(a) != len(b) or any(
+            (isinstance(x, int) and isinstance(y, int) and x != y) or (isinstance(x, str) and isinstance(y, str) and x != y)
+            for x, y in zip(a, b)
+        ):
+            raise GraphError(
+                f"{where}: stage {name!r} input {port!r} expects shape {a}, {wire} gives shape {b}"
+            )
+
+    @staticmethod
+    def _topological_order(where, stages, wiring) -> list[str]:
+        deps = {n: {w.provider for w in wiring[n].values() if w.provider != "scene"} for n in stages}
+        order: list[str] = []
+        ready = [n for n in stages if not deps[n]]
+        remaining = {n: set(d) for n, d in deps.items()}
+        while ready:
+            n = ready.pop(0)
+            order.append(n)
+            for m in stages:
+                if n in remaining[m]:
+                    remaining[m].discard(n)
+                    if not remaining[m] and m not in order and m not in ready:
+                        ready.append(m)
+        if len(order) != len(stages):
+            cyc = sorted(n for n in stages if n not in order)
+            raise GraphError(f"{where}: cycle among stages {cyc}")
+        # precompute stages first (they never depend on frame stages), stable otherwise
+        return [n for n in order if stages[n].kind == "precompute"] + [n for n in order if stages[n].kind == "frame"]
+
+    # ---- compile ------------------------------------------------------------------------
+    def resolve_scene_spec(self) -> str | None:
+        """The scene spec with a relative path resolved against the TOML file's directory."""
+        if self.scene is None:
+            return None
+        if ":" in self.scene and not Path(self.scene).drive and not self.scene.startswith(("/", ".")):
+            return self.scene  # e.g. "warp-example:bunny"
+        p = Path(self.scene)
+        if not p.is_absolute() and self.source_path is not None:
+            p = (self.source_path.parent / p).resolve()
+        return str(p)
+
+    def compile(self, scene=None, device=None, **kwargs):
+        """Validate against a scene and return a :class:`~warpshade.graph.runtime.Runtime`.
+
+        Args:
+            scene: a :class:`~warpshade.scene.Scene`; default: load the graph's ``scene`` spec.
+            device: Warp device (default: Warp's default device).
+            **kwargs: passed to :class:`~warpshade.graph.runtime.Runtime` (``cache_dir``,
+                ``progress``, ``capture``, ``lighting``).
+        """
+        from .runtime import Runtime
+
+        if scene is None:
+            spec = self.resolve_scene_spec()
+            if spec is None:
+                raise GraphError(f"graph {self.name!r}: no scene given and the graph names none")
+            from ..io import load_scene
+
+            scene = load_scene(spec, **self.scene_options)
+        return Runtime(self, scene, device=device, **kwargs)
+
+
+_GRAPH_KEYS = {"name", "description", "scene", "frames", "output"}
+
+
+def load(path) -> GraphSpec:
+    """Load a stage graph from a TOML file (see module docstring for the layout).
+
+    Raises:
+        GraphError: naming the file for a missing file, TOML syntax errors or malformed tables.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise GraphError(f"stage graph file {path} does not exist")
+    try:
+        with open(path, "rb") as f:
+            doc = tomllib.load(f)
+    except tomllib.TOMLDecodeError as exc:
+        raise GraphError(f"stage graph file {path}: invalid TOML: {exc}") from None
+    g = doc.get("graph")
+    if not isinstance(g, dict):
+        raise GraphError(f"stage graph file {path}: missing [graph] table")
+    if "output" not in g:
+        raise GraphError(f"stage graph file {path}: [graph] needs an 'output = \"stage.port\"' entry")
+    scene_options = {k: v for k, v in g.items() if k not in _GRAPH_KEYS}
+    raw_stages = doc.get("stage", [])
+    if not isinstance(raw_stages, list) or not raw_stages:
+        raise GraphError(f"stage graph file {path}: needs at least one [[stage]] table")
+    stages = []
+    for i, st in enumerate(raw_stages):
+        if "name" not in st or "type" not in st:
+            raise GraphError(f"stage graph file {path}: [[stage]] #{i + 1} needs 'name' and 'type'")
+        params = {k: v for k, v in st.items() if k not in ("name", "type", "inputs")}
+        inputs = st.get("inputs", {})
+        if not isinstance(inputs, dict):
+            raise GraphError(f"stage graph file {path}: stage {st['name']!r}: 'inputs' must be a table")
+        stages.append(StageSpec(st["name"], st["type"], params, inputs))
+    return GraphSpec(
+        stages=stages,
+        output=g["output"],
+        name=g.get("name", path.stem),
+        description=g.get("description", ""),
+        scene=g.get("scene"),
+        scene_options=scene_options,
+        frames=g.get("frames"),
+        lighting=doc.get("lighting", {}),
+        validate_spec=doc.get("validate", {}),
+        source_path=path.resolve(),
+    )
