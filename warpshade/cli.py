@@ -106,6 +106,120 @@ def _cmd_info(args) -> int:
     return 0
 
 
+def _stage_dirs() -> list:
+    """Where ready-made stage graphs are looked for: ./stages, then the source checkout's."""
+    from pathlib import Path
+
+    dirs = [Path.cwd() / "stages", Path(__file__).resolve().parent.parent / "stages"]
+    out = []
+    for d in dirs:
+        if d.is_dir() and d.resolve() not in [o.resolve() for o in out]:
+            out.append(d)
+    return out
+
+
+def _find_graph(name: str):
+    from pathlib import Path
+
+    p = Path(name)
+    if p.exists():
+        return p
+    for d in _stage_dirs():
+        for cand in (d / name, d / f"{name}.toml"):
+            if cand.exists():
+                return cand
+    raise FileNotFoundError(f"stage graph {name!r} not found (looked in: {', '.join(map(str, _stage_dirs())) or 'no stages/ folder'})")
+
+
+def _cmd_list_stages(args) -> int:
+    """List the ready-made stage graphs and every registered stage type."""
+    from .graph import GraphError, load, stage_types
+
+    for d in _stage_dirs():
+        print(f"stage graphs in {d}:")
+        for f in sorted(d.glob("*.toml")):
+            try:
+                g = load(f)
+                print(f"  {f.name:34s} {g.description or g.name}")
+            except GraphError as exc:
+                print(f"  {f.name:34s} [invalid: {exc}]")
+    print("stage types:")
+    for name, cls in sorted(stage_types().items()):
+        print(f"  {name:26s} {cls.kind:10s} {cls.description}")
+    return 0
+
+
+def _run_graph(graph_file, frames=None, device=None, out_dir=None, validate=False, previews=True, progress=True):
+    """Run one stage graph end to end; returns (runtime, outputs dict)."""
+    import time
+    from pathlib import Path
+
+    from .graph import load
+
+    spec = load(graph_file)
+    out = Path(out_dir if out_dir is not None else Path("warpshade-out") / spec.name)
+    t0 = time.perf_counter()
+    rt = spec.compile(device=device, progress=progress)
+    rt.run(frames)
+    outputs = {"usd": rt.write_usd(out / f"{spec.name}.usda")}
+    if previews:
+        outputs["png"] = rt.render_previews(out)
+    error = rt.measure_error() if validate else None
+    outputs["report"] = rt.write_report(out / f"{spec.name}.json", error=error)
+    outputs["seconds"] = time.perf_counter() - t0
+    outputs["error"] = error
+    return rt, outputs
+
+
+def _print_run(rt, outputs) -> None:
+    t = rt.timing_summary()
+    pre = sum(v.get("precompute_s", 0.0) for v in t["stages"].values())
+    print(f"{rt.spec.name}: {rt.scene.vertex_count:,} vertices, {len(rt.results)} frames on {rt.device}")
+    print(f"  precompute {pre:.2f} s, median frame {1e3 * (t['median_frame_s'] or 0):.2f} ms "
+          f"(host-side Python {1e3 * (t['median_host_s'] or 0):.2f} ms)")
+    err = outputs.get("error")
+    if err:
+        m = err["mean"]
+        print(f"  error vs ray-traced ground truth ({err['samples']} spp): relative RMS {m['rel_rms']:.4f}, "
+              f"p99 {m['rel_p99']:.4f} (ground-truth noise {m.get('noise_rel_rms', float('nan')):.4f})")
+    print(f"  USD     {outputs['usd']}")
+    for p in outputs.get("png", []):
+        print(f"  PNG     {p}")
+    print(f"  report  {outputs['report']}  ({outputs['seconds']:.1f} s in all)")
+
+
+def _cmd_run(args) -> int:
+    """Run a stage graph: precompute (cached), frame loop, USD + PNG + JSON outputs."""
+    from .graph import GraphError
+
+    try:
+        graph_file = _find_graph(args.graph)
+        rt, outputs = _run_graph(graph_file, args.frames, args.device, args.out, args.validate, not args.no_previews)
+    except (GraphError, FileNotFoundError, ValueError) as exc:
+        print(f"warpshade run: error: {exc}", file=sys.stderr)
+        return 2
+    _print_run(rt, outputs)
+    return 0
+
+
+DEMO_GRAPH = "demo.toml"
+
+
+def _cmd_demo(args) -> int:
+    """Run the default bundled scene end to end and say where the outputs are."""
+    from .graph import GraphError
+
+    try:
+        graph_file = _find_graph(DEMO_GRAPH)
+        rt, outputs = _run_graph(graph_file, None, args.device, args.out or "warpshade-out/demo", validate=True)
+    except (GraphError, FileNotFoundError, ValueError) as exc:
+        print(f"warpshade demo: error: {exc}", file=sys.stderr)
+        return 2
+    print(f"warpshade demo ({graph_file}):")
+    _print_run(rt, outputs)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="warpshade", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -121,6 +235,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("scene", help="USD file or scene spec")
     p.add_argument("--ground-plane", action="store_true", help="add a ground plane under the scene first")
     p.set_defaults(func=_cmd_info)
+    p = sub.add_parser("run", help="run a stage graph (TOML) end to end: USD + PNG + JSON report")
+    p.add_argument("graph", help="path to a stage graph, or the name of one in stages/")
+    p.add_argument("--frames", default=None, help="time codes A:B (A <= t < B); default: the graph's range")
+    p.add_argument("--device", default=None, help="Warp device: cpu, cuda:0 (default: Warp's default)")
+    p.add_argument("--out", default=None, help="output directory (default: warpshade-out/<graph name>)")
+    p.add_argument("--validate", action="store_true", help="measure error against ray-traced ground truth")
+    p.add_argument("--no-previews", action="store_true", help="skip the PNG previews")
+    p.set_defaults(func=_cmd_run)
+    p = sub.add_parser("demo", help="run the default bundled scene end to end and print where its outputs are")
+    p.add_argument("--device", default=None)
+    p.add_argument("--out", default=None, help="output directory (default: warpshade-out/demo)")
+    p.set_defaults(func=_cmd_demo)
+    p = sub.add_parser("list-stages", help="list ready-made stage graphs and registered stage types")
+    p.set_defaults(func=_cmd_list_stages)
     return parser
 
 

@@ -292,8 +292,33 @@ class GraphSpec:
                 raise GraphError(f"graph {self.name!r}: no scene given and the graph names none")
             from ..io import load_scene
 
-            scene = load_scene(spec, **self.scene_options)
+            options = dict(self.scene_options)
+            frame_count = options.pop("frame_count", None)
+            try:
+                scene = load_scene(spec, **options)
+            except TypeError as exc:
+                raise GraphError(f"graph {self.name!r}: bad scene option in [graph]: {exc}") from None
+            if frame_count is not None:
+                scene = extend_static_frames(scene, int(frame_count))
         return Runtime(self, scene, device=device, **kwargs)
+
+
+def extend_static_frames(scene, frame_count: int):
+    """A static scene with ``frame_count`` time codes 0..frame_count-1 (e.g. to rotate lighting).
+
+    Raises:
+        GraphError: when the scene is animated (its own time range must be used).
+    """
+    if frame_count < 1:
+        raise GraphError(f"frame_count must be >= 1, got {frame_count}")
+    if not scene.is_static:
+        raise GraphError(f"scene {scene.source}: frame_count only applies to static scenes (this one is animated)")
+    from ..scene import Scene
+
+    return Scene(
+        scene.meshes, frames=range(frame_count), fps=scene.fps, skeletons=scene.skeletons, lights=scene.lights,
+        camera=scene.camera, up_axis=scene.up_axis, source=scene.source, skipped=scene.skipped,
+    )
 
 
 _GRAPH_KEYS = {"name", "description", "scene", "frames", "output"}

@@ -452,19 +452,30 @@ class Runtime:
         colors = np.stack([self.results[f] for f in frames])
         return write_vertex_colors(path, self.scene, np.array(frames), colors, extra_primvars=extra_primvars)
 
-    def render_previews(self, out_dir, frames=None, width: int = 480, height: int = 360) -> list:
-        """Render PNG previews of recorded frames (default: first, middle and last)."""
-        from ..render import render_vertex_colors
+    def render_previews(self, out_dir, frames=None, width: int = 480, height: int = 360, exposure: float | None = None) -> list:
+        """Render PNG previews of recorded frames (default: first, middle and last).
+
+        One exposure is used for all frames of a run so they compare; by default it maps the
+        99th percentile of the recorded radiance to 0.9 before sRGB encoding.
+        """
+        from ..render import render
 
         rec = sorted(self.results)
         if not rec:
             raise ValueError("render_previews: no recorded frames; call run() first")
         if frames is None:
             frames = sorted({rec[0], rec[len(rec) // 2], rec[-1]})
+        if exposure is None:
+            lum = np.concatenate([self.results[f].mean(axis=1) for f in frames])
+            p99 = float(np.percentile(lum, 99)) if lum.size else 1.0
+            exposure = float(np.log2(0.9 / p99)) if p99 > 0 else 0.0
+        env = next((l for l in self.ctx.lighting.lights if hasattr(l, "image")), None)
         paths = []
         for f in frames:
             p = Path(out_dir) / f"{self.spec.name}_{int(round(f)):04d}.png"
-            render_vertex_colors(self.scene, f, self.results[float(f)], p, width=width, height=height, device=self.device)
+            env_f = self.ctx.lighting.lights_at(f)[self.ctx.lighting.lights.index(env)] if env is not None else None
+            render(self.scene, f, colors=self.results[float(f)], width=width, height=height, environment=env_f,
+                   exposure=exposure, path=p, device=self.device, supersample=2)
             paths.append(p)
         return paths
 

@@ -56,7 +56,24 @@ def write_vertex_colors(path, scene, frames, colors, extra_primvars: dict | None
     if path.suffix not in (".usda", ".usdc", ".usd"):
         raise ValueError(f"write_vertex_colors: output must end in .usda, .usdc or .usd, got {path.name}")
 
-    layer = Sdf.Layer.CreateAnonymous(".usda")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}-", suffix=path.suffix, dir=path.parent)
+    os.close(fd)
+    os.unlink(tmp)  # Sdf creates the layer itself; the name stays ours (same directory => same relative paths)
+    try:
+        _author(tmp, path, source, scene, frames, colors, extra_primvars)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return path
+
+
+def _author(tmp, path, source, scene, frames, colors, extra_primvars):
+    layer = Sdf.Layer.CreateNew(tmp)
+    if layer is None:
+        raise OSError(f"could not create USD layer {tmp}")
     stage = Usd.Stage.Open(layer)
     src_stage = None
     if source is not None:
@@ -97,18 +114,8 @@ def write_vertex_colors(path, scene, frames, colors, extra_primvars: dict | None
             for t, f in enumerate(frames):
                 epv.Set(conv(np.ascontiguousarray(arr[t, sl])), Usd.TimeCode(float(f)))
 
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}-", suffix=path.suffix, dir=path.parent)
-    os.close(fd)
-    try:
-        if not layer.Export(tmp):
-            raise OSError(f"could not export USD layer to {tmp}")
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
+    if not layer.Save():
+        raise OSError(f"could not save USD layer {tmp}")
 
 
 def _editable_source_mesh(src_stage, mesh):
