@@ -1,13 +1,21 @@
 """One subpackage per technique; importing this package registers every built-in stage type.
 
 Each method subpackage holds ``kernels.py`` (Warp kernels) beside ``stages.py`` (the stages
-that orchestrate them). Stage types:
-
-* ``prt.transfer``, ``prt.shade``, ``prt.unshadowed`` -- static PRT (Sloan et al. 2002) and
-  unshadowed irradiance, :mod:`warpshade.methods.prt`.
+that orchestrate them), registers its stage types on import, and may define
+``harness_rows(quick)`` for the speed-vs-accuracy harness (:mod:`warpshade.methods.harness`).
+Subpackages are discovered, so adding a method needs no edit here.
 """
 
-from . import prt  # noqa: F401  (registers stages)
+import importlib
+import pkgutil
+
 from .stage import Param, Port, Stage, StageError, get_stage_type, register_stage, stage_types
 
-__all__ = ["Param", "Port", "Stage", "StageError", "get_stage_type", "register_stage", "stage_types"]
+#: Method subpackages, discovered at import (each registers its stages).
+METHOD_PACKAGES = tuple(
+    sorted(m.name for m in pkgutil.iter_modules(__path__) if m.ispkg)
+)
+for _name in METHOD_PACKAGES:
+    importlib.import_module(f"{__name__}.{_name}")
+
+__all__ = ["METHOD_PACKAGES", "Param", "Port", "Stage", "StageError", "get_stage_type", "register_stage", "stage_types"]

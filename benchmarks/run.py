@@ -1,0 +1,296 @@
+"""Speed-vs-accuracy harness: every method x setting on every bundled scene, in one run.
+
+For each scene and device it measures, side by side:
+
+* time per frame (median over the timed frames, after a warm-up frame), host-side time too;
+* precompute time (with the artifact cache off, so it is the real cost) and model memory;
+* error against ray-traced ground truth on sampled frames: relative RMS over vertices, the
+  99th percentile, and the ground truth's own Monte Carlo noise (differences below it are not
+  resolved; ``rel_rms_debiased`` removes the ground truth's variance from the squared error).
+
+Writes ``benchmarks/results/<date>-<device>.json``, a Pareto chart ``...-pareto.png`` (time per
+frame vs error, log axes, one marker per method/setting, one panel per scene) and a Markdown
+table, and refreshes ``benchmarks/results/latest-<device>.{json,png,md}``.
+
+Usage::
+
+    python benchmarks/run.py [--quick] [--scenes bunny,blockers] [--methods prt,shexp] [--device cpu]
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import os
+import platform
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from warpshade._wp import wp  # noqa: E402
+from warpshade.graph import GraphSpec, LightingSource, StageSpec, error_metrics, combine_metrics  # noqa: E402
+from warpshade.graph.cache import ArtifactCache, default_cache_dir, hash_json  # noqa: E402
+from warpshade.graph.runtime import scene_fingerprint  # noqa: E402
+from warpshade.methods.harness import all_rows  # noqa: E402
+
+RESULTS = ROOT / "benchmarks" / "results"
+
+#: Bundled scenes: spec, load options, and how many frames a static scene is given (the
+#: lighting rotates over them, so a static scene still has per-frame work).
+SCENES = {
+    "bunny": {"spec": "warp-example:bunny", "options": {"ground_plane": True}},
+    "bear": {"spec": "warp-example:bear", "options": {"ground_plane": True}},
+    "blockers": {"spec": str(ROOT / "usd_assets" / "blockers.usda"), "options": {}},
+    "figure": {"spec": str(ROOT / "usd_assets" / "figure.usda"), "options": {}},
+    "cloth": {"spec": str(ROOT / "usd_assets" / "cloth.usda"), "options": {}},
+    "bend": {"spec": str(ROOT / "usd_assets" / "bend.usda"), "options": {}},
+}
+STATIC_FRAME_COUNT = 24
+ROTATE_DEGREES_PER_FRAME = 5.0
+
+
+def scene_kinds(scene) -> set:
+    kinds = {"all", "static" if scene.is_static else "dynamic"}
+    kinds |= {m.animation for m in scene.meshes if m.animation in ("skinned", "deforming")}
+    return kinds
+
+
+def load_bench_scene(key):
+    from warpshade.graph.graph import extend_static_frames
+    from warpshade.io import load_scene
+
+    cfg = SCENES[key]
+    scene = load_scene(cfg["spec"], **cfg["options"])
+    if scene.is_static:
+        scene = extend_static_frames(scene, STATIC_FRAME_COUNT)
+    return scene
+
+
+def pick_frames(scene, count):
+    f = scene.frames
+    idx = np.unique(np.linspace(0, len(f) - 1, count).round().astype(int))
+    return f[idx]
+
+
+def ground_truth(scene, lighting, frames, samples, device, cache):
+    """Reference radiance and standard error per frame, cached by scene/lighting/frame/samples."""
+    from warpshade.reference import shade
+
+    out = {}
+    fp = scene_fingerprint(scene)
+    for f in frames:
+        key = "gt-" + hash_json({"scene": fp, "frame": float(f), "samples": samples,
+                                  "rotate": lighting.degrees_per_frame,
+                                  "lights": [repr(type(l)) + str(getattr(l, "path", "")) for l in lighting.lights]})[:32]
+        hit = cache.load(key)
+        if hit is None:
+            t0 = time.perf_counter()
+            res = shade(scene, f, lighting.lights_at(f), samples, device=device, seed=12345)
+            hit = {"radiance": np.asarray(res.radiance), "stderr": np.asarray(res.stderr)}
+            cache.store(key, hit)
+            print(f"    ground truth frame {f:g}: {samples} spp in {time.perf_counter() - t0:.1f} s", flush=True)
+        out[float(f)] = hit
+    return out
+
+
+def run_row(row, scene, lighting, device, timing_frames, gt, progress=False):
+    spec = GraphSpec(
+        stages=[StageSpec(n, t, dict(p), dict(i)) for (n, t, p, i) in row.stages],
+        output=row.output, name=f"{row.method}-{row.setting}".replace(" ", "-"),
+    )
+    t0 = time.perf_counter()
+    rt = spec.compile(scene, device=device, cache_dir=None, progress=progress, lighting=lighting)
+    compile_s = time.perf_counter() - t0
+    rt.run(timing_frames, record=True, warmup=True)
+    timing = rt.timing_summary()
+    per_frame = []
+    for f, ref in gt.items():
+        est = rt.results.get(f)
+        if est is None:
+            est = rt.step(f).numpy().copy()
+        m = error_metrics(est, ref["radiance"], ref["stderr"])
+        m["frame"] = f
+        per_frame.append(m)
+    err = combine_metrics(per_frame)
+    precompute_s = sum(v.get("precompute_s", 0.0) for v in timing["stages"].values())
+    return {
+        "method": row.method,
+        "setting": row.setting,
+        "params": [dict(name=n, type=t, **p) for (n, t, p, _) in row.stages],
+        "notes": row.notes,
+        "median_frame_ms": 1e3 * timing["median_frame_s"],
+        "median_host_ms": 1e3 * timing["median_host_s"],
+        "stage_ms": {k: 1e3 * v["median_frame_s"] for k, v in timing["stages"].items() if v.get("median_frame_s") is not None},
+        "precompute_s": precompute_s,
+        "compile_and_precompute_s": compile_s,
+        "model_bytes": rt.model_bytes(),
+        "frames_timed": timing["frames_timed"],
+        "error": err,
+        "error_per_frame": per_frame,
+    }
+
+
+def pareto_chart(results, path, title):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    scenes = sorted({r["scene"] for r in results})
+    methods = sorted({r["method"] for r in results})
+    cmap = plt.get_cmap("tab10")
+    colors = {m: cmap(i % 10) for i, m in enumerate(methods)}
+    cols = min(3, len(scenes))
+    rows = (len(scenes) + cols - 1) // cols
+    fig, axes = plt.subplots(rows, cols, figsize=(5.2 * cols, 4.2 * rows), squeeze=False)
+    for ax, sc in zip(axes.flat, scenes):
+        sub = [r for r in results if r["scene"] == sc]
+        for r in sub:
+            x, y = r["median_frame_ms"], max(r["error"]["rel_rms"], 1e-4)
+            ax.scatter(x, y, color=colors[r["method"]], s=28, zorder=3)
+            ax.annotate(r["setting"], (x, y), fontsize=6, xytext=(3, 2), textcoords="offset points")
+        # Pareto front per scene (lower-left envelope)
+        pts = sorted((r["median_frame_ms"], r["error"]["rel_rms"]) for r in sub)
+        front, best = [], np.inf
+        for x, y in pts:
+            if y < best:
+                front.append((x, y))
+                best = y
+        if len(front) > 1:
+            ax.plot(*zip(*front), color="0.6", lw=1, ls="--", zorder=1)
+        noise = np.mean([r["error"].get("noise_rel_rms", np.nan) for r in sub])
+        if np.isfinite(noise):
+            ax.axhline(noise, color="0.3", lw=0.8, ls=":", label="ground-truth noise")
+        vc = sub[0]["vertex_count"]
+        ax.set_title(f"{sc} ({vc:,} vertices)", fontsize=10)
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("time per frame (ms)")
+        ax.set_ylabel("relative RMS error vs ray traced")
+        ax.grid(True, which="both", alpha=0.25)
+    for ax in list(axes.flat)[len(scenes):]:
+        ax.axis("off")
+    handles = [plt.Line2D([], [], marker="o", ls="", color=colors[m], label=m) for m in methods]
+    handles.append(plt.Line2D([], [], ls=":", color="0.3", label="ground-truth noise"))
+    fig.legend(handles=handles, loc="lower center", ncol=len(handles), fontsize=9, frameon=False)
+    fig.suptitle(title, fontsize=11)
+    fig.tight_layout(rect=(0, 0.05, 1, 0.96))
+    tmp = path.with_name(f".{path.name}.tmp.png")
+    fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+    os.replace(tmp, path)
+
+
+def markdown_table(results, meta) -> str:
+    lines = [f"# Speed vs accuracy ({meta['date']}, {meta['device']})", "",
+             f"{meta['machine']}; Warp {meta['warp']}; ground truth {meta['gt_samples']} spp on frames per scene; "
+             f"timed frames per row: {meta['timing_frames']}. Reproduce: `{meta['command']}`.", ""]
+    for sc in sorted({r["scene"] for r in results}):
+        sub = [r for r in results if r["scene"] == sc]
+        lines += [f"## {sc} ({sub[0]['vertex_count']:,} vertices, ground-truth noise "
+                  f"{np.mean([r['error'].get('noise_rel_rms', np.nan) for r in sub]):.4f})", "",
+                  "| method | setting | ms/frame | precompute s | model MB | rel RMS | rel RMS (debiased) | p99 |",
+                  "|---|---|---:|---:|---:|---:|---:|---:|"]
+        for r in sorted(sub, key=lambda r: (r["method"], r["median_frame_ms"])):
+            e = r["error"]
+            lines.append(
+                f"| {r['method']} | {r['setting']} | {r['median_frame_ms']:.2f} | {r['precompute_s']:.2f} | "
+                f"{r['model_bytes'] / 2**20:.2f} | {e['rel_rms']:.4f} | {e.get('rel_rms_debiased', float('nan')):.4f} | "
+                f"{e['rel_p99']:.4f} |"
+            )
+        lines.append("")
+    return "\n".join(lines)
+
+
+def _atomic_write(path: Path, text: str):
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}-", dir=path.parent)
+    with os.fdopen(fd, "w") as f:
+        f.write(text)
+    os.replace(tmp, path)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--quick", action="store_true", help="fewer settings, frames and ground-truth samples")
+    ap.add_argument("--scenes", default=None, help="comma-separated scene keys (default: all)")
+    ap.add_argument("--methods", default=None, help="comma-separated method names (default: all)")
+    ap.add_argument("--device", action="append", default=None, help="device(s); default: cpu and cuda:0 if present")
+    ap.add_argument("--gt-samples", type=int, default=None, help="ground-truth samples per vertex")
+    ap.add_argument("--out", default=str(RESULTS))
+    args = ap.parse_args(argv)
+
+    devices = args.device or (["cpu"] + (["cuda:0"] if wp.is_cuda_available() else []))
+    scene_keys = args.scenes.split(",") if args.scenes else list(SCENES)
+    for k in scene_keys:
+        if k not in SCENES:
+            ap.error(f"unknown scene {k!r}; known: {sorted(SCENES)}")
+    rows = all_rows(quick=args.quick)
+    if args.methods:
+        wanted = set(args.methods.split(","))
+        rows = [r for r in rows if r.method in wanted]
+    gt_samples = args.gt_samples or (512 if args.quick else 2048)
+    timing_frames = 4 if args.quick else 12
+    gt_count = 1 if args.quick else 2
+    out_dir = Path(args.out)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    cache = ArtifactCache(default_cache_dir() / "harness")
+    date = datetime.date.today().isoformat()
+
+    for device in devices:
+        results = []
+        t_all = time.perf_counter()
+        for key in scene_keys:
+            scene = load_bench_scene(key)
+            kinds = scene_kinds(scene) | {key}
+            applicable = [r for r in rows if kinds & set(r.scenes)]
+            if not applicable:
+                continue
+            print(f"[{device}] {key}: {scene.vertex_count:,} vertices, {len(scene.frames)} frames, {len(applicable)} rows", flush=True)
+            lighting = LightingSource(scene.lights, scene.up_axis, ROTATE_DEGREES_PER_FRAME, float(scene.frames[0]))
+            gt_frames = pick_frames(scene, gt_count + 2)[1:-1] if gt_count < len(scene.frames) else scene.frames
+            gt = ground_truth(scene, lighting, gt_frames, gt_samples, device, cache)
+            t_frames = pick_frames(scene, timing_frames)
+            for row in applicable:
+                try:
+                    r = run_row(row, scene, lighting, device, t_frames, gt)
+                except Exception as exc:  # a failing row is reported, never silently dropped
+                    print(f"    {row.label:28s} FAILED: {exc}", flush=True)
+                    results.append({"scene": key, "device": device, "method": row.method, "setting": row.setting,
+                                    "failed": repr(exc)})
+                    continue
+                r.update(scene=key, device=device, vertex_count=scene.vertex_count)
+                results.append(r)
+                e = r["error"]
+                print(f"    {row.label:28s} {r['median_frame_ms']:9.2f} ms/frame  precompute {r['precompute_s']:7.2f} s  "
+                      f"rel RMS {e['rel_rms']:.4f} (noise {e.get('noise_rel_rms', float('nan')):.4f})  p99 {e['rel_p99']:.4f}",
+                      flush=True)
+        ok = [r for r in results if "failed" not in r]
+        tag = "cpu" if device == "cpu" else device.replace(":", "")
+        meta = {
+            "date": date, "device": device, "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores",
+            "warp": wp.config.version, "gt_samples": gt_samples, "timing_frames": timing_frames, "quick": args.quick,
+            "rotate_degrees_per_frame": ROTATE_DEGREES_PER_FRAME,
+            "command": "python benchmarks/run.py" + (" --quick" if args.quick else ""),
+            "seconds": time.perf_counter() - t_all,
+        }
+        stem = f"{date}-{tag}" + ("-quick" if args.quick else "")
+        _atomic_write(out_dir / f"{stem}.json", json.dumps({"meta": meta, "results": results}, indent=1))
+        if ok:
+            pareto_chart(ok, out_dir / f"{stem}-pareto.png", f"warpshade: time per frame vs error ({device}, {date})")
+            _atomic_write(out_dir / f"{stem}.md", markdown_table(ok, meta))
+            for ext, src in (("json", f"{stem}.json"), ("png", f"{stem}-pareto.png"), ("md", f"{stem}.md")):
+                shutil.copyfile(out_dir / src, out_dir / f"latest-{tag}.{ext}")
+        print(f"[{device}] wrote {out_dir / stem}.json/.md and -pareto.png in {meta['seconds']:.0f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
