@@ -16,22 +16,99 @@ Functions in a bundle (all usable inside other kernels):
 * ``dot(a: vec, b: vec) -> float``;
 * ``zh_to_sh(axis: vec3, g: bands) -> vec`` -- the ZH rotation rule
   ``f_lm = sqrt(4 pi / (2l + 1)) * g_l * y_lm(axis)``;
-* ``basis_kernel`` -- ``(dirs: array(vec3), out: array2d(float32))`` writes ``out[i, :]``.
+* ``zh_from_sh_about_axis(f: vec, axis: vec3) -> bands`` -- projection of f onto the zonal
+  functions about ``axis``: ``g_l = sqrt(4 pi / (2l + 1)) * sum_m f_lm y_lm(axis)``;
+* ``scale_bands(f: vec, alpha: bands) -> vec`` -- ``f_lm * alpha_l`` (windows, convolutions);
+* ``product(f: vec, g: vec, tables: SHTables) -> vec`` -- order-n truncated SH product
+  ``(f * g)_i = sum_jk Gamma_ijk f_j g_k`` over the sparse Gaunt tensor held in ``tables``;
+* ``square(f: vec, tables: SHTables) -> vec``;
+* ``rotate_z(f: vec, angle: float) -> vec`` -- coefficients of ``f(Rz(angle)^-1 s)``;
+* ``rotate(f: vec, r: mat33, tables: SHTables) -> vec`` -- coefficients of ``f(R^-1 s)`` by the
+  "zxzxz" factorisation ``R = Rz(alpha) Rx(-90) Rz(beta) Rx(90) Rz(gamma)`` (ZYZ Euler angles,
+  constant per-band 90-degree x-rotation blocks from ``tables``, analytic z rotations);
+* ``load(a: array2d(float32), row: int) -> vec`` / ``store(a, row, v)`` -- move one row of a
+  (count, order**2) coefficient array in and out of a register vector;
+* kernels, one thread per row: ``basis_kernel(dirs: array(vec3), out: array2d(float32))``,
+  ``product_kernel(f, g, tables, out)``, ``product_matrix_kernel(f, tables, out: array3d)``,
+  ``rotate_kernel(f, rotations: array(mat33), tables, out)``,
+  ``zh_to_sh_kernel(axes: array(vec3), zh: array2d, out)``,
+  ``zh_from_sh_kernel(f, axes: array(vec3), out)``.
+
+Functions that need constant tables (the Gaunt tensor, the x-rotation blocks) take an
+:class:`SHTables` struct of device arrays, obtained once per order and device with
+``bundle.tables(device)`` and passed to kernels as an argument.
 """
 
 # No "from __future__ import annotations": Warp resolves closure types in annotations.
 
 import functools
 import math
+import threading
 from dataclasses import dataclass
 from typing import Any
 
-from .._wp import wp
+import numpy as np
 
-__all__ = ["SHKernels", "sh_kernels", "MAX_KERNEL_ORDER"]
+from .._wp import resolve_device, wp
+
+wp.set_module_options({"enable_backward": False})
+
+__all__ = ["SHKernels", "SHTables", "sh_kernels", "MAX_KERNEL_ORDER"]
 
 #: Highest SH order with generated Warp code (order n = n bands = n*n coefficients).
 MAX_KERNEL_ORDER = 12
+
+
+@wp.struct
+class SHTables:
+    """Constant per-order tables on one device, passed to SH kernels as a struct.
+
+    Attributes:
+        order: SH order n the tables were built for.
+        product_row_start: CSR row pointer over output coefficients, shape (n*n + 1,), int32.
+        product_pair: the input indices of each Gaunt entry with ``j <= k``, packed as
+            ``j | (k << 8)`` (one load per entry; n*n <= 256), shape (K',), int32.
+        product_weight: ``Gamma_ijk`` for ``j < k`` and ``Gamma_ijj / 2`` on the diagonal, so that
+            ``(f * g)_i = sum_e w_e (f_j g_k + f_k g_j)``, shape (K',), float32.
+        x90: per-band blocks of the SH rotation by +90 degrees about x, each (2l+1)x(2l+1)
+            row-major, concatenated over bands (band l starts at ``l (4 l^2 - 1) / 3``),
+            shape (sum (2l+1)^2,), float32.
+    """
+
+    order: int
+    product_row_start: wp.array(dtype=wp.int32)
+    product_pair: wp.array(dtype=wp.int32)
+    product_weight: wp.array(dtype=wp.float32)
+    x90: wp.array(dtype=wp.float32)
+
+
+_tables_lock = threading.Lock()
+_tables_cache: dict = {}
+
+
+def _build_tables(order: int, device) -> SHTables:
+    from . import _gaunt, _rotation
+
+    dev = resolve_device(device)
+    key = (order, dev.alias)
+    with _tables_lock:
+        if key in _tables_cache:
+            return _tables_cache[key]
+        idx, val = _gaunt.real_gaunt_tensor(order)
+        keep = idx[:, 1] <= idx[:, 2]
+        half_idx = idx[keep]
+        weight = np.where(half_idx[:, 1] == half_idx[:, 2], 0.5, 1.0) * val[keep]
+        row_start = np.searchsorted(half_idx[:, 0], np.arange(order * order + 1)).astype(np.int32)
+        x90 = np.concatenate([b.ravel() for b in _rotation.x90_bands(order)])
+        t = SHTables()
+        t.order = order
+        t.product_row_start = wp.array(row_start, dtype=wp.int32, device=dev)
+        pair = (half_idx[:, 1] | (half_idx[:, 2] << 8)).astype(np.int32)
+        t.product_pair = wp.array(pair, dtype=wp.int32, device=dev)
+        t.product_weight = wp.array(weight.astype(np.float32), dtype=wp.float32, device=dev)
+        t.x90 = wp.array(x90.astype(np.float32), dtype=wp.float32, device=dev)
+        _tables_cache[key] = t
+        return t
 
 
 @dataclass(frozen=True)
@@ -46,6 +123,23 @@ class SHKernels:
     dot: Any
     zh_to_sh: Any
     basis_kernel: Any
+    zh_from_sh_about_axis: Any = None
+    scale_bands: Any = None
+    product: Any = None
+    square: Any = None
+    rotate_z: Any = None
+    rotate: Any = None
+    load: Any = None
+    store: Any = None
+    product_kernel: Any = None
+    product_matrix_kernel: Any = None
+    rotate_kernel: Any = None
+    zh_to_sh_kernel: Any = None
+    zh_from_sh_kernel: Any = None
+
+    def tables(self, device=None) -> SHTables:
+        """The :class:`SHTables` of this order on ``device`` (built once, then cached)."""
+        return _build_tables(self.order, device)
 
 
 @functools.lru_cache(maxsize=None)
@@ -120,6 +214,186 @@ def sh_kernels(order: int) -> SHKernels:
         for j in range(N):
             out[i, j] = v[j]
 
+    @wp.func
+    def sh_zh_from_sh_about_axis(f: vec_t, axis: wp.vec3) -> bands_t:
+        y = sh_eval(axis)
+        g = bands_t()
+        for l in range(ORDER):
+            acc = float(0.0)
+            for m in range(-l, l + 1):
+                acc += f[l * l + l + m] * y[l * l + l + m]
+            g[l] = wp.sqrt(4.0 * wp.pi / float(2 * l + 1)) * acc
+        return g
+
+    @wp.func
+    def sh_scale_bands(f: vec_t, alpha: bands_t) -> vec_t:
+        out = vec_t()
+        for l in range(ORDER):
+            for m in range(-l, l + 1):
+                out[l * l + l + m] = alpha[l] * f[l * l + l + m]
+        return out
+
+    @wp.func
+    def sh_product(f: vec_t, g: vec_t, tables: SHTables) -> vec_t:
+        # CSR over the output index i; entries with j <= k, diagonal weights halved, so each
+        # entry contributes w * (f_j g_k + f_k g_j) and the sum is written once per i. The
+        # entry cursor runs on across rows (a while loop is ~1.4x faster than range(start, end)).
+        out = vec_t()
+        e = int(tables.product_row_start[0])
+        for i in range(N):
+            acc = float(0.0)
+            end = tables.product_row_start[i + 1]
+            while e < end:
+                pair = tables.product_pair[e]
+                a = pair & 255
+                b = pair >> 8
+                acc += tables.product_weight[e] * (f[a] * g[b] + f[b] * g[a])
+                e += 1
+            out[i] = acc
+        return out
+
+    @wp.func
+    def sh_square(f: vec_t, tables: SHTables) -> vec_t:
+        out = vec_t()
+        e = int(tables.product_row_start[0])
+        for i in range(N):
+            acc = float(0.0)
+            end = tables.product_row_start[i + 1]
+            while e < end:
+                pair = tables.product_pair[e]
+                acc += 2.0 * tables.product_weight[e] * f[pair & 255] * f[pair >> 8]
+                e += 1
+            out[i] = acc
+        return out
+
+    @wp.func
+    def sh_rotate_z(f: vec_t, angle: float) -> vec_t:
+        # Within band l the pair (y_l,m ~ cos(m phi), y_l,-m ~ sin(m phi)) turns by m * angle.
+        out = f
+        for m in range(1, ORDER):
+            c = wp.cos(float(m) * angle)
+            s = wp.sin(float(m) * angle)
+            for l in range(m, ORDER):
+                a = f[l * l + l + m]
+                b = f[l * l + l - m]
+                out[l * l + l + m] = c * a - s * b
+                out[l * l + l - m] = s * a + c * b
+        return out
+
+    @wp.func
+    def sh_rotate_x90(f: vec_t, x90: wp.array(dtype=wp.float32), transpose: int) -> vec_t:
+        # Dense per-band product with the constant (2l+1)^2 block of Rx(+90) (or its transpose,
+        # which is the block of Rx(-90)).
+        out = vec_t()
+        for l in range(ORDER):
+            dim = 2 * l + 1
+            offset = l * (4 * l * l - 1) // 3
+            row_stride = dim
+            col_stride = 1
+            if transpose != 0:
+                row_stride = 1
+                col_stride = dim
+            for i in range(dim):
+                acc = float(0.0)
+                for j in range(dim):
+                    acc += x90[offset + i * row_stride + j * col_stride] * f[l * l + j]
+                out[l * l + i] = acc
+        return out
+
+    @wp.func
+    def sh_rotate(f: vec_t, r: wp.mat33, tables: SHTables) -> vec_t:
+        # ZYZ Euler angles: R = Rz(alpha) Ry(beta) Rz(gamma); beta from atan2 keeps precision
+        # near the poles, where only alpha + gamma is defined (gamma is then set to 0).
+        sb = wp.sqrt(r[0, 2] * r[0, 2] + r[1, 2] * r[1, 2])
+        beta = wp.atan2(sb, r[2, 2])
+        alpha = wp.atan2(r[1, 2], r[0, 2])
+        gamma = wp.atan2(r[2, 1], -r[2, 0])
+        if sb < 1.0e-6:
+            gamma = 0.0
+            if r[2, 2] > 0.0:
+                alpha = wp.atan2(r[1, 0], r[0, 0])
+            else:
+                alpha = wp.atan2(-r[1, 0], r[1, 1])
+        # Ry(beta) = Rx(-90) Rz(beta) Rx(90); rotations act right to left.
+        out = sh_rotate_z(f, gamma)
+        out = sh_rotate_x90(out, tables.x90, 0)
+        out = sh_rotate_z(out, beta)
+        out = sh_rotate_x90(out, tables.x90, 1)
+        return sh_rotate_z(out, alpha)
+
+    @wp.func
+    def sh_load(a: wp.array2d(dtype=wp.float32), row: int) -> vec_t:
+        v = vec_t()
+        for j in range(N):
+            v[j] = a[row, j]
+        return v
+
+    @wp.func
+    def sh_store(a: wp.array2d(dtype=wp.float32), row: int, v: vec_t):
+        for j in range(N):
+            a[row, j] = v[j]
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def product_kernel(
+        f: wp.array2d(dtype=wp.float32),
+        g: wp.array2d(dtype=wp.float32),
+        tables: SHTables,
+        out: wp.array2d(dtype=wp.float32),
+    ):
+        i = wp.tid()
+        sh_store(out, i, sh_product(sh_load(f, i), sh_load(g, i), tables))
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def product_matrix_kernel(
+        f: wp.array2d(dtype=wp.float32),
+        tables: SHTables,
+        out: wp.array3d(dtype=wp.float32),
+    ):
+        # out must be zero-initialised: (M_f)_ij = sum_k Gamma_ijk f_k, one row i per CSR segment.
+        t = wp.tid()
+        fv = sh_load(f, t)
+        for i in range(N):
+            for e in range(tables.product_row_start[i], tables.product_row_start[i + 1]):
+                pair = tables.product_pair[e]
+                a = pair & 255
+                b = pair >> 8
+                w = tables.product_weight[e]
+                out[t, i, a] = out[t, i, a] + w * fv[b]
+                out[t, i, b] = out[t, i, b] + w * fv[a]
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def rotate_kernel(
+        f: wp.array2d(dtype=wp.float32),
+        rotations: wp.array(dtype=wp.mat33),
+        tables: SHTables,
+        out: wp.array2d(dtype=wp.float32),
+    ):
+        i = wp.tid()
+        sh_store(out, i, sh_rotate(sh_load(f, i), rotations[i], tables))
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def zh_to_sh_kernel(
+        axes: wp.array(dtype=wp.vec3),
+        zh: wp.array2d(dtype=wp.float32),
+        out: wp.array2d(dtype=wp.float32),
+    ):
+        i = wp.tid()
+        g = bands_t()
+        for l in range(ORDER):
+            g[l] = zh[i, l]
+        sh_store(out, i, sh_zh_to_sh(wp.normalize(axes[i]), g))
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def zh_from_sh_kernel(
+        f: wp.array2d(dtype=wp.float32),
+        axes: wp.array(dtype=wp.vec3),
+        out: wp.array2d(dtype=wp.float32),
+    ):
+        i = wp.tid()
+        g = sh_zh_from_sh_about_axis(sh_load(f, i), wp.normalize(axes[i]))
+        for l in range(ORDER):
+            out[i, l] = g[l]
+
     return SHKernels(
         order=order,
         coeff_count=N,
@@ -129,4 +403,17 @@ def sh_kernels(order: int) -> SHKernels:
         dot=sh_dot,
         zh_to_sh=sh_zh_to_sh,
         basis_kernel=basis_kernel,
+        zh_from_sh_about_axis=sh_zh_from_sh_about_axis,
+        scale_bands=sh_scale_bands,
+        product=sh_product,
+        square=sh_square,
+        rotate_z=sh_rotate_z,
+        rotate=sh_rotate,
+        load=sh_load,
+        store=sh_store,
+        product_kernel=product_kernel,
+        product_matrix_kernel=product_matrix_kernel,
+        rotate_kernel=rotate_kernel,
+        zh_to_sh_kernel=zh_to_sh_kernel,
+        zh_from_sh_kernel=zh_from_sh_kernel,
     )
