@@ -18,7 +18,7 @@ def shade_transfer_kernel(
     albedo: wp.array2d(dtype=wp.float32),
     radiance: wp.array2d(dtype=wp.float32),
 ):
-    """radiance[v, c] = albedo[v, c] / pi * dot(transfer[v, :], light[c, :])."""
+    """radiance[v, c] = albedo[v, c] / pi * max(0, dot(transfer[v, :], light[c, :]))."""
     v = wp.tid()
     r = float(0.0)
     g = float(0.0)
@@ -28,9 +28,10 @@ def shade_transfer_kernel(
         r += t * light[0, i]
         g += t * light[1, i]
         b += t * light[2, i]
-    radiance[v, 0] = albedo[v, 0] * INV_PI * r
-    radiance[v, 1] = albedo[v, 1] * INV_PI * g
-    radiance[v, 2] = albedo[v, 2] * INV_PI * b
+    # SH truncation rings below zero in deep shadow; negative light is clamped away.
+    radiance[v, 0] = albedo[v, 0] * INV_PI * wp.max(r, 0.0)
+    radiance[v, 1] = albedo[v, 1] * INV_PI * wp.max(g, 0.0)
+    radiance[v, 2] = albedo[v, 2] * INV_PI * wp.max(b, 0.0)
 
 
 @functools.lru_cache(maxsize=None)
@@ -60,8 +61,8 @@ def unshadowed_kernel(order: int):
             r += light_conv[0, i] * y[i]
             g += light_conv[1, i] * y[i]
             b += light_conv[2, i] * y[i]
-        radiance[v, 0] = albedo[v, 0] * INV_PI * r
-        radiance[v, 1] = albedo[v, 1] * INV_PI * g
-        radiance[v, 2] = albedo[v, 2] * INV_PI * b
+        radiance[v, 0] = albedo[v, 0] * INV_PI * wp.max(r, 0.0)
+        radiance[v, 1] = albedo[v, 1] * INV_PI * wp.max(g, 0.0)
+        radiance[v, 2] = albedo[v, 2] * INV_PI * wp.max(b, 0.0)
 
     return kernel

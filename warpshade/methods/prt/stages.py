@@ -8,6 +8,7 @@
   normal, ``albedo / pi * sum_lm A_l L_lm y_lm(n)`` with the clamped-cosine factors ``A_l``.
   No visibility; valid for deforming meshes too.
 
+Both clamp negative radiance (SH truncation rings below zero in deep shadow) to zero.
 Static PRT is exact up to SH truncation and sampling for meshes that do not move; on animated
 scenes it keeps the transfer of the bake frame, which is the "undeformed PRT" baseline the
 later methods are measured against.
