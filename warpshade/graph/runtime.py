@@ -244,10 +244,11 @@ class Runtime:
     # ---- frame set-up -------------------------------------------------------------------
     def _setup(self) -> None:
         dev = self.device
-        V = self.scene.vertex_count
+        # one FrameState whose buffers every frame is evaluated into (fixed addresses)
+        self._frame_state = self.scene.evaluate(self.scene.frames[0], device=dev)
         self.scene_buffers = {
-            "points": wp.zeros(V, dtype=wp.vec3, device=dev),
-            "normals": wp.zeros(V, dtype=wp.vec3, device=dev),
+            "points": self._frame_state.points,
+            "normals": self._frame_state.normals,
             "albedo": wp.array(self.scene.albedo, dtype=wp.float32, device=dev),
             "lighting": self.ctx,  # stages query ctx.lighting_sh / ctx.lights per frame
         }
@@ -296,9 +297,7 @@ class Runtime:
             array is overwritten by the next step; copy it (``.numpy()``) to keep it.
         """
         t_start = time.perf_counter()
-        fs = self.scene.evaluate(frame, device=self.device)
-        wp.copy(self.scene_buffers["points"], fs.points)
-        wp.copy(self.scene_buffers["normals"], fs.normals)
+        fs = self.scene.evaluate(frame, device=self.device, out=self._frame_state)
         self.ctx.frame = float(fs.frame)
         self.ctx.frame_state = fs
         self.ctx._override = lighting

@@ -459,7 +459,7 @@ class Scene:
         self._device_cache[key] = data
         return data
 
-    def evaluate(self, frame: float, device=None) -> FrameState:
+    def evaluate(self, frame: float, device=None, out: FrameState | None = None) -> FrameState:
         """Evaluate deformed world-space points and normals at a time code on a Warp device.
 
         Every per-vertex step runs in a Warp kernel on ``device``: static and rigid meshes
@@ -468,6 +468,12 @@ class Scene:
         matrices composed with the skeleton's local-to-world; normals are area-weighted from
         the deformed points, except static/rigid meshes with authored normals, which are
         transformed by the inverse transpose. Static arrays stay cached on the device.
+
+        Args:
+            frame: a time code of ``frames``.
+            device: Warp device (None = Warp's default).
+            out: a FrameState of this scene on the same device whose ``points`` and ``normals``
+                buffers are reused (per-frame loops: no allocation, fixed addresses).
 
         Returns:
             :class:`FrameState` with ``points`` and ``normals`` of shape (vertex_count,) vec3,
@@ -485,7 +491,9 @@ class Scene:
         dev = resolve_device(device)
         t = self.frame_index(frame)
         data = self._device_data(dev)
-        pts_wp = wp.empty(self.vertex_count, dtype=wp.vec3, device=dev)
+        if out is not None and (out.device != dev or out.points.shape[0] != self.vertex_count):
+            raise ValueError("evaluate: out= must be a FrameState of this scene on the same device")
+        pts_wp = out.points if out is not None else wp.empty(self.vertex_count, dtype=wp.vec3, device=dev)
         skin_mats: dict[int, Any] = {}
         for mesh, entry in zip(self.meshes, data["meshes"]):
             xf = self._mesh_transform(mesh, t)
@@ -508,7 +516,7 @@ class Scene:
             else:
                 src, src_offset = entry["points"], 0
             launch_transform_points(src, src_offset, mesh.vertex_count, xf, pts_wp, mesh.vertex_offset)
-        nrm_wp = wp.empty(self.vertex_count, dtype=wp.vec3, device=dev)
+        nrm_wp = out.normals if out is not None else wp.empty(self.vertex_count, dtype=wp.vec3, device=dev)
         compute_vertex_normals(pts_wp, data["faces"], nrm_wp)
         for mesh, entry in zip(self.meshes, data["meshes"]):
             if "normals" in entry:
@@ -516,6 +524,10 @@ class Scene:
                 launch_transform_normals(entry["normals"], xf, nrm_wp, mesh.vertex_offset)
         mesh_xf = np.stack([self._mesh_transform(m, t) for m in self.meshes])
         joints = [s.skel_space_transforms(min(t, s.local_transforms.shape[0] - 1)) for s in self.skeletons]
+        if out is not None:
+            out.frame, out.frame_index = float(self.frames[t]), t
+            out.mesh_transforms, out.joint_transforms = mesh_xf, joints
+            return out
         return FrameState(
             frame=float(self.frames[t]),
             frame_index=t,
