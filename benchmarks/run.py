@@ -82,12 +82,12 @@ def pick_frames(scene, count):
 
 def ground_truth(scene, lighting, frames, samples, device, cache):
     """Reference radiance and standard error per frame, cached by scene/lighting/frame/samples."""
-    from warpshade.reference import shade
+    from warpshade.reference.shading import ESTIMATOR_VERSION, shade
 
     out = {}
     fp = scene_fingerprint(scene)
     for f in frames:
-        key = "gt-" + hash_json({"scene": fp, "frame": float(f), "samples": samples,
+        key = "gt-" + hash_json({"scene": fp, "frame": float(f), "samples": samples, "estimator": ESTIMATOR_VERSION,
                                   "rotate": lighting.degrees_per_frame,
                                   "lights": [repr(type(l)) + str(getattr(l, "path", "")) for l in lighting.lights]})[:32]
         hit = cache.load(key)

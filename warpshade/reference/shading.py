@@ -9,14 +9,14 @@ where ``L_i`` is the environment radiance (bilinear lat-long lookup, :mod:`..sce
 plus the analytic lights, and ``V(s)`` is ray-traced against every triangle of the frame
 (``wp.mesh_query_ray_anyhit`` from ``p + offset * n``, :mod:`warpshade.geometry.bvh`).
 
-Estimators of the environment term (one iteration = one independent estimate):
+Estimators of the environment term (per sample point):
 
 * ``"cosine"``: one direction from the cosine-weighted hemisphere of ``n``; estimate
   ``rho * L(s) V(s)`` (pdf ``cos / pi``). Exact (zero variance) under a constant, unoccluded sky.
 * ``"light"``: one direction from the environment's luminance distribution (pdf ``p_env``);
   estimate ``rho / pi * L V max(0, n.s) / p_env``.
 * ``"mis"``: one direction from each, combined with the balance heuristic
-  (``f / (p_cos + p_env)`` for each), i.e. two rays per iteration.
+  (``f / (p_cos + p_env)`` for each), i.e. two rays per sample point.
 
 Analytic lights, added to every iteration: a :class:`~..scene.lighting.DistantLight` with
 ``angle_deg == 0`` is a delta light (one deterministic shadow ray, no variance:
@@ -27,12 +27,16 @@ sampled uniformly in its cone (estimate ``rho / pi * E max(0, n.s) V(s)``). A
 at the sphere; a receiver inside the sphere gets ``rho * L_e`` unshadowed. Sphere lights are
 not part of the BVH (they cast no shadows on the environment).
 
-``samples`` is the number of environment rays per receiver: ``samples`` iterations for
-"cosine" and "light", ``samples // 2`` for "mis". The reported standard error is
-``sqrt(var / K)`` with ``var`` the unbiased variance of the ``K`` independent iteration
-estimates (Welford's running update): the standard deviation of the returned mean, per channel.
-Random numbers come from a counter-based hash of ``(seed, receiver, iteration)``, so results are
-reproducible and independent across seeds.
+Sampling is randomised quasi-Monte Carlo: the 2-D sample points of every strategy are an R2
+low-discrepancy set (the additive recurrence of the plastic number) under a random
+Cranley-Patterson shift, which stratifies the hemisphere and the environment's CDF (penumbrae
+converge faster than with independent samples) and stays unbiased. ``samples`` is the number of
+environment rays per receiver, split into ``K`` = :data:`REPLICATES` independently shifted
+replicates of ``samples / K`` points (``samples / 2K`` for "mis", which casts two rays per
+point). The reported standard error is ``sqrt(var / K)`` with ``var`` the unbiased variance of
+the ``K`` replicate estimates (Welford's running update): the standard deviation of the
+returned mean, per channel. Shifts come from a counter-based hash of ``(seed, receiver,
+replicate)``, so results are reproducible and independent across seeds.
 """
 
 import numpy as np
@@ -45,7 +49,9 @@ from ..scene.lighting_warp import EnvironmentMap, disabled_environment, env_pdf,
 from ..transfer.raytrace import CHUNK_MIN_RAYS, default_workers, launch_chunked, receiver_indices
 
 __all__ = [
+    "ESTIMATOR_VERSION",
     "METHODS",
+    "REPLICATES",
     "AnalyticLights",
     "DeviceLighting",
     "upload_lighting",
@@ -161,6 +167,18 @@ def _cone_dir(axis: wp.vec3, cos_half: float, u1: float, u2: float) -> wp.vec3:
     return _frame_dir(axis, r * wp.cos(phi), r * wp.sin(phi), z)
 
 
+#: Additive recurrence of the plastic number (the "R2" sequence): a 2-D low-discrepancy set for
+#: any point count; randomly shifted (Cranley-Patterson) it gives unbiased stratified estimates.
+_R2_A1 = wp.constant(0.7548776662466927)
+_R2_A2 = wp.constant(0.5698402909980532)
+
+
+@wp.func
+def _r2(j: int, shift: float, a: float) -> float:
+    x = float(j) * a + shift
+    return x - wp.floor(x)
+
+
 @wp.kernel
 def _shade_kernel(
     mesh_id: wp.uint64,
@@ -172,7 +190,8 @@ def _shade_kernel(
     env: EnvironmentMap,
     lights: AnalyticLights,
     method: int,
-    iterations: int,
+    replicates: int,
+    points_per_replicate: int,
     seed: int,
     offset: float,
     radiance: wp.array(dtype=wp.vec3),
@@ -198,66 +217,81 @@ def _shade_kernel(
 
     mean = wp.vec3(0.0)
     m2 = wp.vec3(0.0)
-    for it in range(iterations):
-        state = wp.rand_init(base, it)
-        x = wp.vec3(0.0)
-        if env.enabled != 0:
-            if method != 1:
-                d = _cosine_dir(n, wp.randf(state), wp.randf(state))
-                if not wp.mesh_query_ray_anyhit(mesh_id, origin, d, _RAY_MAX):
-                    if method == 0:
-                        x += env_radiance(env, d)
-                    else:
-                        c = wp.max(wp.dot(n, d), 0.0)
-                        x += env_radiance(env, d) * (c / wp.pi) / (c / wp.pi + env_pdf(env, d))
-            if method != 0:
-                s = env_sample(env, wp.randf(state), wp.randf(state), wp.randf(state), wp.randf(state))
-                d = wp.vec3(s[0], s[1], s[2])
-                c = wp.dot(n, d)
-                if c > 0.0 and s[3] > 0.0:
+    for rep in range(replicates):
+        # one independent randomised-QMC estimate per replicate: random shifts of the R2 set
+        state = wp.rand_init(base, rep)
+        s_cos1 = wp.randf(state)
+        s_cos2 = wp.randf(state)
+        s_env1 = wp.randf(state)
+        s_env2 = wp.randf(state)
+        s_env3 = wp.randf(state)
+        s_env4 = wp.randf(state)
+        s_area1 = wp.randf(state)
+        s_area2 = wp.randf(state)
+        acc = wp.vec3(0.0)
+        for j in range(points_per_replicate):
+            if env.enabled != 0:
+                if method != 1:
+                    d = _cosine_dir(n, _r2(j, s_cos1, _R2_A1), _r2(j, s_cos2, _R2_A2))
                     if not wp.mesh_query_ray_anyhit(mesh_id, origin, d, _RAY_MAX):
-                        denom = s[3]
-                        if method == 2:
-                            denom = s[3] + c / wp.pi
-                        x += env_radiance(env, d) * (c / wp.pi) / denom
-        for k in range(lights.distant_direction.shape[0]):
-            cos_half = lights.distant_cos_half[k]
-            if cos_half < 1.0:
-                d = _cone_dir(lights.distant_direction[k], cos_half, wp.randf(state), wp.randf(state))
-                c = wp.dot(n, d)
-                if c > 0.0:
-                    if not wp.mesh_query_ray_anyhit(mesh_id, origin, d, _RAY_MAX):
-                        x += lights.distant_irradiance[k] * (c / wp.pi)
-        for k in range(lights.sphere_position.shape[0]):
-            to_centre = lights.sphere_position[k] - origin
-            dist = wp.length(to_centre)
-            radius = lights.sphere_radius[k]
-            u1 = wp.randf(state)
-            u2 = wp.randf(state)
-            if dist <= radius:
-                x += lights.sphere_radiance[k]
-            else:
-                axis = to_centre / dist
-                sin_a = radius / dist
-                cos_a = wp.sqrt(wp.max(0.0, 1.0 - sin_a * sin_a))
-                d = _cone_dir(axis, cos_a, u1, u2)
-                c = wp.dot(n, d)
-                if c > 0.0:
-                    # distance to the near intersection with the light sphere
-                    b = wp.dot(to_centre, d)
-                    disc = b * b - (dist * dist - radius * radius)
-                    t_hit = b - wp.sqrt(wp.max(disc, 0.0))
-                    if not wp.mesh_query_ray_anyhit(mesh_id, origin, d, t_hit):
-                        solid = 2.0 * wp.pi * (1.0 - cos_a)
-                        x += lights.sphere_radiance[k] * (c * solid / wp.pi)
-        x = wp.cw_mul(rho, x)
+                        if method == 0:
+                            acc += env_radiance(env, d)
+                        else:
+                            c = wp.max(wp.dot(n, d), 0.0)
+                            acc += env_radiance(env, d) * (c / wp.pi) / (c / wp.pi + env_pdf(env, d))
+                if method != 0:
+                    s = env_sample(
+                        env, _r2(j, s_env1, _R2_A1), _r2(j, s_env2, _R2_A2), _r2(j, s_env3, _R2_A1), _r2(j, s_env4, _R2_A2)
+                    )
+                    d = wp.vec3(s[0], s[1], s[2])
+                    c = wp.dot(n, d)
+                    if c > 0.0 and s[3] > 0.0:
+                        if not wp.mesh_query_ray_anyhit(mesh_id, origin, d, _RAY_MAX):
+                            denom = s[3]
+                            if method == 2:
+                                denom = s[3] + c / wp.pi
+                            acc += env_radiance(env, d) * (c / wp.pi) / denom
+            for k in range(lights.distant_direction.shape[0]):
+                cos_half = lights.distant_cos_half[k]
+                if cos_half < 1.0:
+                    # a per-light offset decorrelates the lights' point sets
+                    u1 = _r2(j, s_area1 + 0.318 * float(k), _R2_A1)
+                    u2 = _r2(j, s_area2 + 0.618 * float(k), _R2_A2)
+                    d = _cone_dir(lights.distant_direction[k], cos_half, u1, u2)
+                    c = wp.dot(n, d)
+                    if c > 0.0:
+                        if not wp.mesh_query_ray_anyhit(mesh_id, origin, d, _RAY_MAX):
+                            acc += lights.distant_irradiance[k] * (c / wp.pi)
+            for k in range(lights.sphere_position.shape[0]):
+                to_centre = lights.sphere_position[k] - origin
+                dist = wp.length(to_centre)
+                radius = lights.sphere_radius[k]
+                u1 = _r2(j, s_area1 + 0.414 * float(k + 1), _R2_A1)
+                u2 = _r2(j, s_area2 + 0.732 * float(k + 1), _R2_A2)
+                if dist <= radius:
+                    acc += lights.sphere_radiance[k]
+                else:
+                    axis = to_centre / dist
+                    sin_a = radius / dist
+                    cos_a = wp.sqrt(wp.max(0.0, 1.0 - sin_a * sin_a))
+                    d = _cone_dir(axis, cos_a, u1, u2)
+                    c = wp.dot(n, d)
+                    if c > 0.0:
+                        # distance to the near intersection with the light sphere
+                        b = wp.dot(to_centre, d)
+                        disc = b * b - (dist * dist - radius * radius)
+                        t_hit = b - wp.sqrt(wp.max(disc, 0.0))
+                        if not wp.mesh_query_ray_anyhit(mesh_id, origin, d, t_hit):
+                            solid = 2.0 * wp.pi * (1.0 - cos_a)
+                            acc += lights.sphere_radiance[k] * (c * solid / wp.pi)
+        x = wp.cw_mul(rho, acc) / float(points_per_replicate)
         delta = x - mean
-        mean += delta / float(it + 1)
+        mean += delta / float(rep + 1)
         m2 += wp.cw_mul(delta, x - mean)
 
     radiance[r] = mean + wp.cw_mul(rho, fixed) / wp.pi
-    if iterations > 1:
-        var = m2 / float((iterations - 1) * iterations)
+    if replicates > 1:
+        var = m2 / float((replicates - 1) * replicates)
         stderr[r] = wp.vec3(wp.sqrt(wp.max(var[0], 0.0)), wp.sqrt(wp.max(var[1], 0.0)), wp.sqrt(wp.max(var[2], 0.0)))
     else:
         stderr[r] = wp.vec3(0.0)
@@ -289,15 +323,24 @@ class ShadingResult:
         return f"ShadingResult(receivers={self.radiance.shape[0]}, samples={self.samples}, method={self.method!r})"
 
 
-def _iterations(samples: int, method: str, has_environment: bool) -> int:
+#: Independent randomised-QMC replicates per receiver (the standard error is their spread).
+REPLICATES = 16
+#: Bumped whenever the estimator changes, so cached ground truth is recomputed.
+ESTIMATOR_VERSION = 2
+
+
+def _sampling_plan(samples: int, method: str, has_environment: bool) -> tuple[int, int]:
+    """(replicates, points per replicate) for ``samples`` environment rays per receiver."""
     if method not in METHODS:
         raise ValueError(f"reference.shade: method must be one of {METHODS}, got {method!r}")
     if not isinstance(samples, (int, np.integer)) or samples < 2:
         raise ValueError(f"reference.shade: samples must be an integer >= 2, got {samples!r}")
-    k = int(samples) // 2 if (method == "mis" and has_environment) else int(samples)
-    if k < 2:
+    per_point = 2 if (method == "mis" and has_environment) else 1
+    count = int(samples) // per_point
+    if count < 2:
         raise ValueError(f"reference.shade: method 'mis' needs samples >= 4, got {samples}")
-    return k
+    replicates = min(REPLICATES, count)
+    return replicates, max(1, count // replicates)
 
 
 class ReferenceShader:
@@ -318,10 +361,10 @@ class ReferenceShader:
         self.device = resolve_device(device)
         self.lighting = upload_lighting(scene.lights if lighting is None else lighting, self.device)
         self.method = method
-        self.iterations = _iterations(samples, method, self.lighting.has_environment)  # validates
+        self.replicates, self.points_per_replicate = _sampling_plan(samples, method, self.lighting.has_environment)
         self.samples = int(samples)
         if not (self.lighting.has_environment or self.lighting.has_area_lights):
-            self.iterations = 1  # only delta lights: deterministic, nothing to sample
+            self.replicates, self.points_per_replicate = 1, 1  # only delta lights: nothing to sample
         self.seed = int(seed)
         self.workers = default_workers(self.device) if workers is None else max(1, int(workers))
         self.bvh = Visibility.from_scene(scene, device=self.device, offset=offset)
@@ -349,10 +392,10 @@ class ReferenceShader:
         def inputs(start):
             return [
                 self.bvh.id, points, normals, albedo, receivers, start, lighting.environment, lighting.lights,
-                method, self.iterations, seed, self.bvh.offset, radiance, stderr,
+                method, self.replicates, self.points_per_replicate, seed, self.bvh.offset, radiance, stderr,
             ]
 
-        rays = receivers.shape[0] * self.iterations * (2 if self.method == "mis" else 1)
+        rays = receivers.shape[0] * self.replicates * self.points_per_replicate * (2 if self.method == "mis" else 1)
         workers = self.workers if rays >= CHUNK_MIN_RAYS else 1
         launch_chunked(_shade_kernel, receivers.shape[0], inputs, self.device, workers)
 
