@@ -1,0 +1,396 @@
+"""LDPRT on deforming scenes: error against ray-traced ground truth and shading cost.
+
+Part 1 -- accuracy and time per frame, per scene (figure: skinned figure on a ground plane;
+bend: bending/twisting cylinder), all methods run through the stage-graph runtime on the same
+scene, lighting and frames:
+
+* static PRT baked at frame 0 (``prt.transfer`` + ``prt.shade``): "undeformed PRT";
+* unshadowed irradiance (``prt.unshadowed``): no visibility at all;
+* LDPRT with N = 1..4 lobes (light-specialised table), an error-budgeted lobe count, N = 3 with
+  direct SH evaluation, and the full local SH transfer rotated per vertex (no ZH fit);
+
+errors (relative RMS over vertices, debiased by the ground truth's own noise, and per mesh) on
+several frames, median time per frame over all 60 frames, precompute time.
+
+Part 2 -- shading cost per vertex, measured side by side in one run on synthetic per-vertex
+data: light-specialised table (O(nN)) vs direct SH evaluation at the rotated axes (O(n^2 N)) vs
+rotating the full SH transfer vector with the zxzxz rotation (O(n^3)), for n = 4, 6 and
+N = 1..4; ratios to the table variant. Also the table build time and its interpolation error.
+
+Writes ``benchmarks/results/ldprt-<date>-cpu[-quick].json`` and ``...-errors.png`` / ``...-cost.png``.
+
+Usage::
+
+    python benchmarks/bench_ldprt.py [--quick] [--scenes figure,bend] [--order 4] [--gt-samples 2048]
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import os
+import platform
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from warpshade._wp import wp
+from warpshade.graph import (
+    GraphSpec,
+    LightingSource,
+    StageSpec,
+    combine_metrics,
+    error_metrics,
+)
+from warpshade.graph.cache import ArtifactCache, default_cache_dir, hash_json
+from warpshade.graph.runtime import scene_fingerprint
+
+RESULTS = ROOT / "benchmarks" / "results"
+SCENES = {"figure": ROOT / "usd_assets" / "figure.usda", "bend": ROOT / "usd_assets" / "bend.usda",
+          "cloth": ROOT / "usd_assets" / "cloth.usda"}
+
+
+def methods(order: int, samples: int, quick: bool) -> list[tuple[str, tuple]]:
+    """(label, stages) of every compared setting."""
+    out = [
+        (f"static PRT n{order}", (("bake", "prt.transfer", {"order": order, "samples": samples}, {}),
+                                  ("shade", "prt.shade", {"order": order}, {"transfer": "bake.transfer"}))),
+        ("unshadowed n3", (("shade", "prt.unshadowed", {"order": 3}, {}),)),
+        (f"rotated SH n{order}", (("bake", "ldprt.transfer", {"order": order, "samples": samples}, {}),
+                                  ("frames", "ldprt.frames", {}, {}),
+                                  ("shade", "ldprt.shade_rotated", {"order": order}, {}))),
+    ]
+    lobe_counts = (1, 2, 3, 4) if not quick else (1, 3)
+    for n in lobe_counts:
+        out.append((f"LDPRT N{n}", _ldprt(order, samples, n)))
+    if not quick:
+        out.append(("LDPRT N3 direct", _ldprt(order, samples, 3, evaluation="direct")))
+        out.append(("LDPRT budget 5%", _ldprt(order, samples, 4, target=0.05)))
+    return out
+
+
+def _ldprt(order, samples, lobes, evaluation="table", target=None):
+    fit = {"order": order, "lobes": lobes, "samples": samples}
+    if target is not None:
+        fit["target_error"] = target
+    return (("fit", "ldprt.fit", fit, {}), ("frames", "ldprt.frames", {}, {}),
+            ("shade", "ldprt.shade", {"order": order, "lobes": lobes, "evaluation": evaluation}, {}))
+
+
+def ground_truth(scene, lighting, frames, samples, device, cache):
+    from warpshade.reference import shade
+
+    out = {}
+    fp = scene_fingerprint(scene)
+    for f in frames:
+        key = "gt-ldprt-" + hash_json({"scene": fp, "frame": float(f), "samples": samples})[:32]
+        hit = cache.load(key)
+        if hit is None:
+            t0 = time.perf_counter()
+            res = shade(scene, f, lighting.lights_at(f), samples, device=device, seed=4242)
+            hit = {"radiance": np.asarray(res.radiance), "stderr": np.asarray(res.stderr)}
+            cache.store(key, hit)
+            print(f"    ground truth frame {f:g}: {samples} spp in {time.perf_counter() - t0:.1f} s", flush=True)
+        out[float(f)] = hit
+    return out
+
+
+def mesh_slices(scene) -> dict:
+    return {m.path.rsplit("/", 1)[-1]: slice(m.vertex_offset, m.vertex_offset + m.vertex_count) for m in scene.meshes}
+
+
+def run_method(label, stages, scene, lighting, device, gt):
+    spec = GraphSpec(stages=[StageSpec(n, t, dict(p), dict(i)) for (n, t, p, i) in stages], output="shade.radiance",
+                     name=label.replace(" ", "-"))
+    t0 = time.perf_counter()
+    rt = spec.compile(scene, device=device, cache_dir=None, progress=False, lighting=lighting)
+    compile_s = time.perf_counter() - t0
+    rt.run(scene.frames, record=True, warmup=True)
+    timing = rt.timing_summary()
+    per_frame, per_mesh = [], {k: [] for k in mesh_slices(scene)}
+    for f, ref in gt.items():
+        est = rt.results[f]
+        m = error_metrics(est, ref["radiance"], ref["stderr"])
+        m["frame"] = f
+        per_frame.append(m)
+        for name, sl in mesh_slices(scene).items():
+            mm = error_metrics(est[sl], ref["radiance"][sl], ref["stderr"][sl])
+            mm["frame"] = f
+            per_mesh[name].append(mm)
+    report = {}
+    for st in rt.stages:
+        if hasattr(st, "report"):
+            report = st.report
+    return {
+        "method": label,
+        "median_frame_ms": 1e3 * timing["median_frame_s"],
+        "stage_ms": {k: 1e3 * v["median_frame_s"] for k, v in timing["stages"].items() if v.get("median_frame_s")},
+        "precompute_s": sum(v.get("precompute_s", 0.0) for v in timing["stages"].values()),
+        "compile_and_precompute_s": compile_s,
+        "model_bytes": rt.model_bytes(),
+        "error": combine_metrics(per_frame),
+        "error_per_frame": per_frame,
+        "error_per_mesh": {k: combine_metrics(v) for k, v in per_mesh.items()},
+        "error_per_mesh_per_frame": per_mesh,
+        "fit": report,
+    }
+
+
+def error_budget(scene, order: int, samples: int, targets=(0.1, 0.05, 0.02), max_lobes: int = 4) -> list[dict]:
+    """Lobe counts (and the SH order) chosen from target errors on the scene's bake-frame transfer."""
+    from warpshade.basis import zh
+    from warpshade.methods.ldprt import fit_transfer, local_transfer
+
+    t = local_transfer(scene, float(scene.frames[0]), max(order, 6), samples, device="cpu").astype(np.float64)
+    _, order_errors = zh.choose_order(t, 1.0)
+    rows = []
+    for target in targets:
+        chosen_order, _ = zh.choose_order(t, target)
+        model = fit_transfer(t[:, : order * order], max_lobes, target_error=target, restarts=2)
+        rows.append({"target": target, "histogram": model.histogram, "total_fit_error": model.total_error,
+                     "mean_lobes": float(model.counts.mean()), "met": float(np.mean(model.fit_error <= target + 1e-6)),
+                     "order_for_target": chosen_order, "fit_seconds": model.seconds})
+        print(f"  target {target:.2f}: lobes {model.histogram} (mean {model.counts.mean():.2f}), total fit error "
+              f"{model.total_error:.4f}; SH order meeting the target on truncation alone: {chosen_order}", flush=True)
+    return [{"truncation_error_by_order": [float(e) for e in order_errors]}] + rows
+
+
+# ---- part 2: cost per vertex ------------------------------------------------------------------
+
+
+def cost_ratios(device, vertex_count: int, orders, lobe_counts, repeats: int) -> list[dict]:
+    from warpshade.basis.sh_warp import sh_kernels
+    from warpshade.methods.ldprt import kernels
+
+    rng = np.random.default_rng(5)
+    rows = []
+    frames = np.linalg.qr(rng.normal(size=(vertex_count, 3, 3)))[0]
+    frames *= np.sign(np.linalg.det(frames))[:, None, None]
+    frames_wp = wp.array(frames.astype(np.float32), dtype=wp.mat33, device=device)
+    albedo = wp.array(np.full((vertex_count, 3), 0.8, np.float32), device=device)
+    rebuild = wp.ones(1, dtype=wp.int32, device=device)
+    radiance = wp.zeros((vertex_count, 3), dtype=wp.float32, device=device)
+
+    def timed(variants):
+        """Median seconds per launch of each (kernel, dim, inputs), launched round-robin so that
+        load changes on a shared machine hit every variant alike."""
+        for kernel, dim, inputs in variants:
+            wp.launch(kernel, dim=dim, inputs=inputs, device=device)
+        wp.synchronize_device(device)
+        ts = [[] for _ in variants]
+        for _ in range(repeats):
+            for k, (kernel, dim, inputs) in enumerate(variants):
+                t0 = time.perf_counter()
+                wp.launch(kernel, dim=dim, inputs=inputs, device=device)
+                wp.synchronize_device(device)
+                ts[k].append(time.perf_counter() - t0)
+        return [float(np.median(t)) for t in ts]
+
+    for order in orders:
+        table_k, shade_table, shade_direct, shade_rot = kernels.shade_kernels(order)
+        light = wp.array(rng.normal(size=(3, order * order)).astype(np.float32), device=device)
+        table = wp.zeros((65, 128, 3, order), dtype=wp.float32, device=device)
+        transfer = wp.array(rng.normal(size=(vertex_count, order * order)).astype(np.float32), device=device)
+        tables = sh_kernels(order).tables(device)
+        stored = wp.array(rng.normal(size=(vertex_count, 4)).astype(np.float32), device=device)
+        for n in lobe_counts:
+            axes = rng.normal(size=(vertex_count, n, 3))
+            axes /= np.linalg.norm(axes, axis=-1, keepdims=True)
+            axes_wp = wp.array(axes.astype(np.float32), dtype=wp.vec3, device=device)
+            coeffs = wp.array(rng.normal(size=(vertex_count, n, order)).astype(np.float32), device=device)
+            counts = wp.array(np.full(vertex_count, n, np.int32), device=device)
+            t_table, t_direct, t_rot, t_build = timed([
+                (shade_table, vertex_count, [frames_wp, axes_wp, coeffs, counts, stored, table, light, albedo, radiance]),
+                (shade_direct, vertex_count, [frames_wp, axes_wp, coeffs, counts, stored, light, albedo, radiance]),
+                (shade_rot, vertex_count, [frames_wp, transfer, tables, light, albedo, radiance]),
+                (table_k, table.shape[:2], [light, rebuild, table]),
+            ])
+            rows.append({
+                "order": order, "lobes": n, "vertex_count": vertex_count,
+                "table_ns_per_vertex": 1e9 * t_table / vertex_count,
+                "direct_ns_per_vertex": 1e9 * t_direct / vertex_count,
+                "rotate_full_ns_per_vertex": 1e9 * t_rot / vertex_count,
+                "table_build_ms": 1e3 * t_build,
+                "direct_over_table": t_direct / t_table,
+                "rotate_full_over_table": t_rot / t_table,
+            })
+            r = rows[-1]
+            print(f"  n={order} N={n}: table {r['table_ns_per_vertex']:.0f} ns/v, direct {r['direct_ns_per_vertex']:.0f}"
+                  f" ({r['direct_over_table']:.2f}x), full rotation {r['rotate_full_ns_per_vertex']:.0f}"
+                  f" ({r['rotate_full_over_table']:.2f}x), table build {r['table_build_ms']:.2f} ms", flush=True)
+    return rows
+
+
+def table_error(device, orders, widths) -> list[dict]:
+    """Max |table shade - direct shade| relative to the RMS of the direct shade, random models."""
+    from warpshade.methods.ldprt import kernels
+
+    rng = np.random.default_rng(6)
+    out = []
+    count, n_lobes = 20000, 3
+    frames = wp.array(np.tile(np.eye(3, dtype=np.float32), (count, 1, 1)), dtype=wp.mat33, device=device)
+    albedo = wp.array(np.full((count, 3), np.pi, np.float32), device=device)
+    stored = wp.zeros((count, 4), dtype=wp.float32, device=device)
+    counts = wp.array(np.full(count, n_lobes, np.int32), device=device)
+    rebuild = wp.ones(1, dtype=wp.int32, device=device)
+    for order in orders:
+        table_k, shade_table, shade_direct, _ = kernels.shade_kernels(order)
+        from warpshade.scene.lighting import Environment, up_rotation
+
+        sky = Environment.sky(to_world=up_rotation("Z"))
+        light = wp.array(sky.to_sh(order).astype(np.float32), device=device)
+        axes = rng.normal(size=(count, n_lobes, 3))
+        axes /= np.linalg.norm(axes, axis=-1, keepdims=True)
+        axes_wp = wp.array(axes.astype(np.float32), dtype=wp.vec3, device=device)
+        from warpshade.basis import sh as shb
+
+        coeffs = wp.array(np.tile(shb.clamped_cosine_zh(order), (count, n_lobes, 1)).astype(np.float32), device=device)
+        direct = wp.zeros((count, 3), dtype=wp.float32, device=device)
+        wp.launch(shade_direct, dim=count, inputs=[frames, axes_wp, coeffs, counts, stored, light, albedo, direct],
+                  device=device)
+        ref = direct.numpy()
+        for width in widths:
+            table = wp.zeros((width // 2 + 1, width, 3, order), dtype=wp.float32, device=device)
+            wp.launch(table_k, dim=table.shape[:2], inputs=[light, rebuild, table], device=device)
+            res = wp.zeros((count, 3), dtype=wp.float32, device=device)
+            wp.launch(shade_table, dim=count, inputs=[frames, axes_wp, coeffs, counts, stored, table, light, albedo, res],
+                      device=device)
+            d = res.numpy() - ref
+            rms = float(np.sqrt(np.mean(ref**2)))
+            out.append({"order": order, "table_width": width, "table_height": width // 2 + 1,
+                        "max_rel": float(np.abs(d).max() / rms), "rms_rel": float(np.sqrt(np.mean(d**2)) / rms)})
+            print(f"  table {width // 2 + 1}x{width}, n={order}: max {out[-1]['max_rel']:.2e}, "
+                  f"RMS {out[-1]['rms_rel']:.2e} (relative to the RMS shade)", flush=True)
+    return out
+
+
+# ---- charts -----------------------------------------------------------------------------------
+
+
+def charts(result, stem):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    scenes = list(result["scenes"])
+    fig, axes = plt.subplots(1, max(1, len(scenes)), figsize=(6.2 * max(1, len(scenes)), 4.4), squeeze=False)
+    for ax, sc in zip(axes[0], scenes):
+        for r in result["scenes"][sc]["methods"]:
+            fr = [m["frame"] for m in r["error_per_frame"]]
+            err = [m.get("rel_rms_debiased", m["rel_rms"]) for m in r["error_per_frame"]]
+            style = "-" if r["method"].startswith("LDPRT") else "--"
+            ax.plot(fr, err, style, marker="o", ms=3, label=r["method"])
+        noise = np.mean([m["noise_rel_rms"] for m in result["scenes"][sc]["methods"][0]["error_per_frame"]])
+        ax.axhline(noise, color="0.3", ls=":", lw=0.8, label="ground-truth noise")
+        ax.set_title(f"{sc}: error vs ray-traced ground truth")
+        ax.set_xlabel("frame")
+        ax.set_ylabel("relative RMS error (debiased)")
+        ax.set_yscale("log")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    if scenes:
+        _save(fig, Path(f"{stem}-errors.png"))
+    else:
+        plt.close(fig)
+    cost = result["cost"]
+    if cost:
+        orders = sorted({c["order"] for c in cost})
+        fig, axes = plt.subplots(1, len(orders), figsize=(5.5 * len(orders), 4), squeeze=False)
+        for ax, order in zip(axes[0], orders):
+            rows = [c for c in cost if c["order"] == order]
+            x = np.arange(len(rows))
+            ax.bar(x - 0.25, [c["table_ns_per_vertex"] for c in rows], 0.25, label="table e^ (O(nN))")
+            ax.bar(x, [c["direct_ns_per_vertex"] for c in rows], 0.25, label="direct SH (O(n^2 N))")
+            ax.bar(x + 0.25, [c["rotate_full_ns_per_vertex"] for c in rows], 0.25, label="full SH rotation (O(n^3))")
+            ax.set_xticks(x, [f"N={c['lobes']}" for c in rows])
+            ax.set_ylabel("ns per vertex (CPU, one run)")
+            ax.set_title(f"shading cost per vertex, n = {order}")
+            ax.legend(fontsize=8)
+            ax.grid(True, axis="y", alpha=0.3)
+        fig.tight_layout()
+        _save(fig, Path(f"{stem}-cost.png"))
+
+
+def _save(fig, path):
+    import matplotlib.pyplot as plt
+
+    tmp = path.with_name(f".{path.name}.tmp.png")
+    fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+    os.replace(tmp, path)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--quick", action="store_true", help="N in {1, 3}, fewer frames and repeats")
+    ap.add_argument("--scenes", default="figure,bend")
+    ap.add_argument("--order", type=int, default=4, help="SH order of PRT and LDPRT")
+    ap.add_argument("--samples", type=int, default=256, help="transfer rays per vertex")
+    ap.add_argument("--gt-samples", type=int, default=2048, help="ground-truth rays per vertex")
+    ap.add_argument("--device", default="cpu")
+    ap.add_argument("--skip-cost", action="store_true")
+    ap.add_argument("--cost-only", action="store_true", help="only part 2 (written as ldprt-cost-<date>-<device>)")
+    args = ap.parse_args(argv)
+
+    from warpshade.io import load_scene
+
+    device = wp.get_device(args.device)
+    cache = ArtifactCache(default_cache_dir())
+    result = {"date": datetime.date.today().isoformat(), "device": str(device),
+              "machine": f"{platform.machine()}, {os.cpu_count()} cores", "warp": wp.config.version,
+              "command": "python benchmarks/bench_ldprt.py " + " ".join(argv if argv is not None else sys.argv[1:]),
+              "order": args.order, "samples": args.samples, "gt_samples": args.gt_samples, "scenes": {}}
+    for key in ([] if args.cost_only else args.scenes.split(",")):
+        scene = load_scene(str(SCENES[key]))
+        lighting = LightingSource(scene.lights, scene.up_axis)
+        count = 4 if args.quick else 7
+        frames = scene.frames[np.unique(np.linspace(0, len(scene.frames) - 1, count).round().astype(int))]
+        print(f"{key}: {scene.vertex_count} vertices, ground truth on frames {list(frames)}", flush=True)
+        gt = ground_truth(scene, lighting, frames, args.gt_samples, device, cache)
+        rows = []
+        for label, stages in methods(args.order, args.samples, args.quick):
+            t0 = time.perf_counter()
+            r = run_method(label, stages, scene, lighting, device, gt)
+            rows.append(r)
+            e = r["error"]
+            meshes = ", ".join(f"{k} {v['rel_rms_debiased']:.4f}" for k, v in r["error_per_mesh"].items())
+            print(f"  {label:18s} rel RMS {e['rel_rms']:.4f} (debiased {e['rel_rms_debiased']:.4f}; {meshes}) "
+                  f"{r['median_frame_ms']:.2f} ms/frame, precompute {r['precompute_s']:.1f} s "
+                  f"[{time.perf_counter() - t0:.0f} s] {r['fit'] or ''}", flush=True)
+        print(f"  error budget (order {args.order}, at most 4 lobes per vertex):", flush=True)
+        budget = error_budget(scene, args.order, args.samples)
+        result["scenes"][key] = {"vertex_count": scene.vertex_count, "frames": [float(f) for f in frames],
+                                 "meshes": {k: v.stop - v.start for k, v in mesh_slices(scene).items()},
+                                 "methods": rows, "error_budget": budget}
+    if not args.skip_cost:
+        print("shading cost per vertex (one run, side by side):", flush=True)
+        result["cost"] = cost_ratios(device, 50000 if args.quick else 200000, (4, 6, 8), (1, 2, 3, 4),
+                                     5 if args.quick else 15)
+        print("light-specialised table vs direct evaluation:", flush=True)
+        result["table_error"] = table_error(device, (4, 6), (64, 128, 256))
+    else:
+        result["cost"], result["table_error"] = [], []
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    kind = "ldprt-cost" if args.cost_only else "ldprt"
+    stem = RESULTS / f"{kind}-{result['date']}-{device.alias.replace(':', '')}{'-quick' if args.quick else ''}"
+    fd, tmp = tempfile.mkstemp(dir=RESULTS, suffix=".json.tmp")
+    with os.fdopen(fd, "w") as f:
+        json.dump(result, f, indent=1)
+    os.replace(tmp, f"{stem}.json")
+    charts(result, str(stem))
+    written = [f"{stem}.json"] + [str(p) for p in (Path(f"{stem}-errors.png"), Path(f"{stem}-cost.png")) if p.exists()]
+    print("wrote " + ", ".join(written))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,79 @@
+"""Local, deformable PRT with zonal-harmonic lobes (Sloan, Luna, Snyder 2005).
+
+Transfer is ray traced once in each vertex's tangent frame, fitted with a few ZH lobes, and
+rotated with the surface every frame (``ldprt.fit`` -> ``ldprt.frames`` -> ``ldprt.shade``);
+parametric models (thin membrane, sinusoidal wrinkles) and glossy LDPRT build on the same
+lobes. Captures local shadowing that moves with the surface; distant occlusion that changes
+with the pose (an arm over the torso) is not modelled.
+"""
+
+from .model import (
+    LDPRTModel,
+    fit_transfer,
+    local_transfer,
+    shade_reference,
+    world_transfer_reference,
+)
+from .stages import (
+    FitStage,
+    FramesStage,
+    LocalTransferStage,
+    RotatedShadeStage,
+    ShadeStage,
+)
+
+__all__ = [
+    "FitStage",
+    "FramesStage",
+    "LDPRTModel",
+    "LocalTransferStage",
+    "RotatedShadeStage",
+    "ShadeStage",
+    "fit_transfer",
+    "harness_rows",
+    "local_transfer",
+    "shade_reference",
+    "world_transfer_reference",
+]
+
+#: SH order of the harness rows (the paper uses n = 6 for diffuse LDPRT).
+HARNESS_ORDER = 4
+
+
+def _ldprt_stages(lobes: int, target_error=None, evaluation: str = "table", order: int = HARNESS_ORDER) -> tuple:
+    fit = {"order": order, "lobes": lobes, "samples": 256}
+    if target_error is not None:
+        fit["target_error"] = target_error
+    return (
+        ("fit", "ldprt.fit", fit, {}),
+        ("frames", "ldprt.frames", {}, {}),
+        ("shade", "ldprt.shade", {"order": order, "lobes": lobes, "evaluation": evaluation}, {}),
+    )
+
+
+def harness_rows(quick: bool = False) -> list:
+    """Harness settings: N = 1..4 lobes (table), an error-budgeted lobe count, direct SH
+    evaluation, and the full-SH-rotation baseline; on the deforming (skinned and point-cached)
+    scenes."""
+    from ..harness import HarnessRow
+
+    scenes = ("skinned", "deforming")
+    note = "transfer baked at the first frame in tangent frames, rotated per vertex per frame"
+    rows = [
+        HarnessRow("ldprt", f"N{n} n{HARNESS_ORDER}", _ldprt_stages(n), "shade.radiance", scenes=scenes,
+                   quick=(n in (1, 3)), notes=note)
+        for n in (1, 2, 3, 4)
+    ]
+    rows.append(HarnessRow("ldprt", f"budget 0.05 n{HARNESS_ORDER}", _ldprt_stages(4, target_error=0.05),
+                           "shade.radiance", scenes=scenes, quick=False,
+                           notes=note + "; lobe count per vertex from a 5% error budget"))
+    rows.append(HarnessRow("ldprt", f"N3 direct n{HARNESS_ORDER}", _ldprt_stages(3, evaluation="direct"),
+                           "shade.radiance", scenes=scenes, quick=False, notes=note + "; direct SH evaluation"))
+    rows.append(HarnessRow(
+        "ldprt", f"rotated SH n{HARNESS_ORDER}",
+        (("bake", "ldprt.transfer", {"order": HARNESS_ORDER, "samples": 256}, {}),
+         ("frames", "ldprt.frames", {}, {}),
+         ("shade", "ldprt.shade_rotated", {"order": HARNESS_ORDER}, {})),
+        "shade.radiance", scenes=scenes, quick=False, notes="full local SH transfer rotated per vertex (zxzxz)",
+    ))
+    return rows

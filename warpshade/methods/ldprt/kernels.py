@@ -1,0 +1,353 @@
+"""Warp kernels of local, deformable PRT (Sloan, Luna, Snyder 2005).
+
+Per-vertex model (local tangent frame ``F``, rows tangent/bitangent/normal, so a local direction
+``a`` is ``F^T a`` in world space):
+
+* ``axes[v, k]`` (vec3, local), ``coeffs[v, k, :]`` (convolution coefficients ``g*``),
+  ``counts[v]`` lobes used (padded layout, the rest ignored);
+* ``stored[v, 0:4]``: the exactly stored DC and linear SH coefficients (local frame; zero when
+  not stored).
+
+Radiance per channel c: ``albedo / pi * (dc e_c,00 + lin_world . e_c,1 + sum_k g*_k . e^_c(F^T a_k))``
+with ``e^`` either looked up in the light-specialised table (eq. 24-25) or evaluated directly
+from the lighting SH. The linear band turns like a vector: local coefficients
+``(f_1,-1, f_1,0, f_1,1)`` correspond to ``w = (-f_1,1, -f_1,-1, f_1,0)``, rotated as ``F^T w``.
+"""
+
+import functools
+
+import warp as wp
+
+from ...basis._zh_warp import zh_kernels
+from ...basis.sh_warp import SHTables, sh_kernels
+
+wp.set_module_options({"enable_backward": False})
+
+INV_PI = 0.3183098861837907
+
+
+@wp.func
+def stored_term(stored: wp.array2d(dtype=wp.float32), v: int, rot: wp.mat33,
+                light: wp.array2d(dtype=wp.float32), c: int) -> float:
+    """DC + rotated linear band of vertex v dotted with channel c of the world lighting."""
+    acc = stored[v, 0] * light[c, 0]
+    w = rot * wp.vec3(-stored[v, 3], -stored[v, 1], stored[v, 2])
+    if light.shape[1] > 1:
+        acc += -w[1] * light[c, 1] + w[2] * light[c, 2] - w[0] * light[c, 3]
+    return acc
+
+
+@wp.kernel
+def rotate_axes_kernel(
+    frames: wp.array(dtype=wp.mat33),
+    axes: wp.array2d(dtype=wp.vec3),
+    counts: wp.array(dtype=wp.int32),
+    world_axes: wp.array2d(dtype=wp.vec3),
+):
+    """world_axes[v, k] = F_v^T axes[v, k] for k < counts[v] (eq. 10)."""
+    v = wp.tid()
+    rot = wp.transpose(frames[v])
+    for k in range(counts[v]):
+        world_axes[v, k] = rot * axes[v, k]
+
+
+@functools.cache
+def shade_kernels(order: int):
+    """(table_kernel, shade_table, shade_direct, shade_rotate_full) specialised to an SH order.
+
+    * ``shade_table(frames, axes, coeffs, counts, stored, table, light, albedo, radiance)``:
+      one thread per vertex, N bilinear look-ups of ``e^`` and N n-dot products per channel
+      (O(nN));
+    * ``shade_direct(frames, axes, coeffs, counts, stored, light, albedo, radiance)``: the SH
+      basis at every rotated axis, dotted band by band with the lighting (O(n^2 N));
+    * ``shade_rotate_full(frames, transfer, tables, light, albedo, radiance)``: the full local SH
+      transfer vector rotated to world per vertex with the zxzxz SH rotation, then dotted
+      (O(n^3)); the baseline the ZH lobes replace.
+    """
+    zk = zh_kernels(order)
+    shk = sh_kernels(order)
+    ORDER = order
+    N2 = order * order
+    sh_eval = shk.eval
+    sh_rotate = shk.rotate
+    sh_load = shk.load
+    table_lookup = zk.table_lookup
+    load_bands = zk.load_bands
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def shade_table(
+        frames: wp.array(dtype=wp.mat33),
+        axes: wp.array2d(dtype=wp.vec3),
+        coeffs: wp.array3d(dtype=wp.float32),
+        counts: wp.array(dtype=wp.int32),
+        stored: wp.array2d(dtype=wp.float32),
+        table: wp.array4d(dtype=wp.float32),
+        light: wp.array2d(dtype=wp.float32),
+        albedo: wp.array2d(dtype=wp.float32),
+        radiance: wp.array2d(dtype=wp.float32),
+    ):
+        v = wp.tid()
+        rot = wp.transpose(frames[v])
+        acc = wp.vec3(stored_term(stored, v, rot, light, 0), stored_term(stored, v, rot, light, 1),
+                      stored_term(stored, v, rot, light, 2))
+        for k in range(counts[v]):
+            acc += table_lookup(table, rot * axes[v, k]) * load_bands(coeffs, v, k)
+        for c in range(3):
+            radiance[v, c] = albedo[v, c] * INV_PI * acc[c]
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def shade_direct(
+        frames: wp.array(dtype=wp.mat33),
+        axes: wp.array2d(dtype=wp.vec3),
+        coeffs: wp.array3d(dtype=wp.float32),
+        counts: wp.array(dtype=wp.int32),
+        stored: wp.array2d(dtype=wp.float32),
+        light: wp.array2d(dtype=wp.float32),
+        albedo: wp.array2d(dtype=wp.float32),
+        radiance: wp.array2d(dtype=wp.float32),
+    ):
+        v = wp.tid()
+        rot = wp.transpose(frames[v])
+        r = stored_term(stored, v, rot, light, 0)
+        gr = stored_term(stored, v, rot, light, 1)
+        b = stored_term(stored, v, rot, light, 2)
+        for k in range(counts[v]):
+            y = sh_eval(rot * axes[v, k])
+            for l in range(ORDER):
+                gl = coeffs[v, k, l]
+                for m in range(-l, l + 1):
+                    i = l * l + l + m
+                    yg = gl * y[i]
+                    r += yg * light[0, i]
+                    gr += yg * light[1, i]
+                    b += yg * light[2, i]
+        radiance[v, 0] = albedo[v, 0] * INV_PI * r
+        radiance[v, 1] = albedo[v, 1] * INV_PI * gr
+        radiance[v, 2] = albedo[v, 2] * INV_PI * b
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def shade_rotate_full(
+        frames: wp.array(dtype=wp.mat33),
+        transfer: wp.array2d(dtype=wp.float32),
+        tables: SHTables,
+        light: wp.array2d(dtype=wp.float32),
+        albedo: wp.array2d(dtype=wp.float32),
+        radiance: wp.array2d(dtype=wp.float32),
+    ):
+        v = wp.tid()
+        t = sh_rotate(sh_load(transfer, v), wp.transpose(frames[v]), tables)
+        r = float(0.0)
+        gr = float(0.0)
+        b = float(0.0)
+        for i in range(N2):
+            r += t[i] * light[0, i]
+            gr += t[i] * light[1, i]
+            b += t[i] * light[2, i]
+        radiance[v, 0] = albedo[v, 0] * INV_PI * r
+        radiance[v, 1] = albedo[v, 1] * INV_PI * gr
+        radiance[v, 2] = albedo[v, 2] * INV_PI * b
+
+    return zk.table_kernel, shade_table, shade_direct, shade_rotate_full
+
+
+@wp.func
+def hemisphere_to_concentric(d: wp.vec3) -> wp.vec2:
+    """Inverse of the concentric square -> disk -> hemisphere map (see scene.materials); the
+    lower hemisphere is clamped to the horizon."""
+    z = wp.clamp(d[2], 0.0, 1.0)
+    r = wp.sqrt(1.0 - z)
+    phi = wp.atan2(d[1], d[0])
+    if phi < -0.25 * wp.pi:
+        phi += 2.0 * wp.pi
+    quarter = 0.25 * wp.pi
+    a = float(0.0)
+    b = float(0.0)
+    if phi < quarter:
+        a = r
+        b = r * phi / quarter
+    elif phi < 3.0 * quarter:
+        b = r
+        a = r * (0.5 * wp.pi - phi) / quarter
+    elif phi < 5.0 * quarter:
+        a = -r
+        b = -r * (phi - wp.pi) / quarter
+    else:
+        b = -r
+        a = -r * (1.5 * wp.pi - phi) / quarter
+    return wp.vec2(a, b)
+
+
+@wp.func
+def view_factor(factors: wp.array3d(dtype=wp.float32), ab: wp.vec2, j: int) -> float:
+    """Bilinear interpolation of view factor j between texel centres of a (res, res, n_b) texture."""
+    res = factors.shape[0]
+    fa = (ab[0] + 1.0) * 0.5 * float(res) - 0.5
+    fb = (ab[1] + 1.0) * 0.5 * float(res) - 0.5
+    ia = wp.clamp(int(wp.floor(fa)), 0, res - 2)
+    ib = wp.clamp(int(wp.floor(fb)), 0, res - 2)
+    ta = wp.clamp(fa - float(ia), 0.0, 1.0)
+    tb = wp.clamp(fb - float(ib), 0.0, 1.0)
+    return ((1.0 - ta) * (1.0 - tb) * factors[ia, ib, j] + ta * (1.0 - tb) * factors[ia + 1, ib, j]
+            + (1.0 - ta) * tb * factors[ia, ib + 1, j] + ta * tb * factors[ia + 1, ib + 1, j])
+
+
+@wp.func
+def stored_row_term(stored: wp.array3d(dtype=wp.float32), v: int, j: int, rot: wp.mat33,
+                    light: wp.array2d(dtype=wp.float32), c: int) -> float:
+    """DC + rotated linear band of BRDF row j of vertex v dotted with lighting channel c."""
+    acc = stored[v, j, 0] * light[c, 0]
+    w = rot * wp.vec3(-stored[v, j, 3], -stored[v, j, 1], stored[v, j, 2])
+    if light.shape[1] > 1:
+        acc += -w[1] * light[c, 1] + w[2] * light[c, 2] - w[0] * light[c, 3]
+    return acc
+
+
+@functools.cache
+def glossy_kernel(order: int):
+    """``shade_glossy(frames, points, eye, axes, coeffs, stored, lobes, factors, table, light,
+    specular, radiance)``: glossy LDPRT (eq. 16) with the light-specialised table, one thread
+    per vertex. ``axes``/``coeffs`` hold n_b rows x ``lobes`` lobes per vertex (row-major),
+    ``factors`` the (res, res, n_b) view-factor texture; radiance = specular * r(v)."""
+    zk = zh_kernels(order)
+    table_lookup = zk.table_lookup
+    load_bands = zk.load_bands
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def shade_glossy(
+        frames: wp.array(dtype=wp.mat33),
+        points: wp.array(dtype=wp.vec3),
+        eye: wp.vec3,
+        axes: wp.array2d(dtype=wp.vec3),
+        coeffs: wp.array3d(dtype=wp.float32),
+        stored: wp.array3d(dtype=wp.float32),
+        lobes: int,
+        factors: wp.array3d(dtype=wp.float32),
+        table: wp.array4d(dtype=wp.float32),
+        light: wp.array2d(dtype=wp.float32),
+        specular: wp.vec3,
+        radiance: wp.array2d(dtype=wp.float32),
+    ):
+        v = wp.tid()
+        f = frames[v]
+        rot = wp.transpose(f)
+        view = eye - points[v]
+        vlen = wp.length(view)
+        if vlen > 0.0:
+            view = view / vlen
+        ab = hemisphere_to_concentric(f * view)
+        acc = wp.vec3(0.0)
+        for j in range(factors.shape[2]):
+            s = wp.vec3(stored_row_term(stored, v, j, rot, light, 0), stored_row_term(stored, v, j, rot, light, 1),
+                        stored_row_term(stored, v, j, rot, light, 2))
+            for k in range(lobes):
+                slot = j * lobes + k
+                s += table_lookup(table, rot * axes[v, slot]) * load_bands(coeffs, v, slot)
+            acc += view_factor(factors, ab, j) * s
+        for c in range(3):
+            radiance[v, c] = specular[c] * acc[c]
+
+    return shade_glossy
+
+
+@wp.func
+def rotate_z(v: wp.vec3, c: float, s: float) -> wp.vec3:
+    return wp.vec3(c * v[0] - s * v[1], s * v[0] + c * v[1], v[2])
+
+
+@functools.cache
+def wrinkle_kernels(order: int):
+    """(depth_kernel, shade_wrinkle) for the sinusoidal wrinkle model.
+
+    * ``depth_kernel(points, axis_neighbour, rest_length, base_depth, gain, max_depth, depth)``:
+      per vertex ``depth = clamp(base_depth + gain * max(0, 1 - |p_k - p_v| / rest_length), 0,
+      max_depth)`` with k the vertex's one-ring neighbour most aligned with the groove axis at
+      rest (compression along the groove axis deepens the wrinkle); ``axis_neighbour < 0``: base
+      depth only.
+    * ``shade_wrinkle(frames, phase, groove_angle, depth, table_axes, table_coeffs, table_stored,
+      max_depth, light, albedo, radiance)``: bilinear look-up of the 3-lobe parameters at
+      (phase, depth) (periodic in phase), axes normalised, turned from the groove frame into the
+      tangent frame by ``groove_angle`` about the normal, then to world by ``F^T``; shaded by
+      direct SH evaluation, ``albedo / pi * dot(L, t~)``.
+    """
+    shk = sh_kernels(order)
+    ORDER = order
+    sh_eval = shk.eval
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def depth_kernel(
+        points: wp.array(dtype=wp.vec3),
+        axis_neighbour: wp.array(dtype=wp.int32),
+        rest_length: wp.array(dtype=wp.float32),
+        base_depth: wp.array(dtype=wp.float32),
+        gain: float,
+        max_depth: float,
+        depth: wp.array(dtype=wp.float32),
+    ):
+        v = wp.tid()
+        d = base_depth[v]
+        k = axis_neighbour[v]
+        if k >= 0 and rest_length[v] > 0.0:
+            ratio = wp.length(points[k] - points[v]) / rest_length[v]
+            d += gain * wp.max(0.0, 1.0 - ratio)
+        depth[v] = wp.clamp(d, 0.0, max_depth)
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def shade_wrinkle(
+        frames: wp.array(dtype=wp.mat33),
+        phase: wp.array(dtype=wp.float32),
+        groove_angle: wp.array(dtype=wp.float32),
+        depth: wp.array(dtype=wp.float32),
+        table_axes: wp.array3d(dtype=wp.vec3),
+        table_coeffs: wp.array4d(dtype=wp.float32),
+        table_stored: wp.array3d(dtype=wp.float32),
+        max_depth: float,
+        light: wp.array2d(dtype=wp.float32),
+        albedo: wp.array2d(dtype=wp.float32),
+        radiance: wp.array2d(dtype=wp.float32),
+    ):
+        v = wp.tid()
+        cx = table_axes.shape[0]
+        cd = table_axes.shape[1]
+        x = phase[v] - wp.floor(phase[v])
+        fx = x * float(cx)
+        i0 = int(wp.floor(fx)) % cx
+        i1 = (i0 + 1) % cx
+        tx = fx - wp.floor(fx)
+        fd = wp.clamp(depth[v] / max_depth, 0.0, 1.0) * float(cd - 1)
+        j0 = wp.min(int(wp.floor(fd)), cd - 2)
+        td = fd - float(j0)
+        w00 = (1.0 - tx) * (1.0 - td)
+        w10 = tx * (1.0 - td)
+        w01 = (1.0 - tx) * td
+        w11 = tx * td
+        c = wp.cos(groove_angle[v])
+        s = wp.sin(groove_angle[v])
+        rot = wp.transpose(frames[v])
+        acc = wp.vec3(0.0)
+        # stored DC + linear band (groove frame -> tangent frame -> world)
+        st = wp.vec4(0.0)
+        for q in range(4):
+            st[q] = (w00 * table_stored[i0, j0, q] + w10 * table_stored[i1, j0, q]
+                     + w01 * table_stored[i0, j0 + 1, q] + w11 * table_stored[i1, j0 + 1, q])
+        wv = rot * rotate_z(wp.vec3(-st[3], -st[1], st[2]), c, s)
+        for ch in range(3):
+            acc[ch] = st[0] * light[ch, 0] - wv[1] * light[ch, 1] + wv[2] * light[ch, 2] - wv[0] * light[ch, 3]
+        for k in range(3):
+            a = (w00 * table_axes[i0, j0, k] + w10 * table_axes[i1, j0, k] + w01 * table_axes[i0, j0 + 1, k]
+                 + w11 * table_axes[i1, j0 + 1, k])
+            alen = wp.length(a)
+            if alen > 0.0:
+                a = a / alen
+            else:
+                a = wp.vec3(0.0, 0.0, 1.0)
+            y = sh_eval(rot * rotate_z(a, c, s))
+            for l in range(ORDER):
+                g = (w00 * table_coeffs[i0, j0, k, l] + w10 * table_coeffs[i1, j0, k, l]
+                     + w01 * table_coeffs[i0, j0 + 1, k, l] + w11 * table_coeffs[i1, j0 + 1, k, l])
+                for m in range(-l, l + 1):
+                    i = l * l + l + m
+                    acc += (g * y[i]) * wp.vec3(light[0, i], light[1, i], light[2, i])
+        for ch in range(3):
+            radiance[v, ch] = albedo[v, ch] * INV_PI * acc[ch]
+
+    return depth_kernel, shade_wrinkle
