@@ -29,6 +29,7 @@ class _Const(Stage):
 
     def precompute(self, ctx, inputs):
         CALLS["const"] += 1
+        self.report = {"value": self.params["value"], "histogram": np.array([3, 1])}
         return {"values": np.full((ctx.dims["V"], self.params["k"]), self.params["value"], np.float32)}
 
 
@@ -121,6 +122,9 @@ def test_cache_reuse_and_invalidation(moving_scene, tmp_path):
     rt = _spec(value=1.0).compile(moving_scene, device="cpu", cache_dir=tmp_path, progress=False)
     assert CALLS["const"] == 1, "unchanged inputs must reuse the cached artifact"
     assert rt.timings["bake"].cache == "hit"
+    bake = next(s for s in rt.stages if s.name == "bake")
+    assert bake.report == {"value": 1.0, "histogram": [3, 1]}, "a precompute report survives the cache"
+    assert rt.report()["stages"][0]["report"]["histogram"] == [3, 1]
     _spec(value=2.0).compile(moving_scene, device="cpu", cache_dir=tmp_path, progress=False)
     assert CALLS["const"] == 2, "a changed parameter must recompute"
     moved = Scene.from_meshes(

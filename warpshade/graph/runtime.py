@@ -123,6 +123,17 @@ class Context:
         return self.lighting.sh(order, frame, window, **window_args)
 
 
+_REPORT_KEY = "__report__"
+
+
+def _json_default(obj):
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    return repr(obj)
+
+
 _DTYPES = {"float32": wp.float32, "float64": wp.float64, "int32": wp.int32, "vec3": wp.vec3, "mat33": wp.mat33}
 
 
@@ -231,13 +242,18 @@ class Runtime:
             if cached is not None and set(cached) >= set(st.output_ports()):
                 out = cached
                 timing.cache = "hit"
+                if _REPORT_KEY in out:
+                    st.report = json.loads(str(out.pop(_REPORT_KEY)))
             else:
                 out = st.precompute(self.ctx, inputs)
                 missing = set(st.output_ports()) - set(out)
                 if missing:
                     raise GraphError(f"stage {st.name!r}: precompute did not produce {sorted(missing)}")
                 timing.cache = "miss" if self.cache.enabled else "off"
-                self.cache.store(key, out)
+                stored = dict(out)
+                if st.report:
+                    stored[_REPORT_KEY] = np.array(json.dumps(st.report, default=_json_default))
+                self.cache.store(key, stored)
             timing.precompute_s = time.perf_counter() - t0
             self.artifacts[st.name] = out
 
@@ -433,7 +449,7 @@ class Runtime:
 
     def write_report(self, path, error: dict | None = None) -> Path:
         """Write :meth:`report` as JSON, atomically."""
-        return _atomic_write_text(Path(path), json.dumps(self.report(error), indent=2))
+        return _atomic_write_text(Path(path), json.dumps(self.report(error), indent=2, default=_json_default))
 
     def write_usd(self, path, extra_primvars: dict | None = None) -> Path:
         """Write the recorded frames as a new USD layer (never over the input).

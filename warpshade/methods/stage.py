@@ -153,12 +153,20 @@ class Stage:
         """Kernel launches on fixed buffers only (capturable as a CUDA graph)."""
         raise NotImplementedError(f"stage {self.name!r} ({self.type_name}) has no launch")
 
+    #: A small JSON-ready summary a precompute may leave (histograms, fit errors, choices made).
+    #: The runtime stores it with the cached artifacts and restores it on a cache hit, and
+    #: includes it in run reports.
+    report: dict | None = None
+
     def model_bytes(self) -> int:
         """Bytes of per-scene model data this stage keeps on the device (for reports)."""
         return 0
 
     def describe(self) -> dict:
-        return {"name": self.name, "type": self.type_name, "kind": self.kind, "params": dict(self.params)}
+        out = {"name": self.name, "type": self.type_name, "kind": self.kind, "params": dict(self.params)}
+        if self.report:
+            out["report"] = self.report
+        return out
 
 
 _REGISTRY: dict[str, type[Stage]] = {}
