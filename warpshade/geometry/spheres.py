@@ -1,0 +1,131 @@
+"""Blocker sphere sets: construction, animation, hierarchy and receiver clusters (SHEXP, sec. 6).
+
+Ren et al. 2006 ("Real-time soft shadows in dynamic scenes using spherical harmonic
+exponentiation") shadow with sets of spheres that *bound* each blocker: every point of the
+solid lies in some sphere, so no light leaks through, while the outside volume is small so
+shadows are not too big. This module builds and animates those spheres; the SHEXP maths
+(log-space accumulation) lives in ``warpshade.methods``.
+
+Construction (:func:`fit_spheres`, :func:`spheres_for_scene`). The variational Lloyd-style
+construction of sec. 6.2 (``_spheres_fit`` has the details): flood-fill clustering of surface
+and interior samples by outside-volume cost, Powell centre updates minimising the outside volume
+of each cluster's bounding sphere (all clusters in lockstep, the objective evaluated by a Warp
+kernel on an occupancy grid; scipy's Powell is the reference it is tested against), and cluster
+teleportation accepted only when the error drops.
+The error reported is the paper's
+
+    E = sum_i V(S_i - T) / V(T)          (eq. 35 over the object's volume, as in Figure 4)
+
+and also the union form ``V(union_i S_i - T) / V(T)`` (no double counting where spheres
+overlap outside T). Both come from :func:`outside_volume`, a randomised quasi-Monte Carlo
+estimator independent of the grid estimator the optimisation uses: scrambled-Sobol points
+mapped volume-preservingly into each ball are classified inside/outside T by a Warp kernel
+(fast generalised winding number over the mesh BVH, so overlapping closed components form
+their union); the standard error is taken across independent scramblings. V(T) is estimated
+the same way in the bounding box.
+
+Closed meshes only, by default: a sphere set bounds a *solid*. An open mesh (a cloth sheet, a
+ground plane) raises ValueError naming the mesh, unless ``open_mesh="shell"``, which bounds the
+shell of half-thickness ``shell_thickness`` around the surface instead (for thin blockers that
+must cast shadows). :func:`spheres_for_scene` skips open meshes unless asked for shells.
+
+Animation (:class:`SceneSpheres`, :class:`SphereAnimator`). Centres follow their mesh:
+static/rigid meshes by the mesh transform; skinned meshes by the mean value coordinates (MVC)
+of each centre w.r.t. the fit-pose mesh (on a mesh of several closed parts, the part holding
+most of the sphere's samples), pre-multiplied by the per-vertex bone weights into a few (bone,
+weighted bind-space point) pairs per sphere -- exactly the MVC of the deformed mesh when every
+bone is kept -- or, as an alternative, by linear blend skinning of the centre with its cluster's
+mean skin weights; deforming closed meshes by dense MVC over the vertices; deforming open
+(shell) meshes by a barycentric point plus an offset fixed in the nearest triangle's frame.
+Radii stay fixed (times a safety factor, times the mesh transform's scale, optionally grown
+until they bound every frame of the scene's own animation).
+
+Hierarchy (:func:`build_sphere_tree`, :class:`SphereTree`, :class:`SphereTreeRefit`).
+Bottom-up Lloyd clustering of sphere centres with branching about 4 (sec. 6.3), each parent's
+centre optimised by Powell to minimise the radius bounding its children; per frame a Warp
+kernel refits parents bottom-up with a bound that is valid for any child positions.
+
+Receivers (:func:`cluster_receivers`, :class:`ReceiverBounds`, :class:`HierarchyCut`). Lloyd
+clusters of receiver vertices with per-frame bounding spheres and representative vertices, and
+the per-cluster cut of eq. 36 as flat arrays the shading kernel loops over.
+
+Every kernel has a float64 NumPy reference (``*_reference``, :meth:`SceneSpheres.centres_at`,
+:meth:`ReceiverClusters.bounds_reference`) that the tests compare with.
+
+Typical use (precompute once, cache the ``to_arrays()`` dicts; then per frame)::
+
+    spheres = spheres_for_scene(scene, budget=64)
+    tree = build_sphere_tree(spheres.centres, spheres.radii_at(scene, spheres.frame), groups=spheres.sphere_mesh)
+    clusters = cluster_receivers(scene, vertices_per_cluster=300)
+    animator = SphereAnimator(scene, spheres, device)
+    refit = SphereTreeRefit(tree, device)
+    bounds = ReceiverBounds(clusters, device)
+    cut = HierarchyCut(refit, clusters.cluster_count, theta_max_degrees=25.0)
+    # per frame: host uploads, then kernels on fixed buffers only
+    animator.prepare(frame_state)
+    animator.launch(points)                       # animator.centres / animator.radii: (S,)
+    refit.launch(animator.centres, animator.radii)
+    bounds.launch(points)
+    cut.launch(bounds.centres, bounds.radii)      # cut.cut_nodes (C, capacity), cut.cut_count (C,)
+"""
+
+from ._spheres_core import (
+    DEFAULT_GRID_CELLS,
+    GRID_CELLS_PER_SPHERE,
+    OutsideVolume,
+    SphereSet,
+    coverage_gap,
+    coverage_gap_reference,
+    fit_spheres,
+    outside_volume,
+    solid_volume,
+)
+from ._spheres_kernels import cut_accept, merge_sphere_pair
+from ._spheres_scene import (
+    ATTACHMENT_KINDS,
+    SceneSpheres,
+    SphereAnimator,
+    spheres_for_scene,
+)
+from ._spheres_tree import (
+    DEFAULT_THETA_MAX_DEGREES,
+    REFIT_MODES,
+    HierarchyCut,
+    ReceiverBounds,
+    ReceiverClusters,
+    SphereTree,
+    SphereTreeRefit,
+    build_sphere_tree,
+    cluster_receivers,
+    cut_reference,
+    refit_reference,
+)
+
+__all__ = [
+    "ATTACHMENT_KINDS",
+    "DEFAULT_GRID_CELLS",
+    "DEFAULT_THETA_MAX_DEGREES",
+    "GRID_CELLS_PER_SPHERE",
+    "REFIT_MODES",
+    "HierarchyCut",
+    "OutsideVolume",
+    "ReceiverBounds",
+    "ReceiverClusters",
+    "SceneSpheres",
+    "SphereAnimator",
+    "SphereSet",
+    "SphereTree",
+    "SphereTreeRefit",
+    "build_sphere_tree",
+    "cluster_receivers",
+    "coverage_gap",
+    "coverage_gap_reference",
+    "cut_accept",
+    "cut_reference",
+    "fit_spheres",
+    "merge_sphere_pair",
+    "outside_volume",
+    "refit_reference",
+    "solid_volume",
+    "spheres_for_scene",
+]
