@@ -9,7 +9,15 @@ Public surface::
     rt.run(); rt.write_usd("out.usda"); rt.write_report("report.json")
 """
 
-from ..methods.stage import Param, Port, Stage, StageError, get_stage_type, register_stage, stage_types
+from ..methods.stage import (
+    Param,
+    Port,
+    Stage,
+    StageError,
+    get_stage_type,
+    register_stage,
+    stage_types,
+)
 from .cache import ArtifactCache, default_cache_dir
 from .graph import SCENE_PORTS, GraphError, GraphSpec, StageSpec, load
 from .lighting import LightingSource

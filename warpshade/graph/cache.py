@@ -11,10 +11,11 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
+
+from .._fileio import atomic_path
 
 __all__ = ["ArtifactCache", "hash_arrays", "hash_json", "default_cache_dir"]
 
@@ -86,15 +87,8 @@ class ArtifactCache:
         """Write ``arrays`` atomically under ``key``; returns the file path."""
         if self.root is None:
             return None
-        self.root.mkdir(parents=True, exist_ok=True)
         final = self.path(key)
-        fd, tmp = tempfile.mkstemp(prefix=f".{key[:16]}-", suffix=".npz.tmp", dir=self.root)
-        try:
-            with os.fdopen(fd, "wb") as f:
+        with atomic_path(final) as tmp:
+            with open(tmp, "wb") as f:
                 np.savez(f, **{k: np.asarray(v) for k, v in arrays.items()})
-            os.replace(tmp, final)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-            raise
         return final

@@ -16,19 +16,18 @@ the CPU the same launches run as plain launches.
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from .._fileio import _json_default, write_json_atomic
 from .._wp import resolve_device, wp
+from ..methods.stage import Port
 from .cache import ArtifactCache, default_cache_dir, hash_arrays, hash_json
 from .graph import GraphError, GraphSpec
 from .lighting import LightingSource
-from ..methods.stage import Port
 
 __all__ = ["Runtime", "Context", "parse_frames", "scene_fingerprint"]
 
@@ -124,15 +123,6 @@ class Context:
 
 
 _REPORT_KEY = "__report__"
-
-
-def _json_default(obj):
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    return repr(obj)
-
 
 _DTYPES = {"float32": wp.float32, "float64": wp.float64, "int32": wp.int32, "vec3": wp.vec3, "mat33": wp.mat33}
 
@@ -449,7 +439,7 @@ class Runtime:
 
     def write_report(self, path, error: dict | None = None) -> Path:
         """Write :meth:`report` as JSON, atomically."""
-        return _atomic_write_text(Path(path), json.dumps(self.report(error), indent=2, default=_json_default))
+        return write_json_atomic(path, self.report(error))
 
     def write_usd(self, path, extra_primvars: dict | None = None) -> Path:
         """Write the recorded frames as a new USD layer (never over the input).
@@ -493,17 +483,3 @@ class Runtime:
                    exposure=exposure, path=p, device=self.device, supersample=2)
             paths.append(p)
         return paths
-
-
-def _atomic_write_text(path: Path, text: str) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}-", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path

@@ -23,9 +23,10 @@ decoded raises ValueError naming it and saying why. Writers go through a tempora
 from __future__ import annotations
 
 import os
-import tempfile
 
 import numpy as np
+
+from .._fileio import atomic_path
 
 __all__ = ["read_image", "read_exr", "read_hdr", "write_hdr", "write_exr", "IMAGE_EXTENSIONS"]
 
@@ -294,17 +295,5 @@ def _as_rgb(image, path) -> np.ndarray:
 
 
 def _atomic_write(path, write, suffix: str) -> None:
-    path = os.fspath(path)
-    directory = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=suffix, dir=directory)
-    os.close(fd)
-    try:
-        write(tmp)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600 files; give the usual permissions
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.remove(tmp)
-        raise
+    with atomic_path(path, suffix=suffix) as tmp:
+        write(str(tmp))

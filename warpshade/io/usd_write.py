@@ -12,11 +12,12 @@ The file is exported to a temporary name and moved into place atomically.
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 from pxr import Sdf, Usd, UsdGeom, Vt
+
+from .._fileio import atomic_path
 
 __all__ = ["write_vertex_colors"]
 
@@ -56,17 +57,8 @@ def write_vertex_colors(path, scene, frames, colors, extra_primvars: dict | None
     if path.suffix not in (".usda", ".usdc", ".usd"):
         raise ValueError(f"write_vertex_colors: output must end in .usda, .usdc or .usd, got {path.name}")
 
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}-", suffix=path.suffix, dir=path.parent)
-    os.close(fd)
-    os.unlink(tmp)  # Sdf creates the layer itself; the name stays ours (same directory => same relative paths)
-    try:
-        _author(tmp, path, source, scene, frames, colors, extra_primvars)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    with atomic_path(path, exists=False) as tmp:  # Sdf creates the layer itself, in the same directory
+        _author(str(tmp), path, source, scene, frames, colors, extra_primvars)
     return path
 
 

@@ -10,12 +10,11 @@ and rounding to 8 bits. Pixels partly covered by the neutral grey background (fr
 are composited in display space: ``(1 - g) * T(c / (1 - g)) + g * GREY_BACKGROUND``.
 """
 
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from .._fileio import atomic_path
 from .._wp import wp
 
 __all__ = ["GREY_BACKGROUND", "TONEMAP_MODES", "tonemap", "tonemap_reference", "write_png"]
@@ -120,13 +119,6 @@ def write_png(path, image) -> Path:
     path = Path(path)
     if not path.parent.is_dir():
         raise ValueError(f"write_png: directory {path.parent} does not exist")
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            Image.fromarray(img, mode="RGB").save(fh, format="PNG")
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    with atomic_path(path) as tmp:
+        Image.fromarray(img, mode="RGB").save(tmp, format="PNG")
     return path
