@@ -28,11 +28,9 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import json
 import os
 import platform
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -41,6 +39,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from warpshade._fileio import atomic_path, write_json_atomic
 from warpshade._wp import wp
 from warpshade.graph import (
     GraphSpec,
@@ -323,10 +322,9 @@ def charts(result, stem):
 def _save(fig, path):
     import matplotlib.pyplot as plt
 
-    tmp = path.with_name(f".{path.name}.tmp.png")
-    fig.savefig(tmp, dpi=110)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110)
     plt.close(fig)
-    os.replace(tmp, path)
 
 
 def main(argv=None) -> int:
@@ -382,10 +380,7 @@ def main(argv=None) -> int:
     RESULTS.mkdir(parents=True, exist_ok=True)
     kind = "ldprt-cost" if args.cost_only else "ldprt"
     stem = RESULTS / f"{kind}-{result['date']}-{device.alias.replace(':', '')}{'-quick' if args.quick else ''}"
-    fd, tmp = tempfile.mkstemp(dir=RESULTS, suffix=".json.tmp")
-    with os.fdopen(fd, "w") as f:
-        json.dump(result, f, indent=1)
-    os.replace(tmp, f"{stem}.json")
+    write_json_atomic(f"{stem}.json", result, indent=1)
     charts(result, str(stem))
     written = [f"{stem}.json"] + [str(p) for p in (Path(f"{stem}-errors.png"), Path(f"{stem}-cost.png")) if p.exists()]
     print("wrote " + ", ".join(written))

@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import json
 import os
 import platform
 import statistics
@@ -39,6 +38,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from warpshade._fileio import write_json_atomic  # noqa: E402
 from warpshade._wp import resolve_device, wp  # noqa: E402
 from warpshade.geometry.bvh import RAY_MAX_DISTANCE, Visibility  # noqa: E402
 from warpshade.transfer import TransferTracer, sample_rays  # noqa: E402
@@ -260,9 +260,7 @@ def main(argv=None):
     out_dir = Path(args.out)
     out_dir.mkdir(parents=True, exist_ok=True)
     path = out_dir / f"rays-{report['date']}-{str(dev).replace(':', '')}.json"
-    tmp = path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(report, indent=2))
-    os.replace(tmp, path)
+    write_json_atomic(path, report)
     print(f"wrote {path}")
     return 0
 

@@ -37,6 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
+from warpshade._fileio import write_json_atomic
 from warpshade._wp import resolve_device, wp
 from warpshade.basis import quadrature, sh
 from warpshade.basis.sh_warp import sh_kernels
@@ -260,14 +261,6 @@ def measure_compile_times(orders, device):
         print(f"cold compile, order {order}: " + ", ".join(f"{k} {v:.2f}s" for k, v in times.items())
               + f" | kernels total {total:.2f}s", flush=True)
     return results
-
-
-def write_json_atomic(path: Path, data: dict) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    with os.fdopen(fd, "w") as fh:
-        json.dump(data, fh, indent=2)
-    os.replace(tmp, path)
 
 
 def main(argv=None) -> int:

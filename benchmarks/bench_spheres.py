@@ -43,6 +43,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from warpshade._fileio import atomic_path, write_json_atomic
 from warpshade._wp import resolve_device, wp
 from warpshade.geometry import _spheres_core as core_internals
 from warpshade.geometry import _spheres_fit as fit_internals
@@ -337,10 +338,9 @@ def plot(path, rows, animation):
         ax.set_ylim(lo[b] - 0.2 * ext[b], hi[b] + 0.2 * ext[b])
         ax.set_title(f"{row['mesh']}: {s.sphere_count} spheres, E={s.error:.2f} (orthographic)")
     fig.tight_layout()
-    tmp = path.with_name(f".{path.stem}.tmp.png")
-    fig.savefig(tmp, dpi=110)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110)
     plt.close(fig)
-    tmp.replace(path)
 
 
 def main():
@@ -381,9 +381,7 @@ def main():
         "qmc_split_launch": split,
         "total_seconds": time.perf_counter() - t_start,
     }
-    tmp = out_dir / f".spheres-{date}.json.tmp"
-    tmp.write_text(json.dumps(report, indent=2))
-    tmp.replace(out_dir / f"spheres-{date}.json")
+    write_json_atomic(out_dir / f"spheres-{date}.json", report)
     print(f"wrote {out_dir / f'spheres-{date}.json'} and {png}")
 
 

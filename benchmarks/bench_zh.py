@@ -23,11 +23,9 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import json
 import os
 import platform
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -36,6 +34,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from warpshade._fileio import atomic_path, write_json_atomic
 from warpshade.basis import zh
 
 RESULTS = ROOT / "benchmarks" / "results"
@@ -152,10 +151,9 @@ def chart(result, path):
     b.legend(fontsize=8)
     b.grid(True, which="both", alpha=0.3)
     fig.tight_layout()
-    tmp = path.with_name(f".{path.name}.tmp.png")
-    fig.savefig(tmp, dpi=110)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110)
     plt.close(fig)
-    os.replace(tmp, path)
 
 
 def main(argv=None) -> int:
@@ -177,10 +175,7 @@ def main(argv=None) -> int:
     result["seconds"] = time.perf_counter() - t0
     RESULTS.mkdir(parents=True, exist_ok=True)
     stem = RESULTS / f"zh-{result['date']}-s{args.samples}"
-    fd, tmp = tempfile.mkstemp(dir=RESULTS, suffix=".json.tmp")
-    with os.fdopen(fd, "w") as f:
-        json.dump(result, f, indent=1)
-    os.replace(tmp, f"{stem}.json")
+    write_json_atomic(f"{stem}.json", result, indent=1)
     chart(result, Path(f"{stem}.png"))
     print(f"wrote {stem}.json, {stem}.png")
     return 0

@@ -21,12 +21,10 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import json
 import os
 import platform
 import shutil
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -35,6 +33,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from warpshade._fileio import atomic_path, write_json_atomic, write_text_atomic  # noqa: E402
 from warpshade._wp import wp  # noqa: E402
 from warpshade.graph import GraphSpec, LightingSource, StageSpec, error_metrics, combine_metrics  # noqa: E402
 from warpshade.graph.cache import ArtifactCache, default_cache_dir, hash_json  # noqa: E402
@@ -183,10 +182,9 @@ def pareto_chart(results, path, title):
     fig.legend(handles=handles, loc="lower center", ncol=len(handles), fontsize=9, frameon=False)
     fig.suptitle(title, fontsize=11)
     fig.tight_layout(rect=(0, 0.05, 1, 0.96))
-    tmp = path.with_name(f".{path.name}.tmp.png")
-    fig.savefig(tmp, dpi=110)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110)
     plt.close(fig)
-    os.replace(tmp, path)
 
 
 def markdown_table(results, meta) -> str:
@@ -208,13 +206,6 @@ def markdown_table(results, meta) -> str:
             )
         lines.append("")
     return "\n".join(lines)
-
-
-def _atomic_write(path: Path, text: str):
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}-", dir=path.parent)
-    with os.fdopen(fd, "w") as f:
-        f.write(text)
-    os.replace(tmp, path)
 
 
 def main(argv=None) -> int:
@@ -282,10 +273,10 @@ def main(argv=None) -> int:
             "seconds": time.perf_counter() - t_all,
         }
         stem = f"{date}-{tag}" + ("-quick" if args.quick else "")
-        _atomic_write(out_dir / f"{stem}.json", json.dumps({"meta": meta, "results": results}, indent=1))
+        write_json_atomic(out_dir / f"{stem}.json", {"meta": meta, "results": results}, indent=1)
         if ok:
             pareto_chart(ok, out_dir / f"{stem}-pareto.png", f"warpshade: time per frame vs error ({device}, {date})")
-            _atomic_write(out_dir / f"{stem}.md", markdown_table(ok, meta))
+            write_text_atomic(out_dir / f"{stem}.md", markdown_table(ok, meta))
             for ext, src in (("json", f"{stem}.json"), ("png", f"{stem}-pareto.png"), ("md", f"{stem}.md")):
                 shutil.copyfile(out_dir / src, out_dir / f"latest-{tag}.{ext}")
         print(f"[{device}] wrote {out_dir / stem}.json/.md and -pareto.png in {meta['seconds']:.0f} s")

@@ -32,8 +32,6 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import json
-import os
 import sys
 import time
 from pathlib import Path
@@ -43,6 +41,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from warpshade._fileio import write_json_atomic  # noqa: E402
 from warpshade._wp import resolve_device, wp  # noqa: E402
 from warpshade.geometry.bvh import RAY_MAX_DISTANCE, Visibility  # noqa: E402
 from warpshade.reference import ReferenceShader  # noqa: E402
@@ -385,9 +384,7 @@ def main(argv=None):
         "command": "python benchmarks/validate_mitsuba.py " + " ".join(argv if argv is not None else sys.argv[1:]),
     }
     path = out_dir / f"{stem}.json"
-    tmp = path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(report, indent=2))
-    os.replace(tmp, path)
+    write_json_atomic(path, report)
     print(f"wrote {path} and {png}")
     return 0
 

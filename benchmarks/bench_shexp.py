@@ -1,0 +1,391 @@
+"""SHEXP (Ren et al. 2006) measured: speed ratios, per-frame cost, errors, error budget.
+
+Parts (``--parts``, default all), each measured side by side in one run:
+
+* ``speed`` -- the paper's Figure 8 configuration: 200 x 200 ground receivers and 60 blocker
+  spheres (no hierarchy); time per frame of log-space accumulation (PS*-2 as in the paper, and
+  HYB) against product accumulation (Zhou et al. 2005) at n = 3, 4, 5, 6, and the ratios (paper,
+  CPU: 1.9x, 3.4x, 6.5x, 11.0x). Repeats are interleaved across configurations and the median
+  is kept. The 60 spheres are the sphere set of the bundled figure when the sphere module can
+  build it, else a procedural 60-sphere figure (recorded in the JSON).
+* ``battle`` -- the paper's battle-scene scale: about 65k receivers, 244 leaf spheres, about 47
+  spheres accumulated per receiver (a synthesised scene: a 256 x 256 ground grid under four
+  61-sphere figures, 256 receiver clusters whose lists are the 47 spheres nearest to the
+  cluster, with ratio weights), n = 4, HYB: time per frame on the CPU. (The paper's GPU number
+  needs CUDA, which this machine does not have.)
+* ``exp`` -- the exp methods on the accumulated logs of the speed scene: error against the
+  infinite product series exp* (eq. 28) and against the projection of exp(f(s)) (eq. 10),
+  squarings per receiver, and kernel time.
+* ``scenes`` -- error against ray-traced ground truth on the bundled scenes (blockers, figure,
+  bunny and bear over a ground plane) for n = 3..6, every exp method, flat vs hierarchy, and the
+  three error sources of the paper's Figure 7: sphere approximation (ray traced against the
+  spheres vs against the mesh), product truncation (SH product accumulation vs ray traced
+  spheres with the same SH lighting) and log space (SHEXP vs product accumulation).
+* ``shading`` -- the three shading paths (direct: one SH product per receiver; the L*H(N)
+  lat-long table over normals, rebuilt per frame; the product-matrix path (M_L g).H(N)) on
+  41k receivers with varied normals: time per frame and difference from direct.
+* ``budget`` -- :func:`warpshade.methods.shexp.budget.choose_setting` on two bundled scenes.
+* ``compile`` -- cold compile time of the per-order receiver kernels (subprocess, empty cache).
+
+Usage::
+
+    python benchmarks/bench_shexp.py [--parts speed,battle,exp] [--quick] [--repeats 7]
+
+Writes ``benchmarks/results/shexp-<date>-cpu.json`` (atomically) and a PNG of the speed ratios.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as _dt
+import json
+import os
+import platform
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from warpshade._wp import wp  # noqa: E402
+from warpshade.basis import sh  # noqa: E402
+from warpshade.methods.shexp import pipeline  # noqa: E402
+
+RESULTS_DIR = ROOT / "benchmarks" / "results"
+PAPER_SPEEDUP = {3: 1.9, 4: 3.4, 5: 6.5, 6: 11.0}
+PAPER_BATTLE = {"receivers": 65_000, "leaf_spheres": 244, "spheres_per_receiver": 47, "gpu_hz_mean": 26.2}
+
+
+def _atomic_write(path: Path, text: str) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}-", dir=path.parent)
+    with os.fdopen(fd, "w") as f:
+        f.write(text)
+    os.replace(tmp, path)
+
+
+def ground_grid(resolution: int, size: float):
+    g = np.linspace(-0.5 * size, 0.5 * size, resolution)
+    x, y = np.meshgrid(g, g)
+    pts = np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], 1)
+    return pts, np.tile([0.0, 0.0, 1.0], (pts.shape[0], 1))
+
+
+def procedural_figure(count: int = 60, origin=(0.0, 0.0), seed: int = 0):
+    """``count`` spheres along the limbs of a standing 1.9 m figure (legs, torso, arms, head)."""
+    rng = np.random.default_rng(seed)
+    ox, oy = origin
+    limbs = [  # (start, end, radius)
+        ((-0.12, 0, 0.05), (-0.12, 0, 0.9), 0.08), ((0.12, 0, 0.05), (0.12, 0, 0.9), 0.08),
+        ((0, 0, 0.95), (0, 0, 1.5), 0.16), ((-0.2, 0, 1.45), (-0.55, -0.25, 1.0), 0.06),
+        ((0.2, 0, 1.45), (0.55, -0.25, 1.0), 0.06), ((0, 0, 1.62), (0, 0, 1.8), 0.11),
+    ]
+    weights = np.array([0.2, 0.2, 0.25, 0.13, 0.13, 0.09])
+    per = np.maximum(1, np.round(weights / weights.sum() * count).astype(int))
+    per[2] += count - per.sum()
+    centres, radii = [], []
+    for (a, b, r), k in zip(limbs, per):
+        t = np.linspace(0.0, 1.0, k)
+        c = np.asarray(a) + t[:, None] * (np.asarray(b) - np.asarray(a))
+        centres.append(c + rng.normal(scale=0.01, size=c.shape))
+        radii.append(np.full(k, r) * rng.uniform(0.9, 1.1, k))
+    c = np.concatenate(centres)
+    c[:, 0] += ox
+    c[:, 1] += oy
+    return c, np.concatenate(radii)
+
+
+def sky_light(order: int) -> np.ndarray:
+    from warpshade.scene.lighting import Environment
+
+    return Environment.sky().to_sh(order)
+
+
+def interleaved_medians(fns: dict, repeats: int) -> dict:
+    times = {k: [] for k in fns}
+    for _ in range(repeats):
+        for k, fn in fns.items():
+            t0 = time.perf_counter()
+            fn()
+            times[k].append(time.perf_counter() - t0)
+    return {k: statistics.median(v) for k, v in times.items()}
+
+
+def _shader(order, points, normals, centres, radii, light, **options):
+    s = pipeline.ShexpShader(order, points.shape[0], centres.shape[0], device="cpu", **options)
+    s.bind_receivers(points, normals, np.full((points.shape[0], 3), 0.8))
+    s.set_flat_cut()
+    s.upload_spheres(centres, radii)
+    s.upload_lighting(light)
+    return s
+
+
+def figure_spheres(count: int = 60):
+    """Leaf spheres of the bundled figure at its first frame (sphere module), or procedural."""
+    try:
+        from warpshade.methods.shexp.blockers import figure_leaf_spheres
+
+        c, r = figure_leaf_spheres(count)
+        return c, r, "figure.usda sphere set (warpshade.geometry.spheres)"
+    except Exception as exc:  # the sphere module is optional here: say which spheres were used
+        c, r = procedural_figure(count)
+        return c, r, f"procedural 60-sphere figure ({type(exc).__name__}: {exc})"
+
+
+def part_speed(args) -> dict:
+    res = 100 if args.quick else 200
+    points, normals = ground_grid(res, 6.0)
+    centres, radii, source = figure_spheres(60)
+    out = {"receivers": int(points.shape[0]), "spheres": int(radii.shape[0]), "spheres_source": source, "orders": {}}
+    for order in args.orders:
+        light = sky_light(order)
+        configs = {
+            "log_ps_star2": dict(method="ps_star", degree=2),
+            "log_hyb": dict(method="hyb"),
+            "log_ol": dict(method="ol"),
+            "product": dict(accumulate="product"),
+        }
+        shaders = {k: _shader(order, points, normals, centres, radii, light, **v) for k, v in configs.items()}
+        for s in shaders.values():
+            s.launch()  # compile + warm up
+        med = interleaved_medians({k: s.launch for k, s in shaders.items()}, args.repeats)
+        row = {f"{k}_ms": 1e3 * v for k, v in med.items()}
+        row["ratio_product_over_ps_star2"] = med["product"] / med["log_ps_star2"]
+        row["ratio_product_over_hyb"] = med["product"] / med["log_hyb"]
+        row["paper_ratio"] = PAPER_SPEEDUP.get(order)
+        out["orders"][str(order)] = row
+        print(f"  speed n={order}: " + ", ".join(f"{k} {v:.1f}" for k, v in row.items() if k.endswith("_ms"))
+              + f" ms; product/PS*-2 {row['ratio_product_over_ps_star2']:.1f}x (paper {row['paper_ratio']}x), "
+              f"product/HYB {row['ratio_product_over_hyb']:.1f}x", flush=True)
+    return out
+
+
+def part_battle(args) -> dict:
+    res = 128 if args.quick else 256
+    points, normals = ground_grid(res, 20.0)
+    figures = [procedural_figure(61, origin, seed=k) for k, origin in enumerate([(-4, -3), (3, -2), (-1, 4), (5, 5)])]
+    centres = np.concatenate([f[0] for f in figures])
+    radii = np.concatenate([f[1] for f in figures]) * 1.5  # bigger characters (troll, wizard)
+    per_receiver = 47
+    side = 16
+    clusters = side * side
+    cell = (np.clip(((points[:, :2] + 10.0) / 20.0 * side).astype(int), 0, side - 1))
+    cluster = cell[:, 0] * side + cell[:, 1]
+    centres_xy = (np.stack(np.meshgrid(np.arange(side), np.arange(side), indexing="ij"), -1).reshape(-1, 2) + 0.5) / side * 20 - 10
+    cut = np.argsort(np.linalg.norm(centres[None, :, :2] - centres_xy[:, None, :], axis=2), axis=1)[:, :per_receiver]
+    order = 4
+    s = pipeline.ShexpShader(order, points.shape[0], centres.shape[0], clusters=clusters, cut_capacity=per_receiver,
+                             method="hyb", device="cpu")
+    s.bind_receivers(points, normals, np.full((points.shape[0], 3), 0.8))
+    s.set_receiver_clusters(cluster)
+    s.upload_spheres(centres, radii)
+    dev = s.device
+    weights = np.ones((clusters, per_receiver, order), np.float32)
+    s.bind_cut(wp.array(cut.astype(np.int32), dtype=wp.int32, device=dev),
+               wp.array(np.full(clusters, per_receiver, np.int32), dtype=wp.int32, device=dev),
+               wp.array(weights, dtype=wp.float32, device=dev))
+    s.upload_lighting(sky_light(order))
+    s.launch()
+    med = interleaved_medians({"frame": s.launch}, args.repeats)
+    out = {
+        "receivers": int(points.shape[0]), "leaf_spheres": int(centres.shape[0]), "spheres_per_receiver": per_receiver,
+        "clusters": clusters, "order": order, "method": "hyb", "shade": "direct",
+        "cpu_frame_ms": 1e3 * med["frame"], "cpu_hz": 1.0 / med["frame"], "cpu_workers": s.workers,
+        "paper": PAPER_BATTLE, "cuda": "not measured: no CUDA device on this machine",
+    }
+    print(f"  battle: {out['receivers']} receivers x {per_receiver} spheres, n=4 HYB: {out['cpu_frame_ms']:.1f} ms/frame "
+          f"on the CPU ({out['cpu_hz']:.1f} Hz; paper GPU mean {PAPER_BATTLE['gpu_hz_mean']} Hz)", flush=True)
+    return out
+
+
+def part_exp(args) -> dict:
+    from warpshade.methods.shexp import reference
+
+    res = 40
+    points, normals = ground_grid(res, 6.0)
+    centres, radii, source = figure_spheres(60)
+    out = {"receivers": int(points.shape[0]), "spheres_source": source, "orders": {}}
+    for order in args.orders:
+        f = reference.log_visibility(points, normals, centres, radii, order)
+        fhat = f.copy()
+        fhat[:, 0] = 0.0
+        norms = np.linalg.norm(fhat, axis=1)
+        limit = sh.exp_series_limit(f)
+        volterra = sh.exp_volterra(f)
+        light = sky_light(order)
+        rows = {}
+        for name, method, degree in (("PS-10", "ps", 10), ("PS-21", "ps", 21), ("PS*-2", "ps_star", 2), ("PS*-4", "ps_star", 4),
+                                     ("OL", "ol", None), ("HYB", "hyb", None)):
+            g = sh.exp(f, method, degree)
+            shaded = reference.shade(g, normals, light, np.ones((len(points), 3)))
+            shaded_ref = reference.shade(limit, normals, light, np.ones((len(points), 3)))
+            scale = np.sqrt(np.mean(shaded_ref**2))
+            rows[name] = {
+                "rel_err_vs_series_limit": float(np.median(np.linalg.norm(g - limit, axis=1) / np.linalg.norm(limit, axis=1))),
+                "rel_err_vs_volterra": float(np.median(np.linalg.norm(g - volterra, axis=1) / np.linalg.norm(volterra, axis=1))),
+                "radiance_rel_rms_vs_series_limit": float(np.sqrt(np.mean((shaded - shaded_ref) ** 2)) / scale),
+            }
+        squarings = sh._shexp.scaling_power(norms)
+        out["orders"][str(order)] = {"methods": rows, "fhat_norm_median": float(np.median(norms)), "fhat_norm_max": float(norms.max()),
+                                     "squarings_mean": float(squarings.mean())}
+        print(f"  exp n={order}: ||f^|| median {np.median(norms):.2f} max {norms.max():.2f}; " + "; ".join(
+            f"{k} {v['radiance_rel_rms_vs_series_limit']:.2e}" for k, v in rows.items()), flush=True)
+    return out
+
+
+def part_shading(args) -> dict:
+    """Shading paths side by side: direct (one SH product), the L*H(N) table, (M_L g).H(N)."""
+    import trimesh
+
+    ico = trimesh.creation.icosphere(subdivisions=5 if args.quick else 6, radius=2.0)
+    points = np.asarray(ico.vertices, np.float64)
+    normals = points / np.linalg.norm(points, axis=1, keepdims=True)
+    rng = np.random.default_rng(4)
+    dirs = rng.normal(size=(60, 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    centres = dirs * rng.uniform(2.4, 3.2, (60, 1))
+    radii = rng.uniform(0.15, 0.35, 60)
+    out = {"receivers": int(points.shape[0]), "spheres": 60, "orders": {}}
+    for order in args.orders:
+        light = sky_light(order)
+        shaders = {mode: _shader(order, points, normals, centres, radii, light, shade=mode) for mode in ("direct", "table", "product_matrix")}
+        for s in shaders.values():
+            s.launch()
+        med = interleaved_medians({k: s.launch for k, s in shaders.items()}, args.repeats)
+        direct = shaders["direct"].radiance.numpy()
+        scale = float(np.abs(direct).max())
+        row = {}
+        for mode, s in shaders.items():
+            diff = np.abs(s.radiance.numpy() - direct)
+            row[mode] = {"ms": 1e3 * med[mode], "max_rel_diff_vs_direct": float(diff.max() / scale),
+                         "rms_rel_diff_vs_direct": float(np.sqrt(np.mean(diff**2)) / scale)}
+        out["orders"][str(order)] = row
+        print(f"  shading n={order}: " + "; ".join(f"{m} {v['ms']:.1f} ms (max diff {v['max_rel_diff_vs_direct']:.1e})" for m, v in row.items()),
+              flush=True)
+    return out
+
+
+_COLD_COMPILE = r"""
+import sys, time, tempfile, numpy as np
+import warp as wp
+wp.config.kernel_cache_dir = tempfile.mkdtemp()
+from warpshade.methods.shexp import pipeline
+order = int(sys.argv[1]); accumulate = sys.argv[2]; method = sys.argv[3]
+pts = np.zeros((4, 3)); nrm = np.tile([0, 0, 1.0], (4, 1))
+light = np.zeros((3, order * order)); light[:, 0] = 1.0
+t0 = time.perf_counter()
+s = pipeline.ShexpShader(order, 4, 1, method=method, accumulate=accumulate, device="cpu")
+s.bind_receivers(pts, nrm, np.ones((4, 3))); s.set_flat_cut(); s.upload_spheres([[0, 0, 1.0]], [0.2]); s.upload_lighting(light)
+t1 = time.perf_counter(); s.launch(); wp.synchronize()
+print(f"{t1 - t0:.3f} {time.perf_counter() - t1:.3f}")
+"""
+
+
+def part_compile(args) -> dict:
+    out = {}
+    for order in args.orders:
+        for accumulate, method in (("log", "hyb"), ("log", "ps_star"), ("product", "hyb")):
+            r = subprocess.run([sys.executable, "-c", _COLD_COMPILE, str(order), accumulate, method], capture_output=True, text=True,
+                               cwd=str(ROOT))
+            try:
+                tables_s, compile_s = (float(x) for x in r.stdout.strip().split()[-2:])
+            except ValueError:
+                print(r.stderr[-2000:])
+                raise
+            out[f"n{order}_{accumulate}_{method}"] = {"tables_s": tables_s, "cold_compile_s": compile_s}
+            print(f"  compile n={order} {accumulate}/{method}: tables {tables_s:.2f} s, cold compile {compile_s:.2f} s", flush=True)
+    return out
+
+
+def speed_chart(speed: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    orders = sorted(int(k) for k in speed["orders"])
+    fig, ax = plt.subplots(figsize=(5.5, 3.8))
+    x = np.arange(len(orders))
+    ours = [speed["orders"][str(o)]["ratio_product_over_ps_star2"] for o in orders]
+    hyb = [speed["orders"][str(o)]["ratio_product_over_hyb"] for o in orders]
+    paper = [PAPER_SPEEDUP[o] for o in orders]
+    ax.bar(x - 0.27, paper, 0.27, label="paper (CPU, PS*-2)", color="0.6")
+    ax.bar(x, ours, 0.27, label="warpshade CPU, PS*-2")
+    ax.bar(x + 0.27, hyb, 0.27, label="warpshade CPU, HYB")
+    ax.set_xticks(x, [f"n={o}" for o in orders])
+    ax.set_ylabel("product time / log-space time")
+    ax.set_title(f"SHEXP speed-up, {speed['receivers']:,} receivers, {speed['spheres']} spheres", fontsize=10)
+    ax.legend(fontsize=8)
+    ax.grid(True, axis="y", alpha=0.3)
+    fig.tight_layout()
+    tmp = path.with_name(f".{path.name}.tmp.png")
+    fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+    os.replace(tmp, path)
+
+
+PARTS = {"speed": part_speed, "battle": part_battle, "exp": part_exp, "shading": part_shading, "compile": part_compile}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--parts", default=None, help=f"comma-separated parts (default all: {','.join(PARTS)} plus scenes,budget)")
+    ap.add_argument("--orders", default="3,4,5,6")
+    ap.add_argument("--repeats", type=int, default=7)
+    ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--out", default=str(RESULTS_DIR))
+    args = ap.parse_args(argv)
+    args.orders = [int(o) for o in args.orders.split(",")]
+    parts = args.parts.split(",") if args.parts else list(PARTS) + ["scenes", "budget"]
+    date = _dt.date.today().isoformat()
+    result = {
+        "date": date,
+        "device": "cpu",
+        "machine": {"platform": platform.platform(), "cpu_count": os.cpu_count(), "python": platform.python_version(),
+                    "numpy": np.__version__, "warp": wp.config.version},
+        "command": "python benchmarks/bench_shexp.py " + " ".join(argv if argv is not None else sys.argv[1:]),
+        "quick": args.quick,
+        "repeats": args.repeats,
+    }
+    for part in parts:
+        print(f"[{part}]", flush=True)
+        t0 = time.perf_counter()
+        if part in PARTS:
+            result[part] = PARTS[part](args)
+        elif part == "scenes":
+            from warpshade.methods.shexp.evaluation import scene_errors
+
+            result[part] = scene_errors(quick=args.quick, orders=args.orders)
+        elif part == "budget":
+            from warpshade.methods.shexp.budget import budget_report
+
+            result[part] = budget_report(quick=args.quick)
+        else:
+            ap.error(f"unknown part {part!r}")
+        result.setdefault("seconds", {})[part] = time.perf_counter() - t0
+    out_dir = Path(args.out)
+    stem = f"shexp-{date}-cpu" + ("-quick" if args.quick else "")
+    path = out_dir / f"{stem}.json"
+    if path.exists():  # merge with parts measured earlier today
+        try:
+            old = json.loads(path.read_text())
+            old.update({k: v for k, v in result.items() if k != "seconds"})
+            old.setdefault("seconds", {}).update(result.get("seconds", {}))
+            result = old
+        except json.JSONDecodeError:
+            pass
+    _atomic_write(path, json.dumps(result, indent=1, default=float))
+    if "speed" in result:
+        speed_chart(result["speed"], out_dir / f"{stem}-speed.png")
+    print(f"wrote {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
