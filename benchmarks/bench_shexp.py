@@ -44,7 +44,6 @@ import platform
 import statistics
 import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -53,6 +52,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from warpshade._fileio import atomic_path, write_json_atomic  # noqa: E402
 from warpshade._wp import wp  # noqa: E402
 from warpshade.basis import sh  # noqa: E402
 from warpshade.methods.shexp import pipeline  # noqa: E402
@@ -60,14 +60,6 @@ from warpshade.methods.shexp import pipeline  # noqa: E402
 RESULTS_DIR = ROOT / "benchmarks" / "results"
 PAPER_SPEEDUP = {3: 1.9, 4: 3.4, 5: 6.5, 6: 11.0}
 PAPER_BATTLE = {"receivers": 65_000, "leaf_spheres": 244, "spheres_per_receiver": 47, "gpu_hz_mean": 26.2}
-
-
-def _atomic_write(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}-", dir=path.parent)
-    with os.fdopen(fd, "w") as f:
-        f.write(text)
-    os.replace(tmp, path)
 
 
 def ground_grid(resolution: int, size: float):
@@ -324,10 +316,9 @@ def speed_chart(speed: dict, path: Path) -> None:
     ax.legend(fontsize=8)
     ax.grid(True, axis="y", alpha=0.3)
     fig.tight_layout()
-    tmp = path.with_name(f".{path.name}.tmp.png")
-    fig.savefig(tmp, dpi=110)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110)
     plt.close(fig)
-    os.replace(tmp, path)
 
 
 PARTS = {"speed": part_speed, "battle": part_battle, "exp": part_exp, "shading": part_shading, "compile": part_compile}
@@ -380,7 +371,7 @@ def main(argv=None) -> int:
             result = old
         except json.JSONDecodeError:
             pass
-    _atomic_write(path, json.dumps(result, indent=1, default=float))
+    write_json_atomic(path, result, indent=1)
     if "speed" in result:
         speed_chart(result["speed"], out_dir / f"{stem}-speed.png")
     print(f"wrote {path}")

@@ -15,7 +15,10 @@ exact Gaunt tensor (:func:`triple_product_tensor`, :func:`product`, :func:`produ
 :func:`square`); rotation (:func:`rotate`, :func:`rotation_matrix`); zonal harmonics
 (:func:`zh_to_sh`, :func:`zh_from_sh_about_axis`, :func:`clamped_cosine_zh`, :func:`cap_zh`);
 frequency-space windows (:func:`window`, :func:`window_weights`); converters to and from other
-public conventions (:func:`to_convention`, :func:`from_convention`).
+public conventions (:func:`to_convention`, :func:`from_convention`); the SH exponential and
+logarithm of the SHEXP paper (:func:`exp`, :func:`log`, with the oracles
+:func:`exp_series_limit` and :func:`exp_volterra` and the per-order tables :func:`ol_table` and
+:func:`log_cap_table`).
 
 Host functions accept NumPy arrays with any leading batch shape and return NumPy arrays. By
 default they run the float64 reference path (the oracle); functions with a ``device`` argument
@@ -34,7 +37,7 @@ from typing import Callable
 
 import numpy as np
 
-from . import _conventions, _gaunt, _rotation, quadrature
+from . import _conventions, _gaunt, _rotation, _shexp, quadrature
 
 __all__ = [
     "MAX_ORDER",
@@ -64,6 +67,15 @@ __all__ = [
     "CONVENTIONS",
     "to_convention",
     "from_convention",
+    # exponential and logarithm
+    "EXP_METHODS",
+    "LOG_EPS_REL",
+    "exp",
+    "log",
+    "exp_series_limit",
+    "exp_volterra",
+    "ol_table",
+    "log_cap_table",
 ]
 
 #: Highest SH order supported by the float64 reference path.
@@ -779,3 +791,134 @@ def from_convention(coeffs, convention: str, *, normalization: str = "4pi", csph
         warpshade coefficients, shape (..., n*n), float64.
     """
     return _conventions.from_convention(coeffs, convention, normalization=normalization, csphase=csphase)
+
+
+# ----------------------------------------------------------------------------------------------
+# Exponential and logarithm (SHEXP paper, sections 4-5)
+# ----------------------------------------------------------------------------------------------
+
+#: SH exponential methods: product series, DC-isolated scaled/squared factored series, optimal
+#: linear, hybrid (scaling/squaring around optimal linear).
+EXP_METHODS = _shexp.EXP_METHODS
+#: Default eigenvalue clipping of :func:`log`, relative to the largest eigenvalue.
+LOG_EPS_REL = _shexp.LOG_EPS_REL
+
+
+def exp(f, method: str = "ps_star", degree: int | None = None, device=None) -> np.ndarray:
+    """SH exponential: an order-n approximation of the projection of ``exp(f(s))``.
+
+    Methods (Ren et al. 2006, sec. 4; ``1`` = constant function, ``f^`` = f without DC):
+
+    * ``"ps"`` -- PS-p, the product series ``1 + f + f^2*/2! + ... + f^p*/p!`` with the powers
+      amassed left to right by order-n truncated products (eq. 17); diverges in float for large
+      ``||f||`` at fixed p;
+    * ``"ps_star"`` -- PS*-p: ``exp(f_0/sqrt(4 pi))`` times the degree-p even/odd factored
+      series (eq. 22) of ``f^ / 2^s``, squared s times with ``s = max(0, floor(log2||f^|| + 3))``
+      (eqs. 20-21);
+    * ``"ol"`` -- optimal linear ``exp(f_0/sqrt(4 pi)) (a(||f^||) 1 + b(||f^||) f^)`` with the
+      tables of :func:`ol_table` (eqs. 23-24); accurate while ``||f^||`` stays in the range
+      where blocker models agree (about 4.8 at n = 4), clamped to the table's last entries
+      beyond it;
+    * ``"hyb"`` -- OL inside the scaling/squaring of PS* (same s).
+
+    Args:
+        f: SH coefficients, shape (..., n*n), finite.
+        method: one of :data:`EXP_METHODS`.
+        degree: series degree p for ``"ps"`` (default 10) and ``"ps_star"`` (default 2),
+            1..40; ignored by ``"ol"``/``"hyb"``.
+        device: None for the float64 reference; a Warp device to run the float32 kernel.
+
+    Returns:
+        exp(f), shape (..., n*n); float64 or float32 (Warp).
+    """
+    f, order = _coeffs(f, "exp: f")
+    degree = _shexp._check_degree(method, degree)
+    n2 = order * order
+    batch = f.shape[:-1]
+    flat = f.reshape(-1, n2)
+    if device is not None:
+        _device_order(order, "exp")
+        from .._wp import resolve_device, wp
+        from ._shexp_warp import exp_kernel
+        from .sh_warp import sh_kernels
+
+        dev = resolve_device(device)
+        k = sh_kernels(order)
+        out = wp.empty((flat.shape[0], n2), dtype=wp.float32, device=dev)
+        _launch_rows(
+            exp_kernel(order, method), flat.shape[0],
+            [_wp_rows(flat, dev), degree, k.tables(dev), k.exp_tables(dev), out], {0, 4}, dev,
+        )
+        return out.numpy().reshape(batch + (n2,))
+    return _shexp.exp_reference(flat, method, degree).reshape(batch + (n2,))
+
+
+def log(g, eps_rel: float = LOG_EPS_REL, device=None) -> np.ndarray:
+    """SH logarithm by eigen-inversion of the product matrix (Ren et al. 2006, eqs. 27-32).
+
+    ``log(g) = R^T q'(D~) R (g - 1)`` with ``M_g = R^T D R`` the product matrix of g,
+    ``D~ = max(D, eps_rel * max(D))`` (eigenvalue clipping) and ``q'(x) = log(x) / (x - 1)``.
+    It inverts the infinite product series exp* (so ``exp(log(g))`` undoes truncation better
+    than projecting ``log(g(s))``), and clipping eigenvalues rather than sampled values of g
+    adds no artificial high frequencies.
+
+    Args:
+        g: SH coefficients of a positive-ish function (visibility), shape (..., n*n), finite.
+        eps_rel: clipping threshold relative to the largest eigenvalue, in (0, 1).
+        device: None for the float64 reference (``numpy.linalg.eigh``); a Warp device to run
+            the float32 kernel (cyclic Jacobi; ``O(n^6)`` per row, for tables and checks).
+
+    Returns:
+        log(g), shape (..., n*n); float64 or float32 (Warp).
+
+    Raises:
+        ValueError: non-finite input, ``eps_rel`` outside (0, 1), or (float64 path) a row whose
+            product matrix has no positive eigenvalue.
+    """
+    g, order = _coeffs(g, "log: g")
+    if not (isinstance(eps_rel, (int, float)) and np.isfinite(eps_rel) and 0.0 < eps_rel < 1.0):
+        raise ValueError(f"log: eps_rel must be in (0, 1), got {eps_rel!r}")
+    n2 = order * order
+    batch = g.shape[:-1]
+    flat = g.reshape(-1, n2)
+    if device is not None:
+        _device_order(order, "log")
+        from .._wp import resolve_device, wp
+        from ._shexp_warp import log_kernel
+        from .sh_warp import sh_kernels
+
+        dev = resolve_device(device)
+        k = sh_kernels(order)
+        out = wp.empty((flat.shape[0], n2), dtype=wp.float32, device=dev)
+        _launch_rows(log_kernel(order), flat.shape[0], [_wp_rows(flat, dev), float(eps_rel), k.tables(dev), out], {0, 3}, dev)
+        return out.numpy().reshape(batch + (n2,))
+    return _shexp.log_reference(flat, float(eps_rel)).reshape(batch + (n2,))
+
+
+def exp_series_limit(f) -> np.ndarray:
+    """The product series exp*(f) summed to infinite degree (eq. 28), float64, (..., n*n).
+
+    ``1 + R^T q(D) R f`` with ``M_f = R^T D R``, ``q(x) = (e^x - 1)/x``: what PS-p converges to
+    as p grows. An oracle for the run-time methods.
+    """
+    f, order = _coeffs(f, "exp_series_limit: f")
+    n2 = order * order
+    return _shexp.exp_series_limit(f.reshape(-1, n2)).reshape(f.shape)
+
+
+def exp_volterra(f, quadrature_degree: int | None = None) -> np.ndarray:
+    """The projection of ``exp(f(s))`` by quadrature (eq. 10, no product truncation), float64."""
+    f, order = _coeffs(f, "exp_volterra: f")
+    n2 = order * order
+    return _shexp.exp_volterra(f.reshape(-1, n2), quadrature_degree).reshape(f.shape)
+
+
+def ol_table(order: int, samples: int = _shexp.TABLE_SAMPLES) -> "_shexp.OLTable":
+    """The optimal-linear a/b table of an order (built once and cached): :class:`~warpshade.basis._shexp.OLTable`."""
+    return _shexp.ol_table(_check_order(order), samples)
+
+
+def log_cap_table(order: int, samples: int = _shexp.TABLE_SAMPLES) -> "_shexp.LogCapTable":
+    """The blocking-cap log visibility table of an order (built once and cached):
+    :class:`~warpshade.basis._shexp.LogCapTable` (ZH coefficients over the cap radius)."""
+    return _shexp.log_cap_table(_check_order(order), samples)

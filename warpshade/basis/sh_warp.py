@@ -37,6 +37,26 @@ Functions in a bundle (all usable inside other kernels):
 Functions that need constant tables (the Gaunt tensor, the x-rotation blocks) take an
 :class:`SHTables` struct of device arrays, obtained once per order and device with
 ``bundle.tables(device)`` and passed to kernels as an argument.
+
+SH exponential and logarithm (SHEXP paper, secs. 4-5; maths and float64 references in
+:mod:`warpshade.basis._shexp`, Warp code in :mod:`warpshade.basis._shexp_warp`):
+
+* ``one() -> vec`` -- the constant function 1, ``(sqrt(4 pi), 0, ...)``;
+* ``exp_ps(f, degree: int, tables) -> vec`` -- PS-p product series;
+* ``exp_ps_star(f, degree: int, tables) -> vec`` -- PS*-p (DC isolation, scaling/squaring,
+  even/odd factored series);
+* ``exp_ol(f, exp_tables: SHExpTables) -> vec`` -- optimal linear (no products);
+* ``exp_hyb(f, tables, exp_tables) -> vec`` -- scaling/squaring around OL;
+* ``log(g, eps_rel: float, tables) -> vec`` -- eigen-inversion of the product matrix (Jacobi);
+  heavy (``O(n^6)`` per call), meant for tables and tests rather than per-receiver work;
+* ``ol_lookup(norm, exp_tables) -> vec2`` -- the OL coefficients (a, b) at ``||f^||``;
+* ``log_cap_zh(theta, exp_tables) -> bands`` -- ZH coefficients of the log visibility of a
+  blocking cap of angular radius theta (table, linear interpolation; rotate with ``zh_to_sh``);
+* ``cap_zh_blocked(theta) -> bands`` -- the cap's visibility itself, in closed form;
+* ``zh_accumulate(acc, axis, g) -> vec`` -- ``acc + zh_to_sh(axis, g)``, fully unrolled with
+  constant recurrence coefficients (the per-blocker step of log-space accumulation);
+
+with ``exp_tables = bundle.exp_tables(device)`` (:class:`~warpshade.basis._shexp_warp.SHExpTables`).
 """
 
 # No "from __future__ import annotations": Warp resolves closure types in annotations.
@@ -50,6 +70,7 @@ from typing import Any
 import numpy as np
 
 from .._wp import resolve_device, wp
+from ._shexp_warp import exp_funcs
 
 wp.set_module_options({"enable_backward": False})
 
@@ -136,10 +157,27 @@ class SHKernels:
     rotate_kernel: Any = None
     zh_to_sh_kernel: Any = None
     zh_from_sh_kernel: Any = None
+    one: Any = None
+    scaling_power: Any = None
+    exp_ps: Any = None
+    exp_ps_star: Any = None
+    exp_ol: Any = None
+    exp_hyb: Any = None
+    log: Any = None
+    ol_lookup: Any = None
+    log_cap_zh: Any = None
+    cap_zh_blocked: Any = None
+    zh_accumulate: Any = None
 
     def tables(self, device=None) -> SHTables:
         """The :class:`SHTables` of this order on ``device`` (built once, then cached)."""
         return _build_tables(self.order, device)
+
+    def exp_tables(self, device=None):
+        """The OL and blocking-cap log tables of this order on ``device`` (built once, cached)."""
+        from ._shexp_warp import build_exp_tables
+
+        return build_exp_tables(self.order, device)
 
 
 @functools.lru_cache(maxsize=None)
@@ -416,4 +454,5 @@ def sh_kernels(order: int) -> SHKernels:
         rotate_kernel=rotate_kernel,
         zh_to_sh_kernel=zh_to_sh_kernel,
         zh_from_sh_kernel=zh_from_sh_kernel,
+        **exp_funcs(order, vec_t, bands_t, sh_product, sh_square, SHTables),
     )

@@ -219,7 +219,7 @@ class GraphSpec:
             raise GraphError(
                 f"{where}: stage {name!r} input {port!r} expects dtype {want.dtype}, {wire} gives {have.dtype}"
             )
-        if want.dtype in ("lighting", "object"):
+        if want.dtype in ("arrays", "lighting", "object"):
             return
         scene_dims = dict(dims or {})
 

@@ -124,6 +124,29 @@ class Context:
 
 _REPORT_KEY = "__report__"
 
+
+def _flatten(out: dict, ports: dict) -> dict:
+    """Artifacts as one flat name -> array dict ("arrays" ports become ``port/key`` entries)."""
+    flat = {}
+    for name, value in out.items():
+        if name in ports and ports[name].dtype == "arrays":
+            flat.update({f"{name}/{k}": np.asarray(v) for k, v in value.items()})
+        else:
+            flat[name] = value
+    return flat
+
+
+def _unflatten(flat: dict, ports: dict) -> dict:
+    """Inverse of :func:`_flatten`."""
+    out: dict = {n: {} for n, p in ports.items() if p.dtype == "arrays"}
+    for key, value in flat.items():
+        head, _, tail = key.partition("/")
+        if tail and head in out:
+            out[head][tail] = value
+        else:
+            out[key] = value
+    return out
+
 _DTYPES = {"float32": wp.float32, "float64": wp.float64, "int32": wp.int32, "vec3": wp.vec3, "mat33": wp.mat33}
 
 
@@ -229,18 +252,22 @@ class Runtime:
             t0 = time.perf_counter()
             cached = self.cache.load(key)
             timing = self.timings[st.name]
-            if cached is not None and set(cached) >= set(st.output_ports()):
-                out = cached
+            ports = st.output_ports()
+            if cached is not None and set(_unflatten(cached, ports)) >= set(ports):
+                out = _unflatten(cached, ports)
                 timing.cache = "hit"
                 if _REPORT_KEY in out:
                     st.report = json.loads(str(out.pop(_REPORT_KEY)))
             else:
                 out = st.precompute(self.ctx, inputs)
-                missing = set(st.output_ports()) - set(out)
+                missing = set(ports) - set(out)
                 if missing:
                     raise GraphError(f"stage {st.name!r}: precompute did not produce {sorted(missing)}")
+                for name, port in ports.items():
+                    if port.dtype == "arrays" and not isinstance(out[name], dict):
+                        raise GraphError(f"stage {st.name!r}: output {name!r} must be a dict of arrays")
                 timing.cache = "miss" if self.cache.enabled else "off"
-                stored = dict(out)
+                stored = _flatten(out, ports)
                 if st.report:
                     stored[_REPORT_KEY] = np.array(json.dumps(st.report, default=_json_default))
                 self.cache.store(key, stored)
@@ -271,8 +298,10 @@ class Runtime:
                     inputs[port] = self.frame_outputs[w.provider][w.port]
                 else:
                     key = (w.provider, w.port)
+                    prov = next(s for s in self.stages if s.name == w.provider)
+                    if prov.output_ports()[w.port].dtype == "arrays":
+                        uploaded[key] = self.artifacts[w.provider][w.port]  # host dict, the stage uploads what it needs
                     if key not in uploaded:
-                        prov = next(s for s in self.stages if s.name == w.provider)
                         uploaded[key] = _to_device(
                             self.artifacts[w.provider][w.port], prov.output_ports()[w.port], dev, f"stage {w.provider!r} output {w.port!r}"
                         )
@@ -363,7 +392,10 @@ class Runtime:
     # ---- outputs ------------------------------------------------------------------------
     def model_bytes(self) -> int:
         """Bytes of precomputed model data (artifacts) plus what stages keep on the device."""
-        total = sum(int(np.asarray(a).nbytes) for arts in self.artifacts.values() for a in arts.values())
+        total = 0
+        for arts in self.artifacts.values():
+            for a in arts.values():
+                total += sum(int(np.asarray(v).nbytes) for v in (a.values() if isinstance(a, dict) else (a,)))
         return total + sum(int(s.model_bytes()) for s in self.stages)
 
     def timing_summary(self) -> dict:

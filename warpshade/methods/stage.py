@@ -34,9 +34,11 @@ __all__ = [
 ]
 
 #: dtypes a port may carry. Array ports carry Warp arrays per frame and NumPy arrays as
-#: precompute artifacts; "lighting" carries the per-frame lighting object; "object" carries any
+#: precompute artifacts; "arrays" carries a named set of NumPy arrays (a structured model such
+#: as a sphere hierarchy: cached as one artifact, handed to consumers as a host dict, never
+#: uploaded as a whole); "lighting" carries the per-frame lighting object; "object" carries any
 #: host object (validated by type name only).
-PORT_DTYPES = ("float32", "float64", "int32", "vec3", "mat33", "lighting", "object")
+PORT_DTYPES = ("float32", "float64", "int32", "vec3", "mat33", "arrays", "lighting", "object")
 
 
 class StageError(ValueError):
