@@ -34,6 +34,7 @@ import numpy as np
 from ..._wp import wp
 from ...basis.sh_warp import sh_kernels
 from ..stage import Param, Port, Stage, register_stage
+from ..upload import LightingUpload
 from . import kernels
 from .model import STORED_BANDS, fit_transfer, local_transfer
 
@@ -149,24 +150,15 @@ class FramesStage(Stage):
 
 
 class _Light:
-    """Per-frame world lighting SH in one fixed device buffer (capture-safe uploads), with a
-    device flag ``changed`` set when it differs from the previous frame's."""
+    """The frame's world lighting SH in a fixed device buffer with a device ``changed`` flag
+    (:class:`~warpshade.methods.upload.LightingUpload`)."""
 
     def _alloc_light(self, ctx, order):
-        self._light = wp.zeros((3, order * order), dtype=wp.float32, device=ctx.device)
-        self._light_host = wp.zeros((3, order * order), dtype=wp.float32, device="cpu", pinned=ctx.device.is_cuda)
-        self._changed = wp.ones(1, dtype=wp.int32, device=ctx.device)
-        self._changed_host = wp.ones(1, dtype=wp.int32, device="cpu", pinned=ctx.device.is_cuda)
-        self._previous = None
+        self._lighting = LightingUpload(order, ctx.device)
+        self._light, self._changed = self._lighting.light, self._lighting.changed
 
     def _upload_light(self, ctx, order):
-        coeffs = ctx.lighting_sh(order).astype(np.float32)
-        changed = self._previous is None or not np.array_equal(coeffs, self._previous)
-        self._previous = coeffs
-        self._light_host.numpy()[...] = coeffs
-        self._changed_host.numpy()[0] = 1 if changed else 0
-        wp.copy(self._light, self._light_host)
-        wp.copy(self._changed, self._changed_host)
+        self._lighting.upload(ctx.lighting_sh(order))
 
 
 @register_stage

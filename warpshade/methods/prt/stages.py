@@ -21,6 +21,7 @@ import numpy as np
 from ..._wp import wp
 from ...basis import sh
 from ..stage import Param, Port, Stage, register_stage
+from ..upload import LightingUpload
 from . import kernels
 
 __all__ = ["TransferStage", "ShadeTransferStage", "UnshadowedStage"]
@@ -61,20 +62,8 @@ class TransferStage(Stage):
         return {"transfer": np.asarray(result.transfer, dtype=np.float32)}
 
 
-class _LightingUpload:
-    """Per-frame SH lighting uploaded into one fixed device buffer (capture-safe)."""
-
-    def _alloc_light(self, ctx, order):
-        self._light = wp.zeros((3, order * order), dtype=wp.float32, device=ctx.device)
-        self._light_host = wp.zeros((3, order * order), dtype=wp.float32, device="cpu", pinned=ctx.device.is_cuda)
-
-    def _upload_light(self, ctx, coeffs: np.ndarray):
-        self._light_host.numpy()[...] = coeffs.astype(np.float32)
-        wp.copy(self._light, self._light_host)
-
-
 @register_stage
-class ShadeTransferStage(Stage, _LightingUpload):
+class ShadeTransferStage(Stage):
     type_name = "prt.shade"
     kind = "frame"
     description = "shade by dot(lighting SH, transfer) per vertex and channel"
@@ -96,22 +85,22 @@ class ShadeTransferStage(Stage, _LightingUpload):
     def setup(self, ctx, inputs):
         self._transfer = inputs["transfer"]
         self._albedo = inputs["albedo"]
-        self._alloc_light(ctx, self.params["order"])
+        self._lighting = LightingUpload(self.params["order"], ctx.device)
         self._radiance = wp.zeros((ctx.dims["V"], 3), dtype=wp.float32, device=ctx.device)
         return {"radiance": self._radiance}
 
     def prepare(self, ctx, frame):
-        self._upload_light(ctx, ctx.lighting_sh(self.params["order"], **_window_args(self.params)))
+        self._lighting.upload(ctx.lighting_sh(self.params["order"], **_window_args(self.params)))
 
     def launch(self, ctx):
         wp.launch(
             kernels.shade_transfer_kernel, dim=ctx.dims["V"],
-            inputs=[self._transfer, self._light, self._albedo, self._radiance], device=ctx.device,
+            inputs=[self._transfer, self._lighting.light, self._albedo, self._radiance], device=ctx.device,
         )
 
 
 @register_stage
-class UnshadowedStage(Stage, _LightingUpload):
+class UnshadowedStage(Stage):
     type_name = "prt.unshadowed"
     kind = "frame"
     description = "unshadowed irradiance indexed by the current normal"
@@ -128,7 +117,7 @@ class UnshadowedStage(Stage, _LightingUpload):
         order = self.params["order"]
         self._normals = inputs["normals"]
         self._albedo = inputs["albedo"]
-        self._alloc_light(ctx, order)
+        self._lighting = LightingUpload(order, ctx.device)
         self._conv = sh.clamped_cosine_zh(order)[sh.band_of(order)]
         self._kernel = kernels.unshadowed_kernel(order)
         self._radiance = wp.zeros((ctx.dims["V"], 3), dtype=wp.float32, device=ctx.device)
@@ -136,10 +125,10 @@ class UnshadowedStage(Stage, _LightingUpload):
 
     def prepare(self, ctx, frame):
         light = ctx.lighting_sh(self.params["order"], **_window_args(self.params))
-        self._upload_light(ctx, light * self._conv[None, :])
+        self._lighting.upload(light * self._conv[None, :])
 
     def launch(self, ctx):
-        wp.launch(self._kernel, dim=ctx.dims["V"], inputs=[self._normals, self._light, self._albedo, self._radiance],
+        wp.launch(self._kernel, dim=ctx.dims["V"], inputs=[self._normals, self._lighting.light, self._albedo, self._radiance],
                   device=ctx.device)
 
 

@@ -25,6 +25,7 @@ from ..._wp import resolve_device, wp
 from ...basis._shexp import DEFAULT_DEGREE
 from ...basis.sh_warp import sh_kernels
 from ...transfer.raytrace import default_workers, launch_chunked
+from ..upload import StagedUpload
 from . import kernels, tables
 
 __all__ = ["ShexpShader", "SphereTracer", "shade_receivers", "CPU_CHUNK_MIN_RECEIVERS"]
@@ -142,7 +143,8 @@ class ShexpShader:
         self.receivers = r
 
         s = kernels.ShadeInputs()
-        s.light = wp.zeros((3, self.n2), dtype=wp.float32, device=dev)
+        self._light_upload = StagedUpload((3, self.n2), wp.float32, dev)
+        s.light = self._light_upload.array
         s.cosine_zh = wp.array((kernels.cosine_zh(n) * self._band_keep).astype(np.float32), dtype=wp.float32, device=dev)
         s.window = wp.array((tables.window_alpha(n, window, window_size) * self._band_keep).astype(np.float32), dtype=wp.float32,
                             device=dev)
@@ -163,7 +165,6 @@ class ShexpShader:
             s.lobe_axis_angle = wp.zeros((2, 2), dtype=wp.float32, device=dev)
             s.lobe_zh = wp.zeros((2, 2, n), dtype=wp.float32, device=dev)
         self.shading = s
-        self._light_host = wp.zeros((3, self.n2), dtype=wp.float32, device="cpu", pinned=dev.is_cuda)
         self._light_rows = None  # (3, n*n) product_matrix source rows
 
         self.radiance = wp.zeros((max(vertex_count, 1), 3), dtype=wp.float32, device=dev)
@@ -288,8 +289,7 @@ class ShexpShader:
             raise ValueError(f"shexp: lighting must be finite with shape (3, {self.n2}), got {l.shape}")
         from ...basis import sh
 
-        self._light_host.numpy()[...] = (l * self._band_keep[sh.band_of(self.order)]).astype(np.float32)
-        wp.copy(self.shading.light, self._light_host)
+        self._light_upload.upload(l * self._band_keep[sh.band_of(self.order)])
 
     def upload_sphere_lights(self, lights) -> None:
         """Sphere lights of the frame (objects with position, radius, radiance); at most the
