@@ -47,6 +47,9 @@ def harness_rows(quick: bool = False) -> list:
 
     for order in (3, 4, 5, 6):
         row(f"n{order} HYB", graph_stages(order, "hyb"), order == 4, "48 leaf spheres, flat list, HYB")
+    for budget in (8, 16):
+        row(f"n4 HYB s{budget}", graph_stages(4, "hyb", budget=budget), budget == 8,
+            f"{budget} leaf spheres (budget), flat list, HYB")
     row("n4 PS*-2", graph_stages(4, "ps_star", degree=2), False, "48 leaf spheres, flat list, PS*-2")
     row("n4 OL", graph_stages(4, "ol"), False, "48 leaf spheres, flat list, OL")
     row("n4 PS-10", graph_stages(4, "ps", degree=10), False, "48 leaf spheres, flat list, PS-10")
