@@ -4,6 +4,7 @@ integral, analytic lights, and the reported standard error vs the spread across 
 import numpy as np
 import pytest
 import trimesh
+from grids import ground_grid
 
 from warpshade.basis import quadrature
 from warpshade.reference import shade
@@ -25,14 +26,6 @@ BALL_CENTRE = np.array([0.0, 0.0, 1.5])
 BALL_RADIUS = 0.5
 
 
-def _ground(coords):
-    gx, gy = np.meshgrid(coords, coords, indexing="ij")
-    points = np.stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)], 1)
-    idx = np.arange(gx.size).reshape(gx.shape)
-    a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
-    return points, np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
-
-
 @pytest.fixture(scope="module")
 def ball_scene():
     ball = trimesh.creation.icosphere(2, radius=1.0)
@@ -43,7 +36,7 @@ def ball_scene():
 def ground_scene():
     """A wide ground, fine in the middle, with a sphere hovering above its centre."""
     coords = np.concatenate([[-20.0, -8.0, -4.0], np.linspace(-2.0, 2.0, 9), [4.0, 8.0, 20.0]])
-    ground_p, ground_f = _ground(coords)
+    ground_p, ground_f = ground_grid(coords)
     ball = trimesh.creation.icosphere(3, radius=BALL_RADIUS)
     scene = Scene.from_meshes(
         [Mesh("ground", ground_p, ground_f, albedo=ALBEDO), Mesh("ball", np.asarray(ball.vertices) + BALL_CENTRE, ball.faces)]
@@ -137,7 +130,7 @@ def test_delta_distant_light_casts_a_sharp_shadow(device, ground_scene):
 
 
 def test_area_lights_match_their_cap_integrals(device):
-    ground_p, ground_f = _ground(np.linspace(-1.0, 1.0, 5))
+    ground_p, ground_f = ground_grid(np.linspace(-1.0, 1.0, 5))
     scene = Scene.from_meshes([Mesh("ground", ground_p, ground_f, albedo=ALBEDO)])
     sphere = SphereLight(position=(0.5, 0.3, 2.0), radius=0.4, radiance=(5.0, 4.0, 3.0))
     res = shade(scene, 0.0, sphere, 256, device=device)

@@ -5,6 +5,7 @@ the local frame, and convergence."""
 import numpy as np
 import pytest
 import trimesh
+from grids import ground_grid
 
 from warpshade.basis import sh
 from warpshade.geometry.bvh import Visibility, trace_occlusion_reference
@@ -38,20 +39,12 @@ SPHERE_CENTRE = np.array([0.0, 0.0, 1.5])
 SPHERE_RADIUS = 0.5
 
 
-def _ground(coords):
-    gx, gy = np.meshgrid(coords, coords, indexing="ij")
-    points = np.stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)], 1)
-    idx = np.arange(gx.size).reshape(gx.shape)
-    a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
-    return points, np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
-
-
 @pytest.fixture(scope="module")
 def cap_scene():
     """A wide ground (fine in the middle, coarse outside) under a sphere: every receiver in the
     middle sees the sphere as a cap wholly above its horizon."""
     coords = np.concatenate([[-20.0, -8.0, -4.0], np.linspace(-2.0, 2.0, 17), [4.0, 8.0, 20.0]])
-    ground_p, ground_f = _ground(coords)
+    ground_p, ground_f = ground_grid(coords)
     ball = trimesh.creation.icosphere(4, radius=SPHERE_RADIUS)
     scene = Scene.from_meshes(
         [Mesh("ground", ground_p, ground_f), Mesh("ball", np.asarray(ball.vertices) + SPHERE_CENTRE, ball.faces)]
@@ -65,7 +58,7 @@ def small_scene():
     ball = trimesh.creation.icosphere(1, radius=0.4)
     box = trimesh.creation.box(extents=(0.3, 0.6, 0.2))
     box.apply_translation((0.5, 0.1, 0.35))
-    ground_p, ground_f = _ground(np.linspace(-1, 1, 6))
+    ground_p, ground_f = ground_grid(np.linspace(-1, 1, 6))
     return Scene.from_meshes(
         [
             Mesh("ground", ground_p, ground_f),
@@ -77,7 +70,7 @@ def small_scene():
 
 def _project_rays(visible, directions, normals, order, frames=None):
     """Float64 sums over given rays: (v, t, ao) per receiver; visible (R, S) bool."""
-    r, s = visible.shape
+    s = visible.shape[1]
     d = directions.astype(np.float64)
     d /= np.linalg.norm(d, axis=-1, keepdims=True)
     local = d if frames is None else np.einsum("rij,rsj->rsi", frames, d)
@@ -223,7 +216,7 @@ def test_visible_fraction_counts_the_same_rays(device, small_scene):
 
 
 def test_per_frame_refit_matches_fresh_compute(device):
-    grid_p, grid_f = _ground(np.linspace(-1, 1, 5))
+    grid_p, grid_f = ground_grid(np.linspace(-1, 1, 5))
     ball = trimesh.creation.icosphere(1, radius=0.3)
     frames = np.array([0.0, 1.0])
     samples_pts = np.stack([np.asarray(ball.vertices) + (0, 0, 0.5), np.asarray(ball.vertices) * 1.3 + (0.4, 0, 0.6)])

@@ -535,7 +535,7 @@ def bend_joint_rotations(frame: int) -> np.ndarray:
 def make_bend(out_dir: str) -> str:
     stage = _new_stage(animated=True)
     _sky(stage)
-    root = UsdSkel.Root.Define(stage, "/World/Bend")
+    UsdSkel.Root.Define(stage, "/World/Bend")
     paths = joint_paths(BEND_JOINTS)
     skel = UsdSkel.Skeleton.Define(stage, "/World/Bend/Skel")
     skel.CreateJointsAttr(Vt.TokenArray(paths))
