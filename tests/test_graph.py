@@ -32,6 +32,10 @@ class _Const(Stage):
         self.report = {"value": self.params["value"], "histogram": np.array([3, 1])}
         return {"values": np.full((ctx.dims["V"], self.params["k"]), self.params["value"], np.float32)}
 
+    def check_artifact(self, outputs):
+        if not np.all(np.isfinite(outputs["values"])):
+            raise ValueError("non-finite values (an older artifact format)")
+
 
 @wp.kernel
 def _sum_rows(values: wp.array2d(dtype=wp.float32), points: wp.array(dtype=wp.vec3), out: wp.array2d(dtype=wp.float32)):
@@ -141,6 +145,24 @@ def test_cache_reuse_and_invalidation(moving_scene, tmp_path):
     rt = _spec(value=1.0).compile(moving_scene, device="cpu", cache_dir=tmp_path, progress=False)
     assert rt.timings["bake"].cache == "miss"
     assert np.allclose(rt.step(0.0).numpy()[:, 0], 2.0)
+
+
+def test_artifact_failing_its_stage_check_is_recomputed(moving_scene, tmp_path):
+    CALLS["const"] = 0
+    _spec(value=1.0).compile(moving_scene, device="cpu", cache_dir=tmp_path, progress=False)
+    (artifact,) = tmp_path.glob("*.npz")
+    with np.load(artifact) as data:
+        arrays = {k: data[k] for k in data.files}
+    arrays = {k: np.full_like(v, np.nan) if v.dtype == np.float32 else v for k, v in arrays.items()}
+    with open(artifact, "wb") as f:  # same key, contents the stage rejects
+        np.savez(f, **arrays)
+    rt = _spec(value=1.0).compile(moving_scene, device="cpu", cache_dir=tmp_path, progress=False)
+    assert CALLS["const"] == 2 and rt.timings["bake"].cache == "miss"
+    assert rt.stale_artifacts and "non-finite" in rt.stale_artifacts[0]
+    assert rt.report()["stale_artifacts"] == rt.stale_artifacts
+    assert np.allclose(rt.step(0.0).numpy()[:, 0], 2.0)
+    rt = _spec(value=1.0).compile(moving_scene, device="cpu", cache_dir=tmp_path, progress=False)
+    assert rt.timings["bake"].cache == "hit" and not rt.stale_artifacts, "the recomputed artifact replaced it"
 
 
 @pytest.mark.parametrize(

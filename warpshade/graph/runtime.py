@@ -210,6 +210,7 @@ class Runtime:
         self.python_s: list = []
         self.artifacts: dict = {}
         self.artifact_keys: dict = {}
+        self.stale_artifacts: list = []  # cached artifacts rejected by their stage's check (recomputed)
         self.results: dict = {}
         self._fingerprint = None
         self._graph = None
@@ -230,6 +231,20 @@ class Runtime:
                 return self.scene.albedo
             raise GraphError(f"scene port {wire.port!r} is per-frame")
         return self.artifacts[wire.provider][wire.port]
+
+    def _valid_cached(self, st, cached, ports):
+        """The cached artifact of ``st`` when it has every port and passes the stage's check."""
+        if cached is None:
+            return None
+        out = _unflatten(cached, ports)
+        if not set(out) >= set(ports):
+            return None
+        try:
+            st.check_artifact({k: v for k, v in out.items() if k in ports})
+        except (ValueError, KeyError) as exc:
+            self.stale_artifacts.append(f"{st.name}: {exc}")
+            return None
+        return out
 
     def _precompute(self) -> None:
         for st in self.stages:
@@ -253,8 +268,8 @@ class Runtime:
             cached = self.cache.load(key)
             timing = self.timings[st.name]
             ports = st.output_ports()
-            if cached is not None and set(_unflatten(cached, ports)) >= set(ports):
-                out = _unflatten(cached, ports)
+            out = self._valid_cached(st, cached, ports)
+            if out is not None:
                 timing.cache = "hit"
                 if _REPORT_KEY in out:
                     st.report = json.loads(str(out.pop(_REPORT_KEY)))
@@ -466,6 +481,7 @@ class Runtime:
             "timings": self.timing_summary(),
             "model_bytes": self.model_bytes(),
             "cache_dir": str(self.cache.root) if self.cache.enabled else None,
+            "stale_artifacts": list(self.stale_artifacts),
             "error": error,
         }
 

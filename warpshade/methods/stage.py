@@ -140,6 +140,14 @@ class Stage:
         """Compute artifacts from host inputs. Returns output name -> NumPy array."""
         raise NotImplementedError(f"stage {self.name!r} ({self.type_name}) has no precompute")
 
+    def check_artifact(self, outputs: dict) -> None:
+        """Raise ValueError when cached ``outputs`` are not a valid artifact of this stage.
+
+        Called on every cache hit; the runtime recomputes on ValueError, so an artifact left by
+        an older format is replaced instead of failing (or silently misleading) the run. The
+        default accepts anything that has the declared ports.
+        """
+
     # ---- frame stages -------------------------------------------------------------------
     def setup(self, ctx, inputs: dict) -> dict:
         """Allocate fixed device outputs; ``inputs`` holds device arrays of upstream ports.

@@ -74,7 +74,7 @@ class TablesStage(Stage):
 class BlockersStage(Stage):
     type_name = "shexp.blockers"
     kind = "precompute"
-    version = 1
+    version = 2  # 2: static spheres, ground-plane discs and the fit summary in the model
     description = "sphere sets bounding the closed occluder meshes (+ hierarchy and receiver clusters)"
     parameters = {
         "budget": Param(48, int, "total leaf spheres over all occluder meshes", minimum=1),
@@ -107,6 +107,9 @@ class BlockersStage(Stage):
         except ValueError as exc:
             raise StageError(f"stage {self.name!r} ({self.type_name}): {exc}") from None
         return {"model": model.to_arrays()}
+
+    def check_artifact(self, outputs):
+        BlockerModel.from_arrays(outputs["model"])
 
 
 @register_stage
