@@ -49,6 +49,7 @@ def test_demo_writes_usd_png_and_report(tmp_path, capsys):
     assert report["error"]["mean"]["rel_rms"] < 0.5  # static PRT of a smooth sky: a sane error
     assert len(report["frames_run"]) == 24
     assert list(tmp_path.glob("demo_*.png"))
+    assert list(tmp_path.glob("demo_*_vs_reference.png")), "a validated run pictures its error"
     assert (tmp_path / "demo.usda").exists()
 
 

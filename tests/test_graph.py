@@ -228,3 +228,14 @@ def test_toml_roundtrip_and_outputs(moving_scene, tmp_path):
     assert np.allclose(got, rt.results[1.0])
     pts = np.asarray(UsdGeom.Mesh(meshes[0]).GetPointsAttr().Get(Usd.TimeCode(2.0)))
     assert np.allclose(pts, moving_scene.points_at(2.0), atol=1e-6)
+
+
+def test_comparisons_need_a_measured_reference(moving_scene, tmp_path):
+    rt = _spec().compile(moving_scene, device="cpu", cache_dir=None, progress=False)
+    rt.run([0.0], warmup=False)
+    assert rt.render_comparisons(tmp_path) == [], "nothing measured, nothing pictured"
+    with pytest.raises(ValueError, match=r"frame\(s\) \[0.0\].*measure_error"):
+        rt.render_comparisons(tmp_path, frames=[0.0])
+    rt.measure_error([0.0], samples=16)
+    (png,) = rt.render_comparisons(tmp_path, width=48, height=36)
+    assert png.name.endswith("_0000_vs_reference.png") and png.exists()

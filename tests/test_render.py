@@ -6,12 +6,22 @@ import os
 
 import numpy as np
 import pytest
+from grids import ground_grid
 from PIL import Image
 
-from warpshade.render import camera_basis, frame_camera, render, tonemap_reference, write_png
+from warpshade._wp import wp
+from warpshade.render import (
+    camera_basis,
+    comparison_figure,
+    error_colors,
+    frame_camera,
+    render,
+    tonemap_reference,
+    write_png,
+)
+from warpshade.render.compare import ERROR_COLORMAP
 from warpshade.render.image import tonemap
 from warpshade.scene import Camera, Environment, Mesh, Scene
-from warpshade._wp import wp
 
 # Barycentric interpolation of a linear field is exact; float32 hit points and weights.
 ATOL_FLOAT32 = 2e-5
@@ -31,12 +41,7 @@ def _field(p):
 
 @pytest.fixture(scope="module")
 def plane_scene():
-    xs = np.linspace(-1, 1, 5)
-    gx, gy = np.meshgrid(xs, xs, indexing="ij")
-    points = np.stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)], 1)
-    idx = np.arange(gx.size).reshape(gx.shape)
-    a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
-    faces = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+    points, faces = ground_grid(np.linspace(-1, 1, 5))
     return Scene.from_meshes([Mesh("plane", points, faces)])
 
 
@@ -134,3 +139,36 @@ def test_png_written_atomically(device, plane_scene, tmp_path):
     assert sorted(os.listdir(tmp_path)) == ["tiny.png"]  # no temporary files left behind
     with pytest.raises(ValueError, match="exactly one"):
         render(plane_scene, camera=CAMERA, width=8, height=6, device=device)
+
+
+def test_error_colours_are_the_colour_map_at_the_signed_error():
+    import matplotlib
+
+    rng = np.random.default_rng(3)
+    ref = rng.uniform(0.2, 1.0, (50, 3))
+    cmap = matplotlib.colormaps[ERROR_COLORMAP]
+    for scale, t in [(1.0, 0.5), (1.25, 0.75), (0.5, 0.0), (3.0, 1.0)]:
+        # a uniform scale of every vertex: the error (Y_est - Y_ref) / mean Y_ref varies per
+        # vertex, so compare against the colour map at each vertex's own error
+        colours, err = error_colors(ref * scale, ref, limit=0.5)
+        y = ref @ np.array([0.2126, 0.7152, 0.0722])
+        assert np.allclose(err, (scale - 1.0) * y / y.mean(), atol=1e-12)
+        expect = cmap(np.clip(0.5 + err, 0.0, 1.0))[:, :3]
+        encoded = np.where(colours <= 0.0031308, 12.92 * colours, 1.055 * colours ** (1 / 2.4) - 0.055)
+        assert np.allclose(encoded, expect, atol=1e-5), f"scale {scale} (t={t})"
+    with pytest.raises(ValueError, match="must both be"):
+        error_colors(ref[:, :2], ref[:, :2])
+    with pytest.raises(ValueError, match="no positive mean"):
+        error_colors(ref, np.zeros_like(ref))
+
+
+def test_comparison_figure_is_written_atomically(device, plane_scene, tmp_path):
+    ref = _field(plane_scene.points_at(0.0))
+    path = comparison_figure(plane_scene, 0.0, ref * 0.9, ref, tmp_path / "sub" / "cmp.png", width=64, height=48,
+                             supersample=1, device=device)
+    with Image.open(path) as img:
+        assert img.size[0] > 3 * 64 and img.size[1] > 48
+    assert [p.name for p in path.parent.iterdir()] == ["cmp.png"], "no temporary files left behind"
+    with pytest.raises(ValueError, match="must be"):
+        comparison_figure(plane_scene, 0.0, ref[:3], ref, tmp_path / "bad.png", device=device)
+    assert not (tmp_path / "bad.png").exists()

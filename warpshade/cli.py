@@ -165,6 +165,8 @@ def _run_graph(graph_file, frames=None, device=None, out_dir=None, validate=Fals
     if previews:
         outputs["png"] = rt.render_previews(out)
     error = rt.measure_error() if validate else None
+    if validate and previews:
+        outputs["png"] = [*outputs.get("png", []), *rt.render_comparisons(out)]
     outputs["report"] = rt.write_report(out / f"{spec.name}.json", error=error)
     outputs["seconds"] = time.perf_counter() - t0
     outputs["error"] = error

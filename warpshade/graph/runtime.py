@@ -212,6 +212,7 @@ class Runtime:
         self.artifact_keys: dict = {}
         self.stale_artifacts: list = []  # cached artifacts rejected by their stage's check (recomputed)
         self.results: dict = {}
+        self.references: dict = {}  # frame -> ray-traced radiance (V, 3) kept by measure_error
         self._fingerprint = None
         self._graph = None
         self._frames_stepped = 0
@@ -456,6 +457,7 @@ class Runtime:
             if est is None:
                 est = self.step(f).numpy()
             gt = shade(self.scene, f, self.ctx.lighting.lights_at(f), samples, device=self.device, seed=seed)
+            self.references[float(f)] = np.asarray(gt.radiance)
             m = error_metrics(est, np.asarray(gt.radiance), np.asarray(gt.stderr))
             m["frame"] = float(f)
             per_frame.append(m)
@@ -504,6 +506,27 @@ class Runtime:
         frames = sorted(self.results)
         colors = np.stack([self.results[f] for f in frames])
         return write_vertex_colors(path, self.scene, np.array(frames), colors, extra_primvars=extra_primvars)
+
+    def render_comparisons(self, out_dir, frames=None, width: int = 400, height: int = 300) -> list:
+        """Write ``<graph>_<frame>_vs_reference.png`` (method | ray-traced | signed error) per frame.
+
+        Uses the references kept by :meth:`measure_error` (default: every frame it measured).
+        """
+        from ..render import comparison_figure
+
+        frames = sorted(self.references) if frames is None else [float(f) for f in frames]
+        missing = [f for f in frames if f not in self.references or f not in self.results]
+        if missing:
+            raise ValueError(f"render_comparisons: no recorded output and reference for frame(s) {missing}; "
+                             "run measure_error(frames) first")
+        env = next((l for l in self.ctx.lighting.lights if hasattr(l, "image")), None)
+        paths = []
+        for f in frames:
+            env_f = self.ctx.lighting.lights_at(f)[self.ctx.lighting.lights.index(env)] if env is not None else None
+            p = Path(out_dir) / f"{self.spec.name}_{int(round(f)):04d}_vs_reference.png"
+            paths.append(comparison_figure(self.scene, f, self.results[f], self.references[f], p, label=self.spec.name,
+                                           environment=env_f, width=width, height=height, device=self.device))
+        return paths
 
     def render_previews(self, out_dir, frames=None, width: int = 480, height: int = 360, exposure: float | None = None) -> list:
         """Render PNG previews of recorded frames (default: first, middle and last).

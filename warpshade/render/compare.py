@@ -1,0 +1,157 @@
+"""Side-by-side pictures of a method against ray-traced ground truth.
+
+``comparison_figure`` renders one frame three times from the same camera: the method's
+per-vertex radiance, the reference radiance (both at one exposure so they compare), and the
+signed relative error per vertex on a diverging colour map, then writes the three panels with
+titles and a colour bar as one PNG (atomically).
+
+The error shown is ``(Y_est - Y_ref) / mean(Y_ref)`` per vertex, with ``Y`` the Rec. 709
+luminance: blue where the method is too dark (e.g. over-occlusion), red where it is too bright.
+Normalising by the mean rather than by each vertex keeps dark, fully shadowed vertices from
+dominating the picture; it is the same normalisation as the relative RMS in the reports.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from .._fileio import atomic_path
+
+__all__ = ["ERROR_COLORMAP", "ERROR_LIMIT", "comparison_figure", "error_colors", "luminance"]
+
+#: Rec. 709 luminance weights of linear RGB.
+LUMA = np.array([0.2126, 0.7152, 0.0722])
+#: Diverging colour map of the error panel (white at zero error).
+ERROR_COLORMAP = "RdBu_r"
+#: Default end of the error colour scale, as a fraction of the mean reference luminance.
+ERROR_LIMIT = 0.5
+
+
+def luminance(rgb) -> np.ndarray:
+    """Rec. 709 luminance of linear RGB, shape (..., 3) -> (...)."""
+    return np.asarray(rgb, np.float64) @ LUMA
+
+
+def _srgb_to_linear(c: np.ndarray) -> np.ndarray:
+    c = np.asarray(c, np.float64)
+    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+
+
+def error_colors(estimate, reference, limit: float = ERROR_LIMIT, cmap: str = ERROR_COLORMAP):
+    """Per-vertex colours of the signed relative error, as linear RGB for the renderer.
+
+    Args:
+        estimate, reference: per-vertex linear RGB radiance, shape (V, 3).
+        limit: error mapped to the ends of the colour map (> 0).
+        cmap: a matplotlib colour map name.
+
+    Returns:
+        (colors (V, 3) float32 linear RGB -- sRGB-encoded by the renderer at exposure 0 they are
+        exactly the colour map's colours -- and the signed error (V,) float64).
+    """
+    import matplotlib
+
+    est, ref = np.asarray(estimate, np.float64), np.asarray(reference, np.float64)
+    if est.shape != ref.shape or est.ndim != 2 or est.shape[1] != 3:
+        raise ValueError(f"error_colors: estimate {est.shape} and reference {ref.shape} must both be (V, 3)")
+    if not limit > 0:
+        raise ValueError(f"error_colors: limit must be > 0, got {limit!r}")
+    y_ref = luminance(ref)
+    scale = float(np.mean(y_ref))
+    if not np.isfinite(scale) or scale <= 0:
+        raise ValueError("error_colors: the reference has no positive mean luminance")
+    err = (luminance(est) - y_ref) / scale
+    t = np.clip(0.5 + 0.5 * np.nan_to_num(err, nan=0.0) / limit, 0.0, 1.0)
+    rgba = matplotlib.colormaps[cmap](t)
+    return _srgb_to_linear(rgba[:, :3]).astype(np.float32), err
+
+
+def comparison_figure(
+    scene,
+    frame,
+    estimate,
+    reference,
+    path,
+    *,
+    label: str = "estimate",
+    reference_label: str = "ray-traced reference",
+    environment=None,
+    exposure: float | None = None,
+    limit: float = ERROR_LIMIT,
+    width: int = 400,
+    height: int = 300,
+    supersample: int = 2,
+    device=None,
+) -> Path:
+    """Write a three-panel PNG: method | reference | signed relative error, for one frame.
+
+    Args:
+        scene: the :class:`~warpshade.scene.Scene`; frame: its time code.
+        estimate, reference: per-vertex linear RGB radiance of the frame, shape (V, 3).
+        path: destination PNG (written atomically; its directory is created).
+        label, reference_label: panel titles (the error statistics are appended).
+        environment: shown where camera rays miss (default: neutral grey).
+        exposure: stops; default maps the reference's 99th-percentile luminance to 0.9.
+        limit: end of the error colour scale (fraction of the mean reference luminance).
+        width, height, supersample: per-panel resolution and rays per pixel per axis.
+        device: Warp device.
+
+    Returns:
+        The path written.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from ..geometry.bvh import Visibility
+    from ..graph.metrics import error_metrics
+    from .raycast import render
+
+    est = np.asarray(estimate, np.float64)
+    ref = np.asarray(reference, np.float64)
+    if est.shape != (scene.vertex_count, 3) or ref.shape != est.shape:
+        raise ValueError(f"comparison_figure: estimate {est.shape} and reference {ref.shape} must be "
+                         f"({scene.vertex_count}, 3) for this scene")
+    if exposure is None:
+        p99 = float(np.percentile(luminance(ref), 99))
+        exposure = float(np.log2(0.9 / p99)) if p99 > 0 else 0.0
+    colors, err = error_colors(est, ref, limit)
+    state = scene.evaluate(frame, device=device)
+    bvh = Visibility.from_scene(scene, device=device)
+    common = dict(width=width, height=height, supersample=supersample, device=device, bvh=bvh, state=state)
+    images = [
+        render(scene, frame, colors=est.astype(np.float32), environment=environment, exposure=exposure, **common).image,
+        render(scene, frame, colors=ref.astype(np.float32), environment=environment, exposure=exposure, **common).image,
+        render(scene, frame, colors=colors, exposure=0.0, **common).image,
+    ]
+    metrics = error_metrics(est, ref)
+    titles = [
+        f"{label}\nrel RMS {metrics['rel_rms']:.3f}, p99 {metrics['rel_p99']:.3f}",
+        reference_label,
+        f"(Y_est - Y_ref) / mean Y_ref\nmin {np.nanmin(err):+.2f}, max {np.nanmax(err):+.2f}",
+    ]
+    # panels placed by hand in inches: three images side by side, a colour bar, room for titles
+    top, bottom, bar = 0.55, 0.25, 0.75
+    fig_w, fig_h = 3 * width / 100 + bar, height / 100 + top + bottom
+    fig = plt.figure(figsize=(fig_w, fig_h), dpi=100)
+    axes = [fig.add_axes([i * width / 100 / fig_w, bottom / fig_h, width / 100 / fig_w, height / 100 / fig_h])
+            for i in range(3)]
+    for ax, img, title in zip(axes, images, titles):
+        ax.imshow(img, interpolation="nearest")
+        ax.set_title(title, fontsize=9)
+        ax.set_axis_off()
+    cax = fig.add_axes([(3 * width / 100 + 0.12) / fig_w, (bottom + 0.1 * height / 100) / fig_h, 0.12 / fig_w,
+                        0.8 * height / 100 / fig_h])
+    mappable = plt.cm.ScalarMappable(norm=matplotlib.colors.Normalize(-limit, limit), cmap=ERROR_COLORMAP)
+    fig.colorbar(mappable, cax=cax).ax.tick_params(labelsize=7)
+    fig.text(0.5 * 3 * width / 100 / fig_w, 0.04, f"frame {float(frame):g}", fontsize=9, ha="center")
+    path = Path(path)
+    try:
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, format="png")
+    finally:
+        plt.close(fig)
+    return path
