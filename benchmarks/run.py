@@ -89,8 +89,7 @@ def ground_truth(scene, lighting, frames, samples, device, cache):
     fp = scene_fingerprint(scene)
     for f in frames:
         key = "gt-" + hash_json({"scene": fp, "frame": float(f), "samples": samples, "estimator": ESTIMATOR_VERSION,
-                                  "rotate": lighting.degrees_per_frame,
-                                  "lights": [repr(type(l)) + str(getattr(l, "path", "")) for l in lighting.lights]})[:32]
+                                  "lighting": lighting.fingerprint()})[:32]
         hit = cache.load(key)
         if hit is None:
             t0 = time.perf_counter()

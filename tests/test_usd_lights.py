@@ -190,3 +190,96 @@ def test_bundled_sky_puts_the_sun_where_the_generator_says(tmp_path):
     # within the 12 degree sun disc, at the lat-long resolution of the 64 x 128 texture
     assert np.degrees(np.arccos(np.clip(brightest @ gen.SUN_DIRECTION, -1, 1))) < 4.0
     assert env.radiance([0.0, 0.0, 1.0]).sum() > env.radiance([0.0, 0.0, -1.0]).sum()  # sky above ground
+
+
+# ---- animated light transforms -------------------------------------------------------------
+ANIMATED = """#usda 1.0
+(
+    upAxis = "Y"
+    startTimeCode = 0
+    endTimeCode = 4
+)
+""" + TRI + """
+def DomeLight "Sky"
+{
+    asset inputs:texture:file = @./sky.hdr@
+    float xformOp:rotateY.timeSamples = {0: 0, 4: 90}
+    uniform token[] xformOpOrder = ["xformOp:rotateY"]
+}
+def DistantLight "Sun"
+{
+    float inputs:angle = 0
+    float xformOp:rotateX.timeSamples = {0: 0, 4: -60}
+    uniform token[] xformOpOrder = ["xformOp:rotateX"]
+}
+def SphereLight "Bulb"
+{
+    float inputs:radius = 0.25
+    double3 xformOp:translate.timeSamples = {0: (0, 1, 0), 4: (2, 1, 0)}
+    uniform token[] xformOpOrder = ["xformOp:translate"]
+}
+def SphereLight "Still"
+{
+    float inputs:radius = 0.25
+}
+"""
+
+
+def _rot(axis, degrees):
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_rotvec(np.radians(degrees) * np.asarray(axis, float)).as_matrix()
+
+
+def test_animated_light_transforms_are_followed(tmp_path):
+    from warpshade.graph import LightingSource
+    from warpshade.scene import lights_to_sh
+
+    write_hdr(tmp_path / "sky.hdr", _painted_texture())
+    (tmp_path / "anim.usda").write_text(ANIMATED)
+    scene = load_usd(str(tmp_path / "anim.usda"))
+    sky, sun, bulb, still = scene.lights
+    assert sky.track is not None and sun.track is not None and bulb.track is not None
+    assert still.track is None, "a light without time samples has no track"
+    source = LightingSource(scene.lights, scene.up_axis)
+    assert source.animated
+    for f in scene.frames:
+        angle = 90.0 * f / 4.0  # USD interpolates the xformOp value linearly
+        env, distant, sphere, fixed = source.lights_at(f)
+        assert env.track is None and distant.track is None and sphere.track is None
+        # the dome's painted marks sit where UsdLux's rule puts them, rotated about +Y
+        _assert_marks(env, _rot((0, 1, 0), angle))
+        # local +Z (towards the light) rotated about X by -60 f / 4 degrees
+        np.testing.assert_allclose(distant.direction, _rot((1, 0, 0), -60.0 * f / 4.0) @ [0, 0, 1], atol=1e-9)
+        np.testing.assert_allclose(sphere.position, [2.0 * f / 4.0, 1.0, 0.0], atol=1e-9)
+        np.testing.assert_allclose(fixed.position, 0.0)
+        # SH lighting per frame (rotated once-projected coefficients) = projection of the posed lights
+        np.testing.assert_allclose(source.sh(4, f), lights_to_sh(source.lights_at(f), 4), atol=1e-9)
+    fp = source.fingerprint()
+    assert fp == LightingSource(load_usd(str(tmp_path / "anim.usda")).lights, "Y").fingerprint()
+    (tmp_path / "anim.usda").write_text(ANIMATED.replace("{0: 0, 4: 90}", "{0: 0, 4: 45}"))
+    assert fp != LightingSource(load_usd(str(tmp_path / "anim.usda")).lights, "Y").fingerprint(), \
+        "a changed light animation changes the lighting fingerprint (ground-truth caches)"
+
+
+def test_light_track_interpolation_and_bad_tracks():
+    from warpshade.scene import LightTrack
+
+    mats = np.tile(np.eye(4), (3, 1, 1))
+    for i, deg in enumerate((0.0, 80.0, 160.0)):
+        mats[i, :3, :3] = _rot((0, 0, 1), deg).T * 2.0  # row-vector convention, uniform scale 2
+        mats[i, 3, :3] = (i, 0.0, -i)
+    track = LightTrack(np.array([0.0, 1.0, 3.0]), mats)
+    np.testing.assert_allclose(track.rotation(0.0), np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(track.rotation(0.5), _rot((0, 0, 1), 40.0), atol=1e-12)  # slerp, scale removed
+    np.testing.assert_allclose(track.rotation(2.0), _rot((0, 0, 1), 120.0), atol=1e-12)
+    np.testing.assert_allclose(track.rotation(9.0), _rot((0, 0, 1), 160.0), atol=1e-12)  # held after the end
+    np.testing.assert_allclose(track.position(2.0), [1.5, 0.0, -1.5])
+    with pytest.raises(ValueError, match="increase"):
+        LightTrack(np.array([0.0, 0.0, 1.0]), mats)
+    with pytest.raises(ValueError, match=r"\(T, 4, 4\)"):
+        LightTrack(np.array([0.0]), mats[:1])
+    mirrored = mats.copy()
+    mirrored[1, 0, :3] *= -1.0
+    with pytest.raises(ValueError, match="mirrored"):
+        LightTrack(np.array([0.0, 1.0, 3.0]), mirrored)

@@ -94,6 +94,11 @@ def _cmd_info(args) -> int:
             print(f"  DistantLight  {light.path}  towards {_fmt_vec(light.direction)}  irradiance {_fmt_vec(light.irradiance)}  angle {light.angle_deg:g} deg")
         elif isinstance(light, SphereLight):
             print(f"  SphereLight   {light.path}  at {_fmt_vec(light.position)}  radius {light.radius:.3g}  radiance {_fmt_vec(light.radiance)}")
+        track = getattr(light, "track", None)
+        if track is not None:
+            turn = np.degrees(max(np.arccos(np.clip((np.trace(track.rotation(t)) - 1) / 2, -1, 1)) for t in track.times))
+            move = max(np.linalg.norm(track.position(t) - track.position(track.times[0])) for t in track.times)
+            print(f"                animated over {len(track.times)} frames: turns up to {turn:.1f} deg, moves up to {move:.3g}")
     cam = scene.camera
     if cam is None:
         print("camera  none (a camera framing the scene is used)")

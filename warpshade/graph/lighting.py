@@ -5,10 +5,15 @@ lights (environments and distant lights) are rotated about the scene's up axis b
 ``degrees_per_frame`` times the frame offset from the first frame. SH projections are computed
 once per (order, window) in the unrotated pose (float64) and rotated per frame with
 :func:`warpshade.basis.sh.rotate`, which is exact for band-limited coefficients.
+
+Lights with a :class:`~warpshade.scene.LightTrack` (animated USD transforms) are posed at each
+frame first (``light.at(frame)``); their SH are rotated by their own track rotation, then by the
+graph's rotation.
 """
 
 from __future__ import annotations
 
+from dataclasses import fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -84,10 +89,11 @@ class LightingSource:
         return _axis_rotation(self.axis, self.degrees_per_frame * (float(frame) - self.frame0))
 
     def lights_at(self, frame: float) -> list:
-        """The light objects at ``frame`` (distant lights rotated)."""
+        """The light objects at ``frame``: posed by their tracks, distant lights rotated."""
         r = self.rotation(frame)
         out = []
         for light in self.lights:
+            light = light.at(frame) if getattr(light, "track", None) is not None else light
             if isinstance(light, Environment):
                 out.append(light.rotated(r))
             elif isinstance(light, DistantLight):
@@ -100,17 +106,45 @@ class LightingSource:
         """SH of all distant lights at ``frame``, world frame, shape (3, order**2), float64."""
         key = (order, window, tuple(sorted(window_args.items())))
         if key not in self._sh_cache:
-            total = np.zeros((3, order * order))
+            fixed = np.zeros((3, order * order))
+            tracked = []  # (track, SH at the track's first time code)
             for light in self.lights:
                 if isinstance(light, (Environment, DistantLight)):
-                    total += light.to_sh(order)
-            if window is not None:
-                total = sh.window(total, window, **window_args)
-            self._sh_cache[key] = total
-        base = self._sh_cache[key]
+                    coeffs = light.to_sh(order)
+                    if window is not None:
+                        coeffs = sh.window(coeffs, window, **window_args)
+                    if light.track is None:
+                        fixed += coeffs
+                    else:
+                        tracked.append((light.track, coeffs))
+            self._sh_cache[key] = (fixed, tracked)
+        fixed, tracked = self._sh_cache[key]
+        total = fixed.copy()
+        for track, coeffs in tracked:
+            total += sh.rotate(coeffs, track.rotation(frame))
         if self.degrees_per_frame == 0.0:
-            return base.copy()
-        return sh.rotate(base, self.rotation(frame))
+            return total
+        return sh.rotate(total, self.rotation(frame))
+
+    def fingerprint(self) -> str:
+        """Content hash of the lights (images, poses, emission, tracks) and the graph rotation."""
+        from .cache import hash_arrays
+
+        arrays = [np.array([self.degrees_per_frame, self.frame0]), self.axis]
+        for light in self.lights:
+            arrays.append(np.frombuffer(type(light).__name__.encode(), np.uint8))
+            for f in fields(light):
+                if f.name not in ("path", "track"):
+                    arrays.append(np.asarray(getattr(light, f.name), np.float64))
+            track = getattr(light, "track", None)
+            if track is not None:
+                arrays += [track.times, track.transforms]
+        return hash_arrays(arrays)
+
+    @property
+    def animated(self) -> bool:
+        """True when the lighting changes over frames (graph rotation or light tracks)."""
+        return self.degrees_per_frame != 0.0 or any(getattr(x, "track", None) is not None for x in self.lights)
 
     def sphere_lights(self) -> list:
         return [light for light in self.lights if isinstance(light, SphereLight)]
@@ -118,9 +152,9 @@ class LightingSource:
 
 def _scaled(light, k: float):
     if isinstance(light, Environment):
-        return Environment(light.image * np.float32(k), light.to_world, light.path)
+        return replace(light, image=light.image * np.float32(k))
     if isinstance(light, DistantLight):
-        return DistantLight(light.direction, light.irradiance * k, light.angle_deg, light.path)
+        return replace(light, irradiance=light.irradiance * k)
     if isinstance(light, SphereLight):
-        return SphereLight(light.position, light.radius, light.radiance * k, light.path)
+        return replace(light, radiance=light.radiance * k)
     return light

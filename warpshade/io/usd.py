@@ -54,7 +54,9 @@ Lights
     :class:`~warpshade.scene.DistantLight`; ``SphereLight`` ->
     :class:`~warpshade.scene.SphereLight`. Emission is ``color * intensity * 2**exposure``
     (times the blackbody colour when ``enableColorTemperature``); see :func:`_read_light`
-    for ``normalize``. Light transforms are read at the first frame.
+    for ``normalize``. Animated light transforms are followed (a
+    :class:`~warpshade.scene.LightTrack` per light: domes and distant lights rotate, sphere
+    lights move); emission and radius are read at the first frame.
 
 Camera
     The first ``UsdGeom.Camera`` in traversal order, at the first frame.
@@ -279,7 +281,7 @@ class _StageReader:
             elif prim.HasAPI(UsdLux.LightAPI):
                 light = self._read_light(prim)
                 if light is not None:
-                    lights.append(light)
+                    lights.append(self._with_track(prim, light))
             elif prim.IsA(UsdGeom.Camera) and camera is None:
                 camera = self._read_camera(prim)
         if not meshes:
@@ -788,6 +790,19 @@ class _StageReader:
             return lighting.SphereLight(position=world[3, :3], radius=radius, radiance=radiance, path=path)
         self.skipped.append((path, f"unsupported light type {type_name}"))
         return None
+
+    def _with_track(self, prim, light):
+        """The light with a :class:`~warpshade.scene.LightTrack` when its transform is animated."""
+        from dataclasses import replace
+
+        mats = self._world_transforms(prim)
+        if len(mats) < 2:
+            return light
+        try:
+            track = lighting.LightTrack(np.asarray(self.frames, np.float64), mats)
+        except ValueError as exc:
+            raise ValueError(f"light {prim.GetPath()} in {self.path}: {exc}") from None
+        return replace(light, track=track)
 
     def _read_dome(self, prim, emission, world):
         from pxr import UsdLux

@@ -9,6 +9,10 @@ Conventions:
   directions (``d_world = to_world @ d_map``); rotating an environment over time changes only
   ``to_world``.
 * SH lighting coefficients have shape (3, n*n): one row per RGB channel, in the world frame.
+* A light may carry a :class:`LightTrack` (its time-sampled world transform, e.g. animated USD
+  xformOps). The light's own fields describe it at the track's first time code; ``light.at(t)``
+  returns the light posed at time ``t`` (environments and distant lights rotate with the track,
+  sphere lights move with it) without a track.
 
 USD dome lights (UsdLux.DomeLight / DomeLight_1) use the OpenEXR lat-long convention in the
 dome's local frame: +Y is the top pole (image row 0), latitude 0 / longitude 0 is +Z,
@@ -28,6 +32,7 @@ import numpy as np
 from ..basis import quadrature, sh
 
 __all__ = [
+    "LightTrack",
     "Environment",
     "DistantLight",
     "SphereLight",
@@ -110,6 +115,52 @@ def up_rotation(up_axis: str) -> np.ndarray:
 
 
 @dataclass
+class LightTrack:
+    """Time-sampled world transform of a light.
+
+    Attributes:
+        times: increasing time codes, shape (T,), T >= 2.
+        transforms: local-to-world matrices per time code, (T, 4, 4), row-vector convention (as
+            USD: translation in the last row). Scale is ignored for directions.
+
+    Between samples rotations are interpolated by slerp and positions linearly; outside the
+    sampled range the nearest sample holds.
+    """
+
+    times: np.ndarray
+    transforms: np.ndarray
+
+    def __post_init__(self):
+        from scipy.spatial.transform import Rotation, Slerp
+
+        t = np.asarray(self.times, np.float64).reshape(-1)
+        m = np.asarray(self.transforms, np.float64)
+        if m.shape != (t.size, 4, 4) or t.size < 2:
+            raise ValueError(f"light track: need (T, 4, 4) transforms for T >= 2 times, got {m.shape} for {t.size}")
+        if not (np.all(np.isfinite(t)) and np.all(np.isfinite(m))):
+            raise ValueError("light track: times and transforms must be finite")
+        if np.any(np.diff(t) <= 0):
+            raise ValueError("light track: times must increase")
+        self.times, self.transforms = t, m
+        # column-convention rotations with scale and shear removed (polar decomposition)
+        u, _, vt = np.linalg.svd(np.swapaxes(m[:, :3, :3], 1, 2))
+        rot = u @ vt
+        if np.any(np.linalg.det(rot) < 0):
+            raise ValueError("light track: mirrored (negative-determinant) transforms are not supported")
+        self._slerp = Slerp(t, Rotation.from_matrix(rot))
+        self._r0 = rot[0]
+
+    def rotation(self, time: float) -> np.ndarray:
+        """Rotation (3, 3) taking world directions at the first time code to those at ``time``."""
+        tc = float(np.clip(time, self.times[0], self.times[-1]))
+        return self._slerp([tc]).as_matrix()[0] @ self._r0.T
+
+    def position(self, time: float) -> np.ndarray:
+        """World position of the light's origin at ``time``, (3,)."""
+        return np.array([np.interp(float(time), self.times, self.transforms[:, 3, k]) for k in range(3)])
+
+
+@dataclass
 class Environment:
     """A distant environment given as a lat-long radiance image.
 
@@ -117,11 +168,13 @@ class Environment:
         image: radiance, shape (H, W, 3), float32, linear RGB, lat-long in the map frame.
         to_world: rotation (3, 3) taking map-frame directions to world directions.
         path: file the image came from (None for procedural environments).
+        track: time-sampled transform (the fields above are the pose at its first time code).
     """
 
     image: np.ndarray
     to_world: np.ndarray = field(default_factory=lambda: np.eye(3))
     path: str | None = None
+    track: LightTrack | None = None
 
     def __post_init__(self):
         img = np.asarray(self.image, dtype=np.float32)
@@ -188,6 +241,12 @@ class Environment:
         """The same environment rotated in world space by ``rotation`` (3, 3)."""
         return replace(self, to_world=np.asarray(rotation, np.float64) @ self.to_world)
 
+    def at(self, time: float) -> "Environment":
+        """The environment posed at ``time`` by its track (itself when it has none)."""
+        if self.track is None:
+            return self
+        return replace(self, to_world=self.track.rotation(time) @ self.to_world, track=None)
+
     # ---- queries (float64 reference path) -----------------------------------------------
     @property
     def height(self) -> int:
@@ -252,17 +311,25 @@ class DistantLight:
         irradiance: RGB irradiance on a surface facing the light (radiance times solid angle).
         angle_deg: angular diameter in degrees (0 = a delta light).
         path: USD prim path or None.
+        track: time-sampled transform (the fields above are the pose at its first time code).
     """
 
     direction: np.ndarray
     irradiance: np.ndarray
     angle_deg: float = 0.53
     path: str | None = None
+    track: LightTrack | None = None
 
     def __post_init__(self):
         d = np.asarray(self.direction, np.float64).reshape(3)
         self.direction = d / np.linalg.norm(d)
         self.irradiance = np.asarray(self.irradiance, np.float64).reshape(3)
+
+    def at(self, time: float) -> "DistantLight":
+        """The light posed at ``time`` by its track (itself when it has none)."""
+        if self.track is None:
+            return self
+        return replace(self, direction=self.track.rotation(time) @ self.direction, track=None)
 
     def to_sh(self, order: int) -> np.ndarray:
         """SH of the light's radiance (a delta, or a uniform disc when ``angle_deg`` > 0), (3, n*n)."""
@@ -285,18 +352,26 @@ class SphereLight:
         radius: radius in scene units.
         radiance: RGB radiance emitted from its surface.
         path: USD prim path or None.
+        track: time-sampled transform; the centre follows its origin (radius fixed).
     """
 
     position: np.ndarray
     radius: float
     radiance: np.ndarray
     path: str | None = None
+    track: LightTrack | None = None
 
     def __post_init__(self):
         self.position = np.asarray(self.position, np.float64).reshape(3)
         self.radiance = np.asarray(self.radiance, np.float64).reshape(3)
         if not self.radius > 0.0:
             raise ValueError(f"sphere light {self.path or '<array>'}: radius must be > 0, got {self.radius}")
+
+    def at(self, time: float) -> "SphereLight":
+        """The light posed at ``time`` by its track (itself when it has none)."""
+        if self.track is None:
+            return self
+        return replace(self, position=self.track.position(time), track=None)
 
     def to_sh_at(self, point, order: int) -> np.ndarray:
         """SH of the light's radiance as seen from ``point`` (a cap), shape (3, n*n)."""

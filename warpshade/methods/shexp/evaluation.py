@@ -64,13 +64,14 @@ def ground_truth(scene, lighting, frames, samples: int = 1024, device="cpu", cac
     from ...graph.cache import ArtifactCache, default_cache_dir, hash_json
     from ...graph.runtime import scene_fingerprint
     from ...reference import shade
+    from ...reference.shading import ESTIMATOR_VERSION
 
     cache = ArtifactCache(default_cache_dir() / "shexp-gt" if cache_dir == "default" else cache_dir)
     fp = scene_fingerprint(scene)
     out = {}
     for f in frames:
-        key = "gt-" + hash_json({"scene": fp, "frame": float(f), "samples": samples, "rotate": lighting.degrees_per_frame,
-                                 "lights": [repr(type(l)) + str(getattr(l, "path", "")) for l in lighting.lights]})[:32]
+        key = "gt-" + hash_json({"scene": fp, "frame": float(f), "samples": samples, "lighting": lighting.fingerprint(),
+                                 "estimator": ESTIMATOR_VERSION})[:32]
         hit = cache.load(key)
         if hit is None:
             res = shade(scene, f, lighting.lights_at(f), samples, device=device, seed=12345)
