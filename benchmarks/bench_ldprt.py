@@ -89,7 +89,8 @@ def ground_truth(scene, lighting, frames, samples, device, cache):
     out = {}
     fp = scene_fingerprint(scene)
     for f in frames:
-        key = "gt-ldprt-" + hash_json({"scene": fp, "frame": float(f), "samples": samples})[:32]
+        key = "gt-ldprt-" + hash_json({"scene": fp, "frame": float(f), "samples": samples,
+                                       "lighting": lighting.fingerprint()})[:32]
         hit = cache.load(key)
         if hit is None:
             t0 = time.perf_counter()
