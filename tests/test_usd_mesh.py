@@ -49,6 +49,45 @@ def test_fan_triangulation_and_default_albedo(tmp_path):
     assert np.all(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])[:, 2] > 0)
 
 
+CONCAVE = """
+def Mesh "Concave"
+{
+    int[] faceVertexCounts = [6, 4, 4]
+    int[] faceVertexIndices = [0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13]
+    point3f[] points = [(2,1,0), (1,1,0), (1,2,0), (0,2,0), (0,0,0), (2,0,0),
+                        (4,2.5,0), (3,0,0), (5,0,0), (4,1,0),
+                        (6,0,0), (7,0,0), (7,1,0), (6,1,0)]
+    %s
+}
+"""
+#: shoelace areas of the L-hexagon (reflex corner (1,1)), the dart (reflex corner (4,1)) and the square
+CONCAVE_AREAS = (3.0, 0.5 * abs((3 * 0 - 5 * 0) + (5 * 1 - 4 * 0) + (4 * 2.5 - 4 * 1) + (4 * 0 - 3 * 2.5)), 1.0)
+
+
+@pytest.mark.parametrize("orientation", ["", 'uniform token orientation = "leftHanded"'])
+def test_concave_polygons_are_ear_clipped(tmp_path, orientation):
+    mesh = load_usd(_write(tmp_path, CONCAVE % orientation)).meshes[0]
+    assert mesh.faces.shape == (4 + 2 + 2, 3)
+    p = mesh.points[mesh.faces]
+    cross_z = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])[:, 2]
+    # every triangle keeps the polygon's winding: counter-clockwise seen from +Z, reversed for a
+    # left-handed mesh (whose outward side is then -Z)
+    sign = -1.0 if orientation else 1.0
+    # (the cases are meaningful: a fan from each concave polygon's first corner folds over)
+    for start, k in ((0, 6), (6, 4)):
+        q = mesh.points[start:start + k]
+        fan = np.cross(q[1:-1] - q[0], q[2:] - q[0])[:, 2]
+        assert np.any(fan < 0)
+    assert np.all(sign * cross_z > 0)
+    # triangles tile each polygon exactly: their areas sum to the polygon's shoelace area (a fan
+    # from the first corner of the L or the dart would overlap or leave it)
+    areas = 0.5 * sign * cross_z
+    np.testing.assert_allclose([areas[:4].sum(), areas[4:6].sum(), areas[6:].sum()], CONCAVE_AREAS, rtol=1e-6)
+    # the convex square keeps its fan
+    fan = np.array([[10, 11, 12], [10, 12, 13]])
+    np.testing.assert_array_equal(mesh.faces[6:], fan[:, [0, 2, 1]] if orientation else fan)
+
+
 def test_left_handed_orientation_and_holes(tmp_path):
     scene = load_usd(_write(tmp_path, QUAD_AND_PENTAGON % 'uniform token orientation = "leftHanded"\n    int[] holeIndices = [1]'))
     mesh = scene.meshes[0]

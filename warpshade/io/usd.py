@@ -13,9 +13,9 @@ Meshes
     ``guide`` or ``proxy``, prims that are invisible at the first frame, implicit gprims (Sphere,
     Cube, Capsule, ...), and unsupported lights.
 
-    Polygons are triangulated as fans from their first vertex, which is exact for convex
-    polygons (what modelling tools and the bundled scenes write); concave n-gons are not
-    re-triangulated. Holes (``holeIndices``) are removed; ``orientation = "leftHanded"`` flips
+    Convex polygons are triangulated as fans from their first vertex; concave ones (a reflex
+    corner in the rest pose) are re-triangulated by ear clipping (mapbox-earcut) in their
+    best-fit plane, keeping their winding. Holes (``holeIndices``) are removed; ``orientation = "leftHanded"`` flips
     the winding so every triangle is counter-clockwise around its outward normal. Topology must
     not change over time.
 
@@ -354,6 +354,7 @@ class _StageReader:
         keep = np.ones(face_of_tri.shape[0], dtype=bool)
         if holes.size:
             keep &= ~np.isin(face_of_tri, holes)
+        corners = _retriangulate_concave(corners, counts, indices, rest)
         if left_handed:
             corners = corners[:, [0, 2, 1]]
         tris = indices[corners]
@@ -852,6 +853,58 @@ class _StageReader:
             vertical_fov=float(cam.GetFieldOfView(Gf.Camera.FOVVertical)),
             path=str(prim.GetPath()),
         )
+
+
+def _retriangulate_concave(corners: np.ndarray, counts: np.ndarray, indices: np.ndarray, points: np.ndarray):
+    """Replace the fan triangles of concave polygons by an ear-clipping triangulation.
+
+    A polygon is concave when one of its corners turns against its Newell normal. Each such
+    polygon is projected onto its plane and triangulated with mapbox-earcut; the triangles keep
+    the polygon's winding and its ``count - 2`` slots in ``corners`` (corner indices into
+    ``faceVertexIndices``). Polygons that ear clipping cannot split into ``count - 2``
+    triangles (self-intersecting outlines) keep their fan.
+    """
+    counts = np.asarray(counts, np.int64)
+    big = np.flatnonzero(counts > 3)
+    if big.size == 0:
+        return corners
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    first_tri = np.cumsum(counts - 2) - (counts - 2)
+    # per corner of the big polygons: previous, this and next point
+    face = np.repeat(big, counts[big])
+    local = np.arange(face.size) - np.repeat(np.cumsum(counts[big]) - counts[big], counts[big])
+    n = counts[face]
+    at = lambda k: points[indices[starts[face] + (local + k) % n]]  # noqa: E731
+    prev, here, nxt = at(-1), at(0), at(1)
+    # Newell normal per polygon (sum of cross products of consecutive corners)
+    newell = np.zeros((counts.size, 3))
+    np.add.at(newell, face, np.cross(here, nxt))
+    turn = np.einsum("ij,ij->i", np.cross(here - prev, nxt - here), newell[face])
+    scale = np.linalg.norm(newell[face], axis=1) * np.linalg.norm(here - prev, axis=1) * np.linalg.norm(nxt - here, axis=1)
+    reflex = turn < -1e-9 * np.maximum(scale, 1e-300)
+    concave = np.unique(face[reflex])
+    if concave.size == 0:
+        return corners
+    import mapbox_earcut
+
+    corners = corners.copy()
+    for f in concave:
+        k = int(counts[f])
+        nrm = newell[f] / max(np.linalg.norm(newell[f]), 1e-300)
+        u = np.cross(nrm, [1.0, 0.0, 0.0] if abs(nrm[0]) < 0.9 else [0.0, 1.0, 0.0])
+        u /= np.linalg.norm(u)
+        v = np.cross(nrm, u)  # (u, v, nrm) right-handed: the outline stays counter-clockwise
+        poly = points[indices[starts[f]:starts[f] + k]]
+        flat = np.stack([poly @ u, poly @ v], axis=1)
+        tri = np.asarray(mapbox_earcut.triangulate_float64(flat, np.array([k], dtype=np.uint32)), np.int64)
+        if tri.size != 3 * (k - 2):
+            continue
+        tri = tri.reshape(-1, 3)
+        e1, e2 = flat[tri[:, 1]] - flat[tri[:, 0]], flat[tri[:, 2]] - flat[tri[:, 0]]
+        flip = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0] < 0
+        tri[flip] = tri[flip][:, [0, 2, 1]]
+        corners[first_tri[f]:first_tri[f] + k - 2] = starts[f] + tri
+    return corners
 
 
 def _fan_corners(counts: np.ndarray):
