@@ -255,3 +255,22 @@ def test_bad_arguments_are_reported(small_scene):
         compute(small_scene, 0.0, 2, 16, vertices=[small_scene.vertex_count])
     with pytest.raises(ValueError, match="frame"):
         compute(small_scene, 0.5, 2, 16)
+
+
+def test_visibility_open_below_the_horizon(device):
+    """below_horizon="visible": a convex ball (which only occludes itself) has V = 1 exactly in
+    every direction -- its SH projection is the constant's, up to the Fibonacci quadrature error --
+    while transfer and ambient occlusion, which carry the cosine, do not change."""
+    ball = trimesh.creation.icosphere(2, radius=1.0)
+    scene = Scene.from_meshes([Mesh("ball", ball.vertices, ball.faces)])
+    traced = compute(scene, 0.0, 4, 1024, space="local", device=device)
+    open_ = compute(scene, 0.0, 4, 1024, space="local", device=device, below_horizon="visible")
+    const = np.zeros(16)
+    const[0] = np.sqrt(4 * np.pi)
+    np.testing.assert_allclose(open_.visibility, np.broadcast_to(const, open_.visibility.shape), atol=0.02)
+    # traced: the upper hemisphere (DC sqrt(pi)) plus the grazing rays that slip past the facets
+    assert traced.visibility[:, 0].max() < 0.7 * np.sqrt(4 * np.pi)
+    np.testing.assert_array_equal(open_.transfer, traced.transfer)
+    np.testing.assert_array_equal(open_.ambient_occlusion, traced.ambient_occlusion)
+    with pytest.raises(ValueError, match="below_horizon"):
+        compute(scene, 0.0, 2, 16, below_horizon="open", device=device)

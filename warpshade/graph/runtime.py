@@ -444,9 +444,11 @@ class Runtime:
             frames: time codes (default: the graph's ``[validate]`` frames, else the first).
             samples: ground-truth samples per vertex.
         """
-        from ..reference import shade
+        from ..reference import shade, shade_glossy
         from .metrics import combine_metrics, error_metrics
 
+        out_name = self.spec.output.split(".", 1)[0]
+        model = next(s for s in self.stages if s.name == out_name).reference_model(self)
         spec = self.spec.validate_spec
         if frames is None:
             frames = spec.get("frames", [float(self.scene.frames[0])])
@@ -456,12 +458,17 @@ class Runtime:
             est = self.results.get(float(f))
             if est is None:
                 est = self.step(f).numpy()
-            gt = shade(self.scene, f, self.ctx.lighting.lights_at(f), samples, device=self.device, seed=seed)
+            lights = self.ctx.lighting.lights_at(f)
+            if model is None:
+                gt = shade(self.scene, f, lights, samples, device=self.device, seed=seed)
+            else:
+                gt = shade_glossy(self.scene, f, lighting=lights, samples=samples, device=self.device, seed=seed, **model)
             self.references[float(f)] = np.asarray(gt.radiance)
             m = error_metrics(est, np.asarray(gt.radiance), np.asarray(gt.stderr))
             m["frame"] = float(f)
             per_frame.append(m)
-        return {"per_frame": per_frame, "mean": combine_metrics(per_frame), "samples": samples}
+        return {"per_frame": per_frame, "mean": combine_metrics(per_frame), "samples": samples,
+                "reference": "diffuse" if model is None else f"glossy {model['brdf'].describe()}"}
 
     def report(self, error: dict | None = None) -> dict:
         """A JSON-ready description of the run: graph, scene, device, timings, model size, error."""

@@ -148,6 +148,15 @@ class Stage:
         default accepts anything that has the declared ports.
         """
 
+    def reference_model(self, runtime) -> dict | None:
+        """What ground truth this stage's radiance is measured against, or None for the default.
+
+        The default (None) is the diffuse reference of :func:`warpshade.reference.shade` with
+        the scene's albedo. A stage whose output is something else returns keyword arguments
+        for :func:`warpshade.reference.shade_glossy` (``brdf``, ``eye``, ``color``).
+        """
+        return None
+
     # ---- frame stages -------------------------------------------------------------------
     def setup(self, ctx, inputs: dict) -> dict:
         """Allocate fixed device outputs; ``inputs`` holds device arrays of upstream ports.

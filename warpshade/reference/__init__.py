@@ -3,8 +3,20 @@
 ``shade(scene, frame, lighting, samples)`` returns per-vertex outgoing radiance of the diffuse
 scene and its Monte Carlo standard error (:class:`ShadingResult`, NumPy float32, shape
 (receiver_count, 3)); see :mod:`warpshade.reference.shading` for the estimators.
+``shade_glossy(scene, frame, brdf, eye, ...)`` is the same for a BRDF of
+:mod:`warpshade.scene.materials` seen from a viewer (:mod:`warpshade.reference.glossy`).
 """
 
+from .glossy import GLOSSY_METHODS, GlossyReferenceShader, shade_glossy
 from .shading import METHODS, ReferenceShader, ShadingResult, shade, upload_lighting
 
-__all__ = ["METHODS", "ReferenceShader", "ShadingResult", "shade", "upload_lighting"]
+__all__ = [
+    "GLOSSY_METHODS",
+    "METHODS",
+    "GlossyReferenceShader",
+    "ReferenceShader",
+    "ShadingResult",
+    "shade",
+    "shade_glossy",
+    "upload_lighting",
+]

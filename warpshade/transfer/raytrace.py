@@ -133,6 +133,7 @@ def _transfer_kernel(order: int):
         normals: wp.array(dtype=wp.vec3),
         frames: wp.array(dtype=wp.mat33),
         use_local: int,
+        open_below: int,
         receivers: wp.array(dtype=wp.int32),
         receiver_start: int,
         samples: wp.array(dtype=wp.vec3),
@@ -155,7 +156,9 @@ def _transfer_kernel(order: int):
         acc_ao = float(0.0)
         for s in range(samples.shape[0]):
             d = rot * samples[s]
-            if not wp.mesh_query_ray_anyhit(mesh_id, origin, d, _RAY_MAX):
+            if open_below != 0 and wp.dot(n, d) <= 0.0:
+                acc_v += sh_eval(to_space * d)  # below the horizon counts as visible (no ray)
+            elif not wp.mesh_query_ray_anyhit(mesh_id, origin, d, _RAY_MAX):
                 y = sh_eval(to_space * d)
                 acc_v += y
                 c = wp.dot(n, d)
@@ -290,8 +293,12 @@ class TransferTracer:
         chunks: int | None = None,
         offset: float | None = None,
         chunk_min_rays: int = CHUNK_MIN_RAYS,
+        below_horizon: str = "traced",
     ):
         _check_args(order, samples, space)
+        if below_horizon not in ("traced", "visible"):
+            raise ValueError(f"transfer: below_horizon must be 'traced' or 'visible', got {below_horizon!r}")
+        self.below_horizon = below_horizon
         self.scene = scene
         self.order = int(order)
         self.samples = int(samples)
@@ -341,7 +348,8 @@ class TransferTracer:
 
         def inputs(start):
             return [
-                mesh_id, points, normals, frames, use_local, self.receivers, start, self.sample_directions,
+                mesh_id, points, normals, frames, use_local, 1 if self.below_horizon == "visible" else 0,
+                self.receivers, start, self.sample_directions,
                 self.seed, self.bvh.offset, self.visibility_sh, self.transfer_sh, self.ambient_occlusion,
             ]
 
@@ -399,6 +407,7 @@ def compute(
     vertices=None,
     workers: int | None = None,
     offset: float | None = None,
+    below_horizon: str = "traced",
 ) -> TransferResult:
     """Ray-traced SH visibility, diffuse transfer and ambient occlusion at one frame.
 
@@ -414,11 +423,19 @@ def compute(
         workers: CPU launch threads (default: every core on the CPU device, 1 on CUDA); batches
             under :data:`CHUNK_MIN_RAYS` rays use one launch.
         offset: ray-origin offset in scene units (default: scene-scaled, see geometry.bvh).
+        below_horizon: "traced" (visibility of every direction is ray traced; below the
+            tangent plane rays mostly hit the receiver's own surface) or "visible" (directions
+            below the tangent plane count as visible and cast no ray). Transfer and AO, which
+            carry the cosine, are the same either way; "visible" suits visibility that is later
+            multiplied by a BRDF that already vanishes below the horizon (glossy LDPRT): an
+            unoccluded receiver then has V = 1 exactly, with no horizon step for the truncated
+            SH product to ring on.
 
     Returns:
         :class:`TransferResult` with NumPy float32 arrays (rows follow ``vertices``).
     """
-    tracer = TransferTracer(scene, order, samples, space=space, vertices=vertices, device=device, seed=seed, workers=workers, offset=offset)
+    tracer = TransferTracer(scene, order, samples, space=space, vertices=vertices, device=device, seed=seed,
+                            workers=workers, offset=offset, below_horizon=below_horizon)
     tracer.trace(frame)
     return tracer.result()
 

@@ -207,7 +207,8 @@ def glossy_kernel(order: int):
     """``shade_glossy(frames, points, eye, axes, coeffs, stored, lobes, factors, table, light,
     specular, radiance)``: glossy LDPRT (eq. 16) with the light-specialised table, one thread
     per vertex. ``axes``/``coeffs`` hold n_b rows x ``lobes`` lobes per vertex (row-major),
-    ``factors`` the (res, res, n_b) view-factor texture; radiance = specular * r(v)."""
+    ``factors`` the (res, res, n_b) view-factor texture; radiance = specular * r(v), 0 where the
+    eye is below the vertex's tangent plane (the BRDF vanishes there)."""
     zk = zh_kernels(order)
     table_lookup = zk.table_lookup
     load_bands = zk.load_bands
@@ -234,7 +235,13 @@ def glossy_kernel(order: int):
         vlen = wp.length(view)
         if vlen > 0.0:
             view = view / vlen
-        ab = hemisphere_to_concentric(f * view)
+        local_view = f * view
+        if local_view[2] <= 0.0:
+            # the viewer is below the surface's horizon: b(v, s) = 0, nothing is reflected to it
+            for c in range(3):
+                radiance[v, c] = 0.0
+            return
+        ab = hemisphere_to_concentric(local_view)
         acc = wp.vec3(0.0)
         for j in range(factors.shape[2]):
             s = wp.vec3(stored_row_term(stored, v, j, rot, light, 0), stored_row_term(stored, v, j, rot, light, 1),

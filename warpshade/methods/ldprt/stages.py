@@ -271,6 +271,7 @@ _BRDFS = ("microfacet", "beckmann", "phong", "blinn-phong", "lambert")
 class GlossyFitStage(Stage):
     type_name = "ldprt.glossy_fit"
     kind = "precompute"
+    version = 2  # 2: visibility open below the horizon by default
     description = "glossy LDPRT: BRDF SVD rows times local visibility transfer, each row fitted with ZH lobes"
     parameters = {
         "order": _ORDER,
@@ -285,6 +286,9 @@ class GlossyFitStage(Stage):
         "frame": _FRAME,
         "seed": Param(0, int, "seed of the per-vertex sample rotations"),
         "restarts": Param(1, int, "random multi-starts where the fit error stays high", minimum=0),
+        "below_horizon": Param("visible", str, "visibility below the tangent plane: 'visible' (the BRDF vanishes "
+                               "there; avoids horizon ringing) or 'traced' (the paper's V)",
+                               choices=("visible", "traced")),
     }
 
     def dims(self):
@@ -310,7 +314,7 @@ class GlossyFitStage(Stage):
         brdf = brdf_from_params(p["brdf"], p["roughness"], p["exponent"], p["f0"])
         fac = factorize(brdf, p["order"], p["rank"], p["view_resolution"])
         vis = compute(ctx.scene, _bake_frame(ctx, p["frame"]), p["order"], p["samples"], space="local",
-                      device=ctx.device, seed=p["seed"]).visibility
+                      device=ctx.device, seed=p["seed"], below_horizon=p["below_horizon"]).visibility
         model = fit_glossy(vis, fac, p["lobes"], restarts=p["restarts"], seed=p["seed"])
         v = vis.shape[0]
         self.report = {"svd_truncation_error": fac.truncation_error(), "fit_total_error": model.total_error}
@@ -379,6 +383,19 @@ class GlossyShadeStage(Stage, _Light):
 
     def prepare(self, ctx, frame):
         self._upload_light(ctx, self.params["order"])
+
+    def reference_model(self, runtime):
+        """Glossy ground truth with the fit stage's BRDF, this stage's eye and specular colour."""
+        from .glossy import brdf_from_params
+
+        provider = runtime.wiring[self.name]["view_factors"].provider
+        fit = next(s for s in runtime.stages if s.name == provider)
+        p = fit.params
+        return {
+            "brdf": brdf_from_params(p["brdf"], p["roughness"], p["exponent"], p["f0"]),
+            "eye": np.array([self._eye[0], self._eye[1], self._eye[2]], np.float64),
+            "color": np.array([self._specular[0], self._specular[1], self._specular[2]], np.float64),
+        }
 
     def launch(self, ctx):
         i = self._in

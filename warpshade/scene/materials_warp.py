@@ -1,0 +1,191 @@
+"""The BRDF models of :mod:`warpshade.scene.materials` on the Warp device: evaluation, lobe
+sampling and its pdf.
+
+:func:`upload_brdf` turns a :class:`~warpshade.scene.materials.BRDF` into a :class:`BRDFParams`
+``@wp.struct``; the ``@wp.func`` helpers take it with a unit normal ``n``, the unit direction
+towards the viewer ``v`` and towards the light ``s``, all in world space (the models are
+isotropic, so only dot products with ``n`` matter):
+
+* :func:`brdf_eval` -- ``b(v, s)`` in 1/sr without the cosine factor, 0 when ``v`` or ``s`` is
+  below the horizon: the float32 counterpart of ``BRDF.evaluate`` in the local frame of ``n``.
+* :func:`brdf_sample` -- a direction ``s`` drawn from the model's lobe: the cosine lobe about
+  ``n`` (Lambert); ``cos^p`` about the mirror direction ``r = 2 (n.v) n - v`` (Phong, pdf
+  ``(p + 1) / (2 pi) cos^p``); a half vector ``h`` from ``cos^p theta_h`` (Blinn-Phong) or
+  from ``D(h) cos theta_h`` (GGX: ``tan^2 theta_h = alpha^2 u / (1 - u)``; Beckmann:
+  ``tan^2 theta_h = -alpha^2 ln(1 - u)``) reflected about ``h``, with the solid-angle pdf
+  ``pdf_h / (4 |v.h|)``. Samples may fall below the horizon (their ``b`` is 0).
+* :func:`brdf_pdf` -- that pdf for any ``s``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .._wp import wp
+from . import materials
+
+__all__ = ["BRDF_MODELS", "BRDFParams", "brdf_eval", "brdf_pdf", "brdf_sample", "upload_brdf"]
+
+wp.set_module_options({"enable_backward": False})
+
+#: Model codes of :class:`BRDFParams` (``model`` field), in this order.
+BRDF_MODELS = ("lambert", "phong", "blinn-phong", "ggx", "beckmann")
+
+
+@wp.struct
+class BRDFParams:
+    """A BRDF on the device.
+
+    Fields:
+        model: index into :data:`BRDF_MODELS`.
+        scale: the model's overall factor (Lambert albedo, ``specular`` of the others).
+        exponent: Phong / Blinn-Phong exponent.
+        roughness: microfacet alpha; f0: Schlick's reflectance at normal incidence.
+    """
+
+    model: int
+    scale: float
+    exponent: float
+    roughness: float
+    f0: float
+
+
+def upload_brdf(brdf: materials.BRDF) -> BRDFParams:
+    """The :class:`BRDFParams` of a :mod:`~warpshade.scene.materials` BRDF."""
+    p = BRDFParams()
+    p.exponent, p.roughness, p.f0 = 0.0, 1.0, 0.0
+    if isinstance(brdf, materials.Lambert):
+        p.model, p.scale = 0, float(brdf.albedo)
+    elif isinstance(brdf, materials.Phong):
+        p.model, p.scale, p.exponent = 1, float(brdf.specular), float(brdf.exponent)
+    elif isinstance(brdf, materials.BlinnPhong):
+        p.model, p.scale, p.exponent = 2, float(brdf.specular), float(brdf.exponent)
+    elif isinstance(brdf, materials.Microfacet):
+        p.model = 3 if brdf.distribution == "ggx" else 4
+        p.scale, p.roughness, p.f0 = float(brdf.specular), float(brdf.roughness), float(brdf.f0)
+    else:
+        raise ValueError(f"upload_brdf: unsupported BRDF {type(brdf).__name__} (models: {', '.join(BRDF_MODELS)})")
+    if not all(np.isfinite([p.scale, p.exponent, p.roughness, p.f0])):
+        raise ValueError(f"upload_brdf: non-finite parameters in {brdf!r}")
+    return p
+
+
+@wp.func
+def _distribution(b: BRDFParams, cos_h: float) -> float:
+    """Normal distribution D(h) of the microfacet models."""
+    a2 = b.roughness * b.roughness
+    c2 = wp.clamp(cos_h, 1.0e-6, 1.0)
+    c2 = c2 * c2
+    if b.model == 3:
+        t = c2 * (a2 - 1.0) + 1.0
+        return a2 / (wp.pi * t * t)
+    tan2 = (1.0 - c2) / c2
+    return wp.exp(-tan2 / a2) / (wp.pi * a2 * c2 * c2)
+
+
+@wp.func
+def _smith_lambda(b: BRDFParams, cos_w: float) -> float:
+    c = wp.clamp(cos_w, 1.0e-6, 1.0)
+    tan2 = (1.0 - c * c) / (c * c)
+    if b.model == 3:
+        return 0.5 * (wp.sqrt(1.0 + b.roughness * b.roughness * tan2) - 1.0)
+    if tan2 <= 0.0:
+        return 0.0
+    a = 1.0 / (b.roughness * wp.sqrt(tan2))
+    if a >= 1.6:
+        return 0.0
+    return (1.0 - 1.259 * a + 0.396 * a * a) / (3.535 * a + 2.181 * a * a)
+
+
+@wp.func
+def brdf_eval(b: BRDFParams, n: wp.vec3, v: wp.vec3, s: wp.vec3) -> float:
+    """``b(v, s)`` (1/sr, no cosine) about the unit normal ``n``; 0 below either horizon."""
+    nv = wp.dot(n, v)
+    ns = wp.dot(n, s)
+    if nv <= 0.0 or ns <= 0.0:
+        return 0.0
+    if b.model == 0:
+        return b.scale / wp.pi
+    if b.model == 1:
+        r = 2.0 * nv * n - v
+        c = wp.max(wp.dot(r, s), 0.0)
+        return b.scale * (b.exponent + 2.0) / (2.0 * wp.pi) * wp.pow(c, b.exponent)
+    h = v + s
+    hl = wp.length(h)
+    if hl <= 1.0e-12:
+        return 0.0
+    h = h / hl
+    nh = wp.max(wp.dot(n, h), 0.0)
+    if b.model == 2:
+        return b.scale * (b.exponent + 8.0) / (8.0 * wp.pi) * wp.pow(nh, b.exponent)
+    vh = wp.clamp(wp.dot(v, h), 0.0, 1.0)
+    fresnel = b.f0 + (1.0 - b.f0) * wp.pow(1.0 - vh, 5.0)
+    g = 1.0 / ((1.0 + _smith_lambda(b, nv)) * (1.0 + _smith_lambda(b, ns)))
+    return b.scale * _distribution(b, nh) * fresnel * g / (4.0 * wp.max(nv, 1.0e-6) * wp.max(ns, 1.0e-6))
+
+
+@wp.func
+def _about(axis: wp.vec3, cos_t: float, phi: float) -> wp.vec3:
+    """Unit direction at polar angle acos(cos_t) and azimuth phi about a unit axis."""
+    sign = wp.where(axis[2] >= 0.0, 1.0, -1.0)
+    a = -1.0 / (sign + axis[2])
+    bb = axis[0] * axis[1] * a
+    t = wp.vec3(1.0 + sign * axis[0] * axis[0] * a, sign * bb, -sign * axis[0])
+    u = wp.cross(axis, t)
+    sin_t = wp.sqrt(wp.max(0.0, 1.0 - cos_t * cos_t))
+    return wp.normalize(sin_t * wp.cos(phi) * t + sin_t * wp.sin(phi) * u + cos_t * axis)
+
+
+@wp.func
+def _half_cos(b: BRDFParams, u1: float) -> float:
+    """cos theta_h of a half vector drawn from the model's distribution (models 2-4)."""
+    if b.model == 2:
+        return wp.pow(wp.max(u1, 1.0e-30), 1.0 / (b.exponent + 1.0))
+    a2 = b.roughness * b.roughness
+    tan2 = float(0.0)
+    if b.model == 3:
+        tan2 = a2 * u1 / wp.max(1.0 - u1, 1.0e-12)
+    else:
+        tan2 = -a2 * wp.log(wp.max(1.0 - u1, 1.0e-30))
+    return 1.0 / wp.sqrt(1.0 + tan2)
+
+
+@wp.func
+def _half_pdf(b: BRDFParams, cos_h: float) -> float:
+    """Density of the half vector per steradian (models 2-4)."""
+    if b.model == 2:
+        return (b.exponent + 1.0) / (2.0 * wp.pi) * wp.pow(wp.max(cos_h, 0.0), b.exponent)
+    return _distribution(b, cos_h) * wp.max(cos_h, 0.0)
+
+
+@wp.func
+def brdf_sample(b: BRDFParams, n: wp.vec3, v: wp.vec3, u1: float, u2: float) -> wp.vec3:
+    """A direction from the model's lobe (see module docstring); u1, u2 uniform in [0, 1)."""
+    phi = 2.0 * wp.pi * u2
+    if b.model == 0:
+        return _about(n, wp.sqrt(wp.max(0.0, 1.0 - u1)), phi)
+    if b.model == 1:
+        r = 2.0 * wp.dot(n, v) * n - v
+        return _about(wp.normalize(r), wp.pow(wp.max(u1, 1.0e-30), 1.0 / (b.exponent + 1.0)), phi)
+    h = _about(n, _half_cos(b, u1), phi)
+    return wp.normalize(2.0 * wp.dot(v, h) * h - v)
+
+
+@wp.func
+def brdf_pdf(b: BRDFParams, n: wp.vec3, v: wp.vec3, s: wp.vec3) -> float:
+    """Solid-angle pdf of :func:`brdf_sample` at ``s``."""
+    if b.model == 0:
+        return wp.max(wp.dot(n, s), 0.0) / wp.pi
+    if b.model == 1:
+        r = wp.normalize(2.0 * wp.dot(n, v) * n - v)
+        c = wp.max(wp.dot(r, s), 0.0)
+        return (b.exponent + 1.0) / (2.0 * wp.pi) * wp.pow(c, b.exponent)
+    h = v + s
+    hl = wp.length(h)
+    if hl <= 1.0e-12:
+        return 0.0
+    h = h / hl
+    vh = wp.abs(wp.dot(v, h))
+    if vh <= 1.0e-12:
+        return 0.0
+    return _half_pdf(b, wp.dot(n, h)) / (4.0 * vh)
