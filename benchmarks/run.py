@@ -101,7 +101,30 @@ def ground_truth(scene, lighting, frames, samples, device, cache):
     return out
 
 
-def run_row(row, scene, lighting, device, timing_frames, gt, precompute_cache, progress=False):
+def glossy_ground_truth(scene, lighting, frames, samples, device, cache, model):
+    """Glossy reference (a stage's ``reference_model``: BRDF, eye, colour) per frame, cached."""
+    from warpshade.reference import shade_glossy
+
+    out = {}
+    fp = scene_fingerprint(scene)
+    desc = {"brdf": model["brdf"].describe(), "eye": np.asarray(model["eye"]).tolist(),
+            "color": np.asarray(model["color"]).tolist()}
+    for f in frames:
+        key = "gt-glossy-" + hash_json({"scene": fp, "frame": float(f), "samples": samples, "model": desc,
+                                        "lighting": lighting.fingerprint()})[:32]
+        hit = cache.load(key)
+        if hit is None:
+            t0 = time.perf_counter()
+            res = shade_glossy(scene, f, lighting=lighting.lights_at(f), samples=samples, device=device, seed=12345,
+                               **model)
+            hit = {"radiance": np.asarray(res.radiance), "stderr": np.asarray(res.stderr)}
+            cache.store(key, hit)
+            print(f"    glossy ground truth frame {f:g}: {samples} spp in {time.perf_counter() - t0:.1f} s", flush=True)
+        out[float(f)] = hit
+    return out
+
+
+def run_row(row, scene, lighting, device, timing_frames, gt, precompute_cache, progress=False, glossy_gt=None):
     """Run one row; ``precompute_cache`` = (ArtifactCache private to this harness run, dict of
     artifact key -> seconds it took when it was computed), so rows sharing a precompute (the
     same sphere set, the same transfer) compute it once and all report its real cost."""
@@ -121,6 +144,12 @@ def run_row(row, scene, lighting, device, timing_frames, gt, precompute_cache, p
         if timing.cache == "miss":
             seconds_by_key[key] = timing.precompute_s
         precompute_s += seconds_by_key.get(key, timing.precompute_s)
+    out_stage = next(s for s in rt.stages if s.name == row.output.split(".", 1)[0])
+    model = out_stage.reference_model(rt)
+    reference = "diffuse"
+    if model is not None:  # e.g. glossy LDPRT: measured against the glossy reference
+        gt = glossy_gt(model)
+        reference = f"glossy {model['brdf'].name}"
     rt.run(timing_frames, record=True, warmup=True)
     timing = rt.timing_summary()
     per_frame = []
@@ -146,6 +175,7 @@ def run_row(row, scene, lighting, device, timing_frames, gt, precompute_cache, p
         "frames_timed": timing["frames_timed"],
         "error": err,
         "error_per_frame": per_frame,
+        "reference": reference,
     }
 
 
@@ -202,7 +232,9 @@ def pareto_chart(results, path, title):
 def markdown_table(results, meta) -> str:
     lines = [f"# Speed vs accuracy ({meta['date']}, {meta['device']})", "",
              f"{meta['machine']}; Warp {meta['warp']}; ground truth {meta['gt_samples']} spp on frames per scene; "
-             f"timed frames per row: {meta['timing_frames']}. Reproduce: `{meta['command']}`.", ""]
+             f"timed frames per row: {meta['timing_frames']}. Reproduce: `{meta['command']}`. Rows whose "
+             "method ends in -glossy are measured against the glossy ray-traced reference (same BRDF, the scene "
+             "camera), all others against the diffuse one.", ""]
     for sc in sorted({r["scene"] for r in results}):
         sub = [r for r in results if r["scene"] == sc]
         lines += [f"## {sc} ({sub[0]['vertex_count']:,} vertices, ground-truth noise "
@@ -265,7 +297,9 @@ def main(argv=None) -> int:
             t_frames = pick_frames(scene, timing_frames)
             for row in applicable:
                 try:
-                    r = run_row(row, scene, lighting, device, t_frames, gt, precompute_cache)
+                    r = run_row(row, scene, lighting, device, t_frames, gt, precompute_cache,
+                                glossy_gt=lambda model: glossy_ground_truth(scene, lighting, gt_frames, gt_samples,
+                                                                            device, cache, model))
                 except Exception as exc:  # a failing row is reported, never silently dropped
                     print(f"    {row.label:28s} FAILED: {exc}", flush=True)
                     results.append({"scene": key, "device": device, "method": row.method, "setting": row.setting,

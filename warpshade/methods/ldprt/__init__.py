@@ -69,6 +69,16 @@ def harness_rows(quick: bool = False) -> list:
                            notes=note + "; lobe count per vertex from a 5% error budget"))
     rows.append(HarnessRow("ldprt", f"N3 direct n{HARNESS_ORDER}", _ldprt_stages(3, evaluation="direct"),
                            "shade.radiance", scenes=scenes, quick=False, notes=note + "; direct SH evaluation"))
+    for order, rank, lobes, quick in ((4, 3, 3, True), (6, 12, 4, False)):
+        rows.append(HarnessRow(
+            "ldprt-glossy", f"n{order} b{rank} N{lobes}",
+            (("fit", "ldprt.glossy_fit", {"order": order, "lobes": lobes, "rank": rank, "samples": 256,
+                                          "brdf": "microfacet", "roughness": 0.5}, {}),
+             ("frames", "ldprt.frames", {}, {}),
+             ("shade", "ldprt.glossy_shade", {"order": order, "lobes": lobes, "rank": rank}, {})),
+            "shade.radiance", scenes=scenes, quick=quick,
+            notes="glossy LDPRT (GGX roughness 0.5) towards the scene camera, vs the glossy ray-traced reference",
+        ))
     rows.append(HarnessRow(
         "ldprt", f"rotated SH n{HARNESS_ORDER}",
         (("bake", "ldprt.transfer", {"order": HARNESS_ORDER, "samples": 256}, {}),
