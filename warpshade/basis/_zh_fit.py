@@ -45,6 +45,13 @@ LINE_SEARCH_STEPS = 40
 #: Singular values below this fraction of the largest are cut in the frozen-axes least squares
 #: (near-parallel lobe axes would otherwise get huge, cancelling coefficients).
 LSTSQ_RCOND = 1e-8
+#: Default ridge ``mu`` of the fit: ``psi + mu * sum_il g*_il^2`` is minimised. The SH norm of a
+#: lobe is exactly ``|g*|`` (sum_m y_lm^2 = (2l+1)/4pi cancels the convolution scale), so the
+#: ridge is dimensionless and bounds the lobe energy a fit may spend on cancellation: a fit of
+#: relative error e cannot gain by lobes of norm much above ``e / sqrt(mu)`` times the target's.
+#: Cancelling lobes (norms 1e3-1e5 x the target's, seen on BRDF-specialised glossy rows) turn
+#: the float32 table lookups and rotations of the shading kernels into noise.
+DEFAULT_RIDGE = 1e-5
 
 
 def band_norms(order: int) -> np.ndarray:
@@ -60,6 +67,7 @@ class FitProblem:
     order: int
     lobe_count: int
     stored_bands: int  # leading bands copied exactly (0, 1 = DC, 2 = DC + linear)
+    ridge: float = 0.0  # mu: the objective is psi + mu * |g*|^2 (see DEFAULT_RIDGE)
 
     @property
     def fitted(self) -> np.ndarray:
@@ -101,6 +109,8 @@ def reconstruct(axes: np.ndarray, coeffs: np.ndarray) -> np.ndarray:
 def objective(problem: FitProblem, x: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``psi`` (eq. 17) and its analytic gradient (eq. 19-21) for a batch.
 
+    With ``problem.ridge = mu > 0`` the value and gradient are those of ``psi + mu |g*|^2``.
+
     Args:
         x: parameters, shape (B, P).
         target: SH vectors to fit with the stored bands zeroed, shape (B, n*n).
@@ -122,6 +132,10 @@ def objective(problem: FitProblem, x: np.ndarray, target: np.ndarray) -> tuple[n
     d_coeffs = 2.0 * np.add.reduceat(y * residual[:, None, :], starts, axis=2)[:, :, problem.fitted]
     # eq. 20-21: d psi / d s_i = 2 sum_lm (J_h^T grad y_lm(s_i)) g*_il r_lm
     d_axes = 2.0 * np.einsum("bijk,bij->bik", dy, g_exp * residual[:, None, :])
+    if problem.ridge > 0.0:
+        g = coeffs[:, :, problem.fitted]
+        psi = psi + problem.ridge * np.einsum("bil,bil->b", g, g)
+        d_coeffs = d_coeffs + 2.0 * problem.ridge * g
     return psi, np.concatenate([d_axes.reshape(b, -1), d_coeffs.reshape(b, -1)], axis=1)
 
 
@@ -309,15 +323,17 @@ def closed_form(target: np.ndarray, axes: np.ndarray, fitted: np.ndarray) -> tup
     return coeffs, np.maximum(psi, 0.0)
 
 
-def solve_coefficients(target: np.ndarray, axes: np.ndarray, fitted: np.ndarray) -> np.ndarray:
+def solve_coefficients(target: np.ndarray, axes: np.ndarray, fitted: np.ndarray, ridge: float = 0.0) -> np.ndarray:
     """Least-squares lobe coefficients for frozen axes (a linear problem per band).
 
     Band l: ``min |A_l g_l - t_l|`` with ``A_l[m, i] = y_lm(s_i)``, (2l+1) x N, solved by the
     pseudo-inverse (the minimum-norm least-squares solution that ``numpy.linalg.lstsq`` returns;
-    singular values below ``LSTSQ_RCOND`` of the largest are cut).
+    singular values below ``LSTSQ_RCOND`` of the largest are cut). With ``ridge = mu > 0`` it is
+    ``min |A_l g_l - t_l|^2 + mu |g_l|^2`` instead, ``g_l = (A_l^T A_l + mu I)^-1 A_l^T t_l``.
 
     Args:
         target: (B, n*n), stored bands zeroed. axes: (B, N, 3) unit. fitted: band indices.
+        ridge: mu (0: plain minimum-norm least squares).
 
     Returns:
         coefficients (B, N, n), zero outside the fitted bands.
@@ -329,7 +345,12 @@ def solve_coefficients(target: np.ndarray, axes: np.ndarray, fitted: np.ndarray)
     for l in fitted:
         sl = slice(l * l, (l + 1) * (l + 1))
         a = np.swapaxes(y[:, :, sl], 1, 2)  # (B, 2l+1, N)
-        coeffs[:, :, l] = np.einsum("bij,bj->bi", np.linalg.pinv(a, rcond=LSTSQ_RCOND), target[:, sl])
+        if ridge > 0.0:
+            normal = np.einsum("bmi,bmj->bij", a, a) + ridge * np.eye(n_lobes)
+            rhs = np.einsum("bmi,bm->bi", a, target[:, sl])
+            coeffs[:, :, l] = np.linalg.solve(normal, rhs[..., None])[..., 0]
+        else:
+            coeffs[:, :, l] = np.einsum("bij,bj->bi", np.linalg.pinv(a, rcond=LSTSQ_RCOND), target[:, sl])
     return coeffs
 
 
@@ -374,6 +395,8 @@ def _run_bfgs(problem: FitProblem, target: np.ndarray, axes: np.ndarray, coeffs:
     x, psi, _ = _optimiser(options)(fun, pack(problem, axes, coeffs), scale, options.max_iterations)
     raw, c = unpack(problem, x)
     unit = raw / np.maximum(np.linalg.norm(raw, axis=-1, keepdims=True), 1e-300)
+    if problem.ridge > 0.0:  # report the fit error alone, not the penalised objective
+        psi = _psi(target, unit, c)
     return unit, c, psi
 
 
@@ -439,14 +462,14 @@ def fit_lobes(target: np.ndarray, problem: FitProblem, options: FitOptions,
     if initial_axes is not None and initial_axes.shape[1] > 0:
         first = min(initial_axes.shape[1], n_lobes)
         axes[:, :first] = initial_axes[:, :first]
-        coeffs[:, :first] = solve_coefficients(target, axes[:, :first], fitted)
+        coeffs[:, :first] = solve_coefficients(target, axes[:, :first], fitted, problem.ridge)
     residual = target - reconstruct(axes[:, :first], coeffs[:, :first]) if first else target.copy()
     for i in range(first, n_lobes):
         a, c, _ = fit_single(residual, fitted, options)
         axes[:, i], coeffs[:, i] = a, c
         residual = residual - reconstruct(a[:, None], c[:, None])
     if n_lobes > 1:
-        coeffs = solve_coefficients(target, axes, fitted)
+        coeffs = solve_coefficients(target, axes, fitted, problem.ridge)
     psi_greedy = np.einsum("bj,bj->b", residual, residual) if n_lobes == 1 else _psi(target, axes, coeffs)
     if n_lobes > 1:
         axes, coeffs, psi = _run_bfgs(problem, target, axes, coeffs, options)
@@ -464,7 +487,7 @@ def fit_lobes(target: np.ndarray, problem: FitProblem, options: FitOptions,
         rand = rng.normal(size=(restart_rows.size * k, n_lobes, 3))
         rand /= np.linalg.norm(rand, axis=-1, keepdims=True)
         rep = np.repeat(target[restart_rows], k, axis=0)
-        c0 = solve_coefficients(rep, rand, fitted)
+        c0 = solve_coefficients(rep, rand, fitted, problem.ridge)
         ra, rc, rpsi = _run_bfgs(problem, rep, rand, c0, options)
         rpsi = rpsi.reshape(restart_rows.size, k)
         pick = np.argmin(rpsi, axis=1)

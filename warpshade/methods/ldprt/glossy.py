@@ -39,6 +39,8 @@ class GlossyModel:
         factorization: the :class:`~warpshade.scene.materials.BRDFFactorization` (view factors).
         fit_error: (V,) float32 L2 fit error of all rows relative to the RMS row-set norm.
         total_error: the paper's metric over all rows and vertices.
+        max_lobe_norm_ratio: largest lobe-set norm over its row's norm (about 1 unless lobes
+            cancel; see the ``ridge`` of :func:`warpshade.basis.zh.fit`).
     """
 
     axes: np.ndarray
@@ -47,6 +49,7 @@ class GlossyModel:
     factorization: materials.BRDFFactorization
     fit_error: np.ndarray
     total_error: float
+    max_lobe_norm_ratio: float = 0.0
 
     @property
     def rank(self) -> int:
@@ -111,6 +114,7 @@ def fit_glossy(visibility, factorization: materials.BRDFFactorization, lobes: in
         factorization=factorization,
         fit_error=(np.sqrt(np.sum(err**2, axis=1)) / scale).astype(np.float32),
         total_error=float(np.sqrt(np.sum(err**2) / max(np.sum(rows**2), 1e-300))),
+        max_lobe_norm_ratio=float(res.notes["max_lobe_norm_ratio"]),
     )
 
 

@@ -32,6 +32,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..._wp import wp
+from ...basis._zh_fit import DEFAULT_RIDGE as _RIDGE
 from ...basis.sh_warp import sh_kernels
 from ..stage import Param, Port, Stage, register_stage
 from ..upload import LightingUpload
@@ -66,6 +67,7 @@ def _bake_frame(ctx, frame):
 class FitStage(Stage):
     type_name = "ldprt.fit"
     kind = "precompute"
+    version = 2  # 2: coefficient ridge
     description = "local-frame transfer fitted with ZH lobes per vertex (error-budgeted lobe count)"
     parameters = {
         "order": _ORDER,
@@ -78,6 +80,8 @@ class FitStage(Stage):
         "stored_bands": Param("paper", str, "bands stored exactly", choices=tuple(STORED_BANDS)),
         "restarts": Param(2, int, "random multi-starts where the fit error stays high", minimum=0),
         "restart_error": Param(0.05, float, "relative error above which the multi-start engages", minimum=0.0),
+        "ridge": Param(_RIDGE, float, "coefficient ridge mu of the fit (psi + mu |g*|^2; keeps lobes from "
+                                      "cancelling with huge coefficients; 0: the paper's objective)", minimum=0.0),
     }
 
     def dims(self):
@@ -98,7 +102,8 @@ class FitStage(Stage):
         t = local_transfer(ctx.scene, _bake_frame(ctx, p["frame"]), p["order"], p["samples"], device=ctx.device,
                            seed=p["seed"])
         model = fit_transfer(t, p["lobes"], target_error=p["target_error"], stored_bands=p["stored_bands"],
-                             restarts=p["restarts"], restart_error=p["restart_error"], seed=p["seed"])
+                             restarts=p["restarts"], restart_error=p["restart_error"], seed=p["seed"],
+                             ridge=p["ridge"])
         self.report = {"histogram": model.histogram, "total_error": model.total_error,
                        "restarted": int(model.restarted.sum()), "fit_seconds": model.seconds}
         return model.arrays()
@@ -271,7 +276,7 @@ _BRDFS = ("microfacet", "beckmann", "phong", "blinn-phong", "lambert")
 class GlossyFitStage(Stage):
     type_name = "ldprt.glossy_fit"
     kind = "precompute"
-    version = 2  # 2: visibility open below the horizon by default
+    version = 3  # 2: visibility open below the horizon by default; 3: coefficient ridge
     description = "glossy LDPRT: BRDF SVD rows times local visibility transfer, each row fitted with ZH lobes"
     parameters = {
         "order": _ORDER,
@@ -289,6 +294,8 @@ class GlossyFitStage(Stage):
         "below_horizon": Param("visible", str, "visibility below the tangent plane: 'visible' (the BRDF vanishes "
                                "there; avoids horizon ringing) or 'traced' (the paper's V)",
                                choices=("visible", "traced")),
+        "ridge": Param(_RIDGE, float, "coefficient ridge mu of the fit (psi + mu |g*|^2; keeps lobes from "
+                                      "cancelling with huge coefficients; 0: the paper's objective)", minimum=0.0),
     }
 
     def dims(self):
@@ -315,9 +322,10 @@ class GlossyFitStage(Stage):
         fac = factorize(brdf, p["order"], p["rank"], p["view_resolution"])
         vis = compute(ctx.scene, _bake_frame(ctx, p["frame"]), p["order"], p["samples"], space="local",
                       device=ctx.device, seed=p["seed"], below_horizon=p["below_horizon"]).visibility
-        model = fit_glossy(vis, fac, p["lobes"], restarts=p["restarts"], seed=p["seed"])
+        model = fit_glossy(vis, fac, p["lobes"], restarts=p["restarts"], seed=p["seed"], ridge=p["ridge"])
         v = vis.shape[0]
-        self.report = {"svd_truncation_error": fac.truncation_error(), "fit_total_error": model.total_error}
+        self.report = {"svd_truncation_error": fac.truncation_error(), "fit_total_error": model.total_error,
+                       "max_lobe_norm_ratio": model.max_lobe_norm_ratio}
         return {
             "glossy_axes": model.axes.reshape(v, -1, 3),
             "glossy_coeffs": model.coeffs.reshape(v, -1, p["order"]),
