@@ -196,10 +196,13 @@ def pareto_chart(results, path, title):
         sub = [r for r in results if r["scene"] == sc]
         for r in sub:
             x, y = r["median_frame_ms"], max(r["error"]["rel_rms"], 1e-4)
-            ax.scatter(x, y, color=colors[r["method"]], s=28, zorder=3)
+            other = r.get("reference", "diffuse") != "diffuse"  # measured against another reference
+            ax.scatter(x, y, s=28, zorder=3, marker="D" if other else "o",
+                       facecolors="none" if other else colors[r["method"]], edgecolors=colors[r["method"]])
             ax.annotate(r["setting"], (x, y), fontsize=6, xytext=(3, 2), textcoords="offset points")
-        # Pareto front per scene (lower-left envelope)
-        pts = sorted((r["median_frame_ms"], r["error"]["rel_rms"]) for r in sub)
+        # Pareto front per scene (lower-left envelope) over the rows that share the diffuse reference
+        pts = sorted((r["median_frame_ms"], r["error"]["rel_rms"]) for r in sub
+                     if r.get("reference", "diffuse") == "diffuse")
         front, best = [], np.inf
         for x, y in pts:
             if y < best:
@@ -207,7 +210,8 @@ def pareto_chart(results, path, title):
                 best = y
         if len(front) > 1:
             ax.plot(*zip(*front), color="0.6", lw=1, ls="--", zorder=1)
-        noise = np.mean([r["error"].get("noise_rel_rms", np.nan) for r in sub])
+        noise = np.mean([r["error"].get("noise_rel_rms", np.nan) for r in sub
+                         if r.get("reference", "diffuse") == "diffuse"])
         if np.isfinite(noise):
             ax.axhline(noise, color="0.3", lw=0.8, ls=":", label="ground-truth noise")
         vc = sub[0]["vertex_count"]
@@ -219,7 +223,10 @@ def pareto_chart(results, path, title):
         ax.grid(True, which="both", alpha=0.25)
     for ax in list(axes.flat)[len(scenes):]:
         ax.axis("off")
-    handles = [plt.Line2D([], [], marker="o", ls="", color=colors[m], label=m) for m in methods]
+    glossy = {r["method"] for r in results if r.get("reference", "diffuse") != "diffuse"}
+    handles = [plt.Line2D([], [], marker="D" if m in glossy else "o", ls="", color=colors[m],
+                          markerfacecolor="none" if m in glossy else colors[m],
+                          label=f"{m} (vs glossy reference)" if m in glossy else m) for m in methods]
     handles.append(plt.Line2D([], [], ls=":", color="0.3", label="ground-truth noise"))
     fig.legend(handles=handles, loc="lower center", ncol=len(handles), fontsize=9, frameon=False)
     fig.suptitle(title, fontsize=11)
@@ -252,6 +259,24 @@ def markdown_table(results, meta) -> str:
     return "\n".join(lines)
 
 
+def replot(path: Path) -> int:
+    """Chart and Markdown table again from a results JSON (e.g. after a change to the chart)."""
+    import json
+
+    try:
+        data = json.loads(path.read_text())
+        meta, results = data["meta"], data["results"]
+    except (OSError, ValueError, KeyError) as exc:
+        raise SystemExit(f"--replot {path}: not a harness results file ({exc})")
+    ok = [r for r in results if "failed" not in r]
+    stem = path.name[: -len(".json")]
+    pareto_chart(ok, path.parent / f"{stem}-pareto.png",
+                 f"warpshade: time per frame vs error ({meta['device']}, {meta['date']})")
+    write_text_atomic(path.parent / f"{stem}.md", markdown_table(ok, meta))
+    print(f"redrew {path.parent / stem}-pareto.png and .md")
+    return 0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="fewer settings, frames and ground-truth samples")
@@ -260,7 +285,11 @@ def main(argv=None) -> int:
     ap.add_argument("--device", action="append", default=None, help="device(s); default: cpu and cuda:0 if present")
     ap.add_argument("--gt-samples", type=int, default=None, help="ground-truth samples per vertex")
     ap.add_argument("--out", default=str(RESULTS))
+    ap.add_argument("--replot", default=None, metavar="JSON",
+                    help="redraw the chart and table of an earlier results JSON (next to it) without measuring")
     args = ap.parse_args(argv)
+    if args.replot:
+        return replot(Path(args.replot))
 
     devices = args.device or (["cpu"] + (["cuda:0"] if wp.is_cuda_available() else []))
     scene_keys = args.scenes.split(",") if args.scenes else list(SCENES)
