@@ -81,45 +81,38 @@ def pick_frames(scene, count):
     return f[idx]
 
 
-def ground_truth(scene, lighting, frames, samples, device, cache):
-    """Reference radiance and standard error per frame, cached by scene/lighting/frame/samples."""
+def ground_truth(scene, lighting, frames, samples, device, cache, model=None):
+    """Reference radiance and standard error per frame, cached by scene/lighting/frame/samples.
+
+    ``model=None`` gives the diffuse reference; a stage's ``reference_model`` (BRDF, eye,
+    colour) gives the glossy one.
+    """
+    from warpshade.reference import shade_glossy
     from warpshade.reference.shading import ESTIMATOR_VERSION, shade
 
-    out = {}
     fp = scene_fingerprint(scene)
+    if model is None:
+        tag, desc = "gt-", {"estimator": ESTIMATOR_VERSION}
+    else:
+        tag = "gt-glossy-"
+        desc = {"model": {"brdf": model["brdf"].describe(), "eye": np.asarray(model["eye"]).tolist(),
+                          "color": np.asarray(model["color"]).tolist()}}
+    out = {}
     for f in frames:
-        key = "gt-" + hash_json({"scene": fp, "frame": float(f), "samples": samples, "estimator": ESTIMATOR_VERSION,
-                                  "lighting": lighting.fingerprint()})[:32]
+        key = tag + hash_json({"scene": fp, "frame": float(f), "samples": samples, **desc,
+                               "lighting": lighting.fingerprint()})[:32]
         hit = cache.load(key)
         if hit is None:
             t0 = time.perf_counter()
-            res = shade(scene, f, lighting.lights_at(f), samples, device=device, seed=12345)
+            if model is None:
+                res = shade(scene, f, lighting.lights_at(f), samples, device=device, seed=12345)
+            else:
+                res = shade_glossy(scene, f, lighting=lighting.lights_at(f), samples=samples, device=device,
+                                   seed=12345, **model)
             hit = {"radiance": np.asarray(res.radiance), "stderr": np.asarray(res.stderr)}
             cache.store(key, hit)
-            print(f"    ground truth frame {f:g}: {samples} spp in {time.perf_counter() - t0:.1f} s", flush=True)
-        out[float(f)] = hit
-    return out
-
-
-def glossy_ground_truth(scene, lighting, frames, samples, device, cache, model):
-    """Glossy reference (a stage's ``reference_model``: BRDF, eye, colour) per frame, cached."""
-    from warpshade.reference import shade_glossy
-
-    out = {}
-    fp = scene_fingerprint(scene)
-    desc = {"brdf": model["brdf"].describe(), "eye": np.asarray(model["eye"]).tolist(),
-            "color": np.asarray(model["color"]).tolist()}
-    for f in frames:
-        key = "gt-glossy-" + hash_json({"scene": fp, "frame": float(f), "samples": samples, "model": desc,
-                                        "lighting": lighting.fingerprint()})[:32]
-        hit = cache.load(key)
-        if hit is None:
-            t0 = time.perf_counter()
-            res = shade_glossy(scene, f, lighting=lighting.lights_at(f), samples=samples, device=device, seed=12345,
-                               **model)
-            hit = {"radiance": np.asarray(res.radiance), "stderr": np.asarray(res.stderr)}
-            cache.store(key, hit)
-            print(f"    glossy ground truth frame {f:g}: {samples} spp in {time.perf_counter() - t0:.1f} s", flush=True)
+            kind = "ground truth" if model is None else "glossy ground truth"
+            print(f"    {kind} frame {f:g}: {samples} spp in {time.perf_counter() - t0:.1f} s", flush=True)
         out[float(f)] = hit
     return out
 
@@ -327,8 +320,8 @@ def main(argv=None) -> int:
             for row in applicable:
                 try:
                     r = run_row(row, scene, lighting, device, t_frames, gt, precompute_cache,
-                                glossy_gt=lambda model: glossy_ground_truth(scene, lighting, gt_frames, gt_samples,
-                                                                            device, cache, model))
+                                glossy_gt=lambda model: ground_truth(scene, lighting, gt_frames, gt_samples, device,
+                                                                     cache, model))
                 except Exception as exc:  # a failing row is reported, never silently dropped
                     print(f"    {row.label:28s} FAILED: {exc}", flush=True)
                     results.append({"scene": key, "device": device, "method": row.method, "setting": row.setting,
