@@ -172,6 +172,11 @@ def run_row(row, scene, lighting, device, timing_frames, gt, precompute_cache, p
     }
 
 
+def _vs_diffuse(r) -> bool:
+    """Whether a result row was measured against the diffuse reference (rows before the field: yes)."""
+    return r.get("reference", "diffuse") == "diffuse"
+
+
 def pareto_chart(results, path, title):
     import matplotlib
 
@@ -189,13 +194,12 @@ def pareto_chart(results, path, title):
         sub = [r for r in results if r["scene"] == sc]
         for r in sub:
             x, y = r["median_frame_ms"], max(r["error"]["rel_rms"], 1e-4)
-            other = r.get("reference", "diffuse") != "diffuse"  # measured against another reference
+            other = not _vs_diffuse(r)  # measured against another reference
             ax.scatter(x, y, s=28, zorder=3, marker="D" if other else "o",
                        facecolors="none" if other else colors[r["method"]], edgecolors=colors[r["method"]])
             ax.annotate(r["setting"], (x, y), fontsize=6, xytext=(3, 2), textcoords="offset points")
         # Pareto front per scene (lower-left envelope) over the rows that share the diffuse reference
-        pts = sorted((r["median_frame_ms"], r["error"]["rel_rms"]) for r in sub
-                     if r.get("reference", "diffuse") == "diffuse")
+        pts = sorted((r["median_frame_ms"], r["error"]["rel_rms"]) for r in sub if _vs_diffuse(r))
         front, best = [], np.inf
         for x, y in pts:
             if y < best:
@@ -203,8 +207,7 @@ def pareto_chart(results, path, title):
                 best = y
         if len(front) > 1:
             ax.plot(*zip(*front), color="0.6", lw=1, ls="--", zorder=1)
-        noise = np.mean([r["error"].get("noise_rel_rms", np.nan) for r in sub
-                         if r.get("reference", "diffuse") == "diffuse"])
+        noise = np.mean([r["error"].get("noise_rel_rms", np.nan) for r in sub if _vs_diffuse(r)])
         if np.isfinite(noise):
             ax.axhline(noise, color="0.3", lw=0.8, ls=":", label="ground-truth noise")
         vc = sub[0]["vertex_count"]
@@ -216,7 +219,7 @@ def pareto_chart(results, path, title):
         ax.grid(True, which="both", alpha=0.25)
     for ax in list(axes.flat)[len(scenes):]:
         ax.axis("off")
-    glossy = {r["method"] for r in results if r.get("reference", "diffuse") != "diffuse"}
+    glossy = {r["method"] for r in results if not _vs_diffuse(r)}
     handles = [plt.Line2D([], [], marker="D" if m in glossy else "o", ls="", color=colors[m],
                           markerfacecolor="none" if m in glossy else colors[m],
                           label=f"{m} (vs glossy reference)" if m in glossy else m) for m in methods]
@@ -232,19 +235,19 @@ def pareto_chart(results, path, title):
 def markdown_table(results, meta) -> str:
     lines = [f"# Speed vs accuracy ({meta['date']}, {meta['device']})", "",
              f"{meta['machine']}; Warp {meta['warp']}; ground truth {meta['gt_samples']} spp on frames per scene; "
-             f"timed frames per row: {meta['timing_frames']}. Reproduce: `{meta['command']}`. Rows whose "
-             "method ends in -glossy are measured against the glossy ray-traced reference (same BRDF, the scene "
-             "camera), all others against the diffuse one.", ""]
+             f"timed frames per row: {meta['timing_frames']}. Reproduce: `{meta['command']}`. Error is "
+             "against the diffuse ray-traced reference unless the method cell names another (e.g. the glossy one: "
+             "same BRDF, towards the scene camera).", ""]
     for sc in sorted({r["scene"] for r in results}):
         sub = [r for r in results if r["scene"] == sc]
         lines += [f"## {sc} ({sub[0]['vertex_count']:,} vertices, ground-truth noise "
-                  f"{np.mean([r['error'].get('noise_rel_rms', np.nan) for r in sub]):.4f})", "",
+                  f"{np.mean([r['error'].get('noise_rel_rms', np.nan) for r in sub if _vs_diffuse(r)]):.4f})", "",
                   "| method | setting | ms/frame | precompute s | model MB | rel RMS | rel RMS (debiased) | p99 |",
                   "|---|---|---:|---:|---:|---:|---:|---:|"]
         for r in sorted(sub, key=lambda r: (r["method"], r["median_frame_ms"])):
             e = r["error"]
             lines.append(
-                f"| {r['method']} | {r['setting']} | {r['median_frame_ms']:.2f} | {r['precompute_s']:.2f} | "
+                f"| {r['method'] if _vs_diffuse(r) else r['method'] + ' (vs ' + r['reference'] + ')'} | {r['setting']} | {r['median_frame_ms']:.2f} | {r['precompute_s']:.2f} | "
                 f"{r['model_bytes'] / 2**20:.2f} | {e['rel_rms']:.4f} | {e.get('rel_rms_debiased', float('nan')):.4f} | "
                 f"{e['rel_p99']:.4f} |"
             )
