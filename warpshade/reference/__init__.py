@@ -4,7 +4,9 @@
 scene and its Monte Carlo standard error (:class:`ShadingResult`, NumPy float32, shape
 (receiver_count, 3)); see :mod:`warpshade.reference.shading` for the estimators.
 ``shade_glossy(scene, frame, brdf, eye, ...)`` is the same for a BRDF of
-:mod:`warpshade.scene.materials` seen from a viewer (:mod:`warpshade.reference.glossy`).
+:mod:`warpshade.scene.materials` seen from a viewer (:mod:`warpshade.reference.glossy`). Both are
+one Monte Carlo estimator with the BRDF as a parameter (:mod:`warpshade.reference.estimator`;
+the diffuse reference is its Lambert case).
 """
 
 from .glossy import GLOSSY_METHODS, GlossyReferenceShader, shade_glossy
