@@ -1,6 +1,7 @@
 """Glossy ground truth: the Warp BRDFs against the float64 models, lobe sampling against its pdf,
 the estimators against hemisphere quadrature (unoccluded) and float64 brute-force visibility
-(occluded), Lambert against the diffuse reference, and bad input."""
+(occluded), Lambert against the diffuse reference (statistically and as the same estimator), and
+bad input."""
 
 import numpy as np
 import pytest
@@ -10,7 +11,7 @@ from grids import ground_grid
 from warpshade._wp import wp
 from warpshade.geometry.bvh import trace_occlusion_reference
 from warpshade.reference import shade, shade_glossy
-from warpshade.scene import Environment, Mesh, Scene, materials
+from warpshade.scene import DistantLight, Environment, Mesh, Scene, SphereLight, materials
 from warpshade.scene.materials_warp import BRDFParams, brdf_eval, brdf_pdf, brdf_sample, upload_brdf
 
 #: An estimate must lie within this many reported standard errors (plus a float32 floor) of the oracle.
@@ -21,6 +22,11 @@ BRDF_RTOL_FLOAT32 = 1e-4
 QUADRATURE_RTOL_OCCLUDED = 0.03
 #: Monte Carlo check of the lobe pdf's normalisation (2e5 uniform directions): 5 sigma.
 PDF_NORMALISATION_TOL = 0.03
+#: Diffuse reference vs the glossy path with a Lambert BRDF, tint = albedo and the same seed: both
+#: run the same kernel with the same BRDF parameters, tint and random streams, and a Lambert BRDF
+#: reads the view only through its n.v > 0 test, so the results are identical (not merely within
+#: float32 rounding) on every receiver that faces the eye.
+SAME_ESTIMATOR_ATOL = 0.0
 #: Sample moments vs pdf moments, both from 2e5 directions: about 5 sigma of the sharpest lobe.
 PDF_MOMENT_TOL = 0.02
 
@@ -157,6 +163,31 @@ def test_lambert_equals_the_diffuse_reference(device):
     both = np.hypot(glossy.stderr, diffuse.stderr)[seen]
     assert np.all(np.abs(glossy.radiance - diffuse.radiance)[seen] <= STDERR_SIGMAS * both + 1e-4)
     assert np.all(glossy.radiance[~seen] == 0.0), "receivers facing away from the viewer send it nothing"
+
+
+@pytest.mark.parametrize("diffuse_method, glossy_method", [("cosine", "brdf"), ("light", "light"), ("mis", "mis")])
+def test_diffuse_reference_is_the_lambert_glossy_path(device, diffuse_method, glossy_method):
+    """Same seed, uniform albedo: the diffuse reference is the glossy estimator with Lambert(1) and
+    tint = albedo; in particular "cosine" is its BRDF-sampling strategy "brdf"."""
+    albedo = (0.9, 0.6, 0.3)
+    floor_p, floor_f = ground_grid(np.linspace(-1.5, 1.5, 7))
+    ball = trimesh.creation.icosphere(2, radius=0.4)
+    scene = Scene.from_meshes([Mesh("floor", floor_p, floor_f, albedo=albedo),
+                               Mesh("ball", np.asarray(ball.vertices) + [0.2, 0.1, 0.7], np.asarray(ball.faces), albedo=albedo)])
+    # every light kind: environment, delta and disc distant lights, a sphere light some receivers are inside
+    lights = [Environment.sky(height=16, width=32, sun_angle_deg=20.0, sun_radiance=(8.0, 7.0, 6.0)),
+              DistantLight((0.3, 0.0, 1.0), (2.0, 1.0, 3.0), angle_deg=0.0),
+              DistantLight((0.2, -0.4, 1.0), (3.0, 3.0, 3.0), angle_deg=10.0),
+              SphereLight(position=(-1.0, -1.0, 0.0), radius=0.6, radiance=(5.0, 4.0, 3.0))]
+    eye = np.array([0.0, 0.0, 6.0])
+    diffuse = shade(scene, 0.0, lights, 64, device=device, method=diffuse_method, seed=9)
+    glossy = shade_glossy(scene, 0.0, materials.Lambert(1.0), eye=eye, lighting=lights, samples=64, color=albedo,
+                          device=device, method=glossy_method, seed=9)
+    seen = np.einsum("ij,ij->i", eye - scene.points_at(0.0), scene.normals_at(0.0)) > 0
+    assert seen.sum() > 49 and diffuse.radiance[seen].min() > 0.0
+    np.testing.assert_allclose(glossy.radiance[seen], diffuse.radiance[seen], rtol=0.0, atol=SAME_ESTIMATOR_ATOL)
+    np.testing.assert_allclose(glossy.stderr[seen], diffuse.stderr[seen], rtol=0.0, atol=SAME_ESTIMATOR_ATOL)
+    assert np.all(glossy.radiance[~seen] == 0.0) and np.all(diffuse.radiance[~seen] > 0.0), "only the glossy path has a viewer"
 
 
 def test_bad_input(device):
