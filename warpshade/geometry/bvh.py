@@ -188,6 +188,41 @@ class Visibility:
         self.mesh = wp.Mesh(points=self.points, indices=self._indices, **kwargs)
 
     @classmethod
+    def over(cls, points: wp.array, faces, offset: float | None = None) -> "Visibility":
+        """A BVH whose point buffer *is* ``points`` (shared, not copied).
+
+        For per-frame loops whose points are written in place by kernels (a
+        :class:`~warpshade.scene.state.FrameState`): call :meth:`refit` after they change (a
+        capture-safe launch). The offset is computed from the points' current values.
+
+        Args:
+            points: wp.array(vec3), (vertex_count,), world space, on the BVH's device.
+            faces: triangles, (triangle_count, 3), indices into ``points``.
+            offset: ray-origin offset in scene units (default :func:`ray_offset`).
+        """
+        if not isinstance(points, wp.array) or points.dtype != wp.vec3:
+            raise ValueError("Visibility.over: points must be a wp.array(dtype=wp.vec3)")
+        self = cls.__new__(cls)
+        self.device = points.device
+        self._bvh_constructor = None
+        f = np.asarray(faces)
+        if f.ndim != 2 or f.shape[1] != 3 or f.shape[0] == 0:
+            raise ValueError(f"Visibility.over: faces must have shape (triangle_count > 0, 3), got {f.shape}")
+        if f.min() < 0 or f.max() >= points.shape[0]:
+            raise ValueError(f"Visibility.over: faces index vertices {int(f.min())}..{int(f.max())} "
+                             f"but there are {points.shape[0]} points")
+        self.faces = f.astype(np.int32)
+        self.points = points
+        self._indices = wp.array(self.faces.reshape(-1), dtype=wp.int32, device=self.device)
+        self.mesh = wp.Mesh(points=self.points, indices=self._indices)
+        self.offset = float(ray_offset(points.numpy()) if offset is None else offset)
+        return self
+
+    def refit(self) -> None:
+        """Refit the hierarchy to the current point buffer (capture-safe)."""
+        self.mesh.refit()
+
+    @classmethod
     def from_scene(cls, scene, frame=None, device=None, offset: float | None = None) -> "Visibility":
         """BVH over all triangles of ``scene`` at time code ``frame`` (default: first frame)."""
         frame = scene.frames[0] if frame is None else frame

@@ -1,46 +1,39 @@
-"""The stage-graph runtime: stages wired by name, validated, cached, stepped per frame.
+"""The stage-graph runtime: stages wired by name, validated, cached, one recorded frame per step.
 
 Public surface::
 
-    import warpshade.graph as g
-    spec = g.load("stages/blockers_prt.toml")      # GraphSpec (validated when compiled)
-    rt = spec.compile(scene, device="cpu")          # Runtime: precompute (cached) + set-up
-    radiance = rt.step(frame)                       # wp.array (vertex_count, 3), per frame
-    rt.run(); rt.write_usd("out.usda"); rt.write_report("report.json")
+    import warpshade.graph as graph
+    spec = graph.load("stages/bunny_prt.toml")       # GraphSpec (validated when compiled)
+    rt = spec.compile(device="cpu")                   # Runtime: precompute (cached) + set-up
+    radiance = rt.step(frame)                         # wp.array (vertex_count, 3), per frame
+    rt.run()                                          # every frame, recorded in rt.results
+
+Writing USD, pictures and reports, and measuring against ground truth, are in
+:mod:`warpshade.measure`.
 """
 
-from ..methods.stage import (
-    Param,
-    Port,
-    Stage,
-    StageError,
-    get_stage_type,
-    register_stage,
-    stage_types,
-)
+from ..methods.stage import Param, Port, Stage, StageContext, StageError, get_stage_type, register_stage, stage_types
 from .cache import ArtifactCache, default_cache_dir
-from .graph import SCENE_PORTS, GraphError, GraphSpec, StageSpec, load
-from .lighting import LightingSource
-from .metrics import combine_metrics, error_metrics
-from .runtime import Context, Runtime, parse_frames
+from .errors import GraphError
+from .runtime import Runtime, parse_frames
+from .spec import SCENE_PORTS, GraphSpec, StageSpec, extend_static_frames, lighting_from_spec, load
 
 __all__ = [
     "ArtifactCache",
-    "Context",
     "GraphError",
     "GraphSpec",
-    "LightingSource",
     "Param",
     "Port",
     "Runtime",
     "SCENE_PORTS",
     "Stage",
+    "StageContext",
     "StageError",
     "StageSpec",
-    "combine_metrics",
     "default_cache_dir",
-    "error_metrics",
+    "extend_static_frames",
     "get_stage_type",
+    "lighting_from_spec",
     "load",
     "parse_frames",
     "register_stage",

@@ -8,41 +8,21 @@ artifact behind and a concurrent reader sees either nothing or the complete file
 
 from __future__ import annotations
 
-import hashlib
-import json
 import os
 from pathlib import Path
 
 import numpy as np
 
 from .._fileio import atomic_path
+from .._hashing import hash_arrays, hash_json
 
-__all__ = ["ArtifactCache", "hash_arrays", "hash_json", "default_cache_dir"]
+__all__ = ["ArtifactCache", "default_cache_dir"]
 
 
 def default_cache_dir() -> Path:
     """``$WARPSHADE_CACHE`` if set, else ``~/.cache/warpshade``."""
     env = os.environ.get("WARPSHADE_CACHE")
     return Path(env) if env else Path.home() / ".cache" / "warpshade"
-
-
-def hash_arrays(arrays, h=None) -> str:
-    """SHA-256 over the dtype, shape and bytes of a sequence of arrays (None allowed)."""
-    h = h or hashlib.sha256()
-    for a in arrays:
-        if a is None:
-            h.update(b"<none>")
-            continue
-        a = np.ascontiguousarray(a)
-        h.update(str(a.dtype).encode())
-        h.update(str(a.shape).encode())
-        h.update(a.tobytes())
-    return h.hexdigest()
-
-
-def hash_json(obj) -> str:
-    """SHA-256 of a canonical JSON encoding (sorted keys) of ``obj``."""
-    return hashlib.sha256(json.dumps(obj, sort_keys=True, default=repr).encode()).hexdigest()
 
 
 class ArtifactCache:

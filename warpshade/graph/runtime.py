@@ -1,16 +1,26 @@
-"""The stage-graph runtime: precompute (cached), per-frame stepping, recording and reports.
+"""The stage-graph runtime: precompute (cached), then one recorded frame replayed per step.
 
 Typical use from a Python frame loop::
 
-    rt = warpshade.graph.load("stages/blockers_prt.toml").compile(scene, device="cuda:0")
-    for frame in scene.frames:
+    rt = warpshade.graph.load("stages/bunny_prt.toml").compile(device="cuda:0")
+    for frame in rt.scene.frames:
         radiance = rt.step(frame)          # wp.array, (vertex_count, 3) float32, linear RGB
-    rt.write_usd("out/shaded.usda")
 
-On CUDA (``capture=True``, the default there) the launches of all per-frame stages are captured
-once as a Warp graph after a warm-up frame and replayed every frame; only host-side
-``prepare`` work (scene evaluation, uploads into fixed buffers) runs in Python per frame. On
-the CPU the same launches run as plain launches.
+A frame is the scene evaluation (:class:`~warpshade.scene.state.FrameEvaluator`: transforms,
+skinning, normals, lighting, BVH refit) followed by every frame stage's ``launch(state)``. The
+first step runs it directly (kernels compile); the second records it once
+(:func:`warpshade._wp.record_program`: a Warp graph capture, on CUDA and on the CPU) and every
+later step only writes the frame index (and any lighting override) into a small host input and
+replays the recording -- no per-stage launches from Python. What cannot be recorded (chunked
+multi-core CPU launches, a stage that says so, point samples too large for the device) runs as
+Python calls between recorded segments; :meth:`Runtime.timing_summary` lists them.
+
+Changes that do not come from the frame go through :meth:`Runtime.notify_changed` (and the
+setters that call it: :meth:`~Runtime.set_lighting`, :meth:`~Runtime.set_albedo`,
+:meth:`~Runtime.set_eye`, :meth:`~Runtime.set_parameter`).
+
+The runtime steps and records; measuring against ground truth and writing USD, pictures and
+reports are the measuring layer's (:mod:`warpshade.measure`).
 """
 
 from __future__ import annotations
@@ -18,18 +28,19 @@ from __future__ import annotations
 import json
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
-from .._fileio import _json_default, write_json_atomic
-from .._wp import resolve_device, wp
-from ..methods.stage import Port
-from .cache import ArtifactCache, default_cache_dir, hash_arrays, hash_json
-from .graph import GraphError, GraphSpec
-from .lighting import LightingSource
+from .._fileio import _json_default
+from .._hashing import hash_json
+from .._wp import record_program, resolve_device, wp
+from ..methods.stage import Change, Port, StageContext
+from ..scene.lighting import DistantLight, Environment, LightingSource, SphereLight
+from ..scene.state import FrameEvaluator
+from .cache import ArtifactCache, default_cache_dir
+from .errors import GraphError
 
-__all__ = ["Runtime", "Context", "parse_frames", "scene_fingerprint"]
+__all__ = ["Runtime", "parse_frames"]
 
 
 def parse_frames(spec, scene) -> np.ndarray:
@@ -59,67 +70,11 @@ def parse_frames(spec, scene) -> np.ndarray:
     return sel
 
 
-def scene_fingerprint(scene) -> str:
-    """Content hash of everything in a scene that precomputed artifacts can depend on."""
-    arrays = [scene.frames]
-    for m in scene.meshes:
-        arrays += [m.points, m.faces, m.transforms, m.point_samples, m.albedo, m.normals]
-        if m.skin is not None:
-            arrays += [m.skin.joint_indices, m.skin.joint_weights, m.skin.geom_bind_transform]
-    for s in scene.skeletons:
-        arrays += [s.parents, s.bind_transforms, s.rest_transforms, s.local_transforms, s.skel_to_world]
-    return hash_arrays(arrays)
-
-
 @dataclass
 class StageTiming:
     precompute_s: float = 0.0
     cache: str = ""  # "hit" | "miss" | "off" for precompute stages
-    frame_s: list = field(default_factory=list)
-    prepare_s: list = field(default_factory=list)
-
-
-class Context:
-    """What stages see: the scene, device, lighting and the current frame.
-
-    Attributes:
-        scene: the :class:`~warpshade.scene.Scene`.
-        device: the Warp device.
-        dims: scene dimensions (``V``, ``T``, ``F``).
-        frame: current time code (None during precompute).
-        frame_state: current :class:`~warpshade.scene.FrameState` (None during precompute).
-        progress: whether long work may show progress bars.
-    """
-
-    def __init__(self, scene, device, lighting: LightingSource, progress: bool):
-        self.scene = scene
-        self.device = device
-        self.dims = {"V": scene.vertex_count, "T": len(scene.frames), "F": scene.triangle_count}
-        self.lighting = lighting
-        self.progress = progress
-        self.frame = None
-        self.frame_state = None
-        self._override = None
-
-    def lights(self) -> list:
-        """Light objects of the current frame (or of the first frame during precompute)."""
-        if self._override is not None and not isinstance(self._override, np.ndarray):
-            return list(self._override) if isinstance(self._override, (list, tuple)) else [self._override]
-        frame = self.frame if self.frame is not None else float(self.scene.frames[0])
-        return self.lighting.lights_at(frame)
-
-    def lighting_sh(self, order: int, window: str | None = None, **window_args) -> np.ndarray:
-        """SH of the current frame's distant lighting, world frame, (3, order**2), float64."""
-        ov = self._override
-        if isinstance(ov, np.ndarray):
-            if ov.shape != (3, order * order):
-                raise ValueError(f"lighting override has shape {ov.shape}, the stage needs (3, {order * order})")
-            return ov.astype(np.float64)
-        if ov is not None:
-            src = LightingSource(self.lights(), self.scene.up_axis)
-            return src.sh(order, 0.0, window, **window_args)
-        frame = self.frame if self.frame is not None else float(self.scene.frames[0])
-        return self.lighting.sh(order, frame, window, **window_args)
+    frame_s: list = field(default_factory=list)  # per-frame stages: from profile()
 
 
 _REPORT_KEY = "__report__"
@@ -147,6 +102,7 @@ def _unflatten(flat: dict, ports: dict) -> dict:
             out[key] = value
     return out
 
+
 _DTYPES = {"float32": wp.float32, "float64": wp.float64, "int32": wp.int32, "vec3": wp.vec3, "mat33": wp.mat33}
 
 
@@ -167,63 +123,61 @@ class Runtime:
     """A compiled stage graph bound to a scene and a device.
 
     Args:
-        spec: the validated :class:`GraphSpec`.
+        spec: the validated :class:`~warpshade.graph.spec.GraphSpec`.
         scene: the scene to run on.
         device: Warp device; None = Warp's default.
         cache_dir: artifact cache directory; None disables caching; default
             :func:`~warpshade.graph.cache.default_cache_dir`.
         progress: show tqdm progress bars for long work.
-        capture: capture per-frame launches as a CUDA graph (default: True on CUDA devices).
-        lighting: a :class:`LightingSource` overriding the graph's ``[lighting]`` table.
+        capture: record the frame once and replay it (default True, on every device); False
+            runs every frame's launches from Python (for debugging and profiling).
+        lighting: the :class:`~warpshade.scene.LightingSource` of the run (default: the scene's
+            lights, fixed).
+
+    Attributes:
+        state: the :class:`~warpshade.scene.state.FrameState` every frame is evaluated into.
+        evaluator: the :class:`~warpshade.scene.state.FrameEvaluator` filling it.
+        output: the output device array (per-vertex radiance (vertex_count, 3) float32).
+        results: recorded frames, time code -> (vertex_count, 3) float32 NumPy copy.
     """
 
-    def __init__(
-        self,
-        spec: GraphSpec,
-        scene,
-        device=None,
-        cache_dir="default",
-        progress: bool = True,
-        capture: bool | None = None,
-        lighting: LightingSource | None = None,
-    ):
+    def __init__(self, spec, scene, device=None, cache_dir="default", progress: bool = True, capture: bool = True,
+                 lighting: LightingSource | None = None):
         self.spec = spec
         self.scene = scene
         self.device = resolve_device(device)
         self.cache = ArtifactCache(default_cache_dir() if cache_dir == "default" else cache_dir)
         self.progress = progress
-        self.capture = self.device.is_cuda if capture is None else bool(capture)
-        if self.capture and not self.device.is_cuda:
-            raise ValueError(f"graph capture needs a CUDA device, got {self.device}")
+        self.capture = bool(capture)
         dims = {"V": scene.vertex_count, "T": len(scene.frames), "F": scene.triangle_count}
         self.stages, self.wiring = spec.build(dims)
-        base = spec.source_path.parent if spec.source_path else None
-        if lighting is None:
-            try:
-                lighting = LightingSource.from_spec(spec.lighting, scene, base)
-            except ValueError as exc:
-                raise GraphError(f"graph {spec.name!r}: {exc}") from None
-        self.ctx = Context(scene, self.device, lighting, progress)
+        self.lighting = lighting if lighting is not None else LightingSource.fixed(scene.lights, scene.up_axis)
+        self.ctx = StageContext(scene, self.device, dims, self.lighting, None, progress)
         self.timings = {s.name: StageTiming() for s in self.stages}
         self.frame_s: list = []
         self.host_s: list = []
-        self.python_s: list = []
         self.artifacts: dict = {}
         self.artifact_keys: dict = {}
         self.stale_artifacts: list = []  # cached artifacts rejected by their stage's check (recomputed)
         self.results: dict = {}
-        self.references: dict = {}  # frame -> ray-traced radiance (V, 3) kept by measure_error
         self._fingerprint = None
-        self._graph = None
-        self._frames_stepped = 0
+        self._program = None
+        self._warm = False
+        self._override_on = False
         self._precompute()
-        self._setup()
+        needs_bvh = any(getattr(st, "needs_bvh", False) for st in self.frame_stages)
+        self.evaluator = FrameEvaluator(scene, self.device, self.lighting, bvh=needs_bvh)
+        self.state = self.evaluator.state
+        self.ctx.state = self.state
+        self._uploaded: dict = {}
+        self.frame_outputs: dict = {}
+        self._setup(0)
 
     # ---- precompute ---------------------------------------------------------------------
     @property
     def fingerprint(self) -> str:
         if self._fingerprint is None:
-            self._fingerprint = scene_fingerprint(self.scene)
+            self._fingerprint = self.scene.fingerprint()
         return self._fingerprint
 
     def _host_input(self, wire):
@@ -291,37 +245,41 @@ class Runtime:
             self.artifacts[st.name] = out
 
     # ---- frame set-up -------------------------------------------------------------------
-    def _setup(self) -> None:
+    @property
+    def frame_stages(self) -> list:
+        return [s for s in self.stages if s.kind == "frame"]
+
+    def _scene_input(self, port: str):
+        if port == "points":
+            return self.state.points
+        if port == "normals":
+            return self.state.normals
+        if port == "albedo":
+            return self.evaluator.albedo
+        if port == "lighting":
+            return self.state.lighting
+        raise GraphError(f"unknown scene port {port!r}")
+
+    def _setup(self, start: int) -> None:
+        """Set up frame stages ``start..`` (in order), binding upstream outputs."""
         dev = self.device
-        # one FrameState whose buffers every frame is evaluated into (fixed addresses)
-        self._frame_state = self.scene.evaluate(self.scene.frames[0], device=dev)
-        self.scene_buffers = {
-            "points": self._frame_state.points,
-            "normals": self._frame_state.normals,
-            "albedo": wp.array(self.scene.albedo, dtype=wp.float32, device=dev),
-            "lighting": self.ctx,  # stages query ctx.lighting_sh / ctx.lights per frame
-        }
-        self.frame_outputs: dict = {}
-        uploaded: dict = {}
-        for st in self.stages:
-            if st.kind != "frame":
-                continue
+        for st in self.frame_stages[start:]:
             inputs = {}
             for port, w in self.wiring[st.name].items():
                 if w.provider == "scene":
-                    inputs[port] = self.scene_buffers[w.port]
+                    inputs[port] = self._scene_input(w.port)
                 elif w.provider in self.frame_outputs:
                     inputs[port] = self.frame_outputs[w.provider][w.port]
                 else:
                     key = (w.provider, w.port)
                     prov = next(s for s in self.stages if s.name == w.provider)
-                    if prov.output_ports()[w.port].dtype == "arrays":
-                        uploaded[key] = self.artifacts[w.provider][w.port]  # host dict, the stage uploads what it needs
-                    if key not in uploaded:
-                        uploaded[key] = _to_device(
-                            self.artifacts[w.provider][w.port], prov.output_ports()[w.port], dev, f"stage {w.provider!r} output {w.port!r}"
-                        )
-                    inputs[port] = uploaded[key]
+                    if key not in self._uploaded:
+                        if prov.output_ports()[w.port].dtype == "arrays":
+                            self._uploaded[key] = self.artifacts[w.provider][w.port]  # host dict: the stage uploads what it needs
+                        else:
+                            self._uploaded[key] = _to_device(self.artifacts[w.provider][w.port], prov.output_ports()[w.port],
+                                                             dev, f"stage {w.provider!r} output {w.port!r}")
+                    inputs[port] = self._uploaded[key]
             outs = st.setup(self.ctx, inputs)
             missing = set(st.output_ports()) - set(outs)
             if missing:
@@ -329,65 +287,153 @@ class Runtime:
             self.frame_outputs[st.name] = outs
         oname, oport = self.spec.output.split(".", 1)
         self.output = self.frame_outputs[oname][oport]
+        self._program = None
 
-    @property
-    def frame_stages(self) -> list:
-        return [s for s in self.stages if s.kind == "frame"]
+    # ---- changes that do not come from the frame -----------------------------------------
+    def notify_changed(self, flags: Change, stages=None) -> None:
+        """Tell the frame stages that something outside the frame changed.
+
+        Each stage's :meth:`~warpshade.methods.stage.Stage.notify_changed` says whether it keeps
+        working; the first that does not is set up again with every stage after it, and the
+        frame is recorded anew at the next step.
+
+        Args:
+            flags: :class:`~warpshade.scene.state.Change` flags.
+            stages: names of the stages concerned (default: every frame stage).
+        """
+        names = None if stages is None else set(stages)
+        first = None
+        for i, st in enumerate(self.frame_stages):
+            if names is not None and st.name not in names:
+                continue
+            if not st.notify_changed(Change(flags)) and first is None:
+                first = i
+        if first is not None:
+            self._setup(first)
+
+    def set_lighting(self, lighting) -> None:
+        """Replace the run's lighting: a :class:`~warpshade.scene.LightingSource` or a list of
+        lights (fixed). Every frame stage is set up again (lights may differ in number)."""
+        if not isinstance(lighting, LightingSource):
+            items = [lighting] if isinstance(lighting, (Environment, DistantLight, SphereLight)) else list(lighting)
+            lighting = LightingSource.fixed(items, self.scene.up_axis)
+        from ..scene.lighting_warp import FrameLighting
+
+        self.lighting = lighting
+        self.ctx.lighting = lighting
+        self.evaluator.lighting_source = lighting
+        self.state.lighting = FrameLighting(lighting, self.scene.frames, self.evaluator.input, self.device)
+        self.evaluator.input.host[1] = 0
+        self._override_on = False
+        for st in self.frame_stages:
+            st.notify_changed(Change.LIGHTING)
+        self._setup(0)
+
+    def set_albedo(self, albedo, prims=None) -> None:
+        """New diffuse albedo for every vertex or for the meshes ``prims`` (see
+        :meth:`~warpshade.scene.state.FrameEvaluator.set_albedo`); the next frame uses it."""
+        self.evaluator.set_albedo(albedo, prims)
+        self.notify_changed(Change.MATERIAL)
+
+    def set_eye(self, position) -> None:
+        """Move the viewer of view-dependent stages (world position); the next frame uses it."""
+        self.evaluator.set_eye(position)
+        self.notify_changed(Change.VIEW)
+
+    def set_parameter(self, stage: str, name: str, value) -> None:
+        """Change a frame stage's parameter between frames (validated like the TOML value).
+
+        Raises:
+            GraphError: an unknown stage or parameter, a precompute stage (its artifact would
+                change: compile again), or a value that would change the stage's ports.
+        """
+        st = next((s for s in self.stages if s.name == stage), None)
+        if st is None:
+            raise GraphError(f"set_parameter: no stage {stage!r} (stages: {[s.name for s in self.stages]})")
+        if st.kind != "frame":
+            raise GraphError(f"set_parameter: stage {stage!r} is a precompute stage; change it in the graph and compile again")
+        if name not in st.parameters:
+            raise GraphError(f"set_parameter: stage {stage!r} has no parameter {name!r} (known: {sorted(st.parameters)})")
+        old = st.params[name]
+        before = (st.dims(), st.input_ports(), st.output_ports())
+        st.params[name] = st.parameters[name].check(stage, name, value)
+        if (st.dims(), st.input_ports(), st.output_ports()) != before:
+            st.params[name] = old
+            raise GraphError(f"set_parameter: {stage}.{name} = {value!r} changes the stage's ports; compile a new graph")
+        self.notify_changed(Change.PARAMETERS, [stage])
+
+    def _set_override(self, lighting) -> None:
+        """This step's lighting: SH coefficients (3, n*n), or distant lights projected to SH."""
+        fl = self.state.lighting
+        if fl is None:
+            raise ValueError("step: a lighting override needs a run with lighting")
+        if isinstance(lighting, np.ndarray):
+            coeffs = lighting
+        else:
+            items = [lighting] if isinstance(lighting, (Environment, DistantLight, SphereLight)) else list(lighting)
+            if any(isinstance(x, SphereLight) for x in items):
+                raise ValueError("step: a lighting override replaces the distant SH lighting only; "
+                                 "use set_lighting() for sphere lights")
+            order = max(fl.orders or (1,))
+            coeffs = LightingSource.fixed(items, self.scene.up_axis).sh(order, float(self.scene.frames[0]))
+        fl.set_override(coeffs)
 
     # ---- stepping -----------------------------------------------------------------------
+    def _frame(self, recorder=None) -> None:
+        """One frame's launches: scene evaluation, then every frame stage."""
+        self.evaluator.launch(recorder)
+        for st in self.frame_stages:
+            if recorder is not None and not st.capturable:
+                recorder.call(lambda st=st: st.launch(self.state), f"stage {st.name!r}: {st.capture_note or 'not capturable'}")
+            else:
+                st.launch(self.state)
+
     def step(self, frame, lighting=None):
         """Shade one frame.
 
         Args:
             frame: a time code of the scene.
-            lighting: optional override for this frame: an Environment, a list of lights, or
-                SH coefficients of shape (3, n*n) in the world frame.
+            lighting: optional override of the SH lighting for this frame: world-frame SH
+                coefficients (3, n*n) of at least the graph's highest order, an Environment, a
+                DistantLight or a list of them (projected to SH on the host).
 
         Returns:
             the output device array (per-vertex radiance, (vertex_count, 3) float32). The same
-            array is overwritten by the next step; copy it (``.numpy()``) to keep it.
+            array is overwritten by the next step; copy it (``.numpy().copy()``) to keep it.
         """
         t_start = time.perf_counter()
-        fs = self.scene.evaluate(frame, device=self.device, out=self._frame_state)
-        self.ctx.frame = float(fs.frame)
-        self.ctx.frame_state = fs
-        self.ctx._override = lighting
-        for st in self.frame_stages:
-            t0 = time.perf_counter()
-            st.prepare(self.ctx, fs.frame)
-            self.timings[st.name].prepare_s.append(time.perf_counter() - t0)
+        self.evaluator.set_frame(frame)
+        if lighting is not None:
+            self._set_override(lighting)
+            self._override_on = True
+        elif self._override_on:
+            self.state.lighting.clear_override()
+            self._override_on = False
         t_host = time.perf_counter()
-        self.host_s.append(t_host - t_start)
-        if self._graph is not None:
-            wp.capture_launch(self._graph)
-            self.python_s.append(time.perf_counter() - t_start)
-            wp.synchronize_device(self.device)
+        if self._program is not None:
+            self._program.replay()
+        elif self.capture and self._warm:
+            self._program = record_program(self._frame, self.device)
+            self._program.replay()
         else:
-            for st in self.frame_stages:
-                t0 = time.perf_counter()
-                st.launch(self.ctx)
-                wp.synchronize_device(self.device)
-                self.timings[st.name].frame_s.append(time.perf_counter() - t0)
-            if self.capture and self._frames_stepped >= 1:
-                # kernels are compiled and buffers fixed: capture the launch sequence once
-                with wp.ScopedCapture(device=self.device) as cap:
-                    for st in self.frame_stages:
-                        st.launch(self.ctx)
-                self._graph = cap.graph
+            self._frame()
+            self._warm = True
+        wp.synchronize_device(self.device)
+        self.host_s.append(t_host - t_start)
         self.frame_s.append(time.perf_counter() - t_start)
-        self._frames_stepped += 1
         return self.output
 
     def run(self, frames=None, record: bool = True, warmup: bool = True) -> np.ndarray:
         """Step over frames (default: the graph's frame range), with a progress bar.
 
-        The first frame is stepped once more before timing starts when ``warmup`` is set, so
-        kernel compilation never counts as frame time. Returns the frames that were run.
+        With ``warmup`` the first frame is stepped twice before timing starts (kernels compile,
+        then the frame is recorded), so neither counts as frame time. Returns the frames run.
         """
         from tqdm.auto import tqdm
 
         sel = parse_frames(frames if frames is not None else self.spec.frames, self.scene)
         if warmup:
+            self.step(sel[0])
             self.step(sel[0])
             self.reset_timings()
         for f in tqdm(sel, desc=f"{self.spec.name}: frames", disable=not self.progress, unit="frame"):
@@ -396,16 +442,42 @@ class Runtime:
                 self.results[float(f)] = out.numpy().copy()
         return sel
 
+    def profile(self, frames=None, repeats: int = 1) -> dict:
+        """Median time per frame of the scene evaluation and of each frame stage, in seconds.
+
+        Each piece is launched from Python and the device synchronised after it (no replay),
+        so the times add up to more than a replayed frame; they say where a frame goes.
+        The results are kept in :attr:`timings` (``frame_s``) for :meth:`timing_summary`.
+        """
+        sel = parse_frames(frames if frames is not None else self.spec.frames, self.scene)
+        scene_s = []
+        for t in self.timings.values():
+            t.frame_s.clear()
+        for _ in range(max(1, int(repeats))):
+            for f in sel:
+                self.evaluator.set_frame(f)
+                t0 = time.perf_counter()
+                self.evaluator.launch()
+                wp.synchronize_device(self.device)
+                scene_s.append(time.perf_counter() - t0)
+                for st in self.frame_stages:
+                    t0 = time.perf_counter()
+                    st.launch(self.state)
+                    wp.synchronize_device(self.device)
+                    self.timings[st.name].frame_s.append(time.perf_counter() - t0)
+        self._scene_s = scene_s
+        out = {"scene": float(np.median(scene_s))}
+        out.update({st.name: float(np.median(self.timings[st.name].frame_s)) for st in self.frame_stages})
+        return out
+
     def reset_timings(self) -> None:
         """Forget per-frame timings (precompute timings are kept)."""
         for t in self.timings.values():
             t.frame_s.clear()
-            t.prepare_s.clear()
         self.frame_s.clear()
         self.host_s.clear()
-        self.python_s.clear()
 
-    # ---- outputs ------------------------------------------------------------------------
+    # ---- what the run is ------------------------------------------------------------------
     def model_bytes(self) -> int:
         """Bytes of precomputed model data (artifacts) plus what stages keep on the device."""
         total = 0
@@ -414,8 +486,13 @@ class Runtime:
                 total += sum(int(np.asarray(v).nbytes) for v in (a.values() if isinstance(a, dict) else (a,)))
         return total + sum(int(s.model_bytes()) for s in self.stages)
 
+    @property
+    def program(self):
+        """The recorded frame (:class:`~warpshade._wp.FrameProgram`), or None before it exists."""
+        return self._program
+
     def timing_summary(self) -> dict:
-        """Median per-frame times (seconds) per stage and overall."""
+        """Median per-frame times (seconds) overall and, after :meth:`profile`, per stage."""
 
         def med(xs):
             return float(np.median(xs)) if len(xs) else None
@@ -426,52 +503,27 @@ class Runtime:
             stages[st.name] = (
                 {"precompute_s": t.precompute_s, "cache": t.cache}
                 if st.kind == "precompute"
-                else {"median_frame_s": med(t.frame_s), "median_prepare_s": med(t.prepare_s)}
+                else {"median_frame_s": med(t.frame_s)}
             )
+        prog = self._program
         return {
             "stages": stages,
             "median_frame_s": med(self.frame_s),
             "median_host_s": med(self.host_s),
-            "median_python_launch_s": med(self.python_s),
-            "captured": self._graph is not None,
+            "median_scene_s": med(getattr(self, "_scene_s", [])),
+            "captured": prog is not None,
+            "recorded_segments": prog.graph_count if prog is not None else 0,
+            "uncaptured": prog.uncaptured if prog is not None else [],
             "frames_timed": len(self.frame_s),
         }
 
-    def measure_error(self, frames=None, samples: int = 1024, seed: int = 7) -> dict:
-        """Error of the recorded (or freshly stepped) output against ray-traced ground truth.
+    def output_stage(self):
+        """The frame stage whose port is the graph's output."""
+        name = self.spec.output.split(".", 1)[0]
+        return next(s for s in self.stages if s.name == name)
 
-        Args:
-            frames: time codes (default: the graph's ``[validate]`` frames, else the first).
-            samples: ground-truth samples per vertex.
-        """
-        from ..reference import shade, shade_glossy
-        from .metrics import combine_metrics, error_metrics
-
-        out_name = self.spec.output.split(".", 1)[0]
-        model = next(s for s in self.stages if s.name == out_name).reference_model(self)
-        spec = self.spec.validate_spec
-        if frames is None:
-            frames = spec.get("frames", [float(self.scene.frames[0])])
-        samples = int(spec.get("samples", samples))
-        per_frame = []
-        for f in parse_frames(list(frames), self.scene):
-            est = self.results.get(float(f))
-            if est is None:
-                est = self.step(f).numpy()
-            lights = self.ctx.lighting.lights_at(f)
-            if model is None:
-                gt = shade(self.scene, f, lights, samples, device=self.device, seed=seed)
-            else:
-                gt = shade_glossy(self.scene, f, lighting=lights, samples=samples, device=self.device, seed=seed, **model)
-            self.references[float(f)] = np.asarray(gt.radiance)
-            m = error_metrics(est, np.asarray(gt.radiance), np.asarray(gt.stderr))
-            m["frame"] = float(f)
-            per_frame.append(m)
-        return {"per_frame": per_frame, "mean": combine_metrics(per_frame), "samples": samples,
-                "reference": "diffuse" if model is None else f"glossy {model['brdf'].describe()}"}
-
-    def report(self, error: dict | None = None) -> dict:
-        """A JSON-ready description of the run: graph, scene, device, timings, model size, error."""
+    def describe(self) -> dict:
+        """A JSON-ready description of the run: graph, scene, device, stages, timings, model size."""
         sc = self.scene
         return {
             "graph": self.spec.name,
@@ -491,73 +543,4 @@ class Runtime:
             "model_bytes": self.model_bytes(),
             "cache_dir": str(self.cache.root) if self.cache.enabled else None,
             "stale_artifacts": list(self.stale_artifacts),
-            "error": error,
         }
-
-    def write_report(self, path, error: dict | None = None) -> Path:
-        """Write :meth:`report` as JSON, atomically."""
-        return write_json_atomic(path, self.report(error))
-
-    def write_usd(self, path, extra_primvars: dict | None = None) -> Path:
-        """Write the recorded frames as a new USD layer (never over the input).
-
-        The layer sublayers the input scene (when it came from a file) and adds per-vertex
-        ``primvars:displayColor`` (vertex interpolation, time-sampled per recorded frame) to
-        each shaded mesh; meshes not in the input file (e.g. a generated ground plane) are
-        written in full.
-        """
-        from ..io.usd_write import write_vertex_colors
-
-        if not self.results:
-            raise ValueError("write_usd: no recorded frames; call run() first")
-        frames = sorted(self.results)
-        colors = np.stack([self.results[f] for f in frames])
-        return write_vertex_colors(path, self.scene, np.array(frames), colors, extra_primvars=extra_primvars)
-
-    def render_comparisons(self, out_dir, frames=None, width: int = 400, height: int = 300) -> list:
-        """Write ``<graph>_<frame>_vs_reference.png`` (method | ray-traced | signed error) per frame.
-
-        Uses the references kept by :meth:`measure_error` (default: every frame it measured).
-        """
-        from ..render import comparison_figure
-
-        frames = sorted(self.references) if frames is None else [float(f) for f in frames]
-        missing = [f for f in frames if f not in self.references or f not in self.results]
-        if missing:
-            raise ValueError(f"render_comparisons: no recorded output and reference for frame(s) {missing}; "
-                             "run measure_error(frames) first")
-        env = next((l for l in self.ctx.lighting.lights if hasattr(l, "image")), None)
-        paths = []
-        for f in frames:
-            env_f = self.ctx.lighting.lights_at(f)[self.ctx.lighting.lights.index(env)] if env is not None else None
-            p = Path(out_dir) / f"{self.spec.name}_{int(round(f)):04d}_vs_reference.png"
-            paths.append(comparison_figure(self.scene, f, self.results[f], self.references[f], p, label=self.spec.name,
-                                           environment=env_f, width=width, height=height, device=self.device))
-        return paths
-
-    def render_previews(self, out_dir, frames=None, width: int = 480, height: int = 360, exposure: float | None = None) -> list:
-        """Render PNG previews of recorded frames (default: first, middle and last).
-
-        One exposure is used for all frames of a run so they compare; by default it maps the
-        99th percentile of the recorded radiance to 0.9 before sRGB encoding.
-        """
-        from ..render import render
-
-        rec = sorted(self.results)
-        if not rec:
-            raise ValueError("render_previews: no recorded frames; call run() first")
-        if frames is None:
-            frames = sorted({rec[0], rec[len(rec) // 2], rec[-1]})
-        if exposure is None:
-            lum = np.concatenate([self.results[f].mean(axis=1) for f in frames])
-            p99 = float(np.percentile(lum, 99)) if lum.size else 1.0
-            exposure = float(np.log2(0.9 / p99)) if p99 > 0 else 0.0
-        env = next((l for l in self.ctx.lighting.lights if hasattr(l, "image")), None)
-        paths = []
-        for f in frames:
-            p = Path(out_dir) / f"{self.spec.name}_{int(round(f)):04d}.png"
-            env_f = self.ctx.lighting.lights_at(f)[self.ctx.lighting.lights.index(env)] if env is not None else None
-            render(self.scene, f, colors=self.results[float(f)], width=width, height=height, environment=env_f,
-                   exposure=exposure, path=p, device=self.device, supersample=2)
-            paths.append(p)
-        return paths

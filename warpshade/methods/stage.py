@@ -7,26 +7,41 @@ A stage declares typed input and output ports and typed parameters, and is one o
   everything that matters (stage type and version, parameters, the scene when the stage reads
   it, and the keys of its input artifacts), so a change anywhere upstream recomputes it and
   nothing else;
-* ``"frame"`` -- runs every frame. :meth:`Stage.setup` allocates its device outputs once;
-  :meth:`Stage.prepare` does host-side per-frame work (uploads into those fixed buffers);
-  :meth:`Stage.launch` only launches kernels on fixed buffers, so on CUDA the launch sequence of
-  all frame stages can be captured once as a Warp graph and replayed per frame.
+* ``"frame"`` -- runs every frame. :meth:`Stage.setup` allocates its device outputs once and
+  binds its inputs (device arrays of upstream ports, the scene's per-frame arrays);
+  :meth:`Stage.launch` ``(state)`` only launches kernels on fixed buffers, reading what
+  changes per frame from the :class:`~warpshade.scene.state.FrameState` -- never from the
+  runtime or another stage -- so the whole frame (scene evaluation and every stage) is recorded
+  once and replayed, on CUDA and on the CPU (:func:`warpshade._wp.record_program`).
+
+Changes that do not come from the frame (a new lighting, albedo, eye or a stage parameter)
+reach a frame stage through one call, :meth:`Stage.notify_changed` with
+:class:`~warpshade.scene.state.Change` flags (after Newton's ``notify_model_changed``).
 
 Every stage type registers itself under a dotted name (``"prt.transfer"``) with
 :func:`register_stage`; stage graphs (TOML or Python, :mod:`warpshade.graph`) refer to stages
 by that name. This module sits in the methods layer so that each method's ``stages.py`` can
 subclass :class:`Stage` without importing the graph runtime above it.
+
+Port shape symbols, the same in every method: ``V`` vertices, ``F`` triangles, ``T`` frames of
+the scene; ``C`` SH coefficients (``order**2``) and ``N`` SH bands (``order``, the length of a
+zonal-harmonic coefficient vector), both from the stage's own order; a stage may add symbols of
+its own through :meth:`Stage.dims`.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Callable, ClassVar
+from typing import Any, ClassVar
+
+from ..scene.state import Change
 
 __all__ = [
+    "Change",
     "Port",
     "Param",
     "Stage",
+    "StageContext",
     "StageError",
     "register_stage",
     "stage_types",
@@ -52,8 +67,8 @@ class Port:
     Attributes:
         dtype: one of ``PORT_DTYPES``.
         shape: tuple of ints or symbolic dimension names. Symbols are resolved per scene:
-            ``"V"`` vertex count, ``"T"`` frame count, ``"F"`` triangle count; stages may add
-            their own (e.g. ``"C"`` = SH coefficient count, derived from their order).
+            ``"V"`` vertex count, ``"T"`` frame count, ``"F"`` triangle count; and per stage
+            (:meth:`Stage.dims`): ``"C"`` SH coefficients, ``"N"`` SH bands, and the stage's own.
         doc: one line saying what the port carries (frame, units).
     """
 
@@ -95,6 +110,28 @@ class Param:
         if self.maximum is not None and value > self.maximum:
             raise StageError(f"stage {stage!r}: parameter {name!r} must be <= {self.maximum}, got {value!r}")
         return value
+
+
+@dataclass
+class StageContext:
+    """What a stage sees when it precomputes or sets up (per-frame data is the FrameState).
+
+    Attributes:
+        scene: the :class:`~warpshade.scene.Scene`.
+        device: the Warp device.
+        dims: scene dimensions ``{"V": vertices, "T": frames, "F": triangles}``.
+        lighting: the :class:`~warpshade.scene.lighting.LightingSource` of the run (host).
+        state: the run's :class:`~warpshade.scene.state.FrameState` (its arrays keep their
+            addresses; bind them in ``setup``); None during precompute.
+        progress: whether long work may show progress bars.
+    """
+
+    scene: Any
+    device: Any
+    dims: dict
+    lighting: Any = None
+    state: Any = None
+    progress: bool = False
 
 
 class Stage:
@@ -148,29 +185,44 @@ class Stage:
         default accepts anything that has the declared ports.
         """
 
-    def reference_model(self, runtime) -> dict | None:
+    def reference_model(self) -> dict | None:
         """What ground truth this stage's radiance is measured against, or None for the default.
 
         The default (None) is the diffuse reference of :func:`warpshade.reference.shade` with
         the scene's albedo. A stage whose output is something else returns keyword arguments
-        for :func:`warpshade.reference.shade_glossy` (``brdf``, ``eye``, ``color``).
+        for :func:`warpshade.reference.shade_glossy` (``brdf``, ``eye``, ``color``), from its own
+        parameters and inputs (known after ``setup``).
         """
         return None
 
     # ---- frame stages -------------------------------------------------------------------
-    def setup(self, ctx, inputs: dict) -> dict:
-        """Allocate fixed device outputs; ``inputs`` holds device arrays of upstream ports.
+    #: False when :meth:`launch` cannot be recorded (it runs from Python every frame, between
+    #: the recorded segments); :attr:`capture_note` says why.
+    capturable: ClassVar[bool] = True
+    capture_note: ClassVar[str] = ""
+
+    def setup(self, ctx: StageContext, inputs: dict) -> dict:
+        """Allocate fixed device outputs and bind the inputs (device arrays of upstream ports;
+        ``points``/``normals``/``albedo`` and ``lighting`` -- the state's
+        :class:`~warpshade.scene.lighting_warp.FrameLighting` -- from the scene).
 
         Returns output name -> device array (the same arrays are filled every frame).
         """
         raise NotImplementedError(f"stage {self.name!r} ({self.type_name}) has no setup")
 
-    def prepare(self, ctx, frame) -> None:
-        """Host-side per-frame work (uploads into fixed buffers). Not captured."""
-
-    def launch(self, ctx) -> None:
-        """Kernel launches on fixed buffers only (capturable as a CUDA graph)."""
+    def launch(self, state) -> None:
+        """Kernel launches on fixed buffers only, for the frame ``state`` holds (recordable)."""
         raise NotImplementedError(f"stage {self.name!r} ({self.type_name}) has no launch")
+
+    def notify_changed(self, flags: Change) -> bool:
+        """Something outside the frame changed (:class:`~warpshade.scene.state.Change` flags).
+
+        Returns True when the stage keeps working with its current set-up (what changed is read
+        from device arrays it already binds), False when it must be set up again -- the runtime
+        then re-runs :meth:`setup` for it and every stage downstream. The default: a changed
+        parameter needs a new set-up, anything else is read per frame.
+        """
+        return not (flags & Change.PARAMETERS)
 
     #: A small JSON-ready summary a precompute may leave (histograms, fit errors, choices made).
     #: The runtime stores it with the cached artifacts and restores it on a cache hit, and
@@ -224,5 +276,3 @@ def get_stage_type(type_name: str, stage_name: str = "?") -> type[Stage]:
         )
     return types[type_name]
 
-
-Factory = Callable[..., Stage]

@@ -48,13 +48,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._wp import resolve_device, wp
+from .._wp import cpu_workers, launch_parallel, resolve_device, wp
 from ..geometry.bvh import RAY_MAX_DISTANCE, Visibility
 from ..geometry.frames import onb_tangent
 from ..scene.lighting import DistantLight, Environment, SphereLight
 from ..scene.lighting_warp import EnvironmentMap, disabled_environment, env_pdf, env_radiance, env_sample, upload_environment
 from ..scene.materials_warp import BRDFParams, brdf_eval, brdf_pdf, brdf_sample, upload_brdf
-from ..transfer.raytrace import CHUNK_MIN_RAYS, default_workers, launch_chunked, receiver_indices
+from ..transfer.raytrace import CHUNK_MIN_RAYS, receiver_indices
 
 __all__ = [
     "ESTIMATOR_VERSION",
@@ -419,7 +419,7 @@ class MonteCarloShader:
             self.replicates, self.points_per_replicate = 1, 1  # only delta lights: nothing to sample
         self.samples = int(samples)
         self.seed = int(seed)
-        self.workers = default_workers(self.device) if workers is None else max(1, int(workers))
+        self.workers = (cpu_workers() if self.device.is_cpu else 1) if workers is None else max(1, int(workers))
         self.bvh = Visibility.from_scene(scene, device=self.device, offset=offset)
         self.vertices = receiver_indices(vertices, scene.vertex_count)
         self.receivers = wp.array(self.vertices.astype(np.int32), dtype=wp.int32, device=self.device)
@@ -442,7 +442,7 @@ class MonteCarloShader:
         lit = self.lighting
         seed = self.seed if seed is None else int(seed)
 
-        def inputs(start):
+        def inputs(start, stop):
             return [
                 self.bvh.id, points, normals, tint, receivers, start, self.brdf, self.has_eye, self.eye,
                 lit.environment, lit.lights, self.strategy, self.replicates, self.points_per_replicate, seed,
@@ -451,7 +451,7 @@ class MonteCarloShader:
 
         rays = receivers.shape[0] * self.replicates * self.points_per_replicate * (2 if self.strategy == 2 else 1)
         workers = self.workers if rays >= CHUNK_MIN_RAYS else 1
-        launch_chunked(_estimator_kernel, receivers.shape[0], inputs, self.device, workers)
+        launch_parallel(_estimator_kernel, receivers.shape[0], inputs, self.device, workers)
 
     def shade_state(self, points, normals) -> None:
         """Refit the BVH to ``points`` and shade the receiver vertices into the outputs.

@@ -1,9 +1,10 @@
-"""Scene description (static), per-frame state, lights and materials."""
+"""Scene description (static), per-frame state and its evaluation, lights and materials."""
 
 from .lighting import (
     USD_DOME_FROM_MAP,
     DistantLight,
     Environment,
+    LightingSource,
     LightTrack,
     SphereLight,
     lights_to_sh,
@@ -11,15 +12,19 @@ from .lighting import (
     up_rotation,
     usd_dome_texel_directions,
 )
-from .scene import ANIMATION_KINDS, Camera, FrameState, Mesh, Scene, Skeleton, SkinBinding, ground_plane
+from .scene import ANIMATION_KINDS, Camera, Mesh, Scene, Skeleton, SkinBinding, ground_plane
+from .state import Change, FrameEvaluator, FrameState
 
 __all__ = [
     "ANIMATION_KINDS",
     "Camera",
+    "Change",
     "DistantLight",
     "Environment",
+    "FrameEvaluator",
     "FrameState",
     "LightTrack",
+    "LightingSource",
     "Mesh",
     "Scene",
     "Skeleton",

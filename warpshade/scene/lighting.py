@@ -36,6 +36,8 @@ __all__ = [
     "Environment",
     "DistantLight",
     "SphereLight",
+    "LightingSource",
+    "scaled_light",
     "up_rotation",
     "lights_to_sh",
     "sky_radiance",
@@ -394,3 +396,166 @@ def lights_to_sh(lights, order: int) -> np.ndarray:
         elif isinstance(light, DistantLight):
             total += light.to_sh(order)
     return total
+
+
+def _axis_rotation(axis: np.ndarray, degrees: float) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_rotvec(np.radians(degrees) * axis / np.linalg.norm(axis)).as_matrix()
+
+
+class LightingSource:
+    """The lights of every frame: a set of lights, optionally turning about the up axis.
+
+    The papers' demos rotate a fixed environment; so can this: distant lights (environments
+    and distant lights) are rotated about the scene's up axis by ``degrees_per_frame`` times
+    the frame offset from ``frame0``. Lights with a :class:`LightTrack` (animated USD
+    transforms) are posed at each frame first (``light.at(frame)``), then rotated. This is the
+    float64 host description; :class:`warpshade.scene.lighting_warp.FrameLighting` evaluates it
+    per frame on the device from the tables of :meth:`rotation_table` and
+    :meth:`sphere_position_table`.
+
+    Args:
+        lights: list of light objects (Environment, DistantLight, SphereLight).
+        up_axis: the scene's up axis ("Y" or "Z"), the rotation axis.
+        degrees_per_frame: rotation speed of the distant lights about the up axis.
+        frame0: the time code at which the rotation is zero.
+    """
+
+    def __init__(self, lights, up_axis: str = "Z", degrees_per_frame: float = 0.0, frame0: float = 0.0):
+        if not lights:
+            raise ValueError("lighting: no lights (the scene has none and none were given)")
+        for light in lights:
+            if not isinstance(light, (Environment, DistantLight, SphereLight)):
+                raise ValueError(f"lighting: unsupported light of type {type(light).__name__}")
+        if not np.isfinite(degrees_per_frame) or not np.isfinite(frame0):
+            raise ValueError(f"lighting: rotation speed and start must be finite, got {degrees_per_frame!r}, {frame0!r}")
+        self.lights = list(lights)
+        self.up_axis = up_axis
+        self.axis = up_rotation(up_axis)[:, 2]
+        self.degrees_per_frame = float(degrees_per_frame)
+        self.frame0 = float(frame0)
+        self._sh_cache: dict = {}
+
+    @classmethod
+    def fixed(cls, lights, up_axis: str = "Z") -> "LightingSource":
+        """Lights that do not turn (their own tracks still animate them)."""
+        return cls(lights, up_axis, 0.0, 0.0)
+
+    # ---- the lights by kind -------------------------------------------------------------
+    @property
+    def distant_lights(self) -> list:
+        """Environments and distant lights, in order (the ones the SH lighting sums)."""
+        return [light for light in self.lights if isinstance(light, (Environment, DistantLight))]
+
+    @property
+    def environments(self) -> list:
+        return [light for light in self.lights if isinstance(light, Environment)]
+
+    def sphere_lights(self) -> list:
+        return [light for light in self.lights if isinstance(light, SphereLight)]
+
+    @property
+    def animated(self) -> bool:
+        """True when the lighting changes over frames (graph rotation or light tracks)."""
+        return self.degrees_per_frame != 0.0 or any(getattr(x, "track", None) is not None for x in self.lights)
+
+    # ---- per frame (float64) ------------------------------------------------------------
+    def rotation(self, frame: float) -> np.ndarray:
+        """World rotation applied to the distant lights at ``frame``, (3, 3)."""
+        return _axis_rotation(self.axis, self.degrees_per_frame * (float(frame) - self.frame0))
+
+    def light_rotation(self, light, frame: float) -> np.ndarray:
+        """Total world rotation of one distant light at ``frame`` (its track, then the turn)."""
+        r = self.rotation(frame)
+        track = getattr(light, "track", None)
+        return r if track is None else r @ track.rotation(frame)
+
+    def lights_at(self, frame: float) -> list:
+        """The light objects at ``frame``: posed by their tracks, distant lights rotated."""
+        r = self.rotation(frame)
+        out = []
+        for light in self.lights:
+            light = light.at(frame) if getattr(light, "track", None) is not None else light
+            if isinstance(light, Environment):
+                out.append(light.rotated(r))
+            elif isinstance(light, DistantLight):
+                out.append(DistantLight(r @ light.direction, light.irradiance, light.angle_deg, light.path))
+            else:
+                out.append(light)
+        return out
+
+    def base_sh(self, order: int) -> np.ndarray:
+        """SH of each distant light at its first pose, world frame, (K, 3, order**2), float64."""
+        if order not in self._sh_cache:
+            coeffs = [light.to_sh(order) for light in self.distant_lights]
+            self._sh_cache[order] = np.stack(coeffs) if coeffs else np.zeros((0, 3, order * order))
+        return self._sh_cache[order]
+
+    def sh(self, order: int, frame: float, window: str | None = None, **window_args) -> np.ndarray:
+        """SH of all distant lights at ``frame``, world frame, shape (3, order**2), float64.
+
+        Each light's projection at its first pose is rotated exactly (Ivanic-Ruedenberg, the
+        float64 oracle of the device evaluation) by :meth:`light_rotation`.
+        """
+        total = np.zeros((3, order * order))
+        for light, coeffs in zip(self.distant_lights, self.base_sh(order)):
+            total += sh.rotate(coeffs, self.light_rotation(light, frame))
+        if window is not None:
+            total = sh.window(total, window, **window_args)
+        return total
+
+    # ---- tables for the device ----------------------------------------------------------
+    def rotation_table(self, frames) -> np.ndarray:
+        """:meth:`light_rotation` of every distant light at every frame, (T', K, 3, 3) float64;
+        T' = 1 when the lighting does not change over frames, else ``len(frames)``."""
+        frames = np.asarray(frames, np.float64).reshape(-1)
+        lights = self.distant_lights
+        if not self.animated:
+            frames = frames[:1]
+        table = np.zeros((frames.shape[0], len(lights), 3, 3))
+        for t, f in enumerate(frames):
+            for k, light in enumerate(lights):
+                table[t, k] = self.light_rotation(light, f)
+        return table
+
+    def sphere_position_table(self, frames) -> np.ndarray:
+        """Sphere-light centres at every frame, (T', S, 3) float64 (T' = 1 without tracks)."""
+        frames = np.asarray(frames, np.float64).reshape(-1)
+        spheres = self.sphere_lights()
+        if not any(s.track is not None for s in spheres):
+            frames = frames[:1]
+        return np.array([[s.at(f).position for s in spheres] for f in frames], np.float64).reshape(frames.shape[0], -1, 3)
+
+    def fingerprint(self) -> str:
+        """Content hash of the lights (images, poses, emission, tracks) and the rotation."""
+        from dataclasses import fields
+
+        from .._hashing import hash_arrays
+
+        arrays = [np.array([self.degrees_per_frame, self.frame0]), self.axis]
+        for light in self.lights:
+            arrays.append(np.frombuffer(type(light).__name__.encode(), np.uint8))
+            for f in fields(light):
+                if f.name not in ("path", "track"):
+                    arrays.append(np.asarray(getattr(light, f.name), np.float64))
+            track = getattr(light, "track", None)
+            if track is not None:
+                arrays += [track.times, track.transforms]
+        return hash_arrays(arrays)
+
+    def scaled(self, factor: float) -> "LightingSource":
+        """The same lighting with every light's emission times ``factor``."""
+        return LightingSource([scaled_light(light, factor) for light in self.lights], self.up_axis,
+                              self.degrees_per_frame, self.frame0)
+
+
+def scaled_light(light, k: float):
+    """A copy of ``light`` with its emission (image, irradiance or radiance) times ``k``."""
+    if isinstance(light, Environment):
+        return replace(light, image=light.image * np.float32(k))
+    if isinstance(light, DistantLight):
+        return replace(light, irradiance=light.irradiance * k)
+    if isinstance(light, SphereLight):
+        return replace(light, radiance=light.radiance * k)
+    raise ValueError(f"lighting: unsupported light of type {type(light).__name__}")

@@ -22,12 +22,21 @@ helpers below read it:
 The floor keeps the pdf positive where the bilinear filter spreads radiance half a texel into
 black texels (so light sampling alone stays unbiased); a black map samples uniformly.
 Luminance is Rec. 709: ``0.2126 R + 0.7152 G + 0.0722 B`` (negative values clamped to 0).
+
+:class:`FrameLighting` is the frame's lighting on the device (the ``lighting`` of a
+:class:`~warpshade.scene.state.FrameState`): the SH of every distant light rotated to the frame
+(Warp zxzxz rotation of each light's first-pose projection), the frame's distant-light
+directions, environment rotations and sphere-light centres, all filled by kernels from the
+frame index on the device.
 """
+
+import functools
 
 import numpy as np
 
-from .._wp import resolve_device, wp
+from .._wp import HostInput, resolve_device, wp
 from ..basis import quadrature
+from ..basis.sh_warp import MAX_KERNEL_ORDER, SHTables, sh_kernels
 
 __all__ = [
     "LUMINANCE_FLOOR",
@@ -40,6 +49,7 @@ __all__ = [
     "env_texel_pdf_reference",
     "lookup_environment",
     "sample_environment",
+    "FrameLighting",
 ]
 
 wp.set_module_options({"enable_backward": False})
@@ -57,7 +67,9 @@ class EnvironmentMap:
 
     Fields:
         image: radiance, wp.array2d(vec3), shape (H, W), linear RGB, map frame.
-        to_world: map-to-world rotation.
+        to_world: map-to-world rotation, a one-element wp.array(mat33): a view into the frame's
+            lighting (:class:`FrameLighting`) when the environment turns over frames, so kernels
+            read the current frame's rotation without the struct changing.
         height, width: image size.
         row_cdf: marginal CDF over rows, shape (H + 1,), from 0 to 1.
         col_cdf: conditional CDF over columns per row, shape (H, W + 1).
@@ -67,7 +79,7 @@ class EnvironmentMap:
     """
 
     image: wp.array2d(dtype=wp.vec3)
-    to_world: wp.mat33
+    to_world: wp.array(dtype=wp.mat33)
     height: int
     width: int
     row_cdf: wp.array(dtype=float)
@@ -94,12 +106,14 @@ def env_texel_pdf_reference(env) -> tuple[np.ndarray, np.ndarray]:
     return prob, density / weights.sum()
 
 
-def upload_environment(env, device=None) -> EnvironmentMap:
+def upload_environment(env, device=None, to_world=None) -> EnvironmentMap:
     """Upload an :class:`~warpshade.scene.lighting.Environment` and its sampling CDFs.
 
     Args:
         env: the environment (lat-long image, map frame, ``to_world``).
         device: Warp device (None = Warp's default).
+        to_world: optional one-element wp.array(mat33) on ``device`` to read the map-to-world
+            rotation from (default: a new array holding ``env.to_world``).
 
     Returns:
         :class:`EnvironmentMap` whose arrays live on ``device``.
@@ -114,7 +128,9 @@ def upload_environment(env, device=None) -> EnvironmentMap:
     col_cdf /= np.where(col_cdf[:, -1:] > 0.0, col_cdf[:, -1:], 1.0)
     out = EnvironmentMap()
     out.image = wp.array(env.image.astype(np.float32), dtype=wp.vec3, device=dev)
-    out.to_world = wp.mat33(*np.asarray(env.to_world, np.float32).reshape(-1))
+    if to_world is None:
+        to_world = wp.array([wp.mat33(*np.asarray(env.to_world, np.float32).reshape(-1))], dtype=wp.mat33, device=dev)
+    out.to_world = to_world
     out.height = h
     out.width = w
     out.row_cdf = wp.array(row_cdf.astype(np.float32), dtype=float, device=dev)
@@ -130,7 +146,7 @@ def disabled_environment(device=None) -> EnvironmentMap:
     dev = resolve_device(device)
     out = EnvironmentMap()
     out.image = wp.zeros((1, 1), dtype=wp.vec3, device=dev)
-    out.to_world = wp.mat33(1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
+    out.to_world = wp.array([wp.mat33(1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)], dtype=wp.mat33, device=dev)
     out.height = 1
     out.width = 1
     out.row_cdf = wp.array([0.0, 1.0], dtype=float, device=dev)
@@ -143,7 +159,7 @@ def disabled_environment(device=None) -> EnvironmentMap:
 
 @wp.func
 def _to_map(env: EnvironmentMap, direction: wp.vec3) -> wp.vec3:
-    return wp.normalize(wp.transpose(env.to_world) * direction)
+    return wp.normalize(wp.transpose(env.to_world[0]) * direction)
 
 
 @wp.func
@@ -225,7 +241,7 @@ def env_sample(env: EnvironmentMap, u1: float, u2: float, u3: float, u4: float) 
     z = wp.clamp(z, -1.0, 1.0)
     phi = (float(col) + u4) * (2.0 * wp.pi / float(w))
     r = wp.sqrt(wp.max(0.0, 1.0 - z * z))
-    d = env.to_world * wp.vec3(r * wp.cos(phi), r * wp.sin(phi), z)
+    d = env.to_world[0] * wp.vec3(r * wp.cos(phi), r * wp.sin(phi), z)
     return wp.vec4(d[0], d[1], d[2], env.texel_pdf[row, col])
 
 
@@ -278,3 +294,236 @@ def sample_environment(env_map: EnvironmentMap, count: int, seed: int = 0, devic
     wp.launch(_sample_kernel, dim=count, inputs=[env_map, int(seed), dirs, pdf, pdf2], device=dev)
     return dirs.numpy(), pdf.numpy(), pdf2.numpy()
 
+
+
+# ---- the frame's lighting on the device -------------------------------------------------------
+@functools.lru_cache(maxsize=None)
+def _lighting_sh_kernel(order: int):
+    """Kernel: the frame's world SH (3, n*n) = sum_k rotate(base_k, R[t, k]), or the override."""
+    bundle = sh_kernels(order)
+    vec_t = bundle.vec
+    C = bundle.coeff_count
+    sh_load = bundle.load
+    sh_rotate = bundle.rotate
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def kernel(
+        frame: wp.array(dtype=wp.int32),
+        rotations: wp.array(dtype=wp.mat33),
+        rotation_frames: int,
+        light_count: int,
+        base: wp.array2d(dtype=wp.float32),
+        override: wp.array2d(dtype=wp.float32),
+        tables: SHTables,
+        out: wp.array2d(dtype=wp.float32),
+        changed: wp.array(dtype=wp.int32),
+    ):
+        t = wp.min(frame[0], rotation_frames - 1)
+        flag = int(0)
+        for c in range(3):
+            acc = vec_t()
+            if frame[1] != 0:
+                acc = sh_load(override, c)
+            else:
+                for k in range(light_count):
+                    acc = acc + sh_rotate(sh_load(base, k * 3 + c), rotations[t * light_count + k], tables)
+            for i in range(C):
+                if out[c, i] != acc[i]:
+                    flag = 1
+                out[c, i] = acc[i]
+        changed[0] = flag
+
+    return kernel
+
+
+@wp.kernel
+def _sh_prefix_kernel(src: wp.array2d(dtype=wp.float32), dst: wp.array2d(dtype=wp.float32)):
+    c, i = wp.tid()
+    dst[c, i] = src[c, i]
+
+
+@wp.kernel
+def _lights_kernel(
+    frame: wp.array(dtype=wp.int32),
+    rotations: wp.array(dtype=wp.mat33),
+    rotation_frames: int,
+    light_count: int,
+    distant_slot: wp.array(dtype=wp.int32),
+    distant_direction0: wp.array(dtype=wp.vec3),
+    distant_direction: wp.array(dtype=wp.vec3),
+    environment_slot: wp.array(dtype=wp.int32),
+    environment_to_world0: wp.array(dtype=wp.mat33),
+    environment_to_world: wp.array(dtype=wp.mat33),
+    sphere_table: wp.array(dtype=wp.vec3),
+    sphere_frames: int,
+    sphere_position: wp.array(dtype=wp.vec3),
+):
+    t = wp.min(frame[0], rotation_frames - 1)
+    for i in range(distant_direction0.shape[0]):
+        distant_direction[i] = wp.normalize(rotations[t * light_count + distant_slot[i]] * distant_direction0[i])
+    for e in range(environment_to_world0.shape[0]):
+        environment_to_world[e] = rotations[t * light_count + environment_slot[e]] * environment_to_world0[e]
+    s_count = sphere_position.shape[0]
+    ts = wp.min(frame[0], sphere_frames - 1)
+    for s in range(s_count):
+        sphere_position[s] = sphere_table[ts * s_count + s]
+
+
+def _vec3_array(rows, device):
+    return wp.array(np.asarray(rows, np.float32).reshape(-1, 3), dtype=wp.vec3, device=device)
+
+
+def _float_array(values, device):
+    return wp.array(np.asarray(values, np.float32).reshape(-1), dtype=wp.float32, device=device)
+
+
+class FrameLighting:
+    """The lights of the current frame on one device (``FrameState.lighting``).
+
+    Built once from a :class:`~warpshade.scene.lighting.LightingSource` and the scene's time
+    codes; :meth:`launch` (kernels only, capture-safe) fills every array below for the frame
+    whose index is ``frame_input.array[0]``. Arrays keep their addresses for the object's life,
+    so stages bind them once.
+
+    Args:
+        source: the lighting description (host, float64).
+        frames: the scene's time codes, (T,).
+        frame_input: the evaluator's :class:`~warpshade._wp.HostInput` (int32, at least 2
+            entries): ``[frame index, SH override on]``.
+        device: the Warp device.
+
+    Attributes:
+        changed: (1,) int32: 1 when the SH lighting differs from the previous launch's (kernels
+            that tabulate the lighting skip their rebuild when 0).
+        sphere_position: (S,) vec3, world; sphere_radius: (S,) float32; sphere_radiance: (S,)
+            vec3, the sphere lights in the order of ``source.sphere_lights()``.
+        distant_direction: (D,) vec3, unit, towards each DistantLight; distant_irradiance (D,)
+            vec3; distant_cos_half (D,) float32 (1 for a delta light).
+        environment_to_world: (E,) mat33, the map-to-world rotation of each Environment.
+    """
+
+    def __init__(self, source, frames, frame_input: HostInput, device=None):
+        from .lighting import DistantLight, Environment
+
+        dev = resolve_device(device)
+        self.device = dev
+        self.source = source
+        self.frames = np.asarray(frames, np.float64).reshape(-1)
+        self._input = frame_input
+        distant = source.distant_lights
+        self.light_count = len(distant)
+        table = source.rotation_table(self.frames)
+        self.rotation_frames = int(table.shape[0])
+        self._rotations = wp.array(table.reshape(-1, 3, 3).astype(np.float32), dtype=wp.mat33, device=dev)
+        if self.light_count == 0:
+            self._rotations = wp.array(np.eye(3, dtype=np.float32)[None], dtype=wp.mat33, device=dev)
+        lights = [(k, light) for k, light in enumerate(distant) if isinstance(light, DistantLight)]
+        envs = [(k, light) for k, light in enumerate(distant) if isinstance(light, Environment)]
+        self.distant_lights = [light for _, light in lights]
+        self.environments = [light for _, light in envs]
+        self._distant_slot = wp.array(np.array([k for k, _ in lights], np.int32), dtype=wp.int32, device=dev)
+        self._distant_direction0 = _vec3_array([light.direction for _, light in lights], dev)
+        self.distant_direction = wp.zeros(len(lights), dtype=wp.vec3, device=dev)
+        self.distant_irradiance = _vec3_array([light.irradiance for _, light in lights], dev)
+        self.distant_cos_half = _float_array(
+            [np.cos(np.radians(light.angle_deg) / 2.0) if light.angle_deg > 0 else 1.0 for _, light in lights], dev)
+        self._environment_slot = wp.array(np.array([k for k, _ in envs], np.int32), dtype=wp.int32, device=dev)
+        self._environment_to_world0 = wp.array(
+            np.array([light.to_world for _, light in envs], np.float32).reshape(-1, 3, 3), dtype=wp.mat33, device=dev)
+        self.environment_to_world = wp.zeros(len(envs), dtype=wp.mat33, device=dev)
+        spheres = source.sphere_lights()
+        positions = source.sphere_position_table(self.frames)
+        self.sphere_frames = int(positions.shape[0])
+        self._sphere_table = _vec3_array(positions.reshape(-1, 3), dev)
+        self.sphere_position = wp.zeros(len(spheres), dtype=wp.vec3, device=dev)
+        self.sphere_radius = _float_array([s.radius for s in spheres], dev)
+        self.sphere_radiance = _vec3_array([s.radiance for s in spheres], dev)
+        self.changed = wp.zeros(1, dtype=wp.int32, device=dev)
+        self._orders: dict[int, wp.array] = {}
+        self._max_order = 0
+        self._env_maps: dict[int, EnvironmentMap] = {}
+
+    # ---- what stages ask for ------------------------------------------------------------
+    @property
+    def sphere_light_count(self) -> int:
+        return int(self.sphere_position.shape[0])
+
+    @property
+    def orders(self) -> tuple:
+        """The SH orders asked for so far (each filled by :meth:`launch`)."""
+        return tuple(sorted(self._orders))
+
+    def sh(self, order: int) -> wp.array:
+        """The frame's distant lighting as SH, world frame, wp.array2d (3, order**2) float32.
+
+        The same array every frame (bind it once); asking for an order makes :meth:`launch`
+        fill it. Lower orders are prefixes of higher ones (SH rotation keeps bands apart).
+        """
+        order = int(order)
+        if not 1 <= order <= MAX_KERNEL_ORDER:
+            raise ValueError(f"lighting: SH order must be in 1..{MAX_KERNEL_ORDER}, got {order}")
+        if order not in self._orders:
+            self._orders[order] = wp.zeros((3, order * order), dtype=wp.float32, device=self.device)
+            if order > self._max_order:
+                self._build(order)
+        return self._orders[order]
+
+    def environment_map(self, index: int = 0) -> EnvironmentMap:
+        """The ``index``-th Environment as an :class:`EnvironmentMap` that turns with the frame
+        (its ``to_world`` is a view of :attr:`environment_to_world`)."""
+        if not 0 <= index < len(self.environments):
+            raise ValueError(f"lighting: no environment {index} (the lighting has {len(self.environments)})")
+        if index not in self._env_maps:
+            self._env_maps[index] = upload_environment(self.environments[index], self.device,
+                                                       to_world=self.environment_to_world[index : index + 1])
+        return self._env_maps[index]
+
+    def _build(self, order: int) -> None:
+        n2 = order * order
+        base = self.source.base_sh(order).reshape(-1, n2) if self.light_count else np.zeros((1, n2))
+        self._base = wp.array(base.astype(np.float32), dtype=wp.float32, device=self.device)
+        self._override = HostInput((3, n2), wp.float32, self.device)
+        self._full = wp.zeros((3, n2), dtype=wp.float32, device=self.device)
+        self._tables = sh_kernels(order).tables(self.device)
+        self._sh_kernel = _lighting_sh_kernel(order)
+        self._max_order = order
+
+    # ---- overrides (host writes, read by the next frame) --------------------------------
+    def set_override(self, coeffs) -> None:
+        """Use these world-frame SH coefficients (3, n*n), n >= every asked order, instead of the
+        lights' for the next frames, until :meth:`clear_override`. Only the SH lighting is
+        overridden; stages that sample the lights themselves keep the source's lights."""
+        c = np.asarray(coeffs, np.float64)
+        need = self._max_order * self._max_order
+        if c.ndim != 2 or c.shape[0] != 3 or c.shape[1] < need or int(round(np.sqrt(c.shape[1]))) ** 2 != c.shape[1]:
+            raise ValueError(f"lighting override has shape {c.shape}; the graph needs (3, {need}) "
+                             f"(order {self._max_order}) or a higher order")
+        if not np.all(np.isfinite(c)):
+            raise ValueError("lighting override contains NaN or infinite coefficients")
+        if need:
+            self._override.host[...] = c[:, :need]
+        self._input.host[1] = 1
+
+    def clear_override(self) -> None:
+        self._input.host[1] = 0
+
+    # ---- per frame ----------------------------------------------------------------------
+    def launch(self) -> None:
+        """Fill the frame's lighting arrays (kernels only; the frame index is already on the device)."""
+        dev = self.device
+        frame = self._input.array
+        if self._max_order:
+            self._override.launch()
+            wp.launch(self._sh_kernel, dim=1, device=dev, inputs=[
+                frame, self._rotations, self.rotation_frames, self.light_count, self._base, self._override.array,
+                self._tables, self._full, self.changed])
+            for order, out in self._orders.items():
+                if order == self._max_order:
+                    wp.copy(out, self._full)
+                else:
+                    wp.launch(_sh_prefix_kernel, dim=(3, order * order), inputs=[self._full, out], device=dev)
+        if self.distant_direction.shape[0] or self.environment_to_world.shape[0] or self.sphere_position.shape[0]:
+            wp.launch(_lights_kernel, dim=1, device=dev, inputs=[
+                frame, self._rotations, self.rotation_frames, max(self.light_count, 1), self._distant_slot,
+                self._distant_direction0, self.distant_direction, self._environment_slot, self._environment_to_world0,
+                self.environment_to_world, self._sphere_table, max(self.sphere_frames, 1), self.sphere_position])

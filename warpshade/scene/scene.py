@@ -5,9 +5,11 @@ UVs, albedo), skeletons and skin bindings, lights, camera and the time range. It
 :func:`warpshade.load_usd` (or directly from arrays with :meth:`Scene.from_meshes`, which is
 what tests and generators use) and contains only NumPy data, so it never depends on pxr.
 
-:meth:`Scene.evaluate` produces a :class:`FrameState`: what changes per frame (deformed points
-and normals in world space, per-mesh transforms, joint transforms) as Warp arrays on the chosen
-device. Per-frame animation is stored sampled at ``scene.frames`` (the stage's time codes).
+:meth:`Scene.evaluate` produces a :class:`~warpshade.scene.state.FrameState`: what changes per
+frame (deformed points and normals in world space, per-mesh transforms, joint transforms) as
+Warp arrays on the chosen device, filled by the kernels of
+:class:`~warpshade.scene.state.FrameEvaluator` (which per-frame loops use directly). Per-frame
+animation is stored sampled at ``scene.frames`` (the stage's time codes).
 
 All shaded meshes are concatenated in scene order: mesh ``k`` owns vertices
 ``mesh.vertex_offset : mesh.vertex_offset + mesh.vertex_count`` of every per-vertex array.
@@ -20,7 +22,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-__all__ = ["Mesh", "Skeleton", "SkinBinding", "Camera", "Scene", "FrameState", "ANIMATION_KINDS", "ground_plane"]
+__all__ = ["Mesh", "Skeleton", "SkinBinding", "Camera", "Scene", "ANIMATION_KINDS", "ground_plane"]
 
 #: How a mesh moves: not at all, by a per-frame rigid transform, by per-frame points, by skinning.
 ANIMATION_KINDS = ("static", "rigid", "deforming", "skinned")
@@ -179,35 +181,11 @@ class Camera:
     path: str | None = None
 
 
-@dataclass
-class FrameState:
-    """What changes per frame, as Warp arrays on one device.
-
-    Attributes:
-        frame: the time code.
-        frame_index: index of ``frame`` in ``scene.frames``.
-        points: world-space vertex positions, wp.array(vec3), shape (vertex_count,).
-        normals: world-space unit vertex normals, wp.array(vec3), shape (vertex_count,).
-        mesh_transforms: local-to-world per mesh, shape (mesh_count, 4, 4), float64 (NumPy).
-        joint_transforms: skeleton-space joint transforms per skeleton, list of (J, 4, 4).
-        extras: method-specific per-frame data (sphere centres, lighting coefficients, ...).
-    """
-
-    frame: float
-    frame_index: int
-    points: Any
-    normals: Any
-    mesh_transforms: np.ndarray
-    joint_transforms: list
-    device: Any = None
-    extras: dict = field(default_factory=dict)
-
-
 class Scene:
     """Static description of an animated scene (see module docstring).
 
-    A scene is treated as immutable once built: :meth:`evaluate` caches its static device
-    arrays (faces, rest points, skin weights, authored normals) per device on first use.
+    A scene is treated as immutable once built: its static device arrays (faces, rest points,
+    skin weights, authored normals) are cached per device on first use.
 
     Attributes:
         meshes: the shaded meshes, in scene order.
@@ -275,7 +253,8 @@ class Scene:
                     f"found {int(mesh.faces.min())}..{int(mesh.faces.max())}"
                 )
         self._faces = np.concatenate([m.faces + m.vertex_offset for m in self.meshes]).astype(np.int32)
-        self._device_cache: dict = {}
+        self._device_cache: dict = {}  # static device arrays per device (warpshade.scene.state)
+        self._evaluators: dict = {}  # FrameEvaluator per device, for evaluate()
 
     def _check_skin(self, mesh: Mesh) -> None:
         skin = mesh.skin
@@ -430,124 +409,49 @@ class Scene:
         return lo, hi
 
     # ---- per-frame evaluation -----------------------------------------------------------
-    def _device_data(self, dev) -> dict:
-        """Static arrays of this scene on one device, built on first use and kept."""
-        from .._wp import wp
+    def evaluate(self, frame: float, device=None):
+        """World-space points, normals and transforms at a time code, evaluated on a Warp device.
 
-        key = str(dev)
-        data = self._device_cache.get(key)
-        if data is not None:
-            return data
-        data = {"faces": wp.array(self._faces, dtype=wp.int32, device=dev), "meshes": []}
-        for mesh in self.meshes:
-            entry = {}
-            if mesh.animation == "skinned":
-                bind = np.asarray(mesh.skin.geom_bind_transform, np.float64)
-                bound = mesh.points @ bind[:3, :3] + bind[3, :3]
-                entry["points"] = wp.array(bound.astype(np.float32), dtype=wp.vec3, device=dev)
-                entry["joint_indices"] = wp.array(np.asarray(mesh.skin.joint_indices, np.int32), dtype=wp.int32, device=dev)
-                entry["joint_weights"] = wp.array(np.asarray(mesh.skin.joint_weights, np.float32), dtype=wp.float32, device=dev)
-            elif mesh.animation == "deforming":
-                samples = np.asarray(mesh.point_samples, np.float32).reshape(-1, 3)
-                if samples.nbytes <= _DEVICE_SAMPLE_BYTES:
-                    entry["samples"] = wp.array(samples, dtype=wp.vec3, device=dev)
-            else:
-                entry["points"] = wp.array(mesh.points.astype(np.float32), dtype=wp.vec3, device=dev)
-            if mesh.normals is not None and mesh.animation in ("static", "rigid"):
-                entry["normals"] = wp.array(np.asarray(mesh.normals, np.float32), dtype=wp.vec3, device=dev)
-            data["meshes"].append(entry)
-        self._device_cache[key] = data
-        return data
-
-    def evaluate(self, frame: float, device=None, out: FrameState | None = None) -> FrameState:
-        """Evaluate deformed world-space points and normals at a time code on a Warp device.
-
-        Every per-vertex step runs in a Warp kernel on ``device``: static and rigid meshes
-        transform their (device-resident) rest points, deforming meshes transform their point
-        samples, skinned meshes go through the linear-blend-skinning kernel with the joint
-        matrices composed with the skeleton's local-to-world; normals are area-weighted from
-        the deformed points, except static/rigid meshes with authored normals, which are
-        transformed by the inverse transpose. Static arrays stay cached on the device.
+        A convenience over :class:`~warpshade.scene.state.FrameEvaluator` (one is kept per
+        device, with the static device arrays): returns a
+        :class:`~warpshade.scene.state.FrameState` snapshot that later calls do not overwrite.
+        Per-frame loops use a FrameEvaluator directly (fixed buffers, capture-safe launches).
 
         Args:
             frame: a time code of ``frames``.
             device: Warp device (None = Warp's default).
-            out: a FrameState of this scene on the same device whose ``points`` and ``normals``
-                buffers are reused (per-frame loops: no allocation, fixed addresses).
 
         Returns:
-            :class:`FrameState` with ``points`` and ``normals`` of shape (vertex_count,) vec3,
-            world space, float32.
+            FrameState with ``points`` and ``normals`` of shape (vertex_count,) vec3, world space,
+            float32 (no lighting, no BVH).
         """
-        from .._wp import resolve_device, wp
-        from ..geometry.normals import compute_vertex_normals
-        from ..geometry.skinning import (
-            joint_matrices_for_warp,
-            launch_skin_points,
-            launch_transform_normals,
-            launch_transform_points,
-        )
+        from .._wp import resolve_device
+        from .state import FrameEvaluator
 
         dev = resolve_device(device)
-        t = self.frame_index(frame)
-        data = self._device_data(dev)
-        if out is not None and (out.device != dev or out.points.shape[0] != self.vertex_count):
-            raise ValueError("evaluate: out= must be a FrameState of this scene on the same device")
-        pts_wp = out.points if out is not None else wp.empty(self.vertex_count, dtype=wp.vec3, device=dev)
-        skin_mats: dict[int, Any] = {}
-        for mesh, entry in zip(self.meshes, data["meshes"]):
-            xf = self._mesh_transform(mesh, t)
-            if mesh.animation == "skinned":
-                s = mesh.skin.skeleton
-                if s not in skin_mats:
-                    skel = self.skeletons[s]
-                    mats = skel.skinning_transforms(min(t, skel.local_transforms.shape[0] - 1)) @ xf
-                    skin_mats[s] = wp.array(joint_matrices_for_warp(mats), dtype=wp.mat44, device=dev)
-                launch_skin_points(
-                    entry["points"], entry["joint_indices"], entry["joint_weights"], skin_mats[s], pts_wp, mesh.vertex_offset
-                )
-                continue
-            if mesh.animation == "deforming":
-                if "samples" in entry:
-                    src, src_offset = entry["samples"], t * mesh.vertex_count
-                else:
-                    src = wp.array(np.asarray(mesh.point_samples[t], np.float32), dtype=wp.vec3, device=dev)
-                    src_offset = 0
-            else:
-                src, src_offset = entry["points"], 0
-            launch_transform_points(src, src_offset, mesh.vertex_count, xf, pts_wp, mesh.vertex_offset)
-        nrm_wp = out.normals if out is not None else wp.empty(self.vertex_count, dtype=wp.vec3, device=dev)
-        compute_vertex_normals(pts_wp, data["faces"], nrm_wp)
-        for mesh, entry in zip(self.meshes, data["meshes"]):
-            if "normals" in entry:
-                xf = self._mesh_transform(mesh, t)
-                launch_transform_normals(entry["normals"], xf, nrm_wp, mesh.vertex_offset)
-        mesh_xf = np.stack([self._mesh_transform(m, t) for m in self.meshes])
-        joints = [s.skel_space_transforms(min(t, s.local_transforms.shape[0] - 1)) for s in self.skeletons]
-        if out is not None:
-            out.frame, out.frame_index = float(self.frames[t]), t
-            out.mesh_transforms, out.joint_transforms = mesh_xf, joints
-            return out
-        return FrameState(
-            frame=float(self.frames[t]),
-            frame_index=t,
-            points=pts_wp,
-            normals=nrm_wp,
-            mesh_transforms=mesh_xf,
-            joint_transforms=joints,
-            device=dev,
-        )
+        evaluator = self._evaluators.get(str(dev))
+        if evaluator is None:
+            evaluator = self._evaluators[str(dev)] = FrameEvaluator(self, dev)
+        return evaluator.evaluate(frame).snapshot()
+
+    def fingerprint(self) -> str:
+        """Content hash of everything in the scene that precomputed artifacts can depend on."""
+        from .._hashing import hash_arrays
+
+        arrays = [self.frames]
+        for m in self.meshes:
+            arrays += [m.points, m.faces, m.transforms, m.point_samples, m.albedo, m.normals]
+            if m.skin is not None:
+                arrays += [m.skin.joint_indices, m.skin.joint_weights, m.skin.geom_bind_transform]
+        for s in self.skeletons:
+            arrays += [s.parents, s.bind_transforms, s.rest_transforms, s.local_transforms, s.skel_to_world]
+        return hash_arrays(arrays)
 
     def __repr__(self) -> str:
         return (
             f"Scene(source={self.source!r}, meshes={len(self.meshes)}, vertices={self.vertex_count}, "
             f"triangles={self.triangle_count}, frames={len(self.frames)}, lights={len(self.lights)})"
         )
-
-
-#: Deforming meshes whose point samples (all frames) fit in this many bytes are kept on the
-#: device; larger ones upload one frame per :meth:`Scene.evaluate` call.
-_DEVICE_SAMPLE_BYTES = 256 * 1024 * 1024
 
 
 def ground_plane(

@@ -21,18 +21,16 @@ directions in every frame (temporally stable noise), and the estimate is unbiase
 random rotation. :func:`sample_rays` returns exactly these rays for external checks.
 
 On the CPU device a launch runs on one thread; :class:`TransferTracer` splits the receivers
-into chunks launched from a small thread pool (``wp.launch`` releases the GIL).
+into chunks launched from a small thread pool (:func:`warpshade._wp.launch_parallel`).
 """
 
 import functools
 import math
-import os
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
 
-from .._wp import resolve_device, wp
+from .._wp import cpu_workers, launch_parallel, resolve_device, wp
 from ..basis import quadrature
 from ..basis.sh_warp import MAX_KERNEL_ORDER, sh_kernels
 from ..geometry.bvh import RAY_MAX_DISTANCE, Visibility
@@ -46,8 +44,6 @@ __all__ = [
     "compute",
     "sample_rays",
     "random_rotation",
-    "launch_chunked",
-    "default_workers",
     "receiver_indices",
 ]
 
@@ -174,50 +170,6 @@ def _transfer_kernel(order: int):
     return transfer_kernel
 
 
-def default_workers(device) -> int:
-    """Launch workers for a device: every CPU core for the CPU device, 1 for CUDA."""
-    dev = resolve_device(device)
-    return max(1, os.cpu_count() or 1) if dev.is_cpu else 1
-
-
-_POOLS: dict[int, ThreadPoolExecutor] = {}
-
-
-def _pool(workers: int) -> ThreadPoolExecutor:
-    if workers not in _POOLS:
-        _POOLS[workers] = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="warpshade-launch")
-    return _POOLS[workers]
-
-
-def launch_chunked(kernel, count: int, inputs_for, device, workers: int = 1, chunks: int | None = None) -> None:
-    """Launch ``kernel`` over ``count`` items, optionally split into chunks over a thread pool.
-
-    Args:
-        kernel: a Warp kernel whose launch covers items ``start .. start + size``.
-        count: total number of items.
-        inputs_for: callable ``(start) -> list`` of kernel inputs for a chunk beginning at ``start``.
-        device: Warp device.
-        workers: thread-pool size; 1 = a single launch on the calling thread.
-        chunks: number of chunks (default ``4 * workers`` for load balance).
-    """
-    if count <= 0:
-        return
-    if workers <= 1:
-        wp.launch(kernel, dim=count, inputs=inputs_for(0), device=device)
-        return
-    # Compile/load on the calling thread so the workers only launch.
-    wp.load_module(kernel.module, device=device)
-    chunks = min(count, chunks or 4 * workers)
-    bounds = np.linspace(0, count, chunks + 1).astype(np.int64)
-
-    def run(k):
-        start, stop = int(bounds[k]), int(bounds[k + 1])
-        if stop > start:
-            wp.launch(kernel, dim=stop - start, inputs=inputs_for(start), device=device)
-
-    list(_pool(workers).map(run, range(chunks)))
-
-
 @dataclass
 class TransferResult:
     """Transfer quantities of the receivers of one frame (NumPy, host memory).
@@ -305,7 +257,7 @@ class TransferTracer:
         self.space = space
         self.seed = int(seed)
         self.device = resolve_device(device)
-        self.workers = default_workers(self.device) if workers is None else max(1, int(workers))
+        self.workers = (cpu_workers() if self.device.is_cpu else 1) if workers is None else max(1, int(workers))
         self.chunks = chunks
         self.bvh = Visibility.from_scene(scene, device=self.device, offset=offset)
         self.chunk_min_rays = int(chunk_min_rays)
@@ -346,14 +298,14 @@ class TransferTracer:
         use_local = 1 if self.space == "local" else 0
         mesh_id = self.bvh.id
 
-        def inputs(start):
+        def inputs(start, stop):
             return [
                 mesh_id, points, normals, frames, use_local, 1 if self.below_horizon == "visible" else 0,
                 self.receivers, start, self.sample_directions,
                 self.seed, self.bvh.offset, self.visibility_sh, self.transfer_sh, self.ambient_occlusion,
             ]
 
-        launch_chunked(self._kernel, self.receiver_count, inputs, self.device, self._launch_workers(), self.chunks)
+        launch_parallel(self._kernel, self.receiver_count, inputs, self.device, self._launch_workers(), chunks=self.chunks)
 
     def _launch_workers(self) -> int:
         return self.workers if self.receiver_count * self.samples >= self.chunk_min_rays else 1
@@ -374,10 +326,10 @@ class TransferTracer:
         """
         visible = wp.zeros(self.receiver_count, dtype=wp.int32, device=self.device)
 
-        def inputs(start):
+        def inputs(start, stop):
             return [self.bvh.id, points, normals, self.receivers, start, self.sample_directions, self.seed, self.bvh.offset, visible]
 
-        launch_chunked(_visible_count_kernel, self.receiver_count, inputs, self.device, self._launch_workers(), self.chunks)
+        launch_parallel(_visible_count_kernel, self.receiver_count, inputs, self.device, self._launch_workers(), chunks=self.chunks)
         return visible.numpy().astype(np.float64) / self.samples
 
     def result(self) -> TransferResult:

@@ -10,8 +10,8 @@ port        dtype    shape       meaning
 ========== ======== =========== =====================================================
 points      vec3     (V,)        world-space vertex positions of the frame
 normals     vec3     (V,)        world-space unit vertex normals of the frame
-albedo      float32  (V, 3)      per-vertex diffuse albedo (static)
-lighting    lighting ()          the frame's lights (environment, distant, sphere)
+albedo      float32  (V, 3)      per-vertex diffuse albedo (changed only by notification)
+lighting    lighting ()          the frame's lights (a ``FrameLighting``: SH, sphere, distant)
 ========== ======== =========== =====================================================
 
 Validation happens before anything runs and raises :class:`GraphError` naming the stage and
@@ -55,24 +55,23 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..methods.stage import Port, Stage, StageError, get_stage_type
+from ..scene.lighting import Environment, LightingSource, scaled_light, up_rotation
+from .errors import GraphError
+from .runtime import Runtime
 
 if sys.version_info >= (3, 11):
     import tomllib
 else:  # pragma: no cover - Python 3.10
     import tomli as tomllib
 
-__all__ = ["GraphError", "StageSpec", "GraphSpec", "load", "SCENE_PORTS"]
-
-
-class GraphError(StageError):
-    """A graph that cannot run; the message names the stage and port (or file)."""
+__all__ = ["StageSpec", "GraphSpec", "load", "lighting_from_spec", "extend_static_frames", "SCENE_PORTS"]
 
 
 SCENE_PORTS: dict[str, Port] = {
-    "points": Port("vec3", ("V",), "world-space vertex positions of the frame"),
-    "normals": Port("vec3", ("V",), "world-space unit vertex normals of the frame"),
-    "albedo": Port("float32", ("V", 3), "per-vertex diffuse albedo, linear RGB (static)"),
-    "lighting": Port("lighting", (), "the frame's lights"),
+    "points": Port("vec3", ("V",), "world-space vertex positions of the frame (FrameState.points)"),
+    "normals": Port("vec3", ("V",), "world-space unit vertex normals of the frame (FrameState.normals)"),
+    "albedo": Port("float32", ("V", 3), "per-vertex diffuse albedo, linear RGB (changes only by notification)"),
+    "lighting": Port("lighting", (), "the frame's lights (FrameState.lighting, a FrameLighting)"),
 }
 SCENE_STATIC_PORTS = ("albedo",)
 
@@ -275,17 +274,23 @@ class GraphSpec:
             p = (self.source_path.parent / p).resolve()
         return str(p)
 
-    def compile(self, scene=None, device=None, **kwargs):
+    def lighting_source(self, scene) -> LightingSource:
+        """The graph's ``[lighting]`` table as a :class:`~warpshade.scene.LightingSource`."""
+        try:
+            return lighting_from_spec(self.lighting, scene, self.source_path.parent if self.source_path else None)
+        except ValueError as exc:
+            raise GraphError(f"graph {self.name!r}: {exc}") from None
+
+    def compile(self, scene=None, device=None, lighting=None, **kwargs) -> Runtime:
         """Validate against a scene and return a :class:`~warpshade.graph.runtime.Runtime`.
 
         Args:
             scene: a :class:`~warpshade.scene.Scene`; default: load the graph's ``scene`` spec.
             device: Warp device (default: Warp's default device).
+            lighting: a :class:`~warpshade.scene.LightingSource` overriding ``[lighting]``.
             **kwargs: passed to :class:`~warpshade.graph.runtime.Runtime` (``cache_dir``,
-                ``progress``, ``capture``, ``lighting``).
+                ``progress``, ``capture``).
         """
-        from .runtime import Runtime
-
         if scene is None:
             spec = self.resolve_scene_spec()
             if spec is None:
@@ -300,7 +305,45 @@ class GraphSpec:
                 raise GraphError(f"graph {self.name!r}: bad scene option in [graph]: {exc}") from None
             if frame_count is not None:
                 scene = extend_static_frames(scene, int(frame_count))
-        return Runtime(self, scene, device=device, **kwargs)
+        if lighting is None:
+            lighting = self.lighting_source(scene)
+        return Runtime(self, scene, device=device, lighting=lighting, **kwargs)
+
+
+def lighting_from_spec(spec: dict, scene, base_dir: Path | None = None) -> LightingSource:
+    """A graph's ``[lighting]`` table as a :class:`~warpshade.scene.LightingSource`.
+
+    Keys: ``source`` ("scene" default, "sky", "constant", or an .hdr/.exr path relative to the
+    graph file), ``rotate_degrees_per_frame`` (0), ``intensity`` (1.0, scales every light),
+    ``color`` (for "constant").
+
+    Raises:
+        ValueError: naming the key at fault.
+    """
+    spec = dict(spec or {})
+    source = spec.pop("source", "scene")
+    speed = float(spec.pop("rotate_degrees_per_frame", 0.0))
+    intensity = float(spec.pop("intensity", 1.0))
+    color = spec.pop("color", (1.0, 1.0, 1.0))
+    if spec:
+        raise ValueError(f"[lighting]: unknown key(s) {sorted(spec)}")
+    to_world = up_rotation(scene.up_axis)
+    if source == "scene":
+        lights = list(scene.lights) or [Environment.sky(to_world=to_world)]
+    elif source == "sky":
+        lights = [Environment.sky(to_world=to_world)]
+    elif source == "constant":
+        lights = [Environment.constant(color)]
+    else:
+        from ..io.images import read_image
+
+        p = Path(source)
+        if not p.is_absolute() and base_dir is not None:
+            p = base_dir / p
+        lights = [Environment(read_image(p), to_world=to_world, path=str(p))]
+    if intensity != 1.0:
+        lights = [scaled_light(light, intensity) for light in lights]
+    return LightingSource(lights, scene.up_axis, speed, float(scene.frames[0]))
 
 
 def extend_static_frames(scene, frame_count: int):

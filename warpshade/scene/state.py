@@ -1,0 +1,406 @@
+"""The per-frame state of a scene and the kernels that fill it.
+
+A :class:`~warpshade.scene.Scene` is the static description (rest meshes, skeletons, animation
+samples, lights); a :class:`FrameState` is what changes per frame, as device arrays with fixed
+addresses; a :class:`FrameEvaluator` owns the static device data and fills one FrameState per
+frame with kernels only (the split Newton makes between ``Model`` and ``State``):
+
+* the host writes the frame index into a small input buffer (:meth:`FrameEvaluator.set_frame`);
+* :meth:`FrameEvaluator.launch` reads it on the device and evaluates: per-mesh local-to-world
+  transforms (table look-ups), skeleton poses and skinning matrices
+  (:func:`~warpshade.geometry.skinning.skeleton_pose_kernel`), skinned / rigid / point-cached
+  meshes, area-weighted normals of the moving meshes, the frame's lighting
+  (:class:`~warpshade.scene.lighting_warp.FrameLighting`) and, when asked for, a BVH refit.
+  Meshes that never move are evaluated once, at construction.
+
+Because :meth:`~FrameEvaluator.launch` only launches kernels on fixed buffers, a whole frame
+(scene evaluation and every stage after it) is recorded once and replayed
+(:func:`warpshade._wp.record_program`). Changes that do not come from the frame -- a new
+lighting, an override, a new eye or albedo -- are host writes followed by a :class:`Change`
+notification.
+
+Conventions: matrices on the device are Warp column-vector ``mat44`` (the transposes of USD's
+row-vector matrices); points and normals are world space, float32.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .._wp import HostInput, resolve_device, wp
+
+__all__ = ["Change", "FrameState", "FrameEvaluator", "DEVICE_SAMPLE_BYTES"]
+
+wp.set_module_options({"enable_backward": False})
+
+#: Deforming meshes whose point samples (all frames) fit in this many bytes are kept on the
+#: device; larger ones are uploaded one frame at a time (a Python call in the frame program).
+DEVICE_SAMPLE_BYTES = 256 * 1024 * 1024
+
+
+class Change(enum.IntFlag):
+    """What changed outside the frame (``notify_changed`` flags).
+
+    LIGHTING: the lights or a lighting override; MATERIAL: albedo, BRDFs; PARAMETERS: a stage
+    parameter; VIEW: the eye / camera.
+    """
+
+    NONE = 0
+    LIGHTING = 1
+    MATERIAL = 2
+    PARAMETERS = 4
+    VIEW = 8
+    ALL = 15
+
+
+@dataclass
+class FrameState:
+    """What changes per frame, as Warp arrays with fixed addresses on one device.
+
+    Attributes:
+        frame: the time code evaluated last (host float).
+        frame_index: its index in ``scene.frames`` (host int).
+        frame_index_device: the same on the device, wp.array(int32), shape (1,) -- what the
+            per-frame kernels read.
+        points: world-space vertex positions, wp.array(vec3), shape (vertex_count,).
+        normals: world-space unit vertex normals, wp.array(vec3), shape (vertex_count,).
+        mesh_transforms: local-to-world per mesh (skeleton-to-world for skinned meshes),
+            wp.array(mat44), shape (mesh_count,), column-vector convention.
+        mesh_scales: largest singular value of each mesh transform's 3x3 part (a sphere of
+            radius r maps inside radius s * r), wp.array(float32), shape (mesh_count,).
+        joint_transforms: skeleton-space joint transforms of all skeletons concatenated,
+            wp.array(mat44), shape (joint_count,); skeleton ``s`` owns
+            ``joint_offsets[s] : joint_offsets[s + 1]``.
+        skin_matrices: ``skel_to_world @ joint @ inverse(bind)`` per joint (what linear blend
+            skinning applies to bind-space points), wp.array(mat44), shape (joint_count,).
+        joint_offsets: first joint of each skeleton, host list of length skeleton_count + 1.
+        lighting: the frame's lights (:class:`~warpshade.scene.lighting_warp.FrameLighting`),
+            or None when the evaluator has no lighting.
+        eye: viewer position, wp.array(vec3), shape (1,) (the scene camera's position, or set).
+        has_eye: whether ``eye`` is a real viewer (a camera or set explicitly).
+        bvh: :class:`~warpshade.geometry.bvh.Visibility` over ``points``, refit every frame,
+            or None when not asked for.
+        device: the Warp device.
+    """
+
+    frame: float
+    frame_index: int
+    frame_index_device: Any
+    points: Any
+    normals: Any
+    mesh_transforms: Any
+    mesh_scales: Any
+    joint_transforms: Any
+    skin_matrices: Any
+    joint_offsets: list = field(default_factory=list)
+    lighting: Any = None
+    eye: Any = None
+    has_eye: bool = False
+    bvh: Any = None
+    device: Any = None
+
+    @property
+    def vertex_count(self) -> int:
+        return int(self.points.shape[0])
+
+    def snapshot(self) -> "FrameState":
+        """A copy of the geometry arrays (points, normals, transforms) detached from the
+        evaluator's buffers; lighting and BVH are not copied."""
+        return FrameState(
+            frame=self.frame, frame_index=self.frame_index, frame_index_device=wp.clone(self.frame_index_device),
+            points=wp.clone(self.points), normals=wp.clone(self.normals),
+            mesh_transforms=wp.clone(self.mesh_transforms), mesh_scales=wp.clone(self.mesh_scales),
+            joint_transforms=wp.clone(self.joint_transforms), skin_matrices=wp.clone(self.skin_matrices),
+            joint_offsets=list(self.joint_offsets), eye=wp.clone(self.eye), has_eye=self.has_eye, device=self.device,
+        )
+
+
+@wp.kernel
+def _mesh_transforms_kernel(
+    frame: wp.array(dtype=wp.int32),
+    table: wp.array(dtype=wp.mat44),
+    scale_table: wp.array(dtype=wp.float32),
+    start: wp.array(dtype=wp.int32),
+    count: wp.array(dtype=wp.int32),
+    transforms: wp.array(dtype=wp.mat44),
+    scales: wp.array(dtype=wp.float32),
+):
+    m = wp.tid()
+    k = start[m] + wp.min(frame[0], count[m] - 1)
+    transforms[m] = table[k]
+    scales[m] = scale_table[k]
+
+
+def _column(row_matrices) -> np.ndarray:
+    m = np.asarray(row_matrices, np.float64).reshape(-1, 4, 4)
+    return np.ascontiguousarray(np.transpose(m, (0, 2, 1))).astype(np.float32)
+
+
+def _static_data(scene, dev) -> dict:
+    """Static arrays of ``scene`` on one device, built on first use and cached on the scene."""
+    key = str(dev)
+    cache = scene._device_cache
+    if key in cache:
+        return cache[key]
+    from ..geometry.normals import vertex_normal_sums_reference
+
+    data = {"faces": wp.array(scene.faces, dtype=wp.int32, device=dev), "meshes": []}
+    for mesh in scene.meshes:
+        entry = {}
+        if mesh.animation == "skinned":
+            bind = np.asarray(mesh.skin.geom_bind_transform, np.float64)
+            bound = mesh.points @ bind[:3, :3] + bind[3, :3]
+            entry["points"] = wp.array(bound.astype(np.float32), dtype=wp.vec3, device=dev)
+            entry["joint_indices"] = wp.array(np.asarray(mesh.skin.joint_indices, np.int32), dtype=wp.int32, device=dev)
+            entry["joint_weights"] = wp.array(np.asarray(mesh.skin.joint_weights, np.float32), dtype=wp.float32, device=dev)
+        elif mesh.animation == "deforming":
+            samples = np.asarray(mesh.point_samples, np.float32).reshape(-1, 3)
+            if samples.nbytes <= DEVICE_SAMPLE_BYTES:
+                entry["samples"] = wp.array(samples, dtype=wp.vec3, device=dev)
+        else:
+            entry["points"] = wp.array(mesh.points.astype(np.float32), dtype=wp.vec3, device=dev)
+            if mesh.normals is not None:
+                entry["rest_normals"] = wp.array(np.asarray(mesh.normals, np.float32), dtype=wp.vec3, device=dev)
+                entry["area_sums"] = False
+            else:  # area-weighted sums of the rest pose; transformed by the cofactor they stay exact
+                sums = vertex_normal_sums_reference(mesh.points, mesh.faces)
+                scale = np.maximum(np.linalg.norm(sums, axis=1, keepdims=True), 1e-300)
+                degenerate = np.linalg.norm(sums, axis=1) <= 1e-30
+                unit = np.where(degenerate[:, None], 0.0, sums / scale)  # direction is what the cofactor keeps
+                entry["rest_normals"] = wp.array(unit.astype(np.float32), dtype=wp.vec3, device=dev)
+                entry["area_sums"] = True
+        if mesh.animation in ("deforming", "skinned"):
+            entry["faces"] = wp.array(mesh.faces + mesh.vertex_offset, dtype=wp.int32, device=dev)
+            entry["vertices"] = wp.array(np.arange(mesh.vertex_offset, mesh.vertex_offset + mesh.vertex_count, dtype=np.int32),
+                                         dtype=wp.int32, device=dev)
+        data["meshes"].append(entry)
+    cache[key] = data
+    return data
+
+
+class FrameEvaluator:
+    """Fills one :class:`FrameState` of a scene per frame, on one device, with kernels only.
+
+    Args:
+        scene: the :class:`~warpshade.scene.Scene`.
+        device: Warp device (None = Warp's default).
+        lighting: a :class:`~warpshade.scene.lighting.LightingSource` (None: no lighting in
+            the state).
+        eye: viewer position (3,), world (default: the scene camera's position).
+        bvh: also keep a BVH over the points, refit every frame (``state.bvh``).
+
+    Attributes:
+        state: the :class:`FrameState` (fixed buffers).
+        albedo: per-vertex diffuse albedo, wp.array2d(float32), shape (vertex_count, 3),
+            linear RGB (static; :meth:`set_albedo` changes it).
+        uncaptured: why each Python call of :meth:`launch` is not capturable (empty when the
+            whole evaluation is kernels).
+    """
+
+    def __init__(self, scene, device=None, lighting=None, eye=None, bvh: bool = False):
+        from .lighting_warp import FrameLighting
+
+        dev = resolve_device(device)
+        self.scene = scene
+        self.device = dev
+        data = _static_data(scene, dev)
+        self._data = data
+        self.input = HostInput((4,), wp.int32, dev)  # [frame index, SH override on, -, -]
+        self.uncaptured: list[str] = []
+
+        # per-mesh transform tables (skeleton-to-world for skinned meshes), row t = frame index t
+        tables, scales, start, count = [], [], [], []
+        for mesh in scene.meshes:
+            rows = self._mesh_transform_rows(mesh)
+            start.append(sum(t.shape[0] for t in tables))
+            count.append(rows.shape[0])
+            tables.append(rows)
+            scales.append(np.linalg.svd(rows[:, :3, :3], compute_uv=False)[:, 0])
+        table = np.concatenate(tables)
+        self._transform_table = wp.array(_column(table), dtype=wp.mat44, device=dev)
+        self._scale_table = wp.array(np.concatenate(scales).astype(np.float32), dtype=wp.float32, device=dev)
+        self._transform_start = wp.array(np.array(start, np.int32), dtype=wp.int32, device=dev)
+        self._transform_count = wp.array(np.array(count, np.int32), dtype=wp.int32, device=dev)
+
+        # skeletons: joint-local animation, parents, inverse binds, skeleton-to-world
+        offsets = [0]
+        for skel in scene.skeletons:
+            offsets.append(offsets[-1] + skel.joint_count)
+        self._skeletons = len(scene.skeletons)
+        if self._skeletons:
+            local, local_start, local_frames, parents, inv_bind, world, world_start, world_frames = [], [], [], [], [], [], [], []
+            lsum = wsum = 0
+            for skel in scene.skeletons:
+                lt = np.asarray(skel.local_transforms, np.float64)
+                local.append(lt.reshape(-1, 4, 4))
+                local_start.append(lsum)
+                local_frames.append(lt.shape[0])
+                lsum += lt.shape[0] * skel.joint_count
+                parents.append(np.asarray(skel.parents, np.int32))
+                inv_bind.append(np.linalg.inv(np.asarray(skel.bind_transforms, np.float64)))
+                w = np.asarray(skel.skel_to_world, np.float64).reshape(-1, 4, 4)
+                world.append(w)
+                world_start.append(wsum)
+                world_frames.append(w.shape[0])
+                wsum += w.shape[0]
+            ints = lambda x: wp.array(np.asarray(x, np.int32), dtype=wp.int32, device=dev)  # noqa: E731
+            mats = lambda x: wp.array(_column(np.concatenate(x)), dtype=wp.mat44, device=dev)  # noqa: E731
+            self._skel_inputs = [mats(local), ints(local_start), ints(local_frames), ints(offsets), ints(np.concatenate(parents)),
+                                 mats(inv_bind), mats(world), ints(world_start), ints(world_frames)]
+        joint_count = offsets[-1]
+
+        v = scene.vertex_count
+        camera = scene.camera
+        has_eye = eye is not None or camera is not None
+        eye_pos = np.asarray(eye if eye is not None else (camera.position if camera is not None else (0.0, 0.0, 0.0)), np.float32)
+        self.state = FrameState(
+            frame=float(scene.frames[0]), frame_index=0, frame_index_device=self.input.array[0:1],
+            points=wp.zeros(v, dtype=wp.vec3, device=dev), normals=wp.zeros(v, dtype=wp.vec3, device=dev),
+            mesh_transforms=wp.zeros(len(scene.meshes), dtype=wp.mat44, device=dev),
+            mesh_scales=wp.zeros(len(scene.meshes), dtype=wp.float32, device=dev),
+            joint_transforms=wp.zeros(max(joint_count, 1), dtype=wp.mat44, device=dev),
+            skin_matrices=wp.zeros(max(joint_count, 1), dtype=wp.mat44, device=dev),
+            joint_offsets=offsets, eye=wp.array([eye_pos.reshape(3)], dtype=wp.vec3, device=dev), has_eye=has_eye,
+            device=dev,
+        )
+        self.albedo = wp.array(np.asarray(scene.albedo, np.float32).reshape(-1, 3), dtype=wp.float32, device=dev)
+        self.state.lighting = FrameLighting(lighting, scene.frames, self.input, dev) if lighting is not None else None
+        self.lighting_source = lighting
+        for mesh in scene.meshes:
+            if mesh.animation == "deforming" and "samples" not in data["meshes"][scene.meshes.index(mesh)]:
+                mb = mesh.point_samples.nbytes / 2**20
+                self.uncaptured.append(f"deforming mesh {mesh.path}: its point samples ({mb:.0f} MB) exceed the device "
+                                       f"budget of {DEVICE_SAMPLE_BYTES / 2**20:.0f} MB and are uploaded per frame")
+        # evaluate everything once: meshes that never move keep these points and normals
+        self._launch(moving_only=False)
+        if bvh:
+            from ..geometry.bvh import Visibility
+
+            self.state.bvh = Visibility.over(self.state.points, scene.faces)
+        self.launch()
+
+    # ---- host side -----------------------------------------------------------------------
+    @staticmethod
+    def _moves(mesh) -> bool:
+        return not (mesh.animation == "static" or (mesh.animation == "rigid" and mesh.transforms.shape[0] == 1))
+
+    def _mesh_transform_rows(self, mesh) -> np.ndarray:
+        if mesh.animation == "skinned":
+            return np.asarray(self.scene.skeletons[mesh.skin.skeleton].skel_to_world, np.float64).reshape(-1, 4, 4)
+        return np.asarray(mesh.transforms, np.float64).reshape(-1, 4, 4)
+
+    @property
+    def moving(self) -> bool:
+        """Whether any mesh moves (else the points, normals and BVH never change)."""
+        return any(self._moves(m) for m in self.scene.meshes)
+
+    def set_frame(self, frame) -> int:
+        """Validate a time code and write its index for the next :meth:`launch` (host only).
+
+        Raises:
+            ValueError: naming the valid range when ``frame`` is not a time code of the scene.
+        """
+        t = self.scene.frame_index(frame)
+        self.input.host[0] = t
+        self.state.frame = float(self.scene.frames[t])
+        self.state.frame_index = t
+        return t
+
+    def set_eye(self, position) -> None:
+        """Move the viewer (3,), world (a direct write; notify :data:`Change.VIEW`)."""
+        p = np.asarray(position, np.float64).reshape(-1)
+        if p.shape != (3,) or not np.all(np.isfinite(p)):
+            raise ValueError(f"eye: expected three finite numbers, got {position!r}")
+        self.state.eye.assign(np.asarray([p], np.float32))
+        self.state.has_eye = True
+
+    def set_albedo(self, albedo, prims=None) -> None:
+        """Replace the diffuse albedo of every vertex, or of the meshes whose prim paths are in
+        ``prims`` (RGB, (3,) or per vertex); a direct write (notify :data:`Change.MATERIAL`)."""
+        current = self.albedo.numpy().copy()
+        a = np.asarray(albedo, np.float64)
+        meshes = self.scene.meshes if prims is None else [m for m in self.scene.meshes if m.path in set(prims)]
+        if prims is not None and len(meshes) != len(set(prims)):
+            known = {m.path for m in self.scene.meshes}
+            raise ValueError(f"albedo: unknown mesh prim(s) {sorted(set(prims) - known)}")
+        for m in meshes:
+            sl = slice(m.vertex_offset, m.vertex_offset + m.vertex_count)
+            value = a.reshape(1, 3) if a.size == 3 else a.reshape(-1, 3)
+            if value.shape[0] not in (1, m.vertex_count) or not np.all(np.isfinite(value)) or np.any(value < 0):
+                raise ValueError(f"albedo for {m.path}: expected finite non-negative RGB, (3,) or ({m.vertex_count}, 3)")
+            current[sl] = value
+        self.albedo.assign(current.astype(np.float32))
+
+    # ---- device side ---------------------------------------------------------------------
+    def launch(self, recorder=None) -> None:
+        """Evaluate the frame written by :meth:`set_frame` (kernels on fixed buffers only).
+
+        Args:
+            recorder: the :class:`~warpshade._wp.FrameRecorder` when the frame is being
+                recorded (host uploads of oversized point samples become its calls).
+        """
+        self._launch(moving_only=True, recorder=recorder)
+        if self.state.lighting is not None:
+            self.state.lighting.launch()
+        if self.state.bvh is not None and self.moving:
+            self.state.bvh.refit()
+
+    def evaluate(self, frame) -> FrameState:
+        """:meth:`set_frame` then :meth:`launch` (uncaptured); returns :attr:`state`."""
+        self.set_frame(frame)
+        self.launch()
+        return self.state
+
+    def _launch(self, moving_only: bool, recorder=None) -> None:
+        from ..geometry.normals import compute_vertex_normals
+        from ..geometry.skinning import launch_skin_points, launch_transform_normals, launch_transform_points
+
+        dev, st, data, scene = self.device, self.state, self._data, self.scene
+        self.input.launch()
+        frame = self.input.array
+        if not moving_only or self.moving:
+            wp.launch(_mesh_transforms_kernel, dim=len(scene.meshes), device=dev, inputs=[
+                frame, self._transform_table, self._scale_table, self._transform_start, self._transform_count,
+                st.mesh_transforms, st.mesh_scales])
+        if self._skeletons:
+            from ..geometry.skinning import skeleton_pose_kernel
+
+            wp.launch(skeleton_pose_kernel, dim=self._skeletons, device=dev,
+                      inputs=[frame, *self._skel_inputs, st.joint_transforms, st.skin_matrices])
+        for k, (mesh, entry) in enumerate(zip(scene.meshes, data["meshes"])):
+            if moving_only and not self._moves(mesh):
+                continue
+            if mesh.animation == "skinned":
+                launch_skin_points(entry["points"], entry["joint_indices"], entry["joint_weights"], st.skin_matrices,
+                                   st.points, mesh.vertex_offset, joint_offset=st.joint_offsets[mesh.skin.skeleton])
+            elif mesh.animation == "deforming":
+                if "samples" in entry:
+                    launch_transform_points(entry["samples"], 0, mesh.vertex_count, st.mesh_transforms, st.points,
+                                            mesh.vertex_offset, matrix_index=k, frame=frame, frame_stride=mesh.vertex_count)
+                else:
+                    self._upload_samples(mesh, k, recorder)
+            else:
+                launch_transform_points(entry["points"], 0, mesh.vertex_count, st.mesh_transforms, st.points,
+                                        mesh.vertex_offset, matrix_index=k)
+                launch_transform_normals(entry["rest_normals"], st.mesh_transforms, st.normals, mesh.vertex_offset,
+                                         matrix_index=k, area_sums=entry["area_sums"])
+            if "vertices" in entry:
+                compute_vertex_normals(st.points, entry["faces"], st.normals, entry["vertices"])
+
+    def _upload_samples(self, mesh, k: int, recorder) -> None:
+        from ..geometry.skinning import launch_transform_points
+
+        def upload():
+            t = int(self.input.host[0])
+            src = wp.array(np.asarray(mesh.point_samples[t], np.float32), dtype=wp.vec3, device=self.device)
+            launch_transform_points(src, 0, mesh.vertex_count, self.state.mesh_transforms, self.state.points,
+                                    mesh.vertex_offset, matrix_index=k)
+
+        if recorder is not None:
+            recorder.call(upload, f"deforming mesh {mesh.path}: point samples uploaded per frame")
+        else:
+            upload()
