@@ -22,7 +22,7 @@ from warpshade.methods.ldprt import (
     shade_reference,
     world_transfer_reference,
 )
-from warpshade.methods.ldprt.model import rotate_stored
+from warpshade.methods.ldprt.reference import rotate_stored
 from warpshade.scene import Environment, Mesh, Scene
 from warpshade.transfer import compute
 

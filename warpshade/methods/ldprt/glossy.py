@@ -23,9 +23,9 @@ import numpy as np
 
 from ...basis import sh, zh
 from ...scene import materials
-from .model import STORED_BANDS, rotate_stored, stored_from_sh
+from .model import STORED_BANDS, stored_from_sh
 
-__all__ = ["GlossyModel", "brdf_from_params", "fit_glossy", "glossy_rows", "shade_glossy_reference"]
+__all__ = ["GlossyModel", "BRDF_KINDS", "brdf_arrays", "brdf_from_arrays", "brdf_from_params", "fit_glossy", "glossy_rows"]
 
 
 @dataclass
@@ -68,6 +68,27 @@ class GlossyModel:
         out = zh.to_sh(self.axes.astype(np.float64), self.coeffs.astype(np.float64))
         out[..., :4] += self.stored[..., : min(4, self.order**2)]
         return out
+
+
+#: The BRDF models glossy LDPRT factorises (stage parameter ``brdf``).
+BRDF_KINDS = ("microfacet", "beckmann", "phong", "blinn-phong", "lambert")
+
+
+def brdf_arrays(kind: str, roughness: float, exponent: float, f0: float) -> dict:
+    """A BRDF's stage parameters as named arrays (an "arrays" artifact port)."""
+    if kind not in BRDF_KINDS:
+        raise ValueError(f"glossy LDPRT: unknown BRDF {kind!r} ({', '.join(BRDF_KINDS)})")
+    return {"kind": np.array(kind), "roughness": np.array(float(roughness)), "exponent": np.array(float(exponent)),
+            "f0": np.array(float(f0))}
+
+
+def brdf_from_arrays(arrays: dict) -> materials.BRDF:
+    """The BRDF of :func:`brdf_arrays` (e.g. the ``brdf`` port of ``ldprt.glossy_fit``)."""
+    try:
+        return brdf_from_params(str(arrays["kind"]), float(arrays["roughness"]), float(arrays["exponent"]),
+                                float(arrays["f0"]))
+    except KeyError as exc:
+        raise ValueError(f"glossy LDPRT: not a BRDF description (missing {exc})") from None
 
 
 def brdf_from_params(kind: str, roughness: float = 0.3, exponent: float = 30.0, f0: float = 0.04) -> materials.BRDF:
@@ -116,21 +137,3 @@ def fit_glossy(visibility, factorization: materials.BRDFFactorization, lobes: in
         total_error=float(np.sqrt(np.sum(err**2) / max(np.sum(rows**2), 1e-300))),
         max_lobe_norm_ratio=float(res.notes["max_lobe_norm_ratio"]),
     )
-
-
-def shade_glossy_reference(model: GlossyModel, frames, view_world, light) -> np.ndarray:
-    """Float64 reference of the glossy shading kernel: (V, C) exit radiance.
-
-    Args:
-        frames: (V, 3, 3) tangent frames (rows t, b, n). view_world: (V, 3) unit directions
-            towards the viewer. light: (C, n*n) world lighting SH.
-    """
-    f = np.asarray(frames, dtype=np.float64)
-    rot = np.swapaxes(f, 1, 2)
-    view_local = np.einsum("vij,vj->vi", f, np.asarray(view_world, np.float64))
-    u = model.factorization.view_factors_at(view_local)  # (V, n_b)
-    axes = zh.rotate(model.axes.astype(np.float64), rot[:, None])  # (V, n_b, N, 3)
-    rows = zh.to_sh(axes, model.coeffs.astype(np.float64))  # (V, n_b, n^2)
-    stored = np.stack([rotate_stored(model.stored[:, j], rot, model.order) for j in range(model.rank)], axis=1)
-    rows_world = rows + stored
-    return np.einsum("vj,vjk,ck->vc", u, rows_world, np.asarray(light, np.float64))

@@ -206,7 +206,7 @@ def stored_row_term(stored: wp.array3d(dtype=wp.float32), v: int, j: int, rot: w
 def glossy_kernel(order: int):
     """``shade_glossy(frames, points, eye, axes, coeffs, stored, lobes, factors, table, light,
     specular, radiance)``: glossy LDPRT (eq. 16) with the light-specialised table, one thread
-    per vertex. ``axes``/``coeffs`` hold n_b rows x ``lobes`` lobes per vertex (row-major),
+    per vertex; ``eye`` is a (1,) vec3 device array (the frame state's viewer). ``axes``/``coeffs`` hold n_b rows x ``lobes`` lobes per vertex (row-major),
     ``factors`` the (res, res, n_b) view-factor texture; radiance = specular * r(v), 0 where the
     eye is below the vertex's tangent plane (the BRDF vanishes there)."""
     zk = zh_kernels(order)
@@ -217,7 +217,7 @@ def glossy_kernel(order: int):
     def shade_glossy(
         frames: wp.array(dtype=wp.mat33),
         points: wp.array(dtype=wp.vec3),
-        eye: wp.vec3,
+        eye: wp.array(dtype=wp.vec3),
         axes: wp.array2d(dtype=wp.vec3),
         coeffs: wp.array3d(dtype=wp.float32),
         stored: wp.array3d(dtype=wp.float32),
@@ -231,7 +231,7 @@ def glossy_kernel(order: int):
         v = wp.tid()
         f = frames[v]
         rot = wp.transpose(f)
-        view = eye - points[v]
+        view = eye[0] - points[v]
         vlen = wp.length(view)
         if vlen > 0.0:
             view = view / vlen

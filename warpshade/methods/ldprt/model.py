@@ -27,10 +27,7 @@ __all__ = [
     "LDPRTModel",
     "fit_transfer",
     "local_transfer",
-    "rotate_stored",
-    "shade_reference",
     "stored_from_sh",
-    "world_transfer_reference",
 ]
 
 #: Stage-parameter names of the DC/linear storage rule -> :func:`warpshade.basis.zh.fit` values.
@@ -156,38 +153,3 @@ def local_transfer(scene, frame, order: int, samples: int, device=None, seed: in
     from ...transfer import compute
 
     return compute(scene, frame, order, samples, space="local", device=device, seed=seed, vertices=vertices).transfer
-
-
-def rotate_stored(stored: np.ndarray, rotations: np.ndarray, order: int) -> np.ndarray:
-    """Stored DC + linear bands rotated to world, as SH (V, n*n) float64 (zero from band 2)."""
-    out = np.zeros((stored.shape[0], order * order))
-    out[:, 0] = stored[:, 0]
-    if order > 1:
-        w = np.stack([-stored[:, 3], -stored[:, 1], stored[:, 2]], axis=1).astype(np.float64)
-        ww = np.einsum("vij,vj->vi", rotations, w)
-        out[:, 1], out[:, 2], out[:, 3] = -ww[:, 1], ww[:, 2], -ww[:, 0]
-    return out
-
-
-def world_transfer_reference(model: LDPRTModel, frames: np.ndarray) -> np.ndarray:
-    """World-frame transfer of the model under per-vertex frames (float64), (V, n*n).
-
-    Args:
-        frames: (V, 3, 3) tangent frames (rows t, b, n); local -> world is ``F^T``.
-    """
-    rot = np.swapaxes(np.asarray(frames, np.float64), 1, 2)
-    axes = zh.rotate(model.axes.astype(np.float64), rot)
-    mask = np.arange(model.lobe_capacity)[None, :] < model.counts[:, None]
-    t = zh.to_sh(axes, model.coeffs.astype(np.float64) * mask[:, :, None])
-    return t + rotate_stored(model.stored, rot, model.order)
-
-
-def shade_reference(model: LDPRTModel, frames: np.ndarray, light: np.ndarray, albedo: np.ndarray) -> np.ndarray:
-    """Float64 reference of the LDPRT shading kernels, (V, 3) linear RGB.
-
-    ``radiance_c = albedo_c / pi * dot(L_c, t~_world)`` with ``L`` the world-frame lighting SH
-    (3, n*n).
-    """
-    t = world_transfer_reference(model, frames)
-    return np.asarray(albedo, np.float64) / np.pi * (t @ np.asarray(light, np.float64).T)
-

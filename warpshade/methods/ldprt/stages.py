@@ -20,7 +20,7 @@
   by ``ldprt.shade`` with ``lobes = 1``.
 * ``ldprt.wrinkle_table`` / ``ldprt.wrinkle_shade``: the sinusoidal wrinkle model, fitted over
   (phase, depth) and applied as flutes around an axis of a deforming mesh, the depth driven by
-  a static ramp plus the local compression along the axis.
+  a static ramp plus the local compression along the axis (groove geometry: :mod:`.wrinkle`).
 
 Radiance = albedo / pi * dot(L, t~), the convention of static PRT (:mod:`warpshade.methods.prt`).
 LDPRT rotates transfer with the local surface; it does not model occlusion by distant parts
@@ -34,9 +34,10 @@ import numpy as np
 from ..._wp import wp
 from ...basis._zh_fit import DEFAULT_RIDGE as _RIDGE
 from ...basis.sh_warp import sh_kernels
-from ..stage import Param, Port, Stage, register_stage
-from ..upload import LightingUpload
+from ..common import ShLighting, order_param
+from ..stage import Param, Port, Stage, StageError, register_stage
 from . import kernels
+from .glossy import BRDF_KINDS
 from .model import STORED_BANDS, fit_transfer, local_transfer
 
 __all__ = [
@@ -50,10 +51,9 @@ __all__ = [
     "ShadeStage",
     "WrinkleShadeStage",
     "WrinkleTableStage",
-    "groove_layout",
 ]
 
-_ORDER = Param(4, int, "SH order n (n*n coefficients)", minimum=1, maximum=8)
+_ORDER = order_param(4, minimum=1, maximum=8)
 _LOBES = Param(4, int, "lobes per vertex (the maximum when target_error is set)", minimum=1, maximum=8)
 _SAMPLES = Param(256, int, "rays per vertex of the transfer simulation", minimum=16)
 _FRAME = Param(None, float, "time code of the bake pose (default: the scene's first frame)")
@@ -85,13 +85,12 @@ class FitStage(Stage):
     }
 
     def dims(self):
-        n = self.params["order"]
-        return {"L": self.params["lobes"], "K": n}
+        return {"L": self.params["lobes"], "N": self.params["order"]}
 
     def output_ports(self):
         return {
             "axes": Port("float32", ("V", "L", 3), "lobe axes, local tangent frame"),
-            "coeffs": Port("float32", ("V", "L", "K"), "lobe convolution coefficients g*"),
+            "coeffs": Port("float32", ("V", "L", "N"), "lobe convolution coefficients g* (one per band)"),
             "counts": Port("int32", ("V",), "lobes used per vertex"),
             "stored": Port("float32", ("V", 4), "exactly stored DC + linear SH, local frame"),
             "fit_error": Port("float32", ("V",), "fit error relative to the RMS transfer norm"),
@@ -150,24 +149,12 @@ class FramesStage(Stage):
         self._frames = wp.zeros(ctx.dims["V"], dtype=wp.mat33, device=ctx.device)
         return {"frames": self._frames}
 
-    def launch(self, ctx):
+    def launch(self, state):
         self._tf.compute(self._points, self._normals, out=self._frames)
 
 
-class _Light:
-    """The frame's world lighting SH in a fixed device buffer with a device ``changed`` flag
-    (:class:`~warpshade.methods.upload.LightingUpload`)."""
-
-    def _alloc_light(self, ctx, order):
-        self._lighting = LightingUpload(order, ctx.device)
-        self._light, self._changed = self._lighting.light, self._lighting.changed
-
-    def _upload_light(self, ctx, order):
-        self._lighting.upload(ctx.lighting_sh(order))
-
-
 @register_stage
-class ShadeStage(Stage, _Light):
+class ShadeStage(Stage):
     type_name = "ldprt.shade"
     kind = "frame"
     description = "shade by ZH lobes rotated with the surface (light-specialised table or direct SH)"
@@ -180,13 +167,13 @@ class ShadeStage(Stage, _Light):
     }
 
     def dims(self):
-        return {"L": self.params["lobes"], "K": self.params["order"]}
+        return {"L": self.params["lobes"], "N": self.params["order"]}
 
     def input_ports(self):
         return {
             "frames": Port("mat33", ("V",)),
             "axes": Port("float32", ("V", "L", 3)),
-            "coeffs": Port("float32", ("V", "L", "K")),
+            "coeffs": Port("float32", ("V", "L", "N")),
             "counts": Port("int32", ("V",)),
             "stored": Port("float32", ("V", 4)),
             "albedo": Port("float32", ("V", 3)),
@@ -201,28 +188,26 @@ class ShadeStage(Stage, _Light):
         self._in = inputs
         v = ctx.dims["V"]
         self._axes = wp.array(inputs["axes"].numpy().reshape(v, -1, 3), dtype=wp.vec3, device=ctx.device)
-        self._alloc_light(ctx, order)
+        self._lighting = ShLighting(inputs["lighting"], order)
         width = self.params["table_width"]
         self._table = wp.zeros((width // 2 + 1, width, 3, order), dtype=wp.float32, device=ctx.device)
         self._table_kernel, self._shade_table, self._shade_direct, _ = kernels.shade_kernels(order)
         self._radiance = wp.zeros((v, 3), dtype=wp.float32, device=ctx.device)
         return {"radiance": self._radiance}
 
-    def prepare(self, ctx, frame):
-        self._upload_light(ctx, self.params["order"])
-
-    def launch(self, ctx):
-        i = self._in
-        dev = ctx.device
+    def launch(self, state):
+        i, light = self._in, self._lighting
+        dev, count = self._radiance.device, self._radiance.shape[0]
+        light.launch()
         if self.params["evaluation"] == "table":
-            wp.launch(self._table_kernel, dim=self._table.shape[:2], inputs=[self._light, self._changed, self._table],
+            wp.launch(self._table_kernel, dim=self._table.shape[:2], inputs=[light.light, light.changed, self._table],
                       device=dev)
-            wp.launch(self._shade_table, dim=ctx.dims["V"],
-                      inputs=[i["frames"], self._axes, i["coeffs"], i["counts"], i["stored"], self._table, self._light,
+            wp.launch(self._shade_table, dim=count,
+                      inputs=[i["frames"], self._axes, i["coeffs"], i["counts"], i["stored"], self._table, light.light,
                               i["albedo"], self._radiance], device=dev)
         else:
-            wp.launch(self._shade_direct, dim=ctx.dims["V"],
-                      inputs=[i["frames"], self._axes, i["coeffs"], i["counts"], i["stored"], self._light, i["albedo"],
+            wp.launch(self._shade_direct, dim=count,
+                      inputs=[i["frames"], self._axes, i["coeffs"], i["counts"], i["stored"], light.light, i["albedo"],
                               self._radiance], device=dev)
 
     def model_bytes(self) -> int:
@@ -230,7 +215,7 @@ class ShadeStage(Stage, _Light):
 
 
 @register_stage
-class RotatedShadeStage(Stage, _Light):
+class RotatedShadeStage(Stage):
     type_name = "ldprt.shade_rotated"
     kind = "frame"
     description = "full local SH transfer rotated to world per vertex (zxzxz), then dotted with the lighting"
@@ -253,23 +238,18 @@ class RotatedShadeStage(Stage, _Light):
     def setup(self, ctx, inputs):
         order = self.params["order"]
         self._in = inputs
-        self._alloc_light(ctx, order)
+        self._lighting = ShLighting(inputs["lighting"], order)
         self._kernel = kernels.shade_kernels(order)[3]
         self._tables = sh_kernels(order).tables(ctx.device)
         self._radiance = wp.zeros((ctx.dims["V"], 3), dtype=wp.float32, device=ctx.device)
         return {"radiance": self._radiance}
 
-    def prepare(self, ctx, frame):
-        self._upload_light(ctx, self.params["order"])
-
-    def launch(self, ctx):
+    def launch(self, state):
         i = self._in
-        wp.launch(self._kernel, dim=ctx.dims["V"],
-                  inputs=[i["frames"], i["transfer"], self._tables, self._light, i["albedo"], self._radiance],
-                  device=ctx.device)
-
-
-_BRDFS = ("microfacet", "beckmann", "phong", "blinn-phong", "lambert")
+        self._lighting.launch()
+        wp.launch(self._kernel, dim=self._radiance.shape[0],
+                  inputs=[i["frames"], i["transfer"], self._tables, self._lighting.light, i["albedo"], self._radiance],
+                  device=self._radiance.device)
 
 
 @register_stage
@@ -282,7 +262,7 @@ class GlossyFitStage(Stage):
         "order": _ORDER,
         "lobes": Param(3, int, "ZH lobes per BRDF row", minimum=1, maximum=8),
         "rank": Param(3, int, "BRDF rows kept by the SVD (n_b)", minimum=1),
-        "brdf": Param("microfacet", str, "BRDF model", choices=_BRDFS),
+        "brdf": Param("microfacet", str, "BRDF model", choices=BRDF_KINDS),
         "roughness": Param(0.5, float, "microfacet roughness alpha", minimum=1e-3, maximum=2.0),
         "exponent": Param(30.0, float, "Phong / Blinn-Phong exponent", minimum=0.0),
         "f0": Param(0.04, float, "microfacet Fresnel reflectance at normal incidence", minimum=0.0, maximum=1.0),
@@ -300,20 +280,21 @@ class GlossyFitStage(Stage):
 
     def dims(self):
         p = self.params
-        return {"R": p["rank"] * p["lobes"], "B": p["rank"], "K": p["order"], "Q": p["view_resolution"]}
+        return {"R": p["rank"] * p["lobes"], "B": p["rank"], "N": p["order"], "Q": p["view_resolution"]}
 
     def output_ports(self):
         return {
             "glossy_axes": Port("float32", ("V", "R", 3), "lobe axes per BRDF row (row-major), local frame"),
-            "glossy_coeffs": Port("float32", ("V", "R", "K"), "lobe convolution coefficients"),
+            "glossy_coeffs": Port("float32", ("V", "R", "N"), "lobe convolution coefficients"),
             "glossy_stored": Port("float32", ("V", "B", 4), "stored DC + linear SH per BRDF row"),
             "view_factors": Port("float32", ("Q", "Q", "B"), "u(v) texture on the concentric square"),
+            "brdf": Port("arrays", (), "the BRDF the rows were made from (glossy.brdf_arrays)"),
         }
 
     def precompute(self, ctx, inputs):
         from ...scene.materials import factorize
         from ...transfer import compute
-        from .glossy import brdf_from_params, fit_glossy
+        from .glossy import brdf_arrays, brdf_from_params, fit_glossy
 
         p = self.params
         if p["rank"] > p["order"] ** 2:
@@ -331,11 +312,12 @@ class GlossyFitStage(Stage):
             "glossy_coeffs": model.coeffs.reshape(v, -1, p["order"]),
             "glossy_stored": model.stored,
             "view_factors": fac.view_factors.astype(np.float32),
+            "brdf": brdf_arrays(p["brdf"], p["roughness"], p["exponent"], p["f0"]),
         }
 
 
 @register_stage
-class GlossyShadeStage(Stage, _Light):
+class GlossyShadeStage(Stage):
     type_name = "ldprt.glossy_shade"
     kind = "frame"
     description = "view-dependent glossy LDPRT shading (eq. 16) with the light-specialised table"
@@ -351,16 +333,17 @@ class GlossyShadeStage(Stage, _Light):
 
     def dims(self):
         p = self.params
-        return {"R": p["rank"] * p["lobes"], "B": p["rank"], "K": p["order"], "Q": p["view_resolution"]}
+        return {"R": p["rank"] * p["lobes"], "B": p["rank"], "N": p["order"], "Q": p["view_resolution"]}
 
     def input_ports(self):
         return {
             "frames": Port("mat33", ("V",)),
             "points": Port("vec3", ("V",)),
             "glossy_axes": Port("float32", ("V", "R", 3)),
-            "glossy_coeffs": Port("float32", ("V", "R", "K")),
+            "glossy_coeffs": Port("float32", ("V", "R", "N")),
             "glossy_stored": Port("float32", ("V", "B", 4)),
             "view_factors": Port("float32", ("Q", "Q", "B")),
+            "brdf": Port("arrays"),
             "lighting": Port("lighting"),
         }
 
@@ -369,19 +352,22 @@ class GlossyShadeStage(Stage, _Light):
 
     def setup(self, ctx, inputs):
         p = self.params
-        eye = p["eye"]
-        if eye is None:
-            if ctx.scene.camera is None:
-                raise ValueError(f"stage {self.name!r}: the scene has no camera; set the 'eye' parameter")
-            eye = ctx.scene.camera.position
-        if len(eye) != 3 or len(p["specular"]) != 3:
-            raise ValueError(f"stage {self.name!r}: 'eye' and 'specular' need three numbers")
-        self._eye = wp.vec3(*[float(x) for x in eye])
+        if p["eye"] is not None:
+            if len(p["eye"]) != 3 or not np.all(np.isfinite(np.asarray(p["eye"], np.float64))):
+                raise StageError(f"stage {self.name!r}: parameter 'eye' needs three finite numbers, got {p['eye']!r}")
+            self._eye = wp.array([wp.vec3(*[float(x) for x in p["eye"]])], dtype=wp.vec3, device=ctx.device)
+        elif ctx.state.has_eye:
+            self._eye = ctx.state.eye  # the scene camera, or the run's set_eye()
+        else:
+            raise StageError(f"stage {self.name!r}: the scene has no camera; set the 'eye' parameter")
+        if len(p["specular"]) != 3:
+            raise StageError(f"stage {self.name!r}: parameter 'specular' needs three numbers, got {p['specular']!r}")
         self._specular = wp.vec3(*[float(x) for x in p["specular"]])
+        self._brdf = inputs["brdf"]
         self._in = inputs
         v = ctx.dims["V"]
         self._axes = wp.array(inputs["glossy_axes"].numpy().reshape(v, -1, 3), dtype=wp.vec3, device=ctx.device)
-        self._alloc_light(ctx, p["order"])
+        self._lighting = ShLighting(inputs["lighting"], p["order"])
         width = p["table_width"]
         self._table = wp.zeros((width // 2 + 1, width, 3, p["order"]), dtype=wp.float32, device=ctx.device)
         self._table_kernel = kernels.shade_kernels(p["order"])[0]
@@ -389,30 +375,26 @@ class GlossyShadeStage(Stage, _Light):
         self._radiance = wp.zeros((v, 3), dtype=wp.float32, device=ctx.device)
         return {"radiance": self._radiance}
 
-    def prepare(self, ctx, frame):
-        self._upload_light(ctx, self.params["order"])
+    def reference_model(self):
+        """Glossy ground truth with the fit's BRDF (its ``brdf`` input), the current eye and
+        this stage's specular colour."""
+        from .glossy import brdf_from_arrays
 
-    def reference_model(self, runtime):
-        """Glossy ground truth with the fit stage's BRDF, this stage's eye and specular colour."""
-        from .glossy import brdf_from_params
-
-        provider = runtime.wiring[self.name]["view_factors"].provider
-        fit = next(s for s in runtime.stages if s.name == provider)
-        p = fit.params
         return {
-            "brdf": brdf_from_params(p["brdf"], p["roughness"], p["exponent"], p["f0"]),
-            "eye": np.array([self._eye[0], self._eye[1], self._eye[2]], np.float64),
+            "brdf": brdf_from_arrays(self._brdf),
+            "eye": self._eye.numpy()[0].astype(np.float64),
             "color": np.array([self._specular[0], self._specular[1], self._specular[2]], np.float64),
         }
 
-    def launch(self, ctx):
-        i = self._in
-        dev = ctx.device
-        wp.launch(self._table_kernel, dim=self._table.shape[:2], inputs=[self._light, self._changed, self._table],
+    def launch(self, state):
+        i, light = self._in, self._lighting
+        dev = self._radiance.device
+        light.launch()
+        wp.launch(self._table_kernel, dim=self._table.shape[:2], inputs=[light.light, light.changed, self._table],
                   device=dev)
-        wp.launch(self._kernel, dim=ctx.dims["V"],
+        wp.launch(self._kernel, dim=self._radiance.shape[0],
                   inputs=[i["frames"], i["points"], self._eye, self._axes, i["glossy_coeffs"], i["glossy_stored"],
-                          self.params["lobes"], i["view_factors"], self._table, self._light, self._specular,
+                          self.params["lobes"], i["view_factors"], self._table, light.light, self._specular,
                           self._radiance], device=dev)
 
 
@@ -431,7 +413,7 @@ class MembraneStage(Stage):
     }
 
     def dims(self):
-        return {"L": 1, "K": self.params["order"]}
+        return {"L": 1, "N": self.params["order"]}
 
     def output_ports(self):
         return FitStage.output_ports(self)
@@ -468,12 +450,12 @@ class WrinkleTableStage(Stage):
 
     def dims(self):
         p = self.params
-        return {"PX": p["phase_controls"], "PD": p["depth_controls"], "K": p["order"]}
+        return {"PX": p["phase_controls"], "PD": p["depth_controls"], "N": p["order"]}
 
     def output_ports(self):
         return {
             "wrinkle_axes": Port("float32", ("PX", "PD", 3, 3), "lobe axes (groove frame), control grid"),
-            "wrinkle_coeffs": Port("float32", ("PX", "PD", 3, "K"), "lobe coefficients, control grid"),
+            "wrinkle_coeffs": Port("float32", ("PX", "PD", 3, "N"), "lobe coefficients, control grid"),
             "wrinkle_stored": Port("float32", ("PX", "PD", 4), "DC + linear SH, control grid"),
         }
 
@@ -491,58 +473,8 @@ class WrinkleTableStage(Stage):
                 "wrinkle_stored": table.stored.astype(np.float32)}
 
 
-def groove_layout(scene, axis, center, grooves: int, depth_range, cap_cosine: float = 0.7):
-    """Per-vertex groove parameters on a rest pose around an axis (flutes along the axis).
-
-    Returns dict of NumPy arrays (V,): ``phase`` (grooves * angle around the axis / 2 pi),
-    ``groove_angle`` (angle from the rest tangent to the groove's cross-section direction, about
-    the normal), ``base_depth`` (linear ramp ``depth_range`` along the axis; 0 where
-    ``|n . axis| > cap_cosine``: end caps), ``axis_neighbour`` / ``rest_length`` (the one-ring
-    neighbour most aligned with the axis, and the rest distance to it).
-    """
-    from ...geometry.frames import TangentFrames
-
-    tf = TangentFrames.from_scene(scene, device="cpu")
-    rule = tf.rule
-    parts = [m.points @ m.transforms[0][:3, :3] + m.transforms[0][3, :3] for m in scene.meshes]
-    p = np.concatenate(parts)
-    a = np.asarray(axis, np.float64) / np.linalg.norm(axis)
-    rel = p - np.asarray(center, np.float64)
-    along = rel @ a
-    radial = rel - along[:, None] * a
-    ref = np.cross(a, [1.0, 0.0, 0.0]) if abs(a[0]) < 0.9 else np.cross(a, [0.0, 1.0, 0.0])
-    ref /= np.linalg.norm(ref)
-    angle = np.arctan2(radial @ np.cross(a, ref), radial @ ref)
-    phase = np.mod(grooves * angle / (2.0 * np.pi), 1.0)
-    n = rule.rest_normals
-    across = np.cross(a, radial)
-    across -= np.sum(across * n, axis=1, keepdims=True) * n
-    length = np.linalg.norm(across, axis=1, keepdims=True)
-    across = np.where(length > 1e-12, across / np.maximum(length, 1e-300), rule.rest_tangents)
-    t = rule.rest_tangents
-    b = np.cross(n, t)
-    groove_angle = np.arctan2(np.sum(across * b, axis=1), np.sum(across * t, axis=1))
-    lo, hi = along.min(), along.max()
-    ramp = (along - lo) / max(hi - lo, 1e-12)
-    base = depth_range[0] + (depth_range[1] - depth_range[0]) * ramp
-    base = np.where(np.abs(n @ a) > cap_cosine, 0.0, base)
-    owner = np.repeat(np.arange(p.shape[0]), np.diff(rule.offsets))
-    e = p[rule.neighbours] - p[owner]
-    score = np.abs(e @ a) / np.maximum(np.linalg.norm(e, axis=1), 1e-300)
-    neighbour = np.full(p.shape[0], -1, np.int64)
-    rest_len = np.zeros(p.shape[0])
-    for v in range(p.shape[0]):
-        s, t_ = rule.offsets[v], rule.offsets[v + 1]
-        if t_ > s:
-            k = s + int(np.argmax(score[s:t_]))
-            neighbour[v] = rule.neighbours[k]
-            rest_len[v] = np.linalg.norm(e[k])
-    return {"phase": phase, "groove_angle": groove_angle, "base_depth": base, "axis_neighbour": neighbour,
-            "rest_length": rest_len}
-
-
 @register_stage
-class WrinkleShadeStage(Stage, _Light):
+class WrinkleShadeStage(Stage):
     type_name = "ldprt.wrinkle_shade"
     kind = "frame"
     description = "shade a smooth deforming surface with sinusoidal wrinkle transfer (flutes along an axis)"
@@ -560,14 +492,14 @@ class WrinkleShadeStage(Stage, _Light):
 
     def dims(self):
         p = self.params
-        return {"PX": p["phase_controls"], "PD": p["depth_controls"], "K": p["order"]}
+        return {"PX": p["phase_controls"], "PD": p["depth_controls"], "N": p["order"]}
 
     def input_ports(self):
         return {
             "frames": Port("mat33", ("V",)),
             "points": Port("vec3", ("V",)),
             "wrinkle_axes": Port("float32", ("PX", "PD", 3, 3)),
-            "wrinkle_coeffs": Port("float32", ("PX", "PD", 3, "K")),
+            "wrinkle_coeffs": Port("float32", ("PX", "PD", 3, "N")),
             "wrinkle_stored": Port("float32", ("PX", "PD", 4)),
             "albedo": Port("float32", ("V", 3)),
             "lighting": Port("lighting"),
@@ -582,6 +514,8 @@ class WrinkleShadeStage(Stage, _Light):
         for key in ("axis", "center", "depth_range"):
             if len(p[key]) != (2 if key == "depth_range" else 3):
                 raise ValueError(f"stage {self.name!r}: parameter {key!r} has the wrong length: {p[key]!r}")
+        from .wrinkle import groove_layout
+
         dev = ctx.device
         layout = groove_layout(ctx.scene, p["axis"], p["center"], p["grooves"], p["depth_range"])
         self._layout = {k: wp.array(v.astype(np.int32 if k == "axis_neighbour" else np.float32), device=dev)
@@ -589,22 +523,20 @@ class WrinkleShadeStage(Stage, _Light):
         self._in = inputs
         axes = inputs["wrinkle_axes"].numpy()
         self._table_axes = wp.array(axes.reshape(axes.shape[0], axes.shape[1], 3, 3), dtype=wp.vec3, device=dev)
-        self._alloc_light(ctx, p["order"])
+        self._lighting = ShLighting(inputs["lighting"], p["order"])
         self._depth_kernel, self._shade = kernels.wrinkle_kernels(p["order"])
         v = ctx.dims["V"]
         self._depth = wp.zeros(v, dtype=wp.float32, device=dev)
         self._radiance = wp.zeros((v, 3), dtype=wp.float32, device=dev)
         return {"radiance": self._radiance, "depth": self._depth}
 
-    def prepare(self, ctx, frame):
-        self._upload_light(ctx, self.params["order"])
-
-    def launch(self, ctx):
+    def launch(self, state):
         p, i, lay = self.params, self._in, self._layout
-        dev, v = ctx.device, ctx.dims["V"]
+        dev, v = self._radiance.device, self._radiance.shape[0]
+        self._lighting.launch()
         wp.launch(self._depth_kernel, dim=v, inputs=[i["points"], lay["axis_neighbour"], lay["rest_length"],
                                                      lay["base_depth"], p["compression_gain"], p["max_depth"],
                                                      self._depth], device=dev)
         wp.launch(self._shade, dim=v, inputs=[i["frames"], lay["phase"], lay["groove_angle"], self._depth,
                                               self._table_axes, i["wrinkle_coeffs"], i["wrinkle_stored"],
-                                              p["max_depth"], self._light, i["albedo"], self._radiance], device=dev)
+                                              p["max_depth"], self._lighting.light, i["albedo"], self._radiance], device=dev)

@@ -32,6 +32,7 @@ import numpy as np
 from scipy import sparse
 
 from ...basis import _zh_fit, sh
+from ...geometry.frames import TangentFrames
 
 __all__ = [
     "WrinkleTable",
@@ -39,6 +40,7 @@ __all__ = [
     "evaluate_table",
     "fit_wrinkle_table",
     "groove_height",
+    "groove_layout",
     "groove_mesh",
     "groove_transfer",
 ]
@@ -220,3 +222,51 @@ def evaluate_table(table: WrinkleTable, phase, depth) -> np.ndarray:
     out = np.einsum("bij,bij->bj", y, coeffs[:, :, sh.band_of(table.order)])
     out[:, :4] += w @ table.stored.reshape(cx * cd, 4)
     return out
+
+
+def groove_layout(scene, axis, center, grooves: int, depth_range, cap_cosine: float = 0.7):
+    """Per-vertex groove parameters on a rest pose around an axis (flutes along the axis).
+
+    Returns dict of NumPy arrays (V,): ``phase`` (grooves * angle around the axis / 2 pi),
+    ``groove_angle`` (angle from the rest tangent to the groove's cross-section direction, about
+    the normal), ``base_depth`` (linear ramp ``depth_range`` along the axis; 0 where
+    ``|n . axis| > cap_cosine``: end caps), ``axis_neighbour`` / ``rest_length`` (the one-ring
+    neighbour most aligned with the axis, and the rest distance to it).
+    """
+    tf = TangentFrames.from_scene(scene, device="cpu")
+    rule = tf.rule
+    parts = [m.points @ m.transforms[0][:3, :3] + m.transforms[0][3, :3] for m in scene.meshes]
+    p = np.concatenate(parts)
+    a = np.asarray(axis, np.float64) / np.linalg.norm(axis)
+    rel = p - np.asarray(center, np.float64)
+    along = rel @ a
+    radial = rel - along[:, None] * a
+    ref = np.cross(a, [1.0, 0.0, 0.0]) if abs(a[0]) < 0.9 else np.cross(a, [0.0, 1.0, 0.0])
+    ref /= np.linalg.norm(ref)
+    angle = np.arctan2(radial @ np.cross(a, ref), radial @ ref)
+    phase = np.mod(grooves * angle / (2.0 * np.pi), 1.0)
+    n = rule.rest_normals
+    across = np.cross(a, radial)
+    across -= np.sum(across * n, axis=1, keepdims=True) * n
+    length = np.linalg.norm(across, axis=1, keepdims=True)
+    across = np.where(length > 1e-12, across / np.maximum(length, 1e-300), rule.rest_tangents)
+    t = rule.rest_tangents
+    b = np.cross(n, t)
+    groove_angle = np.arctan2(np.sum(across * b, axis=1), np.sum(across * t, axis=1))
+    lo, hi = along.min(), along.max()
+    ramp = (along - lo) / max(hi - lo, 1e-12)
+    base = depth_range[0] + (depth_range[1] - depth_range[0]) * ramp
+    base = np.where(np.abs(n @ a) > cap_cosine, 0.0, base)
+    owner = np.repeat(np.arange(p.shape[0]), np.diff(rule.offsets))
+    e = p[rule.neighbours] - p[owner]
+    score = np.abs(e @ a) / np.maximum(np.linalg.norm(e, axis=1), 1e-300)
+    neighbour = np.full(p.shape[0], -1, np.int64)
+    rest_len = np.zeros(p.shape[0])
+    for v in range(p.shape[0]):
+        s, t_ = rule.offsets[v], rule.offsets[v + 1]
+        if t_ > s:
+            k = s + int(np.argmax(score[s:t_]))
+            neighbour[v] = rule.neighbours[k]
+            rest_len[v] = np.linalg.norm(e[k])
+    return {"phase": phase, "groove_angle": groove_angle, "base_depth": base, "axis_neighbour": neighbour,
+            "rest_length": rest_len}

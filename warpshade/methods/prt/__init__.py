@@ -1,29 +1,28 @@
-"""Static PRT and unshadowed irradiance (the baselines every dynamic method is measured against)."""
+"""Static PRT and unshadowed irradiance: the baselines every dynamic method is measured against.
 
+This package is the worked example of a method (``docs/adding-a-method.md``); every method has
+the same modules:
+
+* :mod:`.stages` -- the graph stages: ports, parameters, binding buffers (thin);
+* :mod:`.kernels` -- the Warp kernels;
+* :mod:`.model` -- the precomputed artifact (a dataclass with its check) and how it is made;
+* :mod:`.reference` -- the float64 mirror of the kernels, the tests' oracle;
+* :mod:`.rows` -- the settings the speed-vs-accuracy harness runs;
+* :mod:`.budget` -- the candidate settings an error budget chooses from.
+"""
+
+from .model import TransferModel, bake_transfer
+from .reference import shade_transfer_reference, shade_unshadowed_reference
+from .rows import harness_rows
 from .stages import ShadeTransferStage, TransferStage, UnshadowedStage
 
-__all__ = ["ShadeTransferStage", "TransferStage", "UnshadowedStage", "harness_rows"]
-
-
-def harness_rows(quick: bool = False) -> list:
-    """Harness settings: static PRT over SH order and ray count, unshadowed over order."""
-    from ..harness import HarnessRow
-
-    rows = []
-    for order in (2, 3, 4, 6):
-        for samples in (64, 256, 1024):
-            rows.append(HarnessRow(
-                "prt", f"n{order} s{samples}",
-                (("bake", "prt.transfer", {"order": order, "samples": samples}, {}),
-                 ("shade", "prt.shade", {"order": order}, {"transfer": "bake.transfer"})),
-                "shade.radiance", scenes=("all",), quick=(samples == 256 and order in (3, 4)),
-                notes="transfer baked at the first frame (exact only for static scenes)",
-            ))
-    for order in (2, 3, 4):
-        rows.append(HarnessRow(
-            "unshadowed", f"n{order}",
-            (("shade", "prt.unshadowed", {"order": order}, {}),),
-            "shade.radiance", scenes=("all",), quick=(order == 3),
-            notes="normal-indexed irradiance, no visibility",
-        ))
-    return rows
+__all__ = [
+    "ShadeTransferStage",
+    "TransferModel",
+    "TransferStage",
+    "UnshadowedStage",
+    "bake_transfer",
+    "harness_rows",
+    "shade_transfer_reference",
+    "shade_unshadowed_reference",
+]

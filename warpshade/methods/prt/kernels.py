@@ -1,8 +1,8 @@
-"""Warp kernels of static PRT and unshadowed irradiance."""
+"""Warp kernels of static PRT and unshadowed irradiance (float64 mirrors: :mod:`.reference`)."""
 
 import functools
 
-import warp as wp
+from ..._wp import wp
 
 from ...basis.sh_warp import sh_kernels
 

@@ -1,34 +1,31 @@
 """Static PRT (Sloan, Kautz, Snyder 2002) and unshadowed irradiance as graph stages.
 
-* ``prt.transfer`` (precompute): per-vertex diffuse transfer vectors ``t`` (the SH projection
-  of ``V(s) max(0, n.s)``, world frame) ray traced on the scene at one frame;
-* ``prt.shade`` (per frame): rotate/project the frame's lighting to SH (host, float64, once per
-  frame) and shade every vertex by ``albedo / pi * dot(L_c, t)`` per colour channel;
-* ``prt.unshadowed`` (per frame): the cheapest baseline -- irradiance indexed by the current
+* ``prt.transfer`` (precompute): per-vertex diffuse transfer vectors ``t`` (world frame) ray
+  traced at one frame (:func:`.model.bake_transfer`);
+* ``prt.shade`` (per frame): ``albedo / pi * max(0, dot(L_c, t))`` per vertex and channel with
+  the frame's SH lighting ``L`` (:mod:`.kernels`);
+* ``prt.unshadowed`` (per frame): the cheapest baseline, irradiance indexed by the current
   normal, ``albedo / pi * sum_lm A_l L_lm y_lm(n)`` with the clamped-cosine factors ``A_l``.
   No visibility; valid for deforming meshes too.
 
-Both clamp negative radiance (SH truncation rings below zero in deep shadow) to zero.
-Static PRT is exact up to SH truncation and sampling for meshes that do not move; on animated
-scenes it keeps the transfer of the bake frame, which is the "undeformed PRT" baseline the
-later methods are measured against.
+Both clamp negative radiance (SH truncation rings below zero in deep shadow) to zero. The
+stages only declare ports and parameters and bind buffers; the maths is in :mod:`.kernels`,
+its float64 mirror in :mod:`.reference`, the artifact in :mod:`.model`.
 """
 
 from __future__ import annotations
 
-import numpy as np
-
 from ..._wp import wp
 from ...basis import sh
+from ..common import WINDOW_PARAMS, ShLighting, order_param
 from ..stage import Param, Port, Stage, register_stage
-from ..upload import LightingUpload
 from . import kernels
+from .model import TransferModel, bake_transfer
 
 __all__ = ["TransferStage", "ShadeTransferStage", "UnshadowedStage"]
 
-_ORDER = Param(4, int, "SH order n (n*n coefficients)", minimum=1, maximum=10)
-_WINDOW = Param(None, str, "SH window applied to the lighting (None, 'cosine', 'hanning', 'lanczos')",
-                choices=(None, "cosine", "hanning", "lanczos"))
+_ORDER = order_param(4, minimum=1, maximum=10)
+_RADIANCE = Port("float32", ("V", 3), "outgoing radiance, linear RGB")
 
 
 @register_stage
@@ -50,16 +47,12 @@ class TransferStage(Stage):
         return {"transfer": Port("float32", ("V", "C"), "diffuse transfer vectors, world frame")}
 
     def precompute(self, ctx, inputs):
-        from ...transfer import compute
+        p = self.params
+        frame = float(ctx.scene.frames[0]) if p["frame"] is None else p["frame"]
+        return bake_transfer(ctx.scene, frame, p["order"], p["samples"], p["seed"], ctx.device).arrays()
 
-        frame = self.params["frame"]
-        if frame is None:
-            frame = float(ctx.scene.frames[0])
-        result = compute(
-            ctx.scene, frame, self.params["order"], self.params["samples"], space="world",
-            device=ctx.device, seed=self.params["seed"],
-        )
-        return {"transfer": np.asarray(result.transfer, dtype=np.float32)}
+    def check_artifact(self, outputs):
+        TransferModel.from_arrays(outputs, order=self.params["order"])
 
 
 @register_stage
@@ -67,7 +60,7 @@ class ShadeTransferStage(Stage):
     type_name = "prt.shade"
     kind = "frame"
     description = "shade by dot(lighting SH, transfer) per vertex and channel"
-    parameters = {"order": _ORDER, "window": _WINDOW, "window_size": Param(None, float, "window size h (default 2n)")}
+    parameters = {"order": _ORDER, **WINDOW_PARAMS}
 
     def dims(self):
         return {"C": self.params["order"] ** 2}
@@ -80,23 +73,19 @@ class ShadeTransferStage(Stage):
         }
 
     def output_ports(self):
-        return {"radiance": Port("float32", ("V", 3), "outgoing radiance, linear RGB")}
+        return {"radiance": _RADIANCE}
 
     def setup(self, ctx, inputs):
         self._transfer = inputs["transfer"]
         self._albedo = inputs["albedo"]
-        self._lighting = LightingUpload(self.params["order"], ctx.device)
+        self._lighting = ShLighting.for_stage(inputs["lighting"], self.params["order"], self.params)
         self._radiance = wp.zeros((ctx.dims["V"], 3), dtype=wp.float32, device=ctx.device)
         return {"radiance": self._radiance}
 
-    def prepare(self, ctx, frame):
-        self._lighting.upload(ctx.lighting_sh(self.params["order"], **_window_args(self.params)))
-
-    def launch(self, ctx):
-        wp.launch(
-            kernels.shade_transfer_kernel, dim=ctx.dims["V"],
-            inputs=[self._transfer, self._lighting.light, self._albedo, self._radiance], device=ctx.device,
-        )
+    def launch(self, state):
+        self._lighting.launch()
+        wp.launch(kernels.shade_transfer_kernel, dim=self._radiance.shape[0], device=self._radiance.device,
+                  inputs=[self._transfer, self._lighting.light, self._albedo, self._radiance])
 
 
 @register_stage
@@ -104,38 +93,25 @@ class UnshadowedStage(Stage):
     type_name = "prt.unshadowed"
     kind = "frame"
     description = "unshadowed irradiance indexed by the current normal"
-    parameters = {"order": Param(3, int, "SH order n", minimum=1, maximum=10), "window": _WINDOW,
-                  "window_size": Param(None, float, "window size h (default 2n)")}
+    parameters = {"order": order_param(3, minimum=1, maximum=10), **WINDOW_PARAMS}
 
     def input_ports(self):
         return {"normals": Port("vec3", ("V",)), "albedo": Port("float32", ("V", 3)), "lighting": Port("lighting")}
 
     def output_ports(self):
-        return {"radiance": Port("float32", ("V", 3), "outgoing radiance, linear RGB")}
+        return {"radiance": _RADIANCE}
 
     def setup(self, ctx, inputs):
         order = self.params["order"]
         self._normals = inputs["normals"]
         self._albedo = inputs["albedo"]
-        self._lighting = LightingUpload(order, ctx.device)
-        self._conv = sh.clamped_cosine_zh(order)[sh.band_of(order)]
+        # the lighting convolved with the clamped cosine, A_l L_lm
+        self._lighting = ShLighting.for_stage(inputs["lighting"], order, self.params, convolution=sh.clamped_cosine_zh(order))
         self._kernel = kernels.unshadowed_kernel(order)
         self._radiance = wp.zeros((ctx.dims["V"], 3), dtype=wp.float32, device=ctx.device)
         return {"radiance": self._radiance}
 
-    def prepare(self, ctx, frame):
-        light = ctx.lighting_sh(self.params["order"], **_window_args(self.params))
-        self._lighting.upload(light * self._conv[None, :])
-
-    def launch(self, ctx):
-        wp.launch(self._kernel, dim=ctx.dims["V"], inputs=[self._normals, self._lighting.light, self._albedo, self._radiance],
-                  device=ctx.device)
-
-
-def _window_args(params) -> dict:
-    if params.get("window") is None:
-        return {}
-    args = {"window": params["window"]}
-    if params.get("window_size") is not None:
-        args["size"] = params["window_size"]
-    return args
+    def launch(self, state):
+        self._lighting.launch()
+        wp.launch(self._kernel, dim=self._radiance.shape[0], device=self._radiance.device,
+                  inputs=[self._normals, self._lighting.light, self._albedo, self._radiance])

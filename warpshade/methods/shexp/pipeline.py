@@ -4,8 +4,10 @@
 (order, exp method, shading path, accumulation, self-shadowing rule) and a fixed problem size
 (vertex count, blocker node count, clusters x cut capacity, sphere lights). Host-side setters
 upload into those fixed buffers (``prepare`` work); :meth:`ShexpShader.launch` only launches
-kernels, so a frame is capturable as a CUDA graph. On the CPU the receiver pass is split into
-chunks over a small thread pool (Warp runs one CPU launch on one thread and releases the GIL).
+kernels on fixed buffers, so a frame is recordable; the ``bind_*`` methods point it at device
+arrays that other code fills per frame (the frame state's lighting, the animated spheres). On
+the CPU the receiver pass is split into chunks over a small thread pool
+(:func:`warpshade._wp.launch_parallel`).
 
 Typical use (what the stages do)::
 
@@ -21,11 +23,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..._wp import resolve_device, wp
+from ..._wp import cpu_workers, launch_parallel, resolve_device, wp
 from ...basis._shexp import DEFAULT_DEGREE
 from ...basis.sh_warp import sh_kernels
-from ...transfer.raytrace import default_workers, launch_chunked
-from ..upload import StagedUpload
 from . import kernels, tables
 
 __all__ = ["ShexpShader", "SphereTracer", "shade_receivers", "CPU_CHUNK_MIN_RECEIVERS"]
@@ -108,7 +108,7 @@ class ShexpShader:
         self.accumulate = accumulate
         self.rule = rule
         self.device = resolve_device(device)
-        self.workers = default_workers(self.device) if workers is None else max(1, int(workers))
+        self.workers = (cpu_workers() if self.device.is_cpu else 1) if workers is None else max(1, int(workers))
         self.vertex_count = int(vertex_count)
         self.node_count = int(node_count)
         self.clusters = int(clusters)
@@ -143,8 +143,7 @@ class ShexpShader:
         self.receivers = r
 
         s = kernels.ShadeInputs()
-        self._light_upload = StagedUpload((3, self.n2), wp.float32, dev)
-        s.light = self._light_upload.array
+        s.light = wp.zeros((3, self.n2), dtype=wp.float32, device=dev)
         s.cosine_zh = wp.array((kernels.cosine_zh(n) * self._band_keep).astype(np.float32), dtype=wp.float32, device=dev)
         s.window = wp.array((tables.window_alpha(n, window, window_size) * self._band_keep).astype(np.float32), dtype=wp.float32,
                             device=dev)
@@ -282,14 +281,39 @@ class ShexpShader:
             self.blockers.weighted = 0
 
     # ---- lighting -------------------------------------------------------------------------
+    @property
+    def band_keep(self) -> np.ndarray:
+        """Per-band factors (n,): 1 below ``shade_order``, 0 from it (what lighting is scaled by)."""
+        return self._band_keep.copy()
+
     def upload_lighting(self, light_sh) -> None:
-        """Distant lighting SH (3, n*n), world frame, into the fixed buffer."""
+        """Distant lighting SH (3, n*n), world frame, into the fixed buffer (host write; bands
+        from ``shade_order`` on are dropped)."""
         l = np.asarray(light_sh, np.float64)
         if l.shape != (3, self.n2) or not np.all(np.isfinite(l)):
             raise ValueError(f"shexp: lighting must be finite with shape (3, {self.n2}), got {l.shape}")
         from ...basis import sh
 
-        self._light_upload.upload(l * self._band_keep[sh.band_of(self.order)])
+        self.shading.light.assign((l * self._band_keep[sh.band_of(self.order)]).astype(np.float32))
+
+    def bind_lighting(self, light) -> None:
+        """Read the distant lighting from this device array every launch: (3, n*n) float32,
+        world frame, already truncated to ``shade_order`` (e.g. a stage's
+        :class:`~warpshade.methods.common.ShLighting`)."""
+        if tuple(light.shape) != (3, self.n2):
+            raise ValueError(f"shexp: lighting must have shape (3, {self.n2}), got {tuple(light.shape)}")
+        self.shading.light = self._device(light, wp.float32, (3, self.n2), "lighting")
+
+    def bind_sphere_lights(self, position, radius, radiance) -> None:
+        """Read the sphere lights from these device arrays every launch ((S,) vec3, (S,) float32,
+        (S,) vec3; S = ``sphere_light_count``), e.g. a frame state's lighting."""
+        for name, arr in (("positions", position), ("radii", radius), ("radiances", radiance)):
+            if arr.shape[0] != self.sphere_light_count:
+                raise ValueError(f"shexp: the shader was built for {self.sphere_light_count} sphere lights, "
+                                 f"got {arr.shape[0]} {name}")
+        self.shading.sphere_position = position
+        self.shading.sphere_radius = radius
+        self.shading.sphere_radiance = radiance
 
     def upload_sphere_lights(self, lights) -> None:
         """Sphere lights of the frame (objects with position, radius, radiance); at most the
@@ -320,12 +344,11 @@ class ShexpShader:
 
         self.fallbacks.zero_()
 
-        def inputs(start):
+        def inputs(start, stop):
             return [self.blockers, self.receivers, s, self.sh_tables, self.exp_tables, self.degree, rule, start,
                     self.radiance, self.visibility, 1 if self.store_visibility else 0, self.fallbacks]
 
-        workers = self.workers if self.vertex_count >= CPU_CHUNK_MIN_RECEIVERS else 1
-        launch_chunked(self.kernel, self.vertex_count, inputs, dev, workers)
+        launch_parallel(self.kernel, self.vertex_count, inputs, dev, self.workers, min_count=CPU_CHUNK_MIN_RECEIVERS)
 
     def fallback_count(self) -> int:
         """Receivers of the last launch whose visibility fell back to the scalar estimate
@@ -363,12 +386,13 @@ class SphereTracer:
     """
 
     def __init__(self, shader: ShexpShader, environment, samples: int = 512, seed: int = 0):
-        from ...scene.lighting_warp import upload_environment
+        from ...scene.lighting_warp import EnvironmentMap, upload_environment
 
         if samples < 4:
             raise ValueError(f"sphere tracer: samples must be >= 4, got {samples}")
         self.shader = shader
-        self.env = upload_environment(environment, shader.device)
+        # an Environment (uploaded once) or an EnvironmentMap that turns with the frame state
+        self.env = environment if isinstance(environment, EnvironmentMap) else upload_environment(environment, shader.device)
         self.iterations = int(samples) // 2
         self.seed = int(seed)
         dev = shader.device
@@ -381,11 +405,11 @@ class SphereTracer:
         sh_ = self.shader
         rule = kernels.RULES.index(sh_.rule)
 
-        def inputs(start):
+        def inputs(start, stop):
             return [sh_.blockers, sh_.receivers, self.env, self.iterations, self.seed, rule, start,
                     self.radiance, self.stderr, self.transfer]
 
-        launch_chunked(self.kernel, sh_.vertex_count, inputs, sh_.device, sh_.workers)
+        launch_parallel(self.kernel, sh_.vertex_count, inputs, sh_.device, sh_.workers)
 
     def shade_sh(self, light_sh, albedo) -> np.ndarray:
         """``albedo / pi * max(0, dot(L_c, t))`` with the traced transfer, (V, 3) float64."""

@@ -16,9 +16,10 @@ Per frame:
 * ``shexp.shade`` -- sphere centres from the frame state, hierarchy refit, per-cluster cuts and
   ratio vectors, then the per-receiver pass (:func:`.kernels.receiver_kernel`): log-space
   accumulation (or the product baseline), exponentiation, window, diffuse shading with the
-  frame's distant lighting and sphere lights. ``launch`` only launches kernels.
+  frame's distant lighting and sphere lights (read from the state's lighting). ``launch`` only
+  launches kernels.
 * ``shexp.sphere_trace`` -- ray tracing against the same (replaced) spheres instead of the mesh,
-  the paper's Fig. 7b reference (Monte Carlo; a validation stage, not meant for CUDA capture).
+  the paper's Fig. 7b reference (Monte Carlo, a validation stage).
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ import numpy as np
 
 from ..._wp import wp
 from ...basis import sh
+from ..common import WINDOW, WINDOW_SIZE, ShLighting, band_weights, order_param
 from ..stage import Param, Port, Stage, StageError, register_stage
 from . import kernels
 from .blockers import BlockerFrames, BlockerModel, build_blocker_model, static_mesh_mask
@@ -34,9 +36,7 @@ from .pipeline import ShexpShader, SphereTracer
 
 __all__ = ["TablesStage", "BlockersStage", "StaticBakeStage", "ShadeStage", "SphereTraceStage"]
 
-_ORDER = Param(4, int, "SH order n (n*n coefficients)", minimum=2, maximum=8)
-_WINDOW = Param(None, str, "window on lighting and visibility (None, 'cosine', 'hanning', 'lanczos')",
-                choices=(None, "cosine", "hanning", "lanczos"))
+_ORDER = order_param(4, minimum=2, maximum=8)
 
 
 @register_stage
@@ -48,7 +48,7 @@ class TablesStage(Stage):
     parameters = {"order": _ORDER, "samples": Param(512, int, "table samples (the paper uses 256)", minimum=256, maximum=8192)}
 
     def dims(self):
-        return {"N": self.params["order"], "S": self.params["samples"]}
+        return {"N": self.params["order"], "S": self.params["samples"]}  # N: SH bands (ZH coefficients)
 
     def output_ports(self):
         return {
@@ -106,6 +106,7 @@ class BlockersStage(Stage):
             )
         except ValueError as exc:
             raise StageError(f"stage {self.name!r} ({self.type_name}): {exc}") from None
+        self.report = dict(model.summary)
         return {"model": model.to_arrays()}
 
     def check_artifact(self, outputs):
@@ -156,21 +157,6 @@ class StaticBakeStage(Stage):
         return {"bake": bake, "baked": baked}
 
 
-def _window_args(params) -> dict:
-    if params.get("window") is None:
-        return {}
-    args = {"window": params["window"]}
-    if params.get("window_size") is not None:
-        args["size"] = params["window_size"]
-    return args
-
-
-def _sphere_lights(ctx) -> list:
-    from ...scene.lighting import SphereLight
-
-    return [light for light in ctx.lights() if isinstance(light, SphereLight)]
-
-
 @register_stage
 class ShadeStage(Stage):
     type_name = "shexp.shade"
@@ -183,8 +169,9 @@ class ShadeStage(Stage):
         "shade": Param("direct", str, "shading path", choices=kernels.SHADE_MODES),
         "accumulate": Param("log", str, "log (SHEXP) or product (Zhou et al. baseline)", choices=kernels.ACCUMULATE),
         "rule": Param("continuous", str, "self-shadowing rule (sec. 6.2)", choices=kernels.RULES),
-        "window": _WINDOW,
-        "window_size": Param(None, float, "window size h (default 2n for cosine)"),
+        "window": Param(None, str, "window on the visibility (and, when shading, the lighting)",
+                        choices=WINDOW.choices),
+        "window_size": WINDOW_SIZE,
         "table_rows": Param(33, int, "L*H(N) table rows (table mode)", minimum=3),
         "table_cols": Param(64, int, "L*H(N) table columns (table mode)", minimum=4),
         "theta_max": Param(25.0, float, "hierarchy cut angle, degrees (eq. 36)", minimum=1.0, maximum=89.0),
@@ -222,14 +209,15 @@ class ShadeStage(Stage):
         p = self.params
         model = BlockerModel.from_arrays(inputs["model"])
         self.model = model
-        lights = _sphere_lights(ctx)
-        self._points = inputs["points"]
+        lighting = inputs["lighting"]
+        if lighting is None:
+            raise StageError(f"stage {self.name!r}: SHEXP shading needs the frame's lighting")
         self.shader = ShexpShader(
             p["order"], ctx.dims["V"], model.node_count, clusters=1 if model.tree is None else model.clusters.cluster_count,
             cut_capacity=max(model.leaf_count, 1), method=p["method"], degree=p["degree"], shade=p["shade"],
             accumulate=p["accumulate"], rule=p["rule"], window=p["window"], window_size=p["window_size"],
-            table_shape=(p["table_rows"], p["table_cols"]), sphere_light_count=len(lights), shade_order=p["shade_order"],
-            device=ctx.device,
+            table_shape=(p["table_rows"], p["table_cols"]), sphere_light_count=lighting.sphere_light_count,
+            shade_order=p["shade_order"], device=ctx.device,
         )
         self.shader.set_exp_tables(inputs["log_cap"], inputs["ol_a"], inputs["ol_b"], float(inputs["ol_norm_max"].numpy()[0]))
         self.frames = BlockerFrames(ctx.scene, model, p["order"], p["theta_max"], p["theta_min"], p["ratio"], ctx.device,
@@ -238,19 +226,21 @@ class ShadeStage(Stage):
         self.frames.bind(self.shader)
         if p["static_bake"]:
             self.shader.set_baked(inputs["baked"].numpy().astype(bool), inputs["bake"].numpy())
+        # the frame's lighting, windowed and truncated to the shading order, read every launch
+        keep = band_weights(p["order"], p, keep_bands=self.shader.shade_order)
+        self._lighting = ShLighting(lighting, p["order"], keep)
+        self.shader.bind_lighting(self._lighting.light)
+        self.shader.bind_sphere_lights(lighting.sphere_position, lighting.sphere_radius, lighting.sphere_radiance)
         return {"radiance": self.shader.radiance}
 
-    def prepare(self, ctx, frame):
-        self.frames.prepare(ctx.frame_state)
-        self.shader.upload_lighting(ctx.lighting_sh(self.params["order"], **_window_args(self.params)))
-        lights = _sphere_lights(ctx)
-        if len(lights) != self.shader.sphere_light_count:
-            raise StageError(f"stage {self.name!r}: the frame has {len(lights)} sphere lights, setup saw {self.shader.sphere_light_count}")
-        self.shader.upload_sphere_lights(lights)
-
-    def launch(self, ctx):
-        self.frames.launch(self._points)
+    def launch(self, state):
+        self._lighting.launch()
+        self.frames.launch(state)
         self.shader.launch()
+
+    def diagnostics(self) -> dict:
+        """Receivers of the last frame whose exponential left its domain (scalar fallback)."""
+        return {"fallbacks": self.shader.fallback_count()}
 
     def model_bytes(self) -> int:
         return self.shader.model_bytes()
@@ -275,32 +265,23 @@ class SphereTraceStage(Stage):
         return {"radiance": Port("float32", ("V", 3), "outgoing radiance, linear RGB (Monte Carlo)")}
 
     def setup(self, ctx, inputs):
-        from ...scene.lighting import Environment
-
         model = BlockerModel.from_arrays(inputs["model"])
-        envs = [light for light in ctx.lights() if isinstance(light, Environment)]
-        if len(envs) != 1:
-            raise StageError(f"stage {self.name!r}: sphere tracing needs exactly one environment light, the scene has {len(envs)}")
-        self._points = inputs["points"]
+        lighting = inputs["lighting"]
+        envs = 0 if lighting is None else len(lighting.environments)
+        if envs != 1:
+            raise StageError(f"stage {self.name!r}: sphere tracing needs exactly one environment light, the scene has {envs}")
         self.shader = ShexpShader(2, ctx.dims["V"], model.node_count, clusters=1 if model.tree is None else model.clusters.cluster_count,
                                   cut_capacity=max(model.leaf_count, 1), rule=self.params["rule"], device=ctx.device)
         self.frames = BlockerFrames(ctx.scene, model, 2, ratio=False, device=ctx.device)
         self.shader.bind_receivers(inputs["points"], inputs["normals"], inputs["albedo"])
         self.frames.bind(self.shader)
-        self.tracer = SphereTracer(self.shader, envs[0], self.params["samples"], self.params["seed"])
+        # the environment turns with the frame: its rotation is read from the state every launch
+        self.tracer = SphereTracer(self.shader, lighting.environment_map(0), self.params["samples"], self.params["seed"])
         self._radiance = wp.zeros((ctx.dims["V"], 3), dtype=wp.float32, device=ctx.device)
         return {"radiance": self._radiance}
 
-    def prepare(self, ctx, frame):
-        from ...scene.lighting import Environment
-        from ...scene.lighting_warp import upload_environment
-
-        self.frames.prepare(ctx.frame_state)
-        env = next(light for light in ctx.lights() if isinstance(light, Environment))
-        self.tracer.env = upload_environment(env, ctx.device)  # rotated lighting: host work per frame
-
-    def launch(self, ctx):
-        self.frames.launch(self._points)
+    def launch(self, state):
+        self.frames.launch(state)
         self.tracer.launch()
         wp.launch(kernels.vec3_to_rows_kernel, dim=self._radiance.shape[0], inputs=[self.tracer.radiance, self._radiance],
-                  device=ctx.device)
+                  device=self._radiance.device)
