@@ -32,7 +32,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..._wp import wp
-from ...basis._zh_fit import DEFAULT_RIDGE as _RIDGE
+from ...basis.zh import DEFAULT_RIDGE as _RIDGE
 from ...basis.sh_warp import sh_kernels
 from ..stage import Param, Port, Stage, register_stage
 from ..upload import LightingUpload
