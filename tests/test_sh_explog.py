@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from warpshade._wp import wp
-from warpshade.basis import _shexp, sh
-from warpshade.basis._shexp_warp import SHExpTables
-from warpshade.basis.sh_warp import sh_kernels
+from warpshade.basis import sh
+from warpshade.basis import sh as _shexp  # scaling_power
+from warpshade.basis.sh_warp import SHExpTables, sh_kernels
 
 # float64 series vs its eigen-decomposition limit on small inputs (||f|| < 1): the degree-40
 # remainder is ~1e-48, so only rounding of ~40 products of O(1) vectors remains.

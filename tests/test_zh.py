@@ -10,9 +10,9 @@ from scipy.optimize import check_grad
 from scipy.spatial.transform import Rotation
 
 from warpshade._wp import wp
-from warpshade.basis import _zh_fit, quadrature, sh, zh
-from warpshade.basis._zh_grad import basis_and_gradient
-from warpshade.basis._zh_warp import table_directions
+from warpshade.basis import quadrature, sh, zh
+from warpshade.basis.zh import basis_and_gradient, table_directions
+from warpshade.basis.zh import fitting as _zh_fit
 
 # float64 identities (sums of a few dozen products of O(1) numbers).
 ATOL_FLOAT64 = 1e-12

@@ -1,7 +1,8 @@
 """Converters between warpshade's SH coefficients and other public conventions (private).
 
 Public entry points are :func:`warpshade.basis.sh.to_convention` and
-:func:`warpshade.basis.sh.from_convention`; see their docstrings for the conventions.
+:func:`warpshade.basis.sh.from_convention`; see their docstrings for the conventions. Builds on
+:mod:`warpshade.basis._gaunt` (the complex -> real change of basis) only.
 """
 
 from __future__ import annotations

@@ -1,4 +1,8 @@
-"""Exact Gaunt integrals of three real spherical harmonics (private; see :mod:`warpshade.basis.sh`).
+"""Exact Gaunt integrals of three real SH and the float64 products over them (private).
+
+Builds on :mod:`warpshade.basis._core` only; :mod:`warpshade.basis.sh` (``triple_product_tensor``,
+``product``, ``product_matrix``), :mod:`warpshade.basis._shexp` and
+:mod:`warpshade.basis.sh_warp` (the Warp product tables) build on it.
 
 The complex Gaunt coefficient
 
@@ -11,6 +15,11 @@ arithmetic: each 3j symbol is ``rational * sqrt(rational)``, so the Gaunt coeffi
 ``sqrt(4 pi)`` are rounded. The real Gaunt coefficient follows from the unitary complex -> real
 change of basis of :func:`real_from_complex_matrix` (Sloan's sign convention, i.e. real SH
 built from complex SH *with* the Condon-Shortley phase).
+
+The order-n truncated product ``(f * g)_i = sum_jk Gamma_ijk f_j g_k`` and the product matrix
+``(M_f)_ij = sum_k Gamma_ijk f_k`` (SHEXP paper, eqs. 3 and 5) are evaluated here in float64
+from the sparse tensor: :func:`product` and :func:`product_matrix` (validated, any batch shape)
+over the row kernels :func:`product_rows` and :func:`product_matrix_rows`.
 """
 
 from __future__ import annotations
@@ -21,7 +30,19 @@ from fractions import Fraction
 
 import numpy as np
 
-__all__ = ["wigner_3j_exact", "complex_gaunt", "real_from_complex_matrix", "real_gaunt_tensor"]
+from ._core import check_coeffs, chunk_rows
+
+__all__ = [
+    "wigner_3j_exact",
+    "complex_gaunt",
+    "real_from_complex_matrix",
+    "real_gaunt_tensor",
+    "product_operands",
+    "product_rows",
+    "product",
+    "product_matrix_rows",
+    "product_matrix",
+]
 
 
 @functools.lru_cache(maxsize=None)
@@ -153,3 +174,70 @@ def real_gaunt_tensor(order: int) -> tuple[np.ndarray, np.ndarray]:
     idx.setflags(write=False)
     val.setflags(write=False)
     return idx, val
+
+
+# ----------------------------------------------------------------------------------------------
+# float64 products over the tensor
+# ----------------------------------------------------------------------------------------------
+
+
+def product_operands(f, g, name: str = "product") -> tuple[np.ndarray, np.ndarray, int, tuple]:
+    """Validate two SH coefficient arrays of one order and broadcast their batch shapes.
+
+    Args:
+        f, g: SH coefficients, shape (..., n*n) each; batch shapes broadcast.
+        name: prefix of error messages.
+
+    Returns:
+        ``(fb, gb, order, batch)``: float64 rows of shape (B, n*n) each (B = prod(batch)), the
+        order n and the broadcast batch shape.
+    """
+    f, order = check_coeffs(f, f"{name}: f")
+    g, order_g = check_coeffs(g, f"{name}: g")
+    if order_g != order:
+        raise ValueError(f"{name}: f has order {order} but g has order {order_g}")
+    n2 = order * order
+    batch = np.broadcast_shapes(f.shape[:-1], g.shape[:-1])
+    fb = np.broadcast_to(f, batch + (n2,)).reshape(-1, n2)
+    gb = np.broadcast_to(g, batch + (n2,)).reshape(-1, n2)
+    return fb, gb, order, batch
+
+
+def product_rows(f: np.ndarray, g: np.ndarray, order: int) -> np.ndarray:
+    """Order-n truncated products of paired rows, float64 (B, n*n) x (B, n*n) -> (B, n*n)."""
+    n2 = order * order
+    idx, val = real_gaunt_tensor(order)
+    starts = np.flatnonzero(np.r_[True, idx[1:, 0] != idx[:-1, 0]])  # every output i occurs
+    out = np.empty((f.shape[0], n2))
+    step = chunk_rows(8 * len(val))
+    for s in range(0, f.shape[0], step):
+        terms = f[s : s + step, idx[:, 1]] * g[s : s + step, idx[:, 2]] * val
+        out[s : s + step] = np.add.reduceat(terms, starts, axis=1)
+    return out
+
+
+def product(f, g) -> np.ndarray:
+    """float64 order-n truncated SH product of (..., n*n) arrays, shape (broadcast batch, n*n)."""
+    fb, gb, order, batch = product_operands(f, g)
+    return product_rows(fb, gb, order).reshape(batch + (order * order,))
+
+
+def product_matrix_rows(f: np.ndarray, order: int) -> np.ndarray:
+    """Product matrices ``M_f`` of rows, float64 (B, n*n) -> (B, n*n, n*n), symmetric."""
+    n2 = order * order
+    idx, val = real_gaunt_tensor(order)
+    pair = idx[:, 0] * n2 + idx[:, 1]
+    starts = np.flatnonzero(np.r_[True, pair[1:] != pair[:-1]])
+    pairs = pair[starts]
+    out = np.zeros((f.shape[0], n2 * n2))
+    step = chunk_rows(8 * len(val))
+    for s in range(0, f.shape[0], step):
+        out[s : s + step, pairs] = np.add.reduceat(f[s : s + step, idx[:, 2]] * val, starts, axis=1)
+    return out.reshape(-1, n2, n2)
+
+
+def product_matrix(f) -> np.ndarray:
+    """float64 SH product matrices of (..., n*n) coefficients, shape (..., n*n, n*n)."""
+    f, order = check_coeffs(f, "product_matrix: f")
+    n2 = order * order
+    return product_matrix_rows(f.reshape(-1, n2), order).reshape(f.shape[:-1] + (n2, n2))

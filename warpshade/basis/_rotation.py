@@ -1,5 +1,9 @@
 """SH rotation matrices (private; see :func:`warpshade.basis.sh.rotate`).
 
+Builds on :mod:`warpshade.basis._core` and :mod:`warpshade.basis.quadrature`;
+:mod:`warpshade.basis.sh` (float64 reference) and :mod:`warpshade.basis.sh_warp` (the x90
+blocks of the Warp kernel) build on it.
+
 Two independent constructions:
 
 * :func:`ivanic_ruedenberg_bands` -- the float64 reference. Ivanic & Ruedenberg's recurrences
@@ -21,6 +25,9 @@ from __future__ import annotations
 import functools
 
 import numpy as np
+
+from . import quadrature
+from ._core import basis
 
 __all__ = ["ivanic_ruedenberg_bands", "x90_bands", "zyz_euler_angles", "rotation_from_zyz"]
 
@@ -142,9 +149,6 @@ def x90_bands(order: int) -> tuple[np.ndarray, ...]:
     exact for the degree-2(n-1) integrand; independent of the Ivanic-Ruedenberg recurrences.
     Entries below 1e-14 in magnitude (exact zeros of the true matrix) are set to 0.
     """
-    from . import quadrature
-    from .sh import basis
-
     q = quadrature.gauss_legendre(2 * (order - 1))
     rx90 = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
     y = basis(q.directions, order)

@@ -1,9 +1,13 @@
 """SH exponential and logarithm: float64 reference paths and per-order tables (private).
 
 Public entry points are :func:`warpshade.basis.sh.exp`, :func:`warpshade.basis.sh.log`,
-:func:`warpshade.basis.sh.ol_table` and :func:`warpshade.basis.sh.log_cap_table`; the Warp
-versions live in :mod:`warpshade.basis._shexp_warp` and are reached through the per-order bundle
-of :func:`warpshade.basis.sh_warp.sh_kernels`.
+:func:`warpshade.basis.sh.ol_table` and :func:`warpshade.basis.sh.log_cap_table` (which also
+re-exports the constants and table types); the Warp versions live in
+:mod:`warpshade.basis._shexp_warp` and are reached through the per-order bundle of
+:func:`warpshade.basis.sh_warp.sh_kernels`.
+
+Builds on :mod:`warpshade.basis._core` (basis, cap ZH), :mod:`warpshade.basis._gaunt` (float64
+products) and :mod:`warpshade.basis.quadrature`; nothing Warp.
 
 Everything follows Ren et al. 2006, "Real-time soft shadows in dynamic scenes using spherical
 harmonic exponentiation" (the SHEXP paper), sections 4 and 5:
@@ -36,9 +40,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import quadrature
+from ._core import basis, cap_zh
+from ._gaunt import product, product_matrix
+
 __all__ = [
     "EXP_METHODS",
     "DEFAULT_DEGREE",
+    "MAX_DEGREE",
+    "MAX_SQUARINGS",
     "LOG_EPS_REL",
     "TABLE_SAMPLES",
     "CAP_THETA_MAX",
@@ -46,6 +56,7 @@ __all__ = [
     "LogCapTable",
     "one_vector",
     "scaling_power",
+    "check_degree",
     "exp_reference",
     "exp_series_limit",
     "exp_volterra",
@@ -98,13 +109,8 @@ def scaling_power(norm) -> np.ndarray:
     return np.clip(p, 0, MAX_SQUARINGS).astype(np.int64)
 
 
-def _product(f, g):
-    from . import sh
-
-    return sh.product(f, g)
-
-
-def _check_degree(method: str, degree) -> int:
+def check_degree(method: str, degree) -> int:
+    """Validate ``degree`` for an exp ``method``; None gives the method's :data:`DEFAULT_DEGREE`."""
     if method not in EXP_METHODS:
         raise ValueError(f"exp: method must be one of {EXP_METHODS}, got {method!r}")
     if degree is None:
@@ -130,7 +136,7 @@ def _exp_ps(f: np.ndarray, degree: int) -> np.ndarray:
     term = f
     inv_factorial = 1.0
     for k in range(2, degree + 1):
-        term = _product(term, f)  # f^k* = f^(k-1)* * f, left to right (eq. 17)
+        term = product(term, f)  # f^k* = f^(k-1)* * f, left to right (eq. 17)
         inv_factorial /= k
         out += inv_factorial * term
     return out
@@ -144,22 +150,22 @@ def _factored_series(x: np.ndarray, degree: int) -> np.ndarray:
     if degree < 2:
         return even + x
     odd = np.broadcast_to(one, x.shape).copy()
-    x2 = _product(x, x)
+    x2 = product(x, x)
     power = x2
     inv_factorial = 1.0
     for k in range(2, degree + 1):
         inv_factorial /= k
         if k % 2 == 0:
             if k == 4:
-                power = _product(x2, x2)
+                power = product(x2, x2)
             elif k > 4:
-                power = _product(power, x2)
+                power = product(power, x2)
             even += inv_factorial * power
         else:
             odd += inv_factorial * power  # power = x^(k-1)*
     if degree < 3:
         return even + x  # odd part is x * 1 = x exactly
-    return even + _product(x, odd)
+    return even + product(x, odd)
 
 
 def _scaled(fhat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -170,7 +176,7 @@ def _scaled(fhat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _square_rows(h: np.ndarray, p: np.ndarray) -> np.ndarray:
     for k in range(int(p.max(initial=0))):
         rows = p > k
-        h[rows] = _product(h[rows], h[rows])
+        h[rows] = product(h[rows], h[rows])
     return h
 
 
@@ -205,7 +211,7 @@ def _exp_hyb(f: np.ndarray) -> np.ndarray:
 
 def exp_reference(f: np.ndarray, method: str, degree=None) -> np.ndarray:
     """float64 SH exponential of rows ``f`` (shape (B, n*n)) by one of :data:`EXP_METHODS`."""
-    degree = _check_degree(method, degree)
+    degree = check_degree(method, degree)
     if method == "ps":
         return _exp_ps(f, degree)
     if method == "ps_star":
@@ -222,9 +228,7 @@ def exp_series_limit(f: np.ndarray) -> np.ndarray:
     commutativity), computed by an eigendecomposition of the product matrix: an oracle for the
     run-time methods, too slow for per-receiver use. Rows of shape (B, n*n), float64.
     """
-    from . import sh
-
-    m = sh.product_matrix(f)
+    m = product_matrix(f)
     w, r = np.linalg.eigh(m)
     small = np.abs(w) < 1e-8
     q = np.where(small, 1.0 + 0.5 * w, np.expm1(w) / np.where(small, 1.0, w))
@@ -241,21 +245,17 @@ def exp_volterra(f: np.ndarray, quadrature_degree: int | None = None) -> np.ndar
     the series approximates. Gauss-Legendre quadrature of degree ``quadrature_degree``
     (default ``8 n + 24``).
     """
-    from . import quadrature, sh
-
     order = int(round(math.sqrt(f.shape[1])))
     q = quadrature.gauss_legendre(quadrature_degree or 8 * order + 24)
-    y = sh.basis(q.directions, order)
+    y = basis(q.directions, order)
     return (np.exp(f @ y.T) * q.weights) @ y
 
 
 def log_reference(g: np.ndarray, eps_rel: float = LOG_EPS_REL) -> np.ndarray:
     """float64 SH logarithm of rows ``g`` (B, n*n) by eigen-inversion of ``M_g`` (eqs. 30-32)."""
-    from . import sh
-
     if not (np.isfinite(eps_rel) and 0.0 < eps_rel < 1.0):
         raise ValueError(f"log: eps_rel must be in (0, 1), got {eps_rel!r}")
-    m = sh.product_matrix(g)
+    m = product_matrix(g)
     w, r = np.linalg.eigh(m)
     largest = w[:, -1:]
     if np.any(largest <= 0.0):
@@ -358,11 +358,9 @@ def _check_samples(samples) -> int:
 @functools.lru_cache(maxsize=None)
 def log_cap_table(order: int, samples: int = TABLE_SAMPLES, eps_rel: float = LOG_EPS_REL) -> LogCapTable:
     """Build (once per order) the table of blocking-cap log visibility, see :class:`LogCapTable`."""
-    from . import sh
-
     samples = _check_samples(samples)
     theta = np.linspace(0.0, CAP_THETA_MAX, samples)
-    g = _zonal_full(sh.cap_zh(theta, order, blocked=True), order)
+    g = _zonal_full(cap_zh(theta, order, blocked=True), order)
     f = log_reference(g, eps_rel)
     zh = f[:, [l * l + l for l in range(order)]]
     zh[0] = 0.0  # log of the unblocked sphere is exactly 0
@@ -381,11 +379,9 @@ def ol_table(order: int, samples: int = TABLE_SAMPLES, eps_rel: float = LOG_EPS_
     ``||f^||`` increases with theta, then resampled on a uniform grid in ``||f^||`` (a = b = 1 at
     0, the limit of a vanishing cap).
     """
-    from . import sh
-
     samples = _check_samples(samples)
     theta = np.linspace(0.0, CAP_THETA_MAX, _OL_BUILD_SAMPLES + 1)[1:]
-    g = _zonal_full(sh.cap_zh(theta, order, blocked=True), order)
+    g = _zonal_full(cap_zh(theta, order, blocked=True), order)
     f = log_reference(g, eps_rel)
     fhat = f.copy()
     fhat[:, 0] = 0.0

@@ -1,5 +1,11 @@
 """SH exponential and logarithm as Warp functions, generated per SH order (private).
 
+Layer: below :mod:`warpshade.basis.sh_warp`. This module imports only
+:mod:`warpshade.basis._shexp` (constants and float64 tables) and Warp; ``sh_warp`` calls
+:func:`exp_funcs` with the order's vector types, product/square functions and table struct,
+and re-exports :class:`SHExpTables`. The kernels that launch these functions need the finished
+bundle and therefore live above ``sh_warp``, in :mod:`warpshade.basis._shexp_kernels`.
+
 Reached through the per-order bundle of :func:`warpshade.basis.sh_warp.sh_kernels` (members
 ``exp_ps``, ``exp_ps_star``, ``exp_ol``, ``exp_hyb``, ``log``, ``ol_lookup``, ``log_cap_zh``,
 ``cap_zh_blocked``, ``one`` and the method ``exp_tables(device)``) and through the host wrappers
@@ -15,7 +21,6 @@ finite inputs give finite outputs (0 where the true value underflows) instead of
 
 # No "from __future__ import annotations": Warp resolves closure types in annotations.
 
-import functools
 import math
 import threading
 
@@ -26,7 +31,7 @@ from . import _shexp
 
 wp.set_module_options({"enable_backward": False})
 
-__all__ = ["SHExpTables", "build_exp_tables", "exp_funcs", "exp_kernel", "log_kernel", "METHOD_IDS"]
+__all__ = ["SHExpTables", "build_exp_tables", "exp_funcs", "METHOD_IDS"]
 
 #: Method name -> integer id used by kernels that select the method at run time.
 METHOD_IDS = {name: i for i, name in enumerate(_shexp.EXP_METHODS)}
@@ -80,7 +85,19 @@ def build_exp_tables(order: int, device=None, samples: int = _shexp.TABLE_SAMPLE
 
 
 def exp_funcs(order: int, vec_t, bands_t, sh_product, sh_square, SHTables) -> dict:
-    """Build the exp/log ``@wp.func`` of one order from the bundle's product/square functions."""
+    """Build the exp/log ``@wp.func`` of one order from the bundle's product/square functions.
+
+    Args:
+        order: SH order n.
+        vec_t: Warp vector type of n*n float32 coefficients; bands_t: of n float32 ZH bands.
+        sh_product, sh_square: the order's ``@wp.func`` ``(f: vec, g: vec, tables) -> vec`` and
+            ``(f: vec, tables) -> vec``.
+        SHTables: the struct type of the product tables (:class:`warpshade.basis.sh_warp.SHTables`).
+
+    Returns:
+        ``{bundle member name: @wp.func}`` for the members listed in the module docstring
+        (plus ``scaling_power`` and ``zh_accumulate``).
+    """
     ORDER = order
     N = order * order
     SQRT_4PI = math.sqrt(4.0 * math.pi)
@@ -381,62 +398,3 @@ def exp_funcs(order: int, vec_t, bands_t, sh_product, sh_square, SHTables) -> di
         "log": sh_log,
         "zh_accumulate": zh_accumulate,
     }
-
-
-@functools.lru_cache(maxsize=None)
-def exp_kernel(order: int, method: str):
-    """Kernel ``(f, degree, tables, exp_tables, out)``: one row of ``out`` = exp(row of f)."""
-    from .sh_warp import SHTables, sh_kernels
-
-    if method not in METHOD_IDS:
-        raise ValueError(f"exp: method must be one of {tuple(METHOD_IDS)}, got {method!r}")
-    k = sh_kernels(order)
-    load, store = k.load, k.store
-    fn = {"ps": k.exp_ps, "ps_star": k.exp_ps_star, "ol": k.exp_ol, "hyb": k.exp_hyb}[method]
-
-    @wp.kernel(enable_backward=False, module="unique")
-    def kernel(
-        f: wp.array2d(dtype=wp.float32),
-        degree: int,
-        tables: SHTables,
-        exp_tables: SHExpTables,
-        out: wp.array2d(dtype=wp.float32),
-    ):
-        i = wp.tid()
-        x = load(f, i)
-        if wp.static(method == "ps"):
-            store(out, i, fn(x, degree, tables))
-        elif wp.static(method == "ps_star"):
-            store(out, i, fn(x, degree, tables))
-        elif wp.static(method == "ol"):
-            store(out, i, fn(x, exp_tables))
-        else:
-            store(out, i, fn(x, tables, exp_tables))
-
-    return kernel
-
-
-@functools.lru_cache(maxsize=None)
-def log_kernel(order: int):
-    """Kernel ``(g, eps_rel, tables, out)``: one row of ``out`` = log(row of g).
-
-    The Jacobi sweeps are long nested loops over ``n*n``; the module is built with
-    ``max_unroll = 1`` so they stay loops (unrolling them costs seconds of compile time and
-    gains nothing).
-    """
-    from .sh_warp import SHTables, sh_kernels
-
-    k = sh_kernels(order)
-    load, store, fn = k.load, k.store, k.log
-
-    @wp.kernel(enable_backward=False, module="unique", module_options={"max_unroll": 1})
-    def kernel(
-        g: wp.array2d(dtype=wp.float32),
-        eps_rel: float,
-        tables: SHTables,
-        out: wp.array2d(dtype=wp.float32),
-    ):
-        i = wp.tid()
-        store(out, i, fn(load(g, i), eps_rel, tables))
-
-    return kernel

@@ -10,6 +10,9 @@ Everything here is float64 NumPy and batched over a leading axis B of independen
 The unknowns of one problem are packed as ``x = [s_1 .. s_N (3 each), g*_1 .. g*_N (one per
 fitted band each)]``; the axes are unconstrained 3-vectors used through ``h(s) = s / |s|``
 (eq. 21), so BFGS never leaves the sphere.
+
+Builds on :mod:`warpshade.basis._core` (float64 SH) and :mod:`warpshade.basis._zh_grad`;
+:mod:`warpshade.basis.zh` re-exports this module as ``zh.fitting`` (and :data:`DEFAULT_RIDGE`).
 """
 
 from __future__ import annotations
@@ -19,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import sh
+from ._core import band_of, basis
 from ._zh_grad import normalised_gradient
 
 __all__ = [
@@ -80,7 +83,7 @@ class FitProblem:
 
     @property
     def band(self) -> np.ndarray:
-        return sh.band_of(self.order)
+        return band_of(self.order)
 
 
 def pack(problem: FitProblem, axes: np.ndarray, coeffs: np.ndarray) -> np.ndarray:
@@ -102,8 +105,8 @@ def reconstruct(axes: np.ndarray, coeffs: np.ndarray) -> np.ndarray:
     """SH vector of lobe sets: axes (B, N, 3), coeffs (B, N, n) -> (B, n*n) (eq. 11)."""
     order = coeffs.shape[-1]
     b, n_lobes = axes.shape[:2]
-    y = sh.basis(axes.reshape(-1, 3), order).reshape(b, n_lobes, order * order)
-    return np.einsum("bij,bij->bj", y, coeffs[:, :, sh.band_of(order)])
+    y = basis(axes.reshape(-1, 3), order).reshape(b, n_lobes, order * order)
+    return np.einsum("bij,bij->bj", y, coeffs[:, :, band_of(order)])
 
 
 def objective(problem: FitProblem, x: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -310,7 +313,7 @@ def closed_form(target: np.ndarray, axes: np.ndarray, fitted: np.ndarray) -> tup
     order = math.isqrt(target.shape[-1])
     norms = band_norms(order)
     shared = axes.ndim == 2
-    y = sh.basis(axes.reshape(-1, 3), order)
+    y = basis(axes.reshape(-1, 3), order)
     y = y if shared else y.reshape(axes.shape[0], axes.shape[1], -1)
     k = axes.shape[-2]
     coeffs = np.zeros((target.shape[0], k, order))
@@ -340,7 +343,7 @@ def solve_coefficients(target: np.ndarray, axes: np.ndarray, fitted: np.ndarray,
     """
     order = math.isqrt(target.shape[-1])
     b, n_lobes = axes.shape[:2]
-    y = sh.basis(axes.reshape(-1, 3), order).reshape(b, n_lobes, -1)
+    y = basis(axes.reshape(-1, 3), order).reshape(b, n_lobes, -1)
     coeffs = np.zeros((b, n_lobes, order))
     for l in fitted:
         sl = slice(l * l, (l + 1) * (l + 1))

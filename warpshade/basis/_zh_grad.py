@@ -1,5 +1,8 @@
 """Real SH and their gradients with respect to the direction (private; used by the ZH fit).
 
+Imports no other basis module; :mod:`warpshade.basis._zh_fit` builds on it and
+:mod:`warpshade.basis.zh` re-exports :func:`basis_and_gradient`.
+
 The SH of :mod:`warpshade.basis.sh` are evaluated by the recurrence
 ``y_lm(x, y, z) = sqrt(2) P_l^m(z) Re/Im (x + i y)^m`` (``P_l^m`` the orthonormal associated
 Legendre polynomial divided by ``sin^m(theta)``, a polynomial in z). That expression is a

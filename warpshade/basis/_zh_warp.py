@@ -31,6 +31,10 @@ Table layout (:func:`table_directions`): a lat-long grid in the frame of the lig
 ``theta_i = i pi / (H - 1)`` for i = 0..H-1 (both poles are rows, so no clamping is needed),
 columns ``phi_j = 2 pi j / W`` for j = 0..W-1 (periodic); bilinear interpolation in
 (theta, phi). The paper uses 64 x 32.
+
+Layer: builds on :mod:`warpshade.basis.sh_warp` (the order's ``vec``/``bands`` types and
+``eval``); :mod:`warpshade.basis.zh` re-exports :func:`zh_kernels`, :class:`ZHKernels` and
+:func:`table_directions` (import them from there).
 """
 
 # No "from __future__ import annotations": Warp resolves closure types in annotations.

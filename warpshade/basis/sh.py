@@ -12,19 +12,28 @@ Convention (used everywhere in warpshade):
 
 Contents: evaluation (:func:`basis`) and projection (:func:`project`); products through the
 exact Gaunt tensor (:func:`triple_product_tensor`, :func:`product`, :func:`product_matrix`,
-:func:`square`); rotation (:func:`rotate`, :func:`rotation_matrix`); zonal harmonics
-(:func:`zh_to_sh`, :func:`zh_from_sh_about_axis`, :func:`clamped_cosine_zh`, :func:`cap_zh`);
-frequency-space windows (:func:`window`, :func:`window_weights`); converters to and from other
-public conventions (:func:`to_convention`, :func:`from_convention`); the SH exponential and
-logarithm of the SHEXP paper (:func:`exp`, :func:`log`, with the oracles
-:func:`exp_series_limit` and :func:`exp_volterra` and the per-order tables :func:`ol_table` and
-:func:`log_cap_table`).
+:func:`square`; :func:`complex_gaunt` for the complex SH integrals); rotation (:func:`rotate`,
+:func:`rotation_matrix`); zonal harmonics (:func:`zh_to_sh`, :func:`zh_from_sh_about_axis`,
+:func:`clamped_cosine_zh`, :func:`cap_zh`); frequency-space windows (:func:`window`,
+:func:`window_weights`); converters to and from other public conventions (:func:`to_convention`,
+:func:`from_convention`); the SH exponential and logarithm of the SHEXP paper (:func:`exp`,
+:func:`log`, with the oracles :func:`exp_series_limit` and :func:`exp_volterra`, the squaring
+rule :func:`scaling_power`, the per-order tables :func:`ol_table` and :func:`log_cap_table`
+(:class:`OLTable`, :class:`LogCapTable`) and the constants ``EXP_METHODS``, ``DEFAULT_DEGREE``,
+``LOG_EPS_REL``, ``CAP_THETA_MAX``).
 
 Host functions accept NumPy arrays with any leading batch shape and return NumPy arrays. By
 default they run the float64 reference path (the oracle); functions with a ``device`` argument
 run the float32 Warp kernel on that device instead (``device="cpu"`` or ``"cuda:0"``). The same
 operations exist as ``@wp.func`` for use inside other kernels: see
 :func:`warpshade.basis.sh_warp.sh_kernels`.
+
+This module is the public facade of the SH algebra and the top of the SH layers: it imports the
+private modules (:mod:`~warpshade.basis._core`, :mod:`~warpshade.basis._gaunt`,
+:mod:`~warpshade.basis._rotation`, :mod:`~warpshade.basis._conventions`,
+:mod:`~warpshade.basis._shexp`, :mod:`~warpshade.basis._shexp_kernels`) and
+:mod:`~warpshade.basis.sh_warp` at the top, and none of them imports it. Names defined in the
+private modules that callers need are re-exported here (see ``__all__``); import them from here.
 """
 
 from __future__ import annotations
@@ -37,7 +46,24 @@ from typing import Callable
 
 import numpy as np
 
-from . import _conventions, _gaunt, _rotation, _shexp, quadrature
+from .._wp import resolve_device, wp
+from . import _conventions, _gaunt, _rotation, _shexp, _shexp_kernels, quadrature
+from ._core import (
+    MAX_ORDER,
+    band_of,
+    band_scale,
+    cap_zh,
+    check_coeffs,
+    check_order,
+    chunk_rows,
+    coeff_count,
+    index,
+    unit_directions,
+)
+from ._core import basis as _basis_reference
+from ._gaunt import complex_gaunt
+from ._shexp import CAP_THETA_MAX, DEFAULT_DEGREE, LogCapTable, OLTable, scaling_power
+from .sh_warp import MAX_KERNEL_ORDER, sh_kernels
 
 __all__ = [
     "MAX_ORDER",
@@ -48,6 +74,7 @@ __all__ = [
     "project",
     # products
     "triple_product_tensor",
+    "complex_gaunt",
     "product",
     "product_matrix",
     "square",
@@ -69,52 +96,19 @@ __all__ = [
     "from_convention",
     # exponential and logarithm
     "EXP_METHODS",
+    "DEFAULT_DEGREE",
     "LOG_EPS_REL",
+    "CAP_THETA_MAX",
+    "OLTable",
+    "LogCapTable",
     "exp",
     "log",
+    "scaling_power",
     "exp_series_limit",
     "exp_volterra",
     "ol_table",
     "log_cap_table",
 ]
-
-#: Highest SH order supported by the float64 reference path.
-MAX_ORDER = 16
-
-
-def coeff_count(order: int) -> int:
-    """Number of coefficients of an order-``order`` SH expansion (``order**2``)."""
-    return order * order
-
-
-def index(l: int, m: int) -> int:
-    """Flat coefficient index of band ``l``, degree ``m`` (``l*l + l + m``)."""
-    if abs(m) > l:
-        raise ValueError(f"index: need |m| <= l, got l={l}, m={m}")
-    return l * l + l + m
-
-
-def band_of(order: int) -> np.ndarray:
-    """Band ``l`` of every coefficient of an order-``order`` expansion, shape (order**2,), int."""
-    return np.concatenate([np.full(2 * l + 1, l) for l in range(order)]).astype(np.int64)
-
-
-def _check_order(order: int, limit: int = MAX_ORDER) -> int:
-    if not isinstance(order, (int, np.integer)) or not 1 <= int(order) <= limit:
-        raise ValueError(f"SH order must be an integer in 1..{limit}, got {order!r}")
-    return int(order)
-
-
-def _unit_directions(dirs, name: str = "dirs") -> np.ndarray:
-    d = np.asarray(dirs, dtype=np.float64)
-    if d.shape[-1:] != (3,):
-        raise ValueError(f"{name}: expected shape (..., 3), got {d.shape}")
-    if not np.all(np.isfinite(d)):
-        raise ValueError(f"{name}: contains NaN or infinite values")
-    norm = np.linalg.norm(d, axis=-1, keepdims=True)
-    if np.any(norm == 0.0):
-        raise ValueError(f"{name}: contains zero-length directions")
-    return d / norm
 
 
 def basis(dirs, order: int, device=None) -> np.ndarray:
@@ -129,44 +123,15 @@ def basis(dirs, order: int, device=None) -> np.ndarray:
     Returns:
         ``y_i(dirs)``, shape (..., n*n); float64 (reference) or float32 (Warp).
     """
-    order = _check_order(order)
-    d = _unit_directions(dirs)
+    if device is None:
+        return _basis_reference(dirs, order)
+    order = check_order(order)
+    d = unit_directions(dirs)
     batch = d.shape[:-1]
-    flat = d.reshape(-1, 3)
-    if device is not None:
-        return _basis_warp(flat, order, device).reshape(*batch, order * order)
-    x, y, z = flat[:, 0], flat[:, 1], flat[:, 2]
-    out = np.empty((flat.shape[0], order * order), dtype=np.float64)
-    # Orthonormal associated Legendre recurrences; (x + i y)^m carries sin^m(theta) e^{i m phi}.
-    c = np.ones_like(x)
-    s = np.zeros_like(x)
-    pmm = np.full_like(x, 0.5 / np.sqrt(np.pi))
-    sqrt2 = np.sqrt(2.0)
-    for m in range(order):
-        if m > 0:
-            pmm = -np.sqrt((2.0 * m + 1.0) / (2.0 * m)) * pmm
-        p_prev = np.zeros_like(x)
-        p_cur = pmm
-        for l in range(m, order):
-            if l == m + 1:
-                p_prev, p_cur = p_cur, np.sqrt(2.0 * m + 3.0) * z * pmm
-            elif l > m + 1:
-                a = np.sqrt((4.0 * l * l - 1.0) / (l * l - m * m))
-                b = np.sqrt(((l - 1.0) ** 2 - m * m) / (4.0 * (l - 1.0) ** 2 - 1.0))
-                p_prev, p_cur = p_cur, a * (z * p_cur - b * p_prev)
-            if m == 0:
-                out[:, l * l + l] = p_cur
-            else:
-                out[:, l * l + l + m] = sqrt2 * p_cur * c
-                out[:, l * l + l - m] = sqrt2 * p_cur * s
-        c, s = c * x - s * y, c * y + s * x
-    return out.reshape(*batch, order * order)
+    return _basis_warp(d.reshape(-1, 3), order, device).reshape(*batch, order * order)
 
 
 def _basis_warp(flat_dirs: np.ndarray, order: int, device) -> np.ndarray:
-    from .._wp import resolve_device, wp
-    from .sh_warp import sh_kernels
-
     dev = resolve_device(device)
     k = sh_kernels(order)
     dirs_wp = wp.array(flat_dirs.astype(np.float32), dtype=wp.vec3, device=dev)
@@ -193,7 +158,7 @@ def project(
     Returns:
         Coefficients, shape (n*n,) or (C, n*n) for multi-channel functions, float64.
     """
-    order = _check_order(order)
+    order = check_order(order)
     if samples is None:
         samples = quadrature.gauss_legendre(2 * (order - 1) + 16)
     values = np.asarray(fn(samples.directions), dtype=np.float64)
@@ -215,45 +180,13 @@ def project(
 #: anything beyond this is not a rotation and is rejected rather than silently used).
 ROTATION_TOLERANCE = 1e-5
 
-# Rows processed at once by the float64 reference paths (bounds temporaries to ~32 MB).
-_REFERENCE_CHUNK_BYTES = 32 * 1024 * 1024
-
-
-def _coeffs(values, name: str, limit: int = MAX_ORDER) -> tuple[np.ndarray, int]:
-    """Validate SH coefficients of shape (..., n*n); return them as float64 and the order n."""
-    f = np.asarray(values, dtype=np.float64)
-    if f.ndim < 1:
-        raise ValueError(f"{name}: expected shape (..., order**2), got a scalar")
-    order = int(round(math.sqrt(f.shape[-1])))
-    if order < 1 or order * order != f.shape[-1]:
-        raise ValueError(f"{name}: last axis must hold order**2 coefficients, got {f.shape[-1]}")
-    if order > limit:
-        raise ValueError(f"{name}: SH order {order} exceeds the supported maximum {limit}")
-    if not np.all(np.isfinite(f)):
-        raise ValueError(f"{name}: contains NaN or infinite values")
-    return f, order
-
 
 def _device_order(order: int, name: str) -> None:
-    from .sh_warp import MAX_KERNEL_ORDER
-
     if order > MAX_KERNEL_ORDER:
         raise ValueError(f"{name}: SH order {order} exceeds the Warp kernel maximum {MAX_KERNEL_ORDER}")
 
 
-def _band_scale(order: int) -> np.ndarray:
-    """``sqrt(4 pi / (2l + 1))`` for l = 0..order-1, shape (order,)."""
-    l = np.arange(order, dtype=np.float64)
-    return np.sqrt(4.0 * np.pi / (2.0 * l + 1.0))
-
-
-def _chunk_rows(row_bytes: int) -> int:
-    return max(1, _REFERENCE_CHUNK_BYTES // max(1, row_bytes))
-
-
 def _wp_rows(values: np.ndarray, dev):
-    from .._wp import wp
-
     return wp.array(np.ascontiguousarray(values, dtype=np.float32), dtype=wp.float32, device=dev)
 
 
@@ -273,8 +206,6 @@ def _launch_rows(kernel, count: int, inputs: list, row_args: set, dev) -> None:
     ``row_args`` are the positions in ``inputs`` of arrays indexed by the thread id; they are
     sliced along their first axis per chunk (contiguous views), the others are shared.
     """
-    from .._wp import wp
-
     global _pool
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     workers = min(cores, 8)
@@ -320,7 +251,7 @@ def triple_product_tensor(order: int) -> tuple[np.ndarray, np.ndarray]:
         ``(indices, values)``: flat coefficient indices, shape (K, 3), int64, and the integrals,
         shape (K,), float64. Both arrays are read-only (shared by the cache).
     """
-    return _gaunt.real_gaunt_tensor(_check_order(order))
+    return _gaunt.real_gaunt_tensor(check_order(order))
 
 
 def product(f, g, device=None) -> np.ndarray:
@@ -338,31 +269,15 @@ def product(f, g, device=None) -> np.ndarray:
     Returns:
         Coefficients of the product, shape (broadcast batch, n*n); float64 or float32 (Warp).
     """
-    f, order = _coeffs(f, "product: f")
-    g, order_g = _coeffs(g, "product: g")
-    if order_g != order:
-        raise ValueError(f"product: f has order {order} but g has order {order_g}")
+    fb, gb, order, batch = _gaunt.product_operands(f, g, "product")
     n2 = order * order
-    batch = np.broadcast_shapes(f.shape[:-1], g.shape[:-1])
-    fb = np.broadcast_to(f, batch + (n2,)).reshape(-1, n2)
-    gb = np.broadcast_to(g, batch + (n2,)).reshape(-1, n2)
     if device is not None:
         _device_order(order, "product")
         return _product_warp(fb, gb, order, device).reshape(batch + (n2,))
-    idx, val = triple_product_tensor(order)
-    starts = np.flatnonzero(np.r_[True, idx[1:, 0] != idx[:-1, 0]])  # every output i occurs
-    out = np.empty((fb.shape[0], n2))
-    step = _chunk_rows(8 * len(val))
-    for s in range(0, fb.shape[0], step):
-        terms = fb[s : s + step, idx[:, 1]] * gb[s : s + step, idx[:, 2]] * val
-        out[s : s + step] = np.add.reduceat(terms, starts, axis=1)
-    return out.reshape(batch + (n2,))
+    return _gaunt.product_rows(fb, gb, order).reshape(batch + (n2,))
 
 
 def _product_warp(f: np.ndarray, g: np.ndarray, order: int, device) -> np.ndarray:
-    from .._wp import resolve_device, wp
-    from .sh_warp import sh_kernels
-
     dev = resolve_device(device)
     k = sh_kernels(order)
     count = f.shape[0]
@@ -388,29 +303,18 @@ def product_matrix(f, device=None) -> np.ndarray:
     Returns:
         Product matrices, shape (..., n*n, n*n); float64 or float32 (Warp).
     """
-    f, order = _coeffs(f, "product_matrix: f")
+    f, order = check_coeffs(f, "product_matrix: f")
     n2 = order * order
     batch = f.shape[:-1]
     flat = f.reshape(-1, n2)
     if device is not None:
         _device_order(order, "product_matrix")
-        from .._wp import resolve_device, wp
-        from .sh_warp import sh_kernels
-
         dev = resolve_device(device)
         k = sh_kernels(order)
         out = wp.zeros((flat.shape[0], n2, n2), dtype=wp.float32, device=dev)
         _launch_rows(k.product_matrix_kernel, flat.shape[0], [_wp_rows(flat, dev), k.tables(dev), out], {0, 2}, dev)
         return out.numpy().reshape(batch + (n2, n2))
-    idx, val = triple_product_tensor(order)
-    pair = idx[:, 0] * n2 + idx[:, 1]
-    starts = np.flatnonzero(np.r_[True, pair[1:] != pair[:-1]])
-    pairs = pair[starts]
-    out = np.zeros((flat.shape[0], n2 * n2))
-    step = _chunk_rows(8 * len(val))
-    for s in range(0, flat.shape[0], step):
-        out[s : s + step, pairs] = np.add.reduceat(flat[s : s + step, idx[:, 2]] * val, starts, axis=1)
-    return out.reshape(batch + (n2, n2))
+    return _gaunt.product_matrix_rows(flat, order).reshape(batch + (n2, n2))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -446,7 +350,7 @@ def rotation_matrix(rotation, order: int) -> np.ndarray:
     Returns:
         Shape (..., n*n, n*n), float64.
     """
-    order = _check_order(order)
+    order = check_order(order)
     r = _rotations(rotation, "rotation_matrix: rotation")
     batch = r.shape[:-2]
     flat = r.reshape(-1, 3, 3)
@@ -473,7 +377,7 @@ def rotate(f, rotation, device=None) -> np.ndarray:
     Returns:
         Rotated coefficients, shape (broadcast batch, n*n); float64 or float32 (Warp).
     """
-    f, order = _coeffs(f, "rotate: f")
+    f, order = check_coeffs(f, "rotate: f")
     r = _rotations(rotation, "rotate: rotation")
     n2 = order * order
     batch = np.broadcast_shapes(f.shape[:-1], r.shape[:-2])
@@ -492,7 +396,7 @@ def rotate(f, rotation, device=None) -> np.ndarray:
     fb = np.broadcast_to(f, batch + (n2,)).reshape(-1, n2)
     rb = np.broadcast_to(r, batch + (3, 3)).reshape(-1, 3, 3)
     out = np.empty((fb.shape[0], n2))
-    step = _chunk_rows(8 * 4 * (2 * order - 1) ** 2)
+    step = chunk_rows(8 * 4 * (2 * order - 1) ** 2)
     for s in range(0, fb.shape[0], step):
         for l, block in enumerate(_rotation.ivanic_ruedenberg_bands(rb[s : s + step], order)):
             sl = slice(l * l, (l + 1) ** 2)
@@ -501,9 +405,6 @@ def rotate(f, rotation, device=None) -> np.ndarray:
 
 
 def _rotate_warp(f: np.ndarray, r: np.ndarray, order: int, device) -> np.ndarray:
-    from .._wp import resolve_device, wp
-    from .sh_warp import sh_kernels
-
     dev = resolve_device(device)
     k = sh_kernels(order)
     count = f.shape[0]
@@ -534,20 +435,17 @@ def zh_to_sh(axis, zh_coeffs, device=None) -> np.ndarray:
     Returns:
         Shape (broadcast batch, n*n); float64 or float32 (Warp).
     """
-    a = _unit_directions(axis, "zh_to_sh: axis")
+    a = unit_directions(axis, "zh_to_sh: axis")
     zh = np.asarray(zh_coeffs, dtype=np.float64)
     if zh.ndim < 1 or zh.shape[-1] < 1:
         raise ValueError(f"zh_to_sh: zh_coeffs must have shape (..., order), got {zh.shape}")
-    order = _check_order(zh.shape[-1])
+    order = check_order(zh.shape[-1])
     if not np.all(np.isfinite(zh)):
         raise ValueError("zh_to_sh: zh_coeffs contains NaN or infinite values")
     n2 = order * order
     batch = np.broadcast_shapes(a.shape[:-1], zh.shape[:-1])
     if device is not None:
         _device_order(order, "zh_to_sh")
-        from .._wp import resolve_device, wp
-        from .sh_warp import sh_kernels
-
         dev = resolve_device(device)
         k = sh_kernels(order)
         ab = np.broadcast_to(a, batch + (3,)).reshape(-1, 3)
@@ -556,7 +454,7 @@ def zh_to_sh(axis, zh_coeffs, device=None) -> np.ndarray:
         axes = wp.array(ab.astype(np.float32), dtype=wp.vec3, device=dev)
         _launch_rows(k.zh_to_sh_kernel, ab.shape[0], [axes, _wp_rows(zb, dev), out], {0, 1, 2}, dev)
         return out.numpy().reshape(batch + (n2,))
-    scaled = (zh * _band_scale(order))[..., band_of(order)]
+    scaled = (zh * band_scale(order))[..., band_of(order)]
     return np.broadcast_to(basis(a, order) * scaled, batch + (n2,)).copy()
 
 
@@ -579,15 +477,12 @@ def zh_from_sh_about_axis(f, axis, device=None) -> np.ndarray:
     Returns:
         ZH coefficients, shape (broadcast batch, n); float64 or float32 (Warp).
     """
-    f, order = _coeffs(f, "zh_from_sh_about_axis: f")
-    a = _unit_directions(axis, "zh_from_sh_about_axis: axis")
+    f, order = check_coeffs(f, "zh_from_sh_about_axis: f")
+    a = unit_directions(axis, "zh_from_sh_about_axis: axis")
     n2 = order * order
     batch = np.broadcast_shapes(f.shape[:-1], a.shape[:-1])
     if device is not None:
         _device_order(order, "zh_from_sh_about_axis")
-        from .._wp import resolve_device, wp
-        from .sh_warp import sh_kernels
-
         dev = resolve_device(device)
         k = sh_kernels(order)
         fb = np.broadcast_to(f, batch + (n2,)).reshape(-1, n2)
@@ -598,7 +493,7 @@ def zh_from_sh_about_axis(f, axis, device=None) -> np.ndarray:
         return out.numpy().reshape(batch + (order,))
     terms = np.broadcast_to(f * basis(a, order), batch + (n2,))
     band_starts = np.arange(order) ** 2
-    return np.add.reduceat(terms, band_starts, axis=-1) * _band_scale(order)
+    return np.add.reduceat(terms, band_starts, axis=-1) * band_scale(order)
 
 
 def clamped_cosine_zh(order: int, normalization: str = "convolution") -> np.ndarray:
@@ -623,7 +518,7 @@ def clamped_cosine_zh(order: int, normalization: str = "convolution") -> np.ndar
     Returns:
         Shape (n,), float64.
     """
-    order = _check_order(order)
+    order = check_order(order)
     if normalization not in ("convolution", "zh"):
         raise ValueError(f"clamped_cosine_zh: normalization must be 'convolution' or 'zh', got {normalization!r}")
     conv = np.zeros(order)
@@ -636,44 +531,8 @@ def clamped_cosine_zh(order: int, normalization: str = "convolution") -> np.ndar
             sign = -1.0 if (l // 2 - 1) % 2 else 1.0
             conv[l] = 2.0 * np.pi * sign / ((l + 2) * (l - 1)) * math.comb(l, l // 2) / 2.0**l
     if normalization == "zh":
-        return conv / _band_scale(order)
+        return conv / band_scale(order)
     return conv
-
-
-def cap_zh(theta, order: int, blocked: bool = False) -> np.ndarray:
-    """ZH coefficients of the indicator of a spherical cap of half-angle theta about +z.
-
-    ``g_l = integral_{cap} y_l0(s) ds = 2 pi sqrt((2l+1)/(4 pi)) integral_{cos theta}^1 P_l(z) dz``,
-    in closed form ``g_0 = sqrt(pi) (1 - cos theta)`` and
-    ``g_l = sqrt(pi / (2l + 1)) (P_{l-1}(cos theta) - P_{l+1}(cos theta))`` for l >= 1. With
-    ``blocked=True`` the result is the visibility of a blocker covering the cap (1 outside,
-    0 inside; SHEXP paper eq. 33): ``sqrt(4 pi) delta_l0 - g_l``. Rotate onto any axis with
-    :func:`zh_to_sh`.
-
-    Args:
-        theta: cap half-angle(s) in radians, in [0, pi]; scalar or shape (...,).
-        order: SH order n.
-        blocked: return the blocker visibility instead of the cap indicator.
-
-    Returns:
-        Shape (..., n), float64 (shape (n,) for a scalar theta).
-    """
-    order = _check_order(order)
-    t = np.asarray(theta, dtype=np.float64)
-    if not np.all(np.isfinite(t)) or np.any(t < 0.0) or np.any(t > np.pi):
-        raise ValueError("cap_zh: theta must be finite and in [0, pi] radians")
-    c = np.cos(t)
-    legendre = [np.ones_like(c), c]
-    for l in range(1, order):  # P_{l+1} = ((2l+1) c P_l - l P_{l-1}) / (l+1)
-        legendre.append(((2 * l + 1) * c * legendre[l] - l * legendre[l - 1]) / (l + 1))
-    out = np.empty(t.shape + (order,))
-    out[..., 0] = np.sqrt(np.pi) * (1.0 - c)
-    for l in range(1, order):
-        out[..., l] = np.sqrt(np.pi / (2 * l + 1)) * (legendre[l - 1] - legendre[l + 1])
-    if blocked:
-        out = -out
-        out[..., 0] += np.sqrt(4.0 * np.pi)
-    return out
 
 
 # ----------------------------------------------------------------------------------------------
@@ -696,7 +555,7 @@ def window_weights(kind: str, order: int, size: float | None = None, strength: f
     * ``"gaussian"``: ``alpha_l = exp(-strength * l (l + 1))`` (heat-kernel smoothing; no size),
       ``strength >= 0`` required.
     """
-    order = _check_order(order)
+    order = check_order(order)
     if kind not in WINDOWS:
         raise ValueError(f"window: kind must be one of {WINDOWS}, got {kind!r}")
     l = np.arange(order, dtype=np.float64)
@@ -734,7 +593,7 @@ def window(coeffs, kind: str, *, size: float | None = None, strength: float | No
     Returns:
         Windowed coefficients, shape (..., n*n), float64.
     """
-    f, order = _coeffs(coeffs, "window: coeffs")
+    f, order = check_coeffs(coeffs, "window: coeffs")
     return f * window_weights(kind, order, size=size, strength=strength)[band_of(order)]
 
 
@@ -775,7 +634,7 @@ def to_convention(coeffs, convention: str, *, normalization: str = "4pi", csphas
         float64 (..., n*n) for ``"sloan"``/``"real_no_cs"``, complex128 (..., n*n) for
         ``"complex"``, float64 (..., 2, n, n) for ``"shtools"``.
     """
-    _coeffs(coeffs, "to_convention: coeffs")
+    check_coeffs(coeffs, "to_convention: coeffs")
     return _conventions.to_convention(coeffs, convention, normalization=normalization, csphase=csphase)
 
 
@@ -831,22 +690,18 @@ def exp(f, method: str = "ps_star", degree: int | None = None, device=None) -> n
     Returns:
         exp(f), shape (..., n*n); float64 or float32 (Warp).
     """
-    f, order = _coeffs(f, "exp: f")
-    degree = _shexp._check_degree(method, degree)
+    f, order = check_coeffs(f, "exp: f")
+    degree = _shexp.check_degree(method, degree)
     n2 = order * order
     batch = f.shape[:-1]
     flat = f.reshape(-1, n2)
     if device is not None:
         _device_order(order, "exp")
-        from .._wp import resolve_device, wp
-        from ._shexp_warp import exp_kernel
-        from .sh_warp import sh_kernels
-
         dev = resolve_device(device)
         k = sh_kernels(order)
         out = wp.empty((flat.shape[0], n2), dtype=wp.float32, device=dev)
         _launch_rows(
-            exp_kernel(order, method), flat.shape[0],
+            _shexp_kernels.exp_kernel(order, method), flat.shape[0],
             [_wp_rows(flat, dev), degree, k.tables(dev), k.exp_tables(dev), out], {0, 4}, dev,
         )
         return out.numpy().reshape(batch + (n2,))
@@ -875,7 +730,7 @@ def log(g, eps_rel: float = LOG_EPS_REL, device=None) -> np.ndarray:
         ValueError: non-finite input, ``eps_rel`` outside (0, 1), or (float64 path) a row whose
             product matrix has no positive eigenvalue.
     """
-    g, order = _coeffs(g, "log: g")
+    g, order = check_coeffs(g, "log: g")
     if not (isinstance(eps_rel, (int, float)) and np.isfinite(eps_rel) and 0.0 < eps_rel < 1.0):
         raise ValueError(f"log: eps_rel must be in (0, 1), got {eps_rel!r}")
     n2 = order * order
@@ -883,14 +738,13 @@ def log(g, eps_rel: float = LOG_EPS_REL, device=None) -> np.ndarray:
     flat = g.reshape(-1, n2)
     if device is not None:
         _device_order(order, "log")
-        from .._wp import resolve_device, wp
-        from ._shexp_warp import log_kernel
-        from .sh_warp import sh_kernels
-
         dev = resolve_device(device)
         k = sh_kernels(order)
         out = wp.empty((flat.shape[0], n2), dtype=wp.float32, device=dev)
-        _launch_rows(log_kernel(order), flat.shape[0], [_wp_rows(flat, dev), float(eps_rel), k.tables(dev), out], {0, 3}, dev)
+        _launch_rows(
+            _shexp_kernels.log_kernel(order), flat.shape[0],
+            [_wp_rows(flat, dev), float(eps_rel), k.tables(dev), out], {0, 3}, dev,
+        )
         return out.numpy().reshape(batch + (n2,))
     return _shexp.log_reference(flat, float(eps_rel)).reshape(batch + (n2,))
 
@@ -901,24 +755,24 @@ def exp_series_limit(f) -> np.ndarray:
     ``1 + R^T q(D) R f`` with ``M_f = R^T D R``, ``q(x) = (e^x - 1)/x``: what PS-p converges to
     as p grows. An oracle for the run-time methods.
     """
-    f, order = _coeffs(f, "exp_series_limit: f")
+    f, order = check_coeffs(f, "exp_series_limit: f")
     n2 = order * order
     return _shexp.exp_series_limit(f.reshape(-1, n2)).reshape(f.shape)
 
 
 def exp_volterra(f, quadrature_degree: int | None = None) -> np.ndarray:
     """The projection of ``exp(f(s))`` by quadrature (eq. 10, no product truncation), float64."""
-    f, order = _coeffs(f, "exp_volterra: f")
+    f, order = check_coeffs(f, "exp_volterra: f")
     n2 = order * order
     return _shexp.exp_volterra(f.reshape(-1, n2), quadrature_degree).reshape(f.shape)
 
 
-def ol_table(order: int, samples: int = _shexp.TABLE_SAMPLES) -> "_shexp.OLTable":
-    """The optimal-linear a/b table of an order (built once and cached): :class:`~warpshade.basis._shexp.OLTable`."""
-    return _shexp.ol_table(_check_order(order), samples)
+def ol_table(order: int, samples: int = _shexp.TABLE_SAMPLES) -> OLTable:
+    """The optimal-linear a/b table of an order (built once and cached): :class:`OLTable`."""
+    return _shexp.ol_table(check_order(order), samples)
 
 
-def log_cap_table(order: int, samples: int = _shexp.TABLE_SAMPLES) -> "_shexp.LogCapTable":
+def log_cap_table(order: int, samples: int = _shexp.TABLE_SAMPLES) -> LogCapTable:
     """The blocking-cap log visibility table of an order (built once and cached):
-    :class:`~warpshade.basis._shexp.LogCapTable` (ZH coefficients over the cap radius)."""
-    return _shexp.log_cap_table(_check_order(order), samples)
+    :class:`LogCapTable` (ZH coefficients over the cap radius)."""
+    return _shexp.log_cap_table(check_order(order), samples)

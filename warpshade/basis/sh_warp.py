@@ -56,7 +56,14 @@ SH exponential and logarithm (SHEXP paper, secs. 4-5; maths and float64 referenc
 * ``zh_accumulate(acc, axis, g) -> vec`` -- ``acc + zh_to_sh(axis, g)``, fully unrolled with
   constant recurrence coefficients (the per-blocker step of log-space accumulation);
 
-with ``exp_tables = bundle.exp_tables(device)`` (:class:`~warpshade.basis._shexp_warp.SHExpTables`).
+with ``exp_tables = bundle.exp_tables(device)`` (:class:`SHExpTables`, defined with the exp/log
+functions in :mod:`warpshade.basis._shexp_warp` and re-exported here).
+
+Layer: above :mod:`warpshade.basis._gaunt` (Gaunt tensor), :mod:`warpshade.basis._rotation`
+(x90 blocks) and :mod:`warpshade.basis._shexp_warp` (exp/log functions and tables), all imported
+at the top; never imports :mod:`warpshade.basis.sh`. The modules that need finished bundles
+(:mod:`warpshade.basis._shexp_kernels`, :mod:`warpshade.basis._zh_warp`,
+:mod:`warpshade.basis.sh`) import this one.
 """
 
 # No "from __future__ import annotations": Warp resolves closure types in annotations.
@@ -70,11 +77,12 @@ from typing import Any
 import numpy as np
 
 from .._wp import resolve_device, wp
-from ._shexp_warp import exp_funcs
+from . import _gaunt, _rotation
+from ._shexp_warp import SHExpTables, build_exp_tables, exp_funcs
 
 wp.set_module_options({"enable_backward": False})
 
-__all__ = ["SHKernels", "SHTables", "sh_kernels", "MAX_KERNEL_ORDER"]
+__all__ = ["SHKernels", "SHTables", "SHExpTables", "sh_kernels", "MAX_KERNEL_ORDER"]
 
 #: Highest SH order with generated Warp code (order n = n bands = n*n coefficients).
 MAX_KERNEL_ORDER = 12
@@ -108,8 +116,6 @@ _tables_cache: dict = {}
 
 
 def _build_tables(order: int, device) -> SHTables:
-    from . import _gaunt, _rotation
-
     dev = resolve_device(device)
     key = (order, dev.alias)
     with _tables_lock:
@@ -173,10 +179,8 @@ class SHKernels:
         """The :class:`SHTables` of this order on ``device`` (built once, then cached)."""
         return _build_tables(self.order, device)
 
-    def exp_tables(self, device=None):
+    def exp_tables(self, device=None) -> SHExpTables:
         """The OL and blocking-cap log tables of this order on ``device`` (built once, cached)."""
-        from ._shexp_warp import build_exp_tables
-
         return build_exp_tables(self.order, device)
 
 

@@ -29,7 +29,15 @@ refined with the axes frozen (linear least squares), then jointly by BFGS, with 
 random axes where the error stays above a threshold. :func:`fit_budget` picks the lobe count per
 problem from a target error.
 
-Warp functions for evaluating lobe sets inside kernels: :func:`zh_kernels` (per SH order).
+Warp functions for evaluating lobe sets inside kernels: :func:`zh_kernels` (per SH order, a
+:class:`ZHKernels` bundle) and the grid of its light-specialised table, :func:`table_directions`.
+
+This module is the public facade of the ZH layers: it imports :mod:`~warpshade.basis._core`
+(float64 SH), :mod:`~warpshade.basis._zh_grad`, :mod:`~warpshade.basis._zh_fit` and
+:mod:`~warpshade.basis._zh_warp` at the top, and none of them imports it. Besides the functions
+defined here it re-exports :data:`DEFAULT_RIDGE`, :func:`basis_and_gradient` (the SH basis with
+its gradient, behind the fit's analytic derivatives), the Warp bundle and, as :data:`fitting`,
+the batched low-level fitting machinery that :func:`fit` drives.
 """
 
 from __future__ import annotations
@@ -39,18 +47,25 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import _zh_fit, sh
-from ._zh_fit import hemicube_axes
+from . import _zh_fit
+from ._core import MAX_ORDER, band_of, band_scale, basis, check_coeffs
+from ._zh_fit import DEFAULT_RIDGE, hemicube_axes
+from ._zh_grad import basis_and_gradient
+from ._zh_warp import ZHKernels, table_directions, zh_kernels
 
 __all__ = [
+    "DEFAULT_RIDGE",
     "PAPER_STORED_BANDS",
     "LobeBudget",
     "ZHFit",
+    "ZHKernels",
+    "basis_and_gradient",
     "choose_order",
     "convolution_from_zh",
     "evaluate",
     "fit",
     "fit_budget",
+    "fitting",
     "flip",
     "hemicube_axes",
     "linear_lobe",
@@ -59,6 +74,7 @@ __all__ = [
     "rotate",
     "single_lobe_coefficients",
     "stored_band_count",
+    "table_directions",
     "to_sh",
     "zh_from_convolution",
     "zh_kernels",
@@ -67,23 +83,25 @@ __all__ = [
 #: Documentation of the paper's storage rule (Sec. 3.3): bands stored exactly for N lobes.
 PAPER_STORED_BANDS = "DC always; DC and linear when N >= 3"
 
-
-def _band_scale(order: int) -> np.ndarray:
-    l = np.arange(order, dtype=np.float64)
-    return np.sqrt(4.0 * np.pi / (2.0 * l + 1.0))
+#: The batched float64 machinery behind :func:`fit` (module :mod:`warpshade.basis._zh_fit`):
+#: ``FitProblem`` / ``FitOptions``, ``pack`` / ``unpack`` of the parameters (B, P),
+#: ``objective(problem, x, target) -> (psi (B,), grad (B, P))``, ``solve_coefficients``,
+#: ``optimal_linear_axes``, ``bfgs_batched`` / ``bfgs_scipy`` and ``fit_lobes``, for callers
+#: that set up their own fits (e.g. one optimisation over a whole parameter map).
+fitting = _zh_fit
 
 
 def convolution_from_zh(zh_coeffs) -> np.ndarray:
     """``g*_l = sqrt(4 pi / (2l + 1)) g_l``: ZH coefficients (as in :func:`sh.zh_to_sh`) to the
     convolution coefficients of this module. Shape (..., n) -> (..., n), float64."""
     g = np.asarray(zh_coeffs, dtype=np.float64)
-    return g * _band_scale(g.shape[-1])
+    return g * band_scale(g.shape[-1])
 
 
 def zh_from_convolution(coeffs) -> np.ndarray:
     """Inverse of :func:`convolution_from_zh`, shape (..., n), float64."""
     g = np.asarray(coeffs, dtype=np.float64)
-    return g / _band_scale(g.shape[-1])
+    return g / band_scale(g.shape[-1])
 
 
 def _axes(axes, name: str) -> np.ndarray:
@@ -100,7 +118,7 @@ def _axes(axes, name: str) -> np.ndarray:
 
 def _lobe_coeffs(coeffs, name: str) -> np.ndarray:
     c = np.asarray(coeffs, dtype=np.float64)
-    if c.ndim < 2 or not 1 <= c.shape[-1] <= sh.MAX_ORDER:
+    if c.ndim < 2 or not 1 <= c.shape[-1] <= MAX_ORDER:
         raise ValueError(f"{name}: expected lobe coefficients of shape (..., N, n), got {c.shape}")
     if not np.all(np.isfinite(c)):
         raise ValueError(f"{name}: contains NaN or infinite values")
@@ -123,8 +141,8 @@ def to_sh(axes, coeffs) -> np.ndarray:
     batch = np.broadcast_shapes(a.shape[:-1], c.shape[:-1])
     a = np.broadcast_to(a, batch + (3,))
     c = np.broadcast_to(c, batch + (order,))
-    y = sh.basis(a, order)
-    return np.sum(y * c[..., sh.band_of(order)], axis=-2)
+    y = basis(a, order)
+    return np.sum(y * c[..., band_of(order)], axis=-2)
 
 
 def _legendre(x: np.ndarray, order: int) -> np.ndarray:
@@ -191,11 +209,11 @@ def single_lobe_coefficients(sh_coeffs, axes) -> np.ndarray:
     Returns:
         shape (..., n).
     """
-    t, order = sh._coeffs(sh_coeffs, "zh.single_lobe_coefficients: sh")
+    t, order = check_coeffs(sh_coeffs, "zh.single_lobe_coefficients: sh")
     a = _axes(np.asarray(axes)[..., None, :], "zh.single_lobe_coefficients: axes")[..., 0, :]
     batch = np.broadcast_shapes(t.shape[:-1], a.shape[:-1])
     t = np.broadcast_to(t, batch + (order * order,))
-    y = sh.basis(np.broadcast_to(a, batch + (3,)), order)
+    y = basis(np.broadcast_to(a, batch + (3,)), order)
     proj = np.add.reduceat(t * y, np.arange(order) ** 2, axis=-1)
     return proj / _zh_fit.band_norms(order)
 
@@ -205,7 +223,7 @@ def optimal_linear_axis(sh_coeffs) -> np.ndarray:
 
     Returns unit axes, shape (..., 3); +z where the linear band vanishes.
     """
-    t, order = sh._coeffs(sh_coeffs, "zh.optimal_linear_axis: sh")
+    t, order = check_coeffs(sh_coeffs, "zh.optimal_linear_axis: sh")
     if order < 2:
         raise ValueError("zh.optimal_linear_axis: needs SH order >= 2")
     flat = t.reshape(-1, order * order)
@@ -244,7 +262,7 @@ def objective(sh_coeffs, axes, coeffs, stored_bands: int = 0) -> tuple[np.ndarra
     Returns:
         ``(psi (B,), d psi / d axes (B, N, 3), d psi / d coeffs (B, N, n))`` (stored bands: 0).
     """
-    t, order = sh._coeffs(sh_coeffs, "zh.objective: sh")
+    t, order = check_coeffs(sh_coeffs, "zh.objective: sh")
     a = np.asarray(axes, dtype=np.float64)
     c = np.asarray(coeffs, dtype=np.float64)
     problem = _zh_fit.FitProblem(order, a.shape[1], stored_bands)
@@ -324,7 +342,7 @@ class ZHFit:
             target[:, 1:4] = lin
             sol = _zh_fit.solve_coefficients(target, flat_axes, np.array([1]))
             coeffs.reshape(-1, self.lobe_count, self.order)[:, :, 1] = sol[:, :, 1]
-            y = sh.basis(flat_axes.reshape(-1, 3), 2).reshape(-1, self.lobe_count, 4)
+            y = basis(flat_axes.reshape(-1, 3), 2).reshape(-1, self.lobe_count, 4)
             resid = np.einsum("bij,bi->bj", y[:, :, 1:4], sol[:, :, 1]) - lin
             self.notes["fold_error"] = float(np.abs(resid).max(initial=0.0))
         return self.axes.copy(), coeffs
@@ -334,7 +352,7 @@ class ZHFit:
 
 
 def _prepare_target(sh_coeffs, name: str):
-    t, order = sh._coeffs(sh_coeffs, name)
+    t, order = check_coeffs(sh_coeffs, name)
     batch = t.shape[:-1]
     return t.reshape(-1, order * order), order, batch
 
@@ -352,7 +370,7 @@ def fit(
     optimizer: str = "batched",
     seed: int = 0,
     initial_axes=None,
-    ridge: float = _zh_fit.DEFAULT_RIDGE,
+    ridge: float = DEFAULT_RIDGE,
 ) -> ZHFit:
     """Fit N zonal-harmonic lobes to SH vectors (Sloan et al. 2005, Sec. 4.1), batched.
 
@@ -564,14 +582,3 @@ def choose_order(sh_coeffs, target_error: float, scale=None) -> tuple[int, np.nd
     errors = np.sqrt(np.append(tail[1:], 0.0) / max(total, 1e-300))
     chosen = int(np.argmax(errors <= target_error)) + 1 if np.any(errors <= target_error) else order
     return chosen, errors
-
-
-def zh_kernels(order: int):
-    """The cached Warp bundle (``ZHKernels``) of lobe functions and kernels for one SH order:
-    ``lobe_sh``, ``accumulate_sh``, ``lobe_eval``, ``light_bands``, ``lobe_dot``,
-    ``table_lookup``, ``to_sh_kernel``, ``evaluate_kernel``, ``table_kernel`` (see
-    :mod:`warpshade.basis._zh_warp`). Imported lazily so the float64 fitting needs no Warp."""
-    from ._zh_warp import zh_kernels as _k
-
-    return _k(order)
-

@@ -18,8 +18,8 @@ import functools
 
 import warp as wp
 
-from ...basis._zh_warp import zh_kernels
 from ...basis.sh_warp import SHTables, sh_kernels
+from ...basis.zh import zh_kernels
 
 wp.set_module_options({"enable_backward": False})
 

@@ -32,7 +32,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..._wp import wp
-from ...basis._zh_fit import DEFAULT_RIDGE as _RIDGE
+from ...basis.zh import DEFAULT_RIDGE as _RIDGE
 from ...basis.sh_warp import sh_kernels
 from ..common import ShLighting, order_param
 from ..stage import Param, Port, Stage, StageError, register_stage

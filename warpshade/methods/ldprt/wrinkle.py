@@ -31,7 +31,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import sparse
 
-from ...basis import _zh_fit, sh
+from ...basis import sh
+from ...basis.zh import fitting as _zh_fit
 from ...geometry.frames import TangentFrames
 
 __all__ = [

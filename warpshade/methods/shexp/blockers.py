@@ -234,7 +234,7 @@ class BlockerFrames:
             of the ratio vectors (0 = all).
         ratio: compute ratio vectors (else every cut entry has weight 1).
         device: Warp device.
-        exp_tables: the :class:`~warpshade.basis._shexp_warp.SHExpTables` of ``order`` to use
+        exp_tables: the :class:`~warpshade.basis.sh_warp.SHExpTables` of ``order`` to use
             (default: the process-wide ones).
     """
 

@@ -11,7 +11,7 @@ normal ``N``
    ``s = (P - p)/|P - p|``, F from the blocking-cap log table, W the per-band ratio vector of
    the cut entry) -- or, for the product baseline (Zhou et al. 2005), ``g = g * G(theta) y(s)``
    with the cap's visibility itself;
-4. exponentiate (PS-p, PS*-p, OL or HYB; :mod:`warpshade.basis._shexp_warp`) and window;
+4. exponentiate (PS-p, PS*-p, OL or HYB; :func:`warpshade.basis.sh_warp.sh_kernels`) and window;
 5. shade: ``radiance_c = albedo_c / pi * max(0, (L_c, g, X))`` with ``X = H(N)``, the clamped
    cosine about N (or a baked static transfer ``T_p``), by one of
 
@@ -44,8 +44,7 @@ import numpy as np
 
 from ..._wp import wp
 from ...basis import sh
-from ...basis._shexp_warp import SHExpTables
-from ...basis.sh_warp import SHTables, sh_kernels
+from ...basis.sh_warp import SHExpTables, SHTables, sh_kernels
 from ...geometry.frames import onb_tangent
 from ...scene.lighting_warp import EnvironmentMap, env_pdf, env_radiance, env_sample
 

@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..._wp import cpu_workers, launch_parallel, resolve_device, wp
-from ...basis._shexp import DEFAULT_DEGREE
+from ...basis.sh import DEFAULT_DEGREE
 from ...basis.sh_warp import sh_kernels
 from . import kernels, tables
 
@@ -174,8 +174,8 @@ class ShexpShader:
     def set_exp_tables(self, log_cap, ol_a, ol_b, ol_norm_max: float) -> None:
         """Use these blocking-cap log and OL tables (device arrays, e.g. precompute artifacts)
         instead of the process-wide ones: log_cap (S, n), ol_a/ol_b (S,) float32."""
-        from ...basis._shexp import CAP_THETA_MAX
-        from ...basis._shexp_warp import SHExpTables
+        from ...basis.sh import CAP_THETA_MAX
+        from ...basis.sh_warp import SHExpTables
 
         if tuple(log_cap.shape[1:]) != (self.order,):
             raise ValueError(f"shexp: log-cap table has shape {tuple(log_cap.shape)}, order {self.order} needs (S, {self.order})")
