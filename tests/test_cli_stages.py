@@ -8,6 +8,7 @@ import pytest
 
 from warpshade import cli
 from warpshade.graph import load
+from warpshade.measure import write_usd
 
 STAGES = sorted((Path(__file__).resolve().parent.parent / "stages").glob("*.toml"))
 
@@ -33,7 +34,7 @@ def test_stage_graph_runs(graph_file, tmp_path):
         assert out.shape == (rt.scene.vertex_count, 3)
         assert np.all(np.isfinite(out)), f"{graph_file.name}: NaN/inf radiance at frame {f}"
         assert out.min() >= -1e-3 * max(1.0, out.max()), f"{graph_file.name}: negative radiance"
-    usd = rt.write_usd(tmp_path / f"{spec.name}.usda")
+    usd = write_usd(rt, tmp_path / f"{spec.name}.usda")
     from pxr import Usd, UsdGeom
 
     stage = Usd.Stage.Open(str(usd))

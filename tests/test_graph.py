@@ -8,6 +8,7 @@ import trimesh
 
 from warpshade._wp import wp
 from warpshade.graph import GraphError, GraphSpec, Param, Port, Stage, StageSpec, load, register_stage
+from warpshade.measure import measure_error, render_comparisons, write_report, write_usd
 from warpshade.scene import Environment, Mesh, Scene
 
 CALLS = {"const": 0}
@@ -70,8 +71,9 @@ class _Sum(Stage):
         self.out = wp.zeros((ctx.dims["V"], 3), dtype=wp.float32, device=ctx.device)
         return {"radiance": self.out}
 
-    def launch(self, ctx):
-        wp.launch(_sum_rows, dim=ctx.dims["V"], inputs=[self.inputs["values"], self.inputs["points"], self.out], device=ctx.device)
+    def launch(self, state):
+        wp.launch(_sum_rows, dim=state.vertex_count, inputs=[self.inputs["values"], self.inputs["points"], self.out],
+                  device=state.device)
 
 
 @register_stage
@@ -115,8 +117,12 @@ def test_runs_and_steps(moving_scene, tmp_path):
     assert list(frames) == [1.0, 2.0]
     assert sorted(rt.results) == [1.0, 2.0]
     summary = rt.timing_summary()
-    assert summary["stages"]["shade"]["median_frame_s"] is not None
+    assert summary["captured"] and summary["median_frame_s"] is not None
     assert summary["stages"]["bake"]["cache"] == "miss"
+    assert summary["stages"]["shade"]["median_frame_s"] is None, "per-stage times come from profile()"
+    profile = rt.profile("0:2")
+    assert set(profile) == {"scene", "shade"} and all(v > 0 for v in profile.values())
+    assert rt.timing_summary()["stages"]["shade"]["median_frame_s"] is not None
 
 
 def test_cache_reuse_and_invalidation(moving_scene, tmp_path):
@@ -128,7 +134,7 @@ def test_cache_reuse_and_invalidation(moving_scene, tmp_path):
     assert rt.timings["bake"].cache == "hit"
     bake = next(s for s in rt.stages if s.name == "bake")
     assert bake.report == {"value": 1.0, "histogram": [3, 1]}, "a precompute report survives the cache"
-    assert rt.report()["stages"][0]["report"]["histogram"] == [3, 1]
+    assert rt.describe()["stages"][0]["report"]["histogram"] == [3, 1]
     _spec(value=2.0).compile(moving_scene, device="cpu", cache_dir=tmp_path, progress=False)
     assert CALLS["const"] == 2, "a changed parameter must recompute"
     moved = Scene.from_meshes(
@@ -159,7 +165,7 @@ def test_artifact_failing_its_stage_check_is_recomputed(moving_scene, tmp_path):
     rt = _spec(value=1.0).compile(moving_scene, device="cpu", cache_dir=tmp_path, progress=False)
     assert CALLS["const"] == 2 and rt.timings["bake"].cache == "miss"
     assert rt.stale_artifacts and "non-finite" in rt.stale_artifacts[0]
-    assert rt.report()["stale_artifacts"] == rt.stale_artifacts
+    assert rt.describe()["stale_artifacts"] == rt.stale_artifacts
     assert np.allclose(rt.step(0.0).numpy()[:, 0], 2.0)
     rt = _spec(value=1.0).compile(moving_scene, device="cpu", cache_dir=tmp_path, progress=False)
     assert rt.timings["bake"].cache == "hit" and not rt.stale_artifacts, "the recomputed artifact replaced it"
@@ -213,9 +219,9 @@ def test_toml_roundtrip_and_outputs(moving_scene, tmp_path):
     rt = spec.compile(moving_scene, device="cpu", cache_dir=None, progress=False)
     assert rt.timings["bake"].cache == "off"
     rt.run()
-    report = json.loads(rt.write_report(tmp_path / "report.json").read_text())
+    report = json.loads(write_report(rt, tmp_path / "report.json").read_text())
     assert report["graph"] == "toml-graph" and report["frames_run"] == [0.0, 1.0, 2.0]
-    usd_path = rt.write_usd(tmp_path / "out" / "shaded.usda")
+    usd_path = write_usd(rt, tmp_path / "out" / "shaded.usda")
     from pxr import Usd, UsdGeom
 
     stage = Usd.Stage.Open(str(usd_path))
@@ -232,10 +238,9 @@ def test_toml_roundtrip_and_outputs(moving_scene, tmp_path):
 
 def test_comparisons_need_a_measured_reference(moving_scene, tmp_path):
     rt = _spec().compile(moving_scene, device="cpu", cache_dir=None, progress=False)
-    rt.run([0.0], warmup=False)
-    assert rt.render_comparisons(tmp_path) == [], "nothing measured, nothing pictured"
-    with pytest.raises(ValueError, match=r"frame\(s\) \[0.0\].*measure_error"):
-        rt.render_comparisons(tmp_path, frames=[0.0])
-    rt.measure_error([0.0], samples=16)
-    (png,) = rt.render_comparisons(tmp_path, width=48, height=36)
+    rt.run([0.0, 1.0], warmup=False)
+    measured = measure_error(rt, [0.0], samples=16, cache_dir=None)
+    with pytest.raises(ValueError, match=r"frame\(s\) \[1.0\] were not measured"):
+        render_comparisons(rt, measured, tmp_path, frames=[1.0])
+    (png,) = render_comparisons(rt, measured, tmp_path, width=48, height=36)
     assert png.name.endswith("_0000_vs_reference.png") and png.exists()

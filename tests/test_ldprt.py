@@ -14,7 +14,8 @@ from warpshade._wp import wp
 from warpshade.basis import sh
 from warpshade.basis.sh_warp import sh_kernels
 from warpshade.geometry.frames import TangentFrames
-from warpshade.graph import GraphSpec, LightingSource, StageSpec, load
+from warpshade.graph import GraphSpec, StageSpec, load
+from warpshade.scene import LightingSource
 from warpshade.methods.ldprt import (
     fit_transfer,
     kernels,

@@ -7,13 +7,12 @@ import pytest
 from warpshade._wp import wp
 from warpshade.basis import sh
 from warpshade.geometry.frames import TangentFrames
-from warpshade.graph import GraphSpec, LightingSource, StageSpec
+from warpshade.graph import GraphSpec, StageSpec
+from warpshade.measure import measure_error
+from warpshade.scene import LightingSource
 from warpshade.methods.ldprt import kernels
-from warpshade.methods.ldprt.glossy import (
-    fit_glossy,
-    glossy_rows,
-    shade_glossy_reference,
-)
+from warpshade.methods.ldprt.glossy import fit_glossy, glossy_rows
+from warpshade.methods.ldprt.reference import shade_glossy_reference
 from warpshade.scene import Environment, Mesh, Scene
 from warpshade.scene import materials as M
 
@@ -83,7 +82,7 @@ def test_glossy_kernel_and_unshadowed_case(sheet, factorization):
               inputs=[light_wp, wp.ones(1, dtype=wp.int32, device="cpu"), table], device="cpu")
     out = wp.zeros((v, 3), dtype=wp.float32, device="cpu")
     wp.launch(kernels.glossy_kernel(ORDER), dim=v, inputs=[
-        frames, state.points, wp.vec3(*eye), wp.array(model.axes.reshape(v, -1, 3), dtype=wp.vec3, device="cpu"),
+        frames, state.points, wp.array([wp.vec3(*eye)], dtype=wp.vec3, device="cpu"), wp.array(model.axes.reshape(v, -1, 3), dtype=wp.vec3, device="cpu"),
         wp.array(model.coeffs.reshape(v, -1, ORDER), device="cpu"), wp.array(model.stored, device="cpu"),
         model.lobe_count, wp.array(factorization.view_factors.astype(np.float32), device="cpu"), table, light_wp,
         wp.vec3(1.0, 1.0, 1.0), out], device="cpu")
@@ -142,9 +141,10 @@ def _glossy_validation_runtime(sheet, eye, below_horizon="visible"):
 def test_validation_uses_the_glossy_reference_and_back_faces_send_nothing(sheet):
     eye = (0.0, -2.0, 0.05)  # grazing: part of the curved sheet faces away from the viewer
     rt = _glossy_validation_runtime(sheet, eye)
-    err = rt.measure_error([0.0], samples=256)
+    measured = measure_error(rt, [0.0], samples=256, cache_dir=None)
+    err = measured.error
     assert err["reference"].startswith("glossy") and "phong" in err["reference"]
-    out, ref = rt.results[0.0], rt.references[0.0]
+    out, ref = rt.results[0.0], measured.references[0.0]
     facing = np.einsum("ij,ij->i", np.asarray(eye) - sheet.points_at(0.0), sheet.normals_at(0.0)) > 0
     assert 0 < facing.sum() < sheet.vertex_count, "the case must have back-facing vertices"
     assert np.all(out[~facing] == 0.0) and np.all(ref[~facing] == 0.0)
@@ -153,7 +153,7 @@ def test_validation_uses_the_glossy_reference_and_back_faces_send_nothing(sheet)
 
 def test_open_horizon_visibility_removes_the_horizon_ringing(sheet):
     eye = (0.3, -0.5, 2.0)
-    errors = {bh: rt.measure_error([0.0], samples=2048)["mean"]["rel_rms"]
+    errors = {bh: measure_error(rt, [0.0], samples=2048, cache_dir=None).error["mean"]["rel_rms"]
               for bh in ("visible", "traced") for rt in [_glossy_validation_runtime(sheet, eye, bh)]}
     assert errors["visible"] < RTOL_VS_GLOSSY_REFERENCE
     # the paper's V (0 below the horizon) times the BRDF rows, truncated at order 3, rings

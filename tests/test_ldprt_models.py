@@ -7,7 +7,8 @@ from scipy.spatial.transform import Rotation
 
 from warpshade._wp import wp
 from warpshade.basis import quadrature, sh, zh
-from warpshade.graph import GraphSpec, LightingSource, StageSpec
+from warpshade.graph import GraphSpec, StageSpec
+from warpshade.scene import LightingSource
 from warpshade.methods.ldprt import kernels
 from warpshade.methods.ldprt.membrane import membrane_coefficients, thickness
 from warpshade.methods.ldprt.wrinkle import (

@@ -5,7 +5,8 @@ import pytest
 import trimesh
 
 from warpshade.basis import sh
-from warpshade.graph import GraphSpec, LightingSource, StageSpec
+from warpshade.graph import GraphSpec, StageSpec
+from warpshade.scene import LightingSource
 from warpshade.reference import shade
 from warpshade.scene import Environment, Mesh, Scene
 

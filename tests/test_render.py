@@ -10,16 +10,8 @@ from grids import ground_grid
 from PIL import Image
 
 from warpshade._wp import wp
-from warpshade.render import (
-    camera_basis,
-    comparison_figure,
-    error_colors,
-    frame_camera,
-    render,
-    tonemap_reference,
-    write_png,
-)
-from warpshade.render.compare import ERROR_COLORMAP
+from warpshade.measure.pictures import ERROR_COLORMAP, comparison_figure, error_colors
+from warpshade.render import camera_basis, frame_camera, render, tonemap_reference, write_png
 from warpshade.render.image import tonemap
 from warpshade.scene import Camera, Environment, Mesh, Scene
 

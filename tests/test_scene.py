@@ -5,7 +5,7 @@ import pytest
 
 from warpshade._wp import resolve_device
 from warpshade.io.usd import load_scene, load_usd
-from warpshade.scene import Mesh, Scene, SkinBinding, Skeleton, ground_plane
+from warpshade.scene import FrameEvaluator, Mesh, Scene, SkinBinding, Skeleton, ground_plane
 
 #: float32 positions of scenes a few metres across: a few ulps of the largest coordinate.
 POINT_RTOL_SIZE = 1e-6
@@ -40,12 +40,16 @@ def test_evaluate_uses_authored_normals_for_static_meshes(device):
 
 def test_static_arrays_are_cached_per_device(bundled, device):
     scene = bundled["bend"]
+    dev = resolve_device(device)
     scene.evaluate(0.0, device=device)
-    cached = scene._device_data(resolve_device(device))
+    cached = scene._device_cache[str(dev)]
     a = scene.evaluate(10.0, device=device)
-    assert scene._device_data(a.device) is cached
+    assert scene._device_cache[str(a.device)] is cached
+    assert FrameEvaluator(scene, dev)._data is cached, "every evaluator of a device shares the static arrays"
     b = scene.evaluate(10.0, device=device)
+    c = scene.evaluate(20.0, device=device)
     np.testing.assert_array_equal(a.points.numpy(), b.points.numpy())
+    assert not np.array_equal(a.points.numpy(), c.points.numpy()), "evaluate() returns snapshots, not shared buffers"
 
 
 def test_ground_plane_mesh_faces_up():

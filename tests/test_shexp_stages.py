@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from warpshade.graph import GraphSpec, LightingSource, StageSpec
+from warpshade.graph import GraphSpec, StageSpec
+from warpshade.scene import LightingSource
 from warpshade.methods.shexp import reference
 from warpshade.methods.shexp.blockers import BlockerModel, plane_blockers
 from warpshade.scene import Environment, Mesh, Scene
@@ -61,7 +62,7 @@ def test_shade_stage_matches_reference_pipeline(device, scene):
     pts, nrm = scene.points_at(frame), scene.normals_at(frame)
     g = reference.visibility(pts, nrm, model.spheres.centres_at(scene, frame), model.spheres.radii_at(scene, frame), ORDER,
                              "hyb", planes=model.planes)
-    light = rt.ctx.lighting_sh(ORDER)
+    light = rt.lighting.sh(ORDER, frame)  # the float64 oracle of the frame's lighting
     want = reference.shade(g, nrm, light, scene.albedo)
     np.testing.assert_allclose(out, want, atol=RTOL_STAGE * want.max())
 
@@ -152,18 +153,22 @@ def test_sphere_trace_stage_and_bad_inputs(device, scene):
 
 
 def test_error_budget_picks_cheapest_setting_meeting_target(scene, tmp_path):
-    from warpshade.methods.shexp.budget import choose_setting
+    from warpshade.measure.budget import choose
+    from warpshade.methods.shexp.budget import candidates
 
     lighting = LightingSource(scene.lights, scene.up_axis, 0.0, 0.0)
-    common = dict(lighting=lighting, orders=(4,), sphere_budgets=(1, 4), methods=("ol", "hyb"), frames=[1.0], gt_samples=64,
-                  blocker_params=FIT, cache_dir=tmp_path)
-    loose = choose_setting(scene, 10.0, **common)
+    grid = candidates(orders=(4,), spheres=(1, 4), methods=("ol", "hyb"), blocker_params=FIT)
+    common = dict(lighting=lighting, frames=[1.0], gt_samples=64, cache_dir=tmp_path, method="shexp")
+    loose = choose(scene, grid, 10.0, **common)
     assert loose.met and len(loose.candidates) == 4
     assert all(c.meets_target for c in loose.candidates)
     assert loose.chosen.stage_ms == min(c.stage_ms for c in loose.candidates)
-    impossible = choose_setting(scene, 1e-9, **common)  # ground truth is re-used from the cache
+    assert all(c.facts["leaf_spheres"] <= c.facts["spheres"] for c in loose.candidates), "the fitted count is reported"
+    impossible = choose(scene, grid, 1e-9, **common)  # ground truth is re-used from the cache
     assert not impossible.met
     assert impossible.chosen.rel_rms == min(c.rel_rms for c in impossible.candidates)
     assert "does NOT meet" in impossible.summary()
     with pytest.raises(ValueError, match="target_error"):
-        choose_setting(scene, 0.0, **common)
+        choose(scene, grid, 0.0, **common)
+    with pytest.raises(ValueError, match="unknown exp method"):
+        candidates(methods=("taylor",))

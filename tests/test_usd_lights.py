@@ -232,7 +232,7 @@ def _rot(axis, degrees):
 
 
 def test_animated_light_transforms_are_followed(tmp_path):
-    from warpshade.graph import LightingSource
+    from warpshade.scene import LightingSource
     from warpshade.scene import lights_to_sh
 
     write_hdr(tmp_path / "sky.hdr", _painted_texture())

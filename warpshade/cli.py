@@ -155,24 +155,30 @@ def _cmd_list_stages(args) -> int:
 
 
 def _run_graph(graph_file, frames=None, device=None, out_dir=None, validate=False, previews=True, progress=True):
-    """Run one stage graph end to end; returns (runtime, outputs dict)."""
+    """Run one stage graph end to end; returns (runtime, outputs dict).
+
+    Composes the runtime (precompute, frames) with the measuring layer (ground truth, pictures,
+    the USD layer and the report).
+    """
     import time
     from pathlib import Path
 
     from .graph import load
+    from .measure import measure_error, render_comparisons, render_previews, write_report, write_usd
 
     spec = load(graph_file)
     out = Path(out_dir if out_dir is not None else Path("warpshade-out") / spec.name)
     t0 = time.perf_counter()
     rt = spec.compile(device=device, progress=progress)
     rt.run(frames)
-    outputs = {"usd": rt.write_usd(out / f"{spec.name}.usda")}
+    outputs = {"usd": write_usd(rt, out / f"{spec.name}.usda")}
     if previews:
-        outputs["png"] = rt.render_previews(out)
-    error = rt.measure_error() if validate else None
+        outputs["png"] = render_previews(rt, out)
+    measurement = measure_error(rt) if validate else None
+    error = measurement.error if measurement is not None else None
     if validate and previews:
-        outputs["png"] = [*outputs.get("png", []), *rt.render_comparisons(out)]
-    outputs["report"] = rt.write_report(out / f"{spec.name}.json", error=error)
+        outputs["png"] = [*outputs.get("png", []), *render_comparisons(rt, measurement, out)]
+    outputs["report"] = write_report(rt, out / f"{spec.name}.json", error=error)
     outputs["seconds"] = time.perf_counter() - t0
     outputs["error"] = error
     return rt, outputs
@@ -183,7 +189,8 @@ def _print_run(rt, outputs) -> None:
     pre = sum(v.get("precompute_s", 0.0) for v in t["stages"].values())
     print(f"{rt.spec.name}: {rt.scene.vertex_count:,} vertices, {len(rt.results)} frames on {rt.device}")
     print(f"  precompute {pre:.2f} s, median frame {1e3 * (t['median_frame_s'] or 0):.2f} ms "
-          f"(host-side Python {1e3 * (t['median_host_s'] or 0):.2f} ms)")
+          f"(host-side Python {1e3 * (t['median_host_s'] or 0):.3f} ms, "
+          f"{'one recorded frame replayed' if t['captured'] else 'not recorded'})")
     err = outputs.get("error")
     if err:
         m = err["mean"]

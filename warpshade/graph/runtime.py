@@ -538,6 +538,7 @@ class Runtime:
             },
             "device": str(self.device),
             "stages": [s.describe() for s in self.stages],
+            "diagnostics": {s.name: d for s in self.frame_stages if self.frame_s and (d := s.diagnostics())},
             "frames_run": sorted(self.results),
             "timings": self.timing_summary(),
             "model_bytes": self.model_bytes(),

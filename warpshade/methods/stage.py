@@ -200,6 +200,9 @@ class Stage:
     #: the recorded segments); :attr:`capture_note` says why.
     capturable: ClassVar[bool] = True
     capture_note: ClassVar[str] = ""
+    #: True when the stage traces rays against the frame's geometry: the runtime then keeps a
+    #: BVH over the state's points (``state.bvh``), refit inside the recorded frame.
+    needs_bvh: ClassVar[bool] = False
 
     def setup(self, ctx: StageContext, inputs: dict) -> dict:
         """Allocate fixed device outputs and bind the inputs (device arrays of upstream ports;
@@ -232,6 +235,11 @@ class Stage:
     def model_bytes(self) -> int:
         """Bytes of per-scene model data this stage keeps on the device (for reports)."""
         return 0
+
+    def diagnostics(self) -> dict:
+        """Facts about the last frame worth reporting (e.g. receivers that fell back to a
+        cheaper estimate); read from the device, so only after a frame, never inside one."""
+        return {}
 
     def describe(self) -> dict:
         out = {"name": self.name, "type": self.type_name, "kind": self.kind, "params": dict(self.params)}

@@ -2,12 +2,11 @@
 
 ``render(scene, frame, colors=...)`` interpolates per-vertex colours at the primary hits;
 ``render(scene, frame, shade=callback)`` calls ``callback(gbuffer)`` for per-pixel radiance.
-Images are tone-mapped (exposure + sRGB or Reinhard) and written to PNG atomically.
-``comparison_figure`` writes a method | reference | error picture of one frame.
+Images are tone-mapped (exposure + sRGB or Reinhard) and written to PNG atomically. Pictures of
+a method against ground truth are the measuring layer's (:mod:`warpshade.measure.pictures`).
 """
 
 from .camera import camera_basis, camera_for, frame_camera
-from .compare import comparison_figure, error_colors
 from .image import GREY_BACKGROUND, TONEMAP_MODES, tonemap, tonemap_reference, write_png
 from .raycast import GBuffer, RenderResult, interpolate_vertex_values, render, render_gbuffer
 
@@ -18,8 +17,6 @@ __all__ = [
     "TONEMAP_MODES",
     "camera_basis",
     "camera_for",
-    "comparison_figure",
-    "error_colors",
     "frame_camera",
     "interpolate_vertex_values",
     "render",

@@ -246,6 +246,7 @@ class TransferTracer:
         offset: float | None = None,
         chunk_min_rays: int = CHUNK_MIN_RAYS,
         below_horizon: str = "traced",
+        bvh: Visibility | None = None,
     ):
         _check_args(order, samples, space)
         if below_horizon not in ("traced", "visible"):
@@ -259,7 +260,8 @@ class TransferTracer:
         self.device = resolve_device(device)
         self.workers = (cpu_workers() if self.device.is_cpu else 1) if workers is None else max(1, int(workers))
         self.chunks = chunks
-        self.bvh = Visibility.from_scene(scene, device=self.device, offset=offset)
+        # a BVH of its own (refit by trace_state), or one kept current by others (launch)
+        self.bvh = Visibility.from_scene(scene, device=self.device, offset=offset) if bvh is None else bvh
         self.chunk_min_rays = int(chunk_min_rays)
         self.tangent_frames = TangentFrames.from_scene(scene, device=self.device) if space == "local" else None
         self._no_frames = wp.empty(0, dtype=wp.mat33, device=self.device)
@@ -292,6 +294,15 @@ class TransferTracer:
             normals: unit world normals, wp.array(vec3), same shape.
         """
         self.bvh.update(points)
+        self.launch(points, normals)
+
+    def launch(self, points, normals) -> None:
+        """Fill the outputs against the BVH as it is (no refit): kernel launches on fixed
+        buffers only, for a recorded frame whose BVH is refit before (a FrameState's).
+
+        Args:
+            points, normals: the frame's vertex positions and unit normals, wp.array(vec3).
+        """
         frames = self._no_frames
         if self.tangent_frames is not None:
             frames = self.tangent_frames.compute(points, normals)

@@ -1,65 +1,17 @@
 """SHEXP: soft shadows from sphere blockers by log-space SH accumulation (Ren et al. 2006).
 
-Modules: :mod:`.kernels` (the per-receiver Warp pass and its helpers), :mod:`.pipeline`
-(fixed buffers and launches), :mod:`.blockers` (sphere sets, hierarchy, clusters per frame),
-:mod:`.tables` (sphere-light lobe fits, windows), :mod:`.reference` (float64 oracle),
-:mod:`.stages` (graph stages: ``shexp.tables``, ``shexp.blockers``, ``shexp.static_bake``,
-``shexp.shade``, ``shexp.sphere_trace``) and :mod:`.budget` (error-budget choice of order,
-sphere count and exp method).
+Modules, in the shape of every method (see :mod:`warpshade.methods.prt`): :mod:`.stages`
+(``shexp.tables``, ``shexp.blockers``, ``shexp.static_bake``, ``shexp.shade``,
+``shexp.sphere_trace``), :mod:`.kernels` (the per-receiver Warp pass and its helpers),
+:mod:`.blockers` (the blocker model artifact -- sphere sets, hierarchy, receiver clusters --
+and its per-frame animation), :mod:`.reference` (float64 oracle), :mod:`.rows` (harness
+settings), :mod:`.budget` (candidate settings of an error budget); SHEXP's own parts:
+:mod:`.pipeline` (the shader's fixed buffers and launches, also usable on host arrays),
+:mod:`.spheres` (sphere sets attached to the scene's animation), :mod:`.tables` (sphere-light
+lobe fits, windows).
 """
 
+from .rows import graph_stages, harness_rows
 from .stages import BlockersStage, ShadeStage, SphereTraceStage, StaticBakeStage, TablesStage
 
-__all__ = ["BlockersStage", "ShadeStage", "SphereTraceStage", "StaticBakeStage", "TablesStage", "harness_rows", "graph_stages"]
-
-#: Scenes the harness runs SHEXP on (closed occluder meshes; the cloth is an open sheet).
-HARNESS_SCENES = ("blockers", "figure", "bunny", "bear", "bend")
-
-
-def graph_stages(order: int = 4, method: str = "hyb", budget: int = 48, hierarchy: bool = False, accumulate: str = "log",
-                 degree=None, shade: str = "direct", rule: str = "continuous", blocker_params=None, **shade_params) -> tuple:
-    """The stage tuples ``(name, type, params, inputs)`` of a SHEXP graph (harness, budget, scripts).
-
-    ``blocker_params`` go to ``shexp.blockers`` (e.g. ``grid_cells``), ``shade_params`` to
-    ``shexp.shade``. The output port is ``"shade.radiance"``.
-    """
-    params = {"order": order, "method": method, "accumulate": accumulate, "shade": shade, "rule": rule, **shade_params}
-    if degree is not None:
-        params["degree"] = degree
-    return (
-        ("tables", "shexp.tables", {"order": order}, {}),
-        ("blockers", "shexp.blockers", {"budget": budget, "hierarchy": hierarchy, **(blocker_params or {})}, {}),
-        ("shade", "shexp.shade", params, {}),
-    )
-
-
-def harness_rows(quick: bool = False) -> list:
-    """Harness settings (all under method "shexp", so ``--methods shexp`` runs them together):
-    order and exp method on the flat list of 48 spheres, the hierarchy, accumulation at n = 6
-    shaded at n = 4, the product-accumulation baseline and ray tracing against the spheres
-    (the sources of error of the paper's Fig. 7)."""
-    from ..harness import HarnessRow
-
-    rows = []
-
-    def row(setting, stages, quick_row, notes, output="shade.radiance"):
-        rows.append(HarnessRow("shexp", setting, stages, output, scenes=HARNESS_SCENES, quick=quick_row, notes=notes))
-
-    for order in (3, 4, 5, 6):
-        row(f"n{order} HYB", graph_stages(order, "hyb"), order == 4, "48 leaf spheres, flat list, HYB")
-    for budget in (8, 16):
-        row(f"n4 HYB s{budget}", graph_stages(4, "hyb", budget=budget), budget == 8,
-            f"{budget} leaf spheres (budget), flat list, HYB")
-    row("n4 PS*-2", graph_stages(4, "ps_star", degree=2), False, "48 leaf spheres, flat list, PS*-2")
-    row("n4 OL", graph_stages(4, "ol"), False, "48 leaf spheres, flat list, OL")
-    row("n4 PS-10", graph_stages(4, "ps", degree=10), False, "48 leaf spheres, flat list, PS-10")
-    row("n4 HYB tree", graph_stages(4, "hyb", hierarchy=True), False,
-        "48 leaf spheres, hierarchy cut per receiver cluster with ratio vectors")
-    row("n6->4 HYB", graph_stages(6, "hyb", shade_order=4), False,
-        "accumulate and exponentiate at n=6, truncate to n=4 for shading (paper Fig. 7e)")
-    row("product n4", graph_stages(4, accumulate="product"), quick,
-        "Zhou et al. 2005 product accumulation of the same spheres (truncation after each product)")
-    row("rt spheres", (("blockers", "shexp.blockers", {"budget": 48}, {}), ("trace", "shexp.sphere_trace", {"samples": 512}, {})),
-        False, "ray traced against the 48 blocker spheres (512 spp): the sphere-approximation error alone",
-        output="trace.radiance")
-    return rows
+__all__ = ["BlockersStage", "ShadeStage", "SphereTraceStage", "StaticBakeStage", "TablesStage", "graph_stages", "harness_rows"]

@@ -386,13 +386,14 @@ class SphereTracer:
     """
 
     def __init__(self, shader: ShexpShader, environment, samples: int = 512, seed: int = 0):
-        from ...scene.lighting_warp import EnvironmentMap, upload_environment
+        from ...scene.lighting import Environment
+        from ...scene.lighting_warp import upload_environment
 
         if samples < 4:
             raise ValueError(f"sphere tracer: samples must be >= 4, got {samples}")
         self.shader = shader
         # an Environment (uploaded once) or an EnvironmentMap that turns with the frame state
-        self.env = environment if isinstance(environment, EnvironmentMap) else upload_environment(environment, shader.device)
+        self.env = upload_environment(environment, shader.device) if isinstance(environment, Environment) else environment
         self.iterations = int(samples) // 2
         self.seed = int(seed)
         dev = shader.device

@@ -1,9 +1,10 @@
-"""Side-by-side pictures of a method against ray-traced ground truth.
+"""Pictures of a run: previews, and the method side by side with ray-traced ground truth.
 
 ``comparison_figure`` renders one frame three times from the same camera: the method's
 per-vertex radiance, the reference radiance (both at one exposure so they compare), and the
 signed relative error per vertex on a diverging colour map, then writes the three panels with
-titles and a colour bar as one PNG (atomically).
+titles and a colour bar as one PNG (atomically). :func:`render_previews` and
+:func:`render_comparisons` do it for the recorded frames of a run.
 
 The error shown is ``(Y_est - Y_ref) / mean(Y_ref)`` per vertex, with ``Y`` the Rec. 709
 luminance: blue where the method is too dark (e.g. over-occlusion), red where it is too bright.
@@ -19,7 +20,8 @@ import numpy as np
 
 from .._fileio import atomic_path
 
-__all__ = ["ERROR_COLORMAP", "ERROR_LIMIT", "comparison_figure", "error_colors", "luminance"]
+__all__ = ["ERROR_COLORMAP", "ERROR_LIMIT", "comparison_figure", "error_colors", "luminance", "render_previews",
+           "render_comparisons"]
 
 #: Rec. 709 luminance weights of linear RGB.
 LUMA = np.array([0.2126, 0.7152, 0.0722])
@@ -107,8 +109,8 @@ def comparison_figure(
     import matplotlib.pyplot as plt
 
     from ..geometry.bvh import Visibility
-    from ..graph.metrics import error_metrics
-    from .raycast import render
+    from ..render import render
+    from .metrics import error_metrics
 
     est = np.asarray(estimate, np.float64)
     ref = np.asarray(reference, np.float64)
@@ -155,3 +157,62 @@ def comparison_figure(
     finally:
         plt.close(fig)
     return path
+
+
+def _environment_at(runtime, frame):
+    from ..scene.lighting import Environment
+
+    return next((light for light in runtime.lighting.lights_at(frame) if isinstance(light, Environment)), None)
+
+
+def render_previews(runtime, out_dir, frames=None, width: int = 480, height: int = 360, exposure: float | None = None) -> list:
+    """Write ``<graph>_<frame>.png`` previews of recorded frames (default: first, middle, last).
+
+    One exposure is used for all frames of a run so they compare; by default it maps the 99th
+    percentile of the recorded luminance to 0.9 before sRGB encoding.
+
+    Raises:
+        ValueError: when the run recorded no frames.
+    """
+    from ..render import render
+
+    rec = sorted(runtime.results)
+    if not rec:
+        raise ValueError("render_previews: the run recorded no frames (step with record=True, or run())")
+    if frames is None:
+        frames = sorted({rec[0], rec[len(rec) // 2], rec[-1]})
+    if exposure is None:
+        lum = np.concatenate([luminance(runtime.results[float(f)]) for f in frames])
+        p99 = float(np.percentile(lum, 99)) if lum.size else 1.0
+        exposure = float(np.log2(0.9 / p99)) if p99 > 0 else 0.0
+    paths = []
+    for f in frames:
+        p = Path(out_dir) / f"{runtime.spec.name}_{int(round(f)):04d}.png"
+        render(runtime.scene, f, colors=runtime.results[float(f)], width=width, height=height,
+               environment=_environment_at(runtime, f), exposure=exposure, path=p, device=runtime.device, supersample=2)
+        paths.append(p)
+    return paths
+
+
+def render_comparisons(runtime, measurement, out_dir, frames=None, width: int = 400, height: int = 300) -> list:
+    """Write ``<graph>_<frame>_vs_reference.png`` (method | ray-traced | signed error) per frame.
+
+    Args:
+        runtime: the run; measurement: its :class:`~warpshade.measure.truth.Measurement`.
+        frames: default every frame the measurement has.
+
+    Raises:
+        ValueError: a frame the measurement does not have.
+    """
+    frames = sorted(measurement.references) if frames is None else [float(f) for f in frames]
+    missing = [f for f in frames if f not in measurement.references]
+    if missing:
+        raise ValueError(f"render_comparisons: frame(s) {missing} were not measured (measured: "
+                         f"{sorted(measurement.references)})")
+    paths = []
+    for f in frames:
+        p = Path(out_dir) / f"{runtime.spec.name}_{int(round(f)):04d}_vs_reference.png"
+        paths.append(comparison_figure(runtime.scene, f, measurement.estimates[f], measurement.references[f], p,
+                                       label=runtime.spec.name, environment=_environment_at(runtime, f), width=width,
+                                       height=height, device=runtime.device))
+    return paths

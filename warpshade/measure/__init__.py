@@ -1,0 +1,51 @@
+"""The measuring layer, above the runtime: ground truth, errors, pictures, outputs, budgets.
+
+* :mod:`.truth` -- ray-traced ground truth cached on disk; a run's error against it;
+* :mod:`.metrics` -- relative RMS, 99th percentile, ground-truth noise;
+* :mod:`.pictures` -- previews and method | reference | error pictures of a run;
+* :mod:`.outputs` -- the USD layer and JSON report of a run;
+* :mod:`.scenes` -- the bundled scenes under the measuring conventions;
+* :mod:`.harness` -- one method setting on one scene, timed and measured;
+* :mod:`.budget` -- choose a method's setting from an error budget.
+
+The runtime (:mod:`warpshade.graph`) steps and records; the CLI composes it with this layer.
+"""
+
+from .budget import BudgetChoice, Candidate, choose, method_candidates, pick
+from .harness import run_setting, setting_error
+from .metrics import combine_metrics, error_metrics
+from .outputs import report, write_report, write_usd
+from .pictures import comparison_figure, error_colors, render_comparisons, render_previews
+from .scenes import BENCH_SCENES, error_frames, load_bench_scene, pick_frames, scene_kinds
+from .truth import GT_SEED, VALIDATE_SEED, Measurement, ground_truth, measure_error, reference_model, truth_cache
+
+__all__ = [
+    "BENCH_SCENES",
+    "BudgetChoice",
+    "Candidate",
+    "GT_SEED",
+    "Measurement",
+    "VALIDATE_SEED",
+    "choose",
+    "combine_metrics",
+    "comparison_figure",
+    "error_colors",
+    "error_frames",
+    "error_metrics",
+    "ground_truth",
+    "load_bench_scene",
+    "measure_error",
+    "method_candidates",
+    "pick",
+    "pick_frames",
+    "reference_model",
+    "render_comparisons",
+    "render_previews",
+    "report",
+    "run_setting",
+    "scene_kinds",
+    "setting_error",
+    "truth_cache",
+    "write_report",
+    "write_usd",
+]
