@@ -121,10 +121,13 @@ def _shader(order, points, normals, centres, radii, light, **options):
 def figure_spheres(count: int = 60):
     """Leaf spheres of the bundled figure at its first frame (sphere module), or procedural."""
     try:
-        from warpshade.methods.shexp.blockers import figure_leaf_spheres
+        from warpshade.io import load_scene
+        from warpshade.methods.shexp.blockers import build_blocker_model
 
-        c, r = figure_leaf_spheres(count)
-        return c, r, "figure.usda sphere set (warpshade.geometry.spheres)"
+        scene = load_scene(str(ROOT / "usd_assets" / "figure.usda"))
+        spheres = build_blocker_model(scene, count, calibrate=False).spheres
+        f0 = float(scene.frames[0])
+        return spheres.centres_at(scene, f0), spheres.radii_at(scene, f0), "figure.usda sphere set (warpshade.methods.shexp.spheres)"
     except Exception as exc:  # the sphere module is optional here: say which spheres were used
         c, r = procedural_figure(count)
         return c, r, f"procedural 60-sphere figure ({type(exc).__name__}: {exc})"

@@ -44,13 +44,15 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from warpshade._fileio import atomic_path, write_json_atomic
-from warpshade._wp import resolve_device, wp
-from warpshade.geometry import _spheres_core as core_internals
-from warpshade.geometry import _spheres_fit as fit_internals
-from warpshade.geometry import _spheres_kernels as kernels
-from warpshade.geometry import _spheres_tree as tree_internals
+from warpshade._wp import launch_parallel, resolve_device, wp
 from warpshade.geometry import spheres as sp
+from warpshade.geometry.spheres import core as core_internals
+from warpshade.geometry.spheres import fit as fit_internals
+from warpshade.geometry.spheres import kernels
+from warpshade.geometry.spheres import tree as tree_internals
 from warpshade.io import load_scene
+from warpshade.methods.shexp import spheres as ss
+from warpshade.scene import FrameEvaluator
 
 #: Ren et al. 2006, Figure 4 (bunny): E for three sphere-set constructions.
 PAPER_FIGURE4 = {"octree (Hubbard 1995)": (575, 4.1), "medial axis (Bradshaw 2004)": (64, 0.52), "variational (Ren 2006)": (64, 0.35)}
@@ -164,11 +166,11 @@ def run_animation(quick, device):
     scene = load_scene(str(ROOT / "usd_assets" / "figure.usda"))
     frames = scene.frames[::3] if quick else scene.frames
     results = {}
-    base = sp.spheres_for_scene(scene, budget=32, progress=True, device=device)
+    base = ss.spheres_for_scene(scene, budget=32, progress=True, device=device)
     variants = {
         "mvc_4_bones": base,
-        "mvc_all_bones": sp.spheres_for_scene(scene, budget=32, max_bones=scene.skeletons[0].joint_count, device=device),
-        "cluster_skin_weights": sp.spheres_for_scene(scene, budget=32, skinned_attachment="skin_weights", device=device),
+        "mvc_all_bones": ss.spheres_for_scene(scene, budget=32, max_bones=scene.skeletons[0].joint_count, device=device),
+        "cluster_skin_weights": ss.spheres_for_scene(scene, budget=32, skinned_attachment="skin_weights", device=device),
     }
     mesh = scene.meshes[int(base.mesh_index[0])]
     solid = fit_internals.make_solid(scene.points_at(scene.frames[0])[mesh.vertex_offset : mesh.vertex_offset + mesh.vertex_count], mesh.faces, mesh.path)
@@ -185,7 +187,7 @@ def run_animation(quick, device):
             "max_gap_over_mean_radius": max(s["max_gap"] for s in stats) / mean_r,
             "drift": drift(spheres, scene, scene.frames[10::10] if not quick else scene.frames[15::30]),
         }
-        calibrated = sp.SceneSpheres.from_arrays(spheres.to_arrays())
+        calibrated = ss.SceneSpheres.from_arrays(spheres.to_arrays())
         growth = calibrated.calibrate_radii(scene)
         cal_stats = frame_stats(calibrated, scene, frames)
         vol, _ = sp.solid_volume(solid=solid)
@@ -206,9 +208,11 @@ def run_animation(quick, device):
 
 def run_hierarchy(scene, spheres, device, quick):
     tree = sp.build_sphere_tree(spheres.centres, spheres.rest_radii, groups=spheres.sphere_mesh)
-    animator = sp.SphereAnimator(scene, spheres, device=device)
+    evaluator = FrameEvaluator(scene, device)
+    state = evaluator.state
+    animator = ss.SphereAnimator(scene, spheres, device=device)
     refits = {m: sp.SphereTreeRefit(tree, device=device, mode=m) for m in sp.REFIT_MODES}
-    clusters = sp.cluster_receivers(scene, vertices_per_cluster=300)
+    clusters = ss.scene_receiver_clusters(scene, vertices_per_cluster=300)
     bounds = sp.ReceiverBounds(clusters, device=device)
     cut = sp.HierarchyCut(refits["min"], clusters.cluster_count)
     radius = {m: [] for m in refits}
@@ -216,12 +220,13 @@ def run_hierarchy(scene, spheres, device, quick):
     times = {"attach": [], "refit": [], "receiver_bounds": [], "cut": []}
     frames = scene.frames[::3] if quick else scene.frames
     for f in frames:
-        fs = scene.evaluate(f, device=device)
+        evaluator.set_frame(f)
+        evaluator.launch()
         wp.synchronize_device(device)
         for name, fn in (
-            ("attach", lambda fs=fs: animator.update(fs)),
+            ("attach", lambda: animator.launch(state)),
             ("refit", lambda: refits["min"].launch(animator.centres, animator.radii)),
-            ("receiver_bounds", lambda fs=fs: bounds.launch(fs.points)),
+            ("receiver_bounds", lambda: bounds.launch(state.points)),
             ("cut", lambda: cut.launch(bounds.centres, bounds.radii)),
         ):
             t0 = time.perf_counter()
@@ -267,7 +272,9 @@ def split_launch_ratio(device):
         wp.synchronize_device(dev)
 
     def split():
-        kernels.launch_split(kernels.ball_samples_kernel, n, lambda s: [mid, 0.0, cw, rw, ub, s, out, uw], dev)
+        launch_parallel(kernels.ball_samples_kernel, n, lambda start, stop: [mid, 0.0, cw, rw, ub, start, out, uw], dev,
+                        min_count=fit_internals.SPLIT_MIN)
+        wp.synchronize_device(dev)
 
     res = {}
     for key, fn in (("single_launch_s", single), ("split_launch_s", split)):

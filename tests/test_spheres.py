@@ -5,22 +5,61 @@ volumes of the meshes (trimesh's divergence-theorem volume), float64 NumPy refer
 kernel (coverage, attachment, refit, cluster bounds, cut), scipy's Powell for the batched
 centre update, and the mean-value-coordinate identities (partition of unity, linear precision).
 Fits use coarse grids and few spheres so the whole file stays fast.
+
+The sphere geometry is :mod:`warpshade.geometry.spheres`; the scene's blocker spheres and their
+per-frame animation are :mod:`warpshade.methods.shexp.spheres`, driven here by a
+:class:`~warpshade.scene.FrameEvaluator` as a frame would drive them.
 """
 
+import importlib
 import io
 import math
+import sys
+import types
+from pathlib import Path
 
 import numpy as np
 import pytest
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from warpshade.geometry import _spheres_fit as fit_internals
-from warpshade.geometry import _spheres_mvc as mvc
-from warpshade.geometry import _spheres_scene as scene_internals
+import warpshade
+from warpshade._wp import record_program
 from warpshade.geometry import spheres as sp
+from warpshade.geometry.spheres import attach
+from warpshade.geometry.spheres import fit as fit_internals
+from warpshade.geometry.spheres import mvc
 from warpshade.io import load_scene
-from warpshade.scene import Mesh, Scene
+from warpshade.scene import FrameEvaluator, Mesh, Scene
+
+
+def _import_method_module(name: str):
+    """Import a module of :mod:`warpshade.methods` even when a package ``__init__`` above it
+    fails to import (they import every method's stages, which may be mid-port): the parent
+    packages are then stand-ins, only while the module loads, and the module's own errors
+    still surface."""
+    try:
+        return importlib.import_module(name)
+    except ImportError:
+        pass
+    root = Path(warpshade.__file__).parent
+    added = []
+    parts = name.split(".")
+    for depth in range(2, len(parts)):
+        package = ".".join(parts[:depth])
+        if package not in sys.modules:
+            stand_in = types.ModuleType(package)
+            stand_in.__path__ = [str(root.joinpath(*parts[1:depth]))]
+            sys.modules[package] = stand_in
+            added.append(package)
+    try:
+        return importlib.import_module(name)
+    finally:
+        for package in added:
+            sys.modules.pop(package, None)
+
+
+ss = _import_method_module("warpshade.methods.shexp.spheres")
 
 #: Coarse construction settings for tests (a few hundred ms per fit).
 FAST_FIT = {"grid_cells": 8000, "iterations": 4, "teleports": 2, "samples_per_sphere": 256}
@@ -48,6 +87,10 @@ SKINNED_GAP_FRACTION = 0.25
 
 #: Refit parents bound their children up to float32 rounding of the radius (pad 1e-6).
 REFIT_ATOL = 1e-5
+
+#: A recorded animator replays the same float32 kernels on the same inputs as an uncaptured
+#: launch: results agree to this fraction of the model's size (bounding-box diagonal).
+REPLAY_RTOL = 1e-6
 
 
 # ---- fixtures -------------------------------------------------------------------------------
@@ -83,7 +126,14 @@ def figure_scene():
 
 @pytest.fixture(scope="module")
 def figure_spheres(figure_scene):
-    return sp.spheres_for_scene(figure_scene, budget=12, **FAST_FIT)
+    return ss.spheres_for_scene(figure_scene, budget=12, **FAST_FIT)
+
+
+def _frame(evaluator, frame):
+    """Evaluate one frame on the device (host write of the index, then kernels); its state."""
+    evaluator.set_frame(frame)
+    evaluator.launch()
+    return evaluator.state
 
 
 def _all_samples(sphere_set, points, faces):
@@ -203,7 +253,7 @@ def test_open_mesh_as_shell():
 def test_scene_without_closed_mesh_is_refused():
     plane = Mesh(path="/plane", points=[[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], faces=[[0, 1, 2], [0, 2, 3]])
     with pytest.raises(ValueError, match="no closed mesh"):
-        sp.spheres_for_scene(Scene.from_meshes([plane]), budget=4)
+        ss.spheres_for_scene(Scene.from_meshes([plane]), budget=4)
 
 
 # ---- attachment ---------------------------------------------------------------------------------
@@ -217,8 +267,9 @@ def test_rigid_attachment_follows_the_transform_exactly(box, device):
         frames.append(m)
     mesh = Mesh(path="/box", points=box.vertices, faces=box.faces, animation="rigid", transforms=np.stack(frames))
     scene = Scene.from_meshes([mesh], frames=[0.0, 1.0, 2.0])
-    spheres = sp.spheres_for_scene(scene, frame=1.0, budget=3, radius_scale=1.1, **FAST_FIT)
-    animator = sp.SphereAnimator(scene, spheres, device=device)
+    spheres = ss.spheres_for_scene(scene, frame=1.0, budget=3, radius_scale=1.1, **FAST_FIT)
+    animator = ss.SphereAnimator(scene, spheres, device=device)
+    evaluator = FrameEvaluator(scene, device)
     fit_world = spheres.centres
     to_fit = np.linalg.inv(frames[1])
     for k, f in enumerate(scene.frames):
@@ -226,7 +277,7 @@ def test_rigid_attachment_follows_the_transform_exactly(box, device):
         np.testing.assert_allclose(spheres.centres_at(scene, f), expected, atol=1e-12)
         # the safety factor times the scale of this frame relative to the fit frame
         np.testing.assert_allclose(spheres.radii_at(scene, f), 1.1 * spheres.radii * (1.0 + 0.2 * k) / 1.2, rtol=1e-12)
-        animator.update(scene.evaluate(f, device=device))
+        animator.launch(_frame(evaluator, f))
         np.testing.assert_allclose(animator.centres.numpy(), expected, atol=ATOL_FLOAT32)
         np.testing.assert_allclose(animator.radii.numpy(), spheres.radii_at(scene, f), rtol=1e-6)
         # bounded on every frame
@@ -237,19 +288,20 @@ def test_rigid_attachment_follows_the_transform_exactly(box, device):
 def test_skinned_attachment_is_mvc_of_the_deformed_mesh_and_tracks_a_bend(device):
     scene = load_scene("usd_assets/bend.usda")
     joints = scene.skeletons[0].joint_count
-    spheres = sp.spheres_for_scene(scene, budget=8, max_bones=joints, **FAST_FIT)
+    spheres = ss.spheres_for_scene(scene, budget=8, max_bones=joints, **FAST_FIT)
     mesh = scene.meshes[0]
     solid = fit_internals.make_solid(scene.points_at(scene.frames[0]), mesh.faces, mesh.path)
-    weights, repro = scene_internals._mvc_weights(solid, spheres.centres, spheres.sets[0])
+    weights, repro = attach.mvc_weights(solid, spheres.centres, spheres.sets[0])
     assert repro.max() < 1e-9  # linear precision at the fit pose
-    animator = sp.SphereAnimator(scene, spheres, device=device)
+    animator = ss.SphereAnimator(scene, spheres, device=device)
+    evaluator = FrameEvaluator(scene, device)
     mean_radius = float(spheres.rest_radii.mean())
     worst_gap = 0.0
     for f in scene.frames[::6]:
         centres = spheres.centres_at(scene, f)
         # all bones kept: the pre-multiplied bone form is exactly the MVC of the skinned mesh
         np.testing.assert_allclose(centres, weights @ scene.points_at(f), atol=1e-10)
-        animator.update(scene.evaluate(f, device=device))
+        animator.launch(_frame(evaluator, f))
         np.testing.assert_allclose(animator.centres.numpy(), centres, atol=ATOL_FLOAT32)
         pts, _ = spheres.surface_samples_at(scene, f)
         worst_gap = max(worst_gap, sp.coverage_gap_reference(pts, centres, spheres.radii_at(scene, f)).max())
@@ -263,12 +315,13 @@ def test_skinned_attachment_is_mvc_of_the_deformed_mesh_and_tracks_a_bend(device
 
 def test_skin_weight_attachment_reproduces_the_fit_pose(device):
     scene = load_scene("usd_assets/bend.usda")
-    spheres = sp.spheres_for_scene(scene, budget=4, skinned_attachment="skin_weights", **FAST_FIT)
+    spheres = ss.spheres_for_scene(scene, budget=4, skinned_attachment="skin_weights", **FAST_FIT)
     assert spheres.attachments[0]["method"] == "skin_weights"
     np.testing.assert_allclose(spheres.centres_at(scene, scene.frames[0]), spheres.centres, atol=1e-10)
-    animator = sp.SphereAnimator(scene, spheres, device=device)
+    animator = ss.SphereAnimator(scene, spheres, device=device)
+    evaluator = FrameEvaluator(scene, device)
     f = scene.frames[30]
-    animator.update(scene.evaluate(f, device=device))
+    animator.launch(_frame(evaluator, f))
     np.testing.assert_allclose(animator.centres.numpy(), spheres.centres_at(scene, f), atol=ATOL_FLOAT32)
 
 
@@ -293,19 +346,93 @@ def test_deforming_meshes_follow_their_points(box, device):
     closed = Mesh(path="/blob", points=box.vertices, faces=box.faces, animation="deforming", point_samples=samples(box.vertices))
     sheet = Mesh(path="/sheet", points=sheet_points, faces=sheet_faces, animation="deforming", point_samples=samples(sheet_points))
     scene = Scene.from_meshes([closed, sheet], frames=[0.0, 1.0, 2.0])
-    spheres = sp.spheres_for_scene(scene, budget=4, open_meshes="shell", shell_thickness=0.05, **FAST_FIT)
+    spheres = ss.spheres_for_scene(scene, budget=4, open_meshes="shell", shell_thickness=0.05, **FAST_FIT)
     assert spheres.kinds == ["vertex_weights", "triangle_frame"]
-    animator = sp.SphereAnimator(scene, spheres, device=device)
+    animator = ss.SphereAnimator(scene, spheres, device=device)
+    evaluator = FrameEvaluator(scene, device)
     for k, f in enumerate(scene.frames):
         expected = spheres.centres @ maps[k][:3, :3] + maps[k][3, :3]  # rigid maps: exact
         np.testing.assert_allclose(spheres.centres_at(scene, f), expected, atol=1e-9)
-        animator.update(scene.evaluate(f, device=device))
+        animator.launch(_frame(evaluator, f))
         np.testing.assert_allclose(animator.centres.numpy(), expected, atol=ATOL_FLOAT32)
+
+
+def test_recorded_animator_replays_the_skinned_figure(figure_scene, figure_spheres, device):
+    # the frame (scene evaluation, then the animator) recorded once and replayed per frame
+    scene, spheres = figure_scene, figure_spheres
+    assert "skinned" in spheres.kinds
+    evaluator = FrameEvaluator(scene, device)
+    animator = ss.SphereAnimator(scene, spheres, device=device)
+
+    def record(recorder):
+        evaluator.launch(recorder)
+        animator.launch(evaluator.state)
+
+    program = record_program(record, device)
+    assert program.graph_count == 1 and not program.uncaptured  # one graph, no Python calls
+    lo, hi = scene.bounds_over_frames()
+    tolerance = REPLAY_RTOL * float(np.linalg.norm(hi - lo))
+    frames = scene.frames[:: max(1, len(scene.frames) // 6)]
+    assert len(frames) >= 4
+    for f in frames:
+        evaluator.set_frame(f)
+        program.replay()
+        centres, radii = animator.centres.numpy().copy(), animator.radii.numpy().copy()
+        animator.centres.zero_()
+        animator.radii.zero_()
+        animator.launch(_frame(evaluator, f))
+        np.testing.assert_allclose(centres, animator.centres.numpy(), rtol=0, atol=tolerance)
+        np.testing.assert_allclose(radii, animator.radii.numpy(), rtol=0, atol=tolerance)
+        # the replay follows the frame it was given (float64 reference of the attachment)
+        np.testing.assert_allclose(centres, spheres.centres_at(scene, f), atol=ATOL_FLOAT32)
+        np.testing.assert_allclose(radii, spheres.radii_at(scene, f), rtol=1e-6)
+
+
+def test_recorded_blocker_frames_match_uncaptured_launches(figure_scene, device):
+    # SHEXP's per-frame blocker pass (animator, refit, receiver bounds, cut, ratio vectors)
+    # recorded with the scene evaluation and replayed, against uncaptured launches
+    blockers = _import_method_module("warpshade.methods.shexp.blockers")  # imports the SHEXP kernels
+    scene = figure_scene
+    model = blockers.build_blocker_model(scene, 12, hierarchy=True, vertices_per_cluster=300, **FAST_FIT)
+    frames = blockers.BlockerFrames(scene, model, 3, theta_max_degrees=25.0, device=device)
+    evaluator = FrameEvaluator(scene, device)
+
+    def record(recorder):
+        evaluator.launch(recorder)
+        frames.launch(evaluator.state)
+
+    program = record_program(record, device)
+    assert not program.uncaptured
+    lo, hi = scene.bounds_over_frames()
+    tolerance = REPLAY_RTOL * float(np.linalg.norm(hi - lo))
+    outputs = (frames.node_centres, frames.node_radii, frames.cut.cut_nodes, frames.cut.cut_count, frames.cut_weights)
+    tree = model.tree
+    for f in scene.frames[:: max(1, len(scene.frames) // 4)]:
+        evaluator.set_frame(f)
+        program.replay()
+        replayed = [a.numpy().copy() for a in outputs]
+        for a in outputs:
+            a.zero_()
+        frames.launch(_frame(evaluator, f))
+        for got, a in zip(replayed, outputs):
+            np.testing.assert_allclose(got, a.numpy(), rtol=0, atol=tolerance)
+        # the refit tree bounds the frame's leaf spheres; every cut covers every leaf once
+        nc, nr = replayed[0], replayed[1]
+        spheres_c, spheres_r = model.spheres.centres_at(scene, f), model.spheres.radii_at(scene, f)
+        np.testing.assert_allclose(nc[tree.leaf_node], spheres_c[tree.leaf_sphere], atol=ATOL_FLOAT32)
+        for node in tree.level_nodes:
+            below = tree.leaves(node)
+            excess = np.linalg.norm(spheres_c[below] - nc[node], axis=1) + spheres_r[below] - nr[node]
+            assert excess.max() <= REFIT_ATOL + ATOL_FLOAT32, (f, node, excess.max())
+        for c in range(frames.clusters):
+            cut = replayed[2][c, : replayed[3][c]]
+            assert sorted(np.concatenate([tree.leaves(n) for n in cut])) == list(range(tree.leaf_total))
+        assert np.all(np.isfinite(replayed[4]))
 
 
 def test_blocker_scene_spheres_come_out_as_one_sphere(device):
     scene = load_scene("usd_assets/blockers.usda")
-    spheres = sp.spheres_for_scene(scene, budget=12, split="volume", target_error=0.1, device=device, **FAST_FIT)
+    spheres = ss.spheres_for_scene(scene, budget=12, split="volume", target_error=0.1, device=device, **FAST_FIT)
     counts = dict(zip(spheres.mesh_path, (s.sphere_count for s in spheres.sets)))
     assert counts["/World/Blockers/BigSphere/Mesh"] == 1 and counts["/World/Blockers/SmallSphere/Mesh"] == 1
     assert [p for p, _ in spheres.skipped] == ["/World/Ground"]
@@ -331,11 +458,12 @@ def test_tree_stays_valid_on_every_frame_of_the_figure(figure_scene, figure_sphe
     tree = sp.build_sphere_tree(spheres.centres, spheres.rest_radii, groups=spheres.sphere_mesh)
     assert tree.leaf_total == spheres.sphere_count and sorted(tree.leaf_sphere) == list(range(spheres.sphere_count))
     assert np.all(tree.leaf_count[0] == spheres.sphere_count) and tree.skip[0] == tree.node_count
-    animator = sp.SphereAnimator(figure_scene, spheres, device=device)
+    animator = ss.SphereAnimator(figure_scene, spheres, device=device)
+    evaluator = FrameEvaluator(figure_scene, device)
     refits = {mode: sp.SphereTreeRefit(tree, device=device, mode=mode) for mode in sp.REFIT_MODES}
     inner = tree.level_nodes
     for f in figure_scene.frames:
-        animator.update(figure_scene.evaluate(f, device=device))
+        animator.launch(_frame(evaluator, f))
         for mode, refit in refits.items():
             refit.launch(animator.centres, animator.radii)
             nc, nr = refit.node_centres.numpy(), refit.node_radii.numpy()
@@ -389,7 +517,7 @@ def test_cut_matches_brute_force_eq36(device):
 
 
 def test_receiver_clusters_and_bounds(figure_scene, device):
-    clusters = sp.cluster_receivers(figure_scene, vertices_per_cluster=300)
+    clusters = ss.scene_receiver_clusters(figure_scene, vertices_per_cluster=300)
     assert clusters.cluster_start[-1] == figure_scene.vertex_count
     assert sorted(clusters.cluster_vertices) == list(range(figure_scene.vertex_count))
     bounds = sp.ReceiverBounds(clusters, device=device)
@@ -421,7 +549,7 @@ def test_artifact_round_trips(box_set, figure_spheres):
     assert again.error == box_set.error and again.parameters == box_set.parameters
     arrays = figure_spheres.to_arrays()
     assert all(isinstance(v, np.ndarray) for v in arrays.values())
-    scene_again = sp.SceneSpheres.from_arrays(_through_npz(arrays))
+    scene_again = ss.SceneSpheres.from_arrays(_through_npz(arrays))
     np.testing.assert_array_equal(scene_again.rest_radii, figure_spheres.rest_radii)
     assert scene_again.kinds == figure_spheres.kinds
     tree = sp.build_sphere_tree(box_set.centres, box_set.radii)

@@ -1,8 +1,9 @@
 """The blocker model of SHEXP: sphere sets, hierarchy and receiver clusters, per frame on a device.
 
-Construction and animation come from :mod:`warpshade.geometry.spheres` (sphere sets bounding
-each closed occluder mesh, attached to its animation; the bounding-sphere tree; Lloyd receiver
-clusters; the eq. 36 cut). This module
+Sphere geometry comes from :mod:`warpshade.geometry.spheres` (sphere sets bounding a solid, the
+bounding-sphere tree, Lloyd receiver clusters, the eq. 36 cut) and the scene's spheres with
+their animation from :mod:`.spheres` (:func:`.spheres.spheres_for_scene`,
+:class:`.spheres.SphereAnimator`). This module
 
 * bundles them as a :class:`BlockerModel` that a precompute stage stores as named arrays (an
   "arrays" artifact port, :meth:`BlockerModel.to_arrays`) and a frame stage rebuilds
@@ -10,7 +11,7 @@ clusters; the eq. 36 cut). This module
 * drives them per frame on fixed device buffers (:class:`BlockerFrames`): sphere centres from
   the frame state, bottom-up refit, receiver-cluster bounds, the cut per cluster and the
   per-band ratio vectors of eq. 37 (:func:`.kernels.ratio_kernel`), ready for
-  :class:`.pipeline.ShexpShader`.
+  :class:`.pipeline.ShexpShader` -- kernels only, so a recorded frame replays them.
 """
 
 from __future__ import annotations
@@ -23,9 +24,9 @@ import numpy as np
 from ..._wp import resolve_device, wp
 from ...geometry import spheres as sph
 from . import kernels
+from .spheres import SceneSpheres, SphereAnimator, scene_receiver_clusters, spheres_for_scene
 
-__all__ = ["BlockerModel", "build_blocker_model", "BlockerFrames", "static_mesh_mask", "plane_blockers", "figure_leaf_spheres",
-           "PLANE_FLATNESS"]
+__all__ = ["BlockerModel", "build_blocker_model", "BlockerFrames", "static_mesh_mask", "plane_blockers", "PLANE_FLATNESS"]
 
 
 #: A static open mesh is a plane blocker when its points lie within this fraction of its
@@ -74,7 +75,7 @@ class BlockerModel:
     """Sphere sets (+ optional hierarchy and receiver clusters) of one scene.
 
     Attributes:
-        spheres: :class:`warpshade.geometry.spheres.SceneSpheres` (leaf spheres, attached).
+        spheres: :class:`.spheres.SceneSpheres` (leaf spheres, attached).
         tree: :class:`~warpshade.geometry.spheres.SphereTree` over the leaves, or None (flat list).
         clusters: :class:`~warpshade.geometry.spheres.ReceiverClusters` of all scene vertices
             (with the tree), or None.
@@ -131,7 +132,7 @@ class BlockerModel:
         def part(prefix):
             return {k.split("/", 1)[1]: v for k, v in arrays.items() if k.startswith(prefix + "/")}
 
-        spheres = sph.SceneSpheres.from_arrays(part("spheres"))
+        spheres = SceneSpheres.from_arrays(part("spheres"))
         tree = sph.SphereTree.from_arrays(part("tree")) if any(k.startswith("tree/") for k in arrays) else None
         clusters = sph.ReceiverClusters.from_arrays(part("clusters")) if any(k.startswith("clusters/") for k in arrays) else None
         return cls(spheres, tree, clusters, np.asarray(arrays["static_sphere"]).astype(bool),
@@ -166,7 +167,7 @@ def build_blocker_model(
         planes: model static planar open meshes (ground planes) as disc blockers
             (:func:`plane_blockers`; an extension of the paper, see :func:`.kernels.plane_cap`).
         frame, split, target_error, open_meshes, radius_scale, calibrate, seed, **fit_options:
-            passed to :func:`warpshade.geometry.spheres.spheres_for_scene` (``calibrate`` grows
+            passed to :func:`.spheres.spheres_for_scene` (``calibrate`` grows
             radii so skinned/deforming spheres keep bounding their clusters on every frame).
         device: Warp device of the construction kernels.
 
@@ -176,7 +177,7 @@ def build_blocker_model(
     import time
 
     t0 = time.perf_counter()
-    spheres = sph.spheres_for_scene(
+    spheres = spheres_for_scene(
         scene, frame, budget, split=split, target_error=target_error, open_meshes=open_meshes,
         radius_scale=radius_scale, calibrate=calibrate and not scene.is_static, seed=seed, device=device, **fit_options,
     )
@@ -187,7 +188,7 @@ def build_blocker_model(
         f0 = float(scene.frames[0]) if frame is None else float(frame)
         tree = sph.build_sphere_tree(spheres.centres_at(scene, f0), spheres.radii_at(scene, f0), groups=spheres.sphere_set,
                                      branching=branching, seed=seed)
-        clusters = sph.cluster_receivers(scene, f0, vertices_per_cluster=vertices_per_cluster, seed=seed)
+        clusters = scene_receiver_clusters(scene, f0, vertices_per_cluster=vertices_per_cluster, seed=seed)
     plane_rows = plane_blockers(scene, {path for path, _ in spheres.skipped}) if planes else np.zeros((0, 7))
     summary = {
         "leaf_spheres": int(spheres.sphere_count),
@@ -204,27 +205,14 @@ def build_blocker_model(
     return BlockerModel(spheres, tree, clusters, static, summary, plane_rows)
 
 
-def figure_leaf_spheres(count: int = 60, device=None):
-    """World-space leaf spheres of the bundled skinned figure at its first frame, (S, 3), (S,)."""
-    from pathlib import Path
-
-    from ...io import load_scene
-
-    root = Path(__file__).resolve().parents[3]
-    scene = load_scene(str(root / "usd_assets" / "figure.usda"))
-    model = build_blocker_model(scene, count, calibrate=False, device=device)
-    f0 = float(scene.frames[0])
-    return model.spheres.centres_at(scene, f0), model.spheres.radii_at(scene, f0)
-
-
 class BlockerFrames:
     """Per-frame blocker spheres and cut lists on fixed device buffers.
 
     Flat model: ``node_centres``/``node_radii`` are the leaf spheres, one cluster whose list is
     every sphere. Hierarchy: the refit tree's nodes, the eq. 36 cut of every receiver cluster
     and, with ``ratio``, the per-band ratio vectors of eq. 37 at each cluster's representative
-    vertex. :meth:`prepare` is host work (uploads of the frame's transforms); :meth:`launch`
-    only launches kernels.
+    vertex. :meth:`launch` only launches kernels that read the frame's
+    :class:`~warpshade.scene.state.FrameState`, so a recorded frame replays it.
 
     Args:
         scene: the scene; model: its :class:`BlockerModel`.
@@ -236,6 +224,19 @@ class BlockerFrames:
         device: Warp device.
         exp_tables: the :class:`~warpshade.basis.sh_warp.SHExpTables` of ``order`` to use
             (default: the process-wide ones).
+
+    Attributes:
+        animator: the :class:`.spheres.SphereAnimator` (leaf spheres of the frame).
+        refit, bounds, cut: the :class:`~warpshade.geometry.spheres.SphereTreeRefit`,
+            :class:`~warpshade.geometry.spheres.ReceiverBounds` and
+            :class:`~warpshade.geometry.spheres.HierarchyCut` (None for a flat model).
+        node_centres, node_radii: the spheres the shader reads, wp.array(vec3) / wp.array(float32),
+            shape (node_count,) (tree nodes, or the leaf spheres of a flat model).
+        node_static: per node, True when every sphere under it is static, (node_count,) bool.
+        clusters: receiver clusters (1 for a flat model); capacity: entries per cut row.
+        vertex_cluster: receiver cluster of each scene vertex, (vertex_count,) int32.
+        cut_weights: ratio vectors per cut entry, wp.array3d(float32), shape
+            (clusters, capacity, order), or None for a flat model.
     """
 
     def __init__(self, scene, model: BlockerModel, order: int, theta_max_degrees: float = sph.DEFAULT_THETA_MAX_DEGREES,
@@ -246,7 +247,7 @@ class BlockerFrames:
         self.device = dev
         self.model = model
         self.order = int(order)
-        self.animator = sph.SphereAnimator(scene, model.spheres, dev)
+        self.animator = SphereAnimator(scene, model.spheres, dev)
         self.node_static = model.node_static()
         self.theta_min = float(np.radians(theta_min_degrees))
         self.ratio = bool(ratio)
@@ -292,16 +293,17 @@ class BlockerFrames:
         else:
             shader.set_flat_cut()
 
-    def prepare(self, frame_state) -> None:
-        self.animator.prepare(frame_state)
+    def launch(self, state) -> None:
+        """Centres, refit, cluster bounds, cut and ratio vectors of the frame (kernels only).
 
-    def launch(self, points) -> None:
-        """Centres, refit, cluster bounds, cut and ratio vectors of the frame (kernels only)."""
-        self.animator.launch(points)
+        Args:
+            state: the frame's :class:`~warpshade.scene.state.FrameState` on this device.
+        """
+        self.animator.launch(state)
         if not self.hierarchical:
             return
         self.refit.launch(self.animator.centres, self.animator.radii)
-        self.bounds.launch(points)
+        self.bounds.launch(state.points)
         self.cut.launch(self.bounds.centres, self.bounds.radii)
         if self.ratio:
             r = self.refit

@@ -1,4 +1,4 @@
-"""Warp kernels of the blocker-sphere module (private; see :mod:`warpshade.geometry.spheres`).
+"""Warp kernels of the blocker-sphere package (:mod:`warpshade.geometry.spheres`).
 
 Grouped by concern:
 
@@ -6,19 +6,18 @@ Grouped by concern:
   or the unsigned distance for a thickened open shell): signed distances on a grid, and the
   per-sample outside/union-weight evaluation of the outside-volume estimator;
 * coverage: how far each point lies outside a sphere set;
-* attachment: per-frame sphere centres from joint matrices (skinned), per-mesh matrices
-  (static / rigid), dense vertex weights or triangle frames (deforming);
+* attachment: per-frame sphere centres from skinning matrices (skinned), per-mesh matrices
+  (static / rigid), dense vertex weights or triangle frames (deforming), and radii from
+  per-mesh scales -- each gathering by index from per-frame device arrays (the
+  :class:`~warpshade.scene.state.FrameState` arrays, though nothing here reads a scene);
 * hierarchy: leaf copy and bottom-up refit of a sphere tree;
 * receiver clusters: per-frame bounding spheres, and the hierarchy cut of eq. 36.
 
-All kernels compute in float32; :mod:`warpshade.geometry.spheres` holds the float64 references.
+All kernels compute in float32; the float64 references live beside their callers.
+Matrices are Warp column-vector ``mat44`` (the transposes of USD's row-vector matrices).
 """
 
-import os
-
-import numpy as np
-
-from .._wp import wp
+from ..._wp import wp
 
 wp.set_module_options({"enable_backward": False})
 
@@ -135,7 +134,7 @@ def cluster_outside_volume_kernel(
     out_outside: wp.array(dtype=wp.float32),
 ):
     """Grid estimator of V(S - T) for the smallest sphere about a candidate centre bounding
-    its cluster (the objective of the centre update; see _spheres_fit module docstring).
+    its cluster (the objective of the centre update; see the :mod:`.fit` module docstring).
 
     ``occupancy[i, j, k]`` is the fractional occupancy of the cell centred at
     ``origin + spacing * (i, j, k)`` and ``occupancy_prefix[i, j, k] = sum_{k' < k}
@@ -223,22 +222,25 @@ def skinned_centres_kernel(
     joint_index: wp.array2d(dtype=wp.int32),
     joint_point: wp.array2d(dtype=wp.vec3),
     joint_weight: wp.array2d(dtype=wp.float32),
-    joint_matrices: wp.array(dtype=wp.mat44),
+    skin_matrices: wp.array(dtype=wp.mat44),
+    joint_offset: int,
     sphere_index: wp.array(dtype=wp.int32),
     centres: wp.array(dtype=wp.vec3),
 ):
     """Centre = sum_k M[j_k] (q_k, b_k): mean value coordinates pushed through the bones.
 
-    ``q_k`` (vec3) and ``b_k`` (scalar) are the bone-premultiplied coordinates; with b_k the
-    homogeneous weight the affine map is ``R q + b t``. ``joint_matrices`` are Warp
-    column-vector matrices (skinning transform composed with skeleton-to-world).
+    ``q_k`` (vec3, bind space) and ``b_k`` (scalar) are the bone-premultiplied coordinates of
+    thread ``i``'s sphere; with b_k the homogeneous weight the affine map is ``R q + b t``.
+    ``joint_index[i, k]`` is a joint of one skeleton (-1: unused entry) and its matrix is
+    ``skin_matrices[joint_offset + joint_index[i, k]]``: skeleton-to-world times skeleton-space
+    joint times inverse bind, column-vector. Writes ``centres[sphere_index[i]]``.
     """
     i = wp.tid()
     acc = wp.vec3(0.0, 0.0, 0.0)
     for k in range(joint_index.shape[1]):
         j = joint_index[i, k]
         if j >= 0:
-            m = joint_matrices[j]
+            m = skin_matrices[joint_offset + j]
             acc += wp.transform_vector(m, joint_point[i, k]) + joint_weight[i, k] * wp.vec3(m[0, 3], m[1, 3], m[2, 3])
     centres[sphere_index[i]] = acc
 
@@ -251,6 +253,11 @@ def rigid_centres_kernel(
     sphere_index: wp.array(dtype=wp.int32),
     centres: wp.array(dtype=wp.vec3),
 ):
+    """Centre = the mesh-local centre through its mesh's local-to-world matrix.
+
+    ``matrices`` holds one column-vector local-to-world per mesh; thread ``i`` reads entry
+    ``matrix_index[i]`` and writes ``centres[sphere_index[i]]``.
+    """
     i = wp.tid()
     centres[sphere_index[i]] = wp.transform_point(matrices[matrix_index[i]], local_centres[i])
 
@@ -312,13 +319,14 @@ def triangle_frame_centres_kernel(
 @wp.kernel
 def scale_radii_kernel(
     rest_radii: wp.array(dtype=wp.float32),
-    sphere_set: wp.array(dtype=wp.int32),
-    set_scale: wp.array(dtype=wp.float32),
+    sphere_mesh: wp.array(dtype=wp.int32),
+    mesh_scales: wp.array(dtype=wp.float32),
     radii: wp.array(dtype=wp.float32),
 ):
-    """radius = rest radius (mesh-local units) * the largest singular value of its mesh's transform."""
+    """radius = rest radius (mesh-local units) * the largest singular value of its mesh's
+    transform, ``mesh_scales[sphere_mesh[i]]``."""
     i = wp.tid()
-    radii[i] = rest_radii[i] * set_scale[sphere_set[i]]
+    radii[i] = rest_radii[i] * mesh_scales[sphere_mesh[i]]
 
 
 # ---- hierarchy --------------------------------------------------------------------------
@@ -476,39 +484,3 @@ def cut_kernel(
         cut_nodes[c, k] = -1
     cut_count[c] = wp.min(n, capacity)
     cut_overflow[c] = wp.where(n > capacity, n, 0)
-
-
-# ---- launching ----------------------------------------------------------------------------
-_POOL = None
-
-
-def launch_split(kernel, count: int, inputs_for, device, min_count: int = 4096) -> None:
-    """Launch ``kernel`` over ``count`` items; on the CPU split over a 2+ worker thread pool.
-
-    ``inputs_for(start)`` returns the inputs of the chunk starting at ``start``; the kernel adds
-    that offset to its thread index; launches of fewer than ``min_count`` items are not split.
-    Warp runs a CPU launch on one thread and releases the GIL,
-    so chunks on a pool use every core (measured in benchmarks/bench_spheres.py).
-    """
-    global _POOL
-    if count <= 0:
-        return
-    dev = wp.get_device(device)
-    workers = max(1, os.cpu_count() or 1) if dev.is_cpu else 1
-    if workers == 1 or count < min_count:
-        wp.launch(kernel, dim=count, inputs=inputs_for(0), device=dev)
-        return
-    from concurrent.futures import ThreadPoolExecutor
-
-    if _POOL is None:
-        _POOL = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="warpshade-spheres")
-    wp.load_module(kernel.module, device=dev)
-    bounds = np.linspace(0, count, 4 * workers + 1).astype(np.int64)
-
-    def run(k):
-        start, stop = int(bounds[k]), int(bounds[k + 1])
-        if stop > start:
-            wp.launch(kernel, dim=stop - start, inputs=inputs_for(start), device=dev)
-
-    list(_POOL.map(run, range(len(bounds) - 1)))
-    wp.synchronize_device(dev)

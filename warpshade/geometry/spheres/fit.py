@@ -1,4 +1,4 @@
-"""Variational sphere-set construction (private; see :mod:`warpshade.geometry.spheres`).
+"""Variational sphere-set construction (see :mod:`warpshade.geometry.spheres`).
 
 The construction of Ren et al. 2006, section 6.2 (after Wang et al. 2006):
 
@@ -23,7 +23,7 @@ The volume of T inside a sphere (c, r) is ``h^3 sum_j o_j clamp(1/2 + (r - |x_j 
 and ``V(S - T) = 4/3 pi r^3 - V(S n T)``. Both ramps make it continuous in (c, r), which Powell
 needs; its error is O(h) relative to the area of the surface inside the sphere (tested
 against analytic volumes in tests/test_spheres.py). Reported errors use the independent
-quasi-Monte Carlo estimator of :func:`warpshade.geometry.spheres.outside_volume`.
+quasi-Monte Carlo estimator of :func:`.core.outside_volume`.
 """
 
 from __future__ import annotations
@@ -34,8 +34,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._wp import resolve_device, wp
-from . import _spheres_kernels as K
+from ..._wp import launch_parallel, resolve_device, wp
+from . import kernels as K
 
 #: Relative tolerance for merging coincident vertices before the closedness test (fraction of
 #: the bounding-box diagonal): split normals / UV seams duplicate positions bit-for-bit or to
@@ -52,6 +52,10 @@ RADIUS_PAD_RELATIVE = 2.0e-6
 #: The clustering keeps one surface sample per cube of this side (in grid cells); the rest
 #: join their clusters afterwards (see fit_spheres).
 CLUSTER_SAMPLE_SPACING = 1.0
+
+#: Classification launches (signed distances, QMC samples) of fewer items run as one launch;
+#: larger ones are split over the CPU thread pool (:func:`warpshade._wp.launch_parallel`).
+SPLIT_MIN = 4096
 
 #: Centre-update launches with fewer candidates run unsplit: their cost is launch overhead,
 #: and splitting them over the 2-core pool measured no faster on the bunny (35.0 s vs 36.5 s).
@@ -110,7 +114,8 @@ class Solid:
         out = wp.empty(x.shape[0], dtype=wp.float32, device=self.device)
         mid = self.mesh_id
         th = float(self.shell_thickness)
-        K.launch_split(K.signed_distance_kernel, x.shape[0], lambda s: [mid, xs, th, s, out], self.device)
+        launch_parallel(K.signed_distance_kernel, x.shape[0], lambda start, stop: [mid, xs, th, start, out], self.device,
+                        min_count=SPLIT_MIN)
         return out.numpy().astype(np.float64)
 
 
@@ -484,7 +489,7 @@ class ClusterObjective:
 
     ``evaluate(cluster, centres)`` returns, for each (cluster index, candidate centre) pair, the
     radius of the smallest sphere about the centre bounding the cluster and its outside volume
-    (grid estimator, :func:`_spheres_kernels.cluster_outside_volume_kernel`).
+    (grid estimator, :func:`.kernels.cluster_outside_volume_kernel`).
     """
 
     def __init__(self, disc: Discretisation, clusters: list[np.ndarray]):
@@ -508,10 +513,10 @@ class ClusterObjective:
         outside = wp.empty(n, dtype=wp.float32, device=dev)
         occ, prefix = self.disc.occupancy_device, self.disc.occupancy_prefix_device
         origin, h = self.origin, float(self.disc.h)
-        K.launch_split(
+        launch_parallel(
             K.cluster_outside_volume_kernel,
             n,
-            lambda s: [occ, prefix, origin, h, self.hull_start, self.hull_points, cl, cand, s, radius, outside],
+            lambda start, stop: [occ, prefix, origin, h, self.hull_start, self.hull_points, cl, cand, start, radius, outside],
             dev,
             min_count=CLUSTER_SPLIT_MIN,
         )

@@ -1,5 +1,5 @@
-"""Mean value coordinates for closed triangle meshes, float64 (private; used to attach sphere
-centres to deforming and skinned meshes, see :mod:`warpshade.geometry.spheres`).
+"""Mean value coordinates for closed triangle meshes, float64 (used to attach sphere centres to
+deforming and skinned meshes, see :mod:`.attach`).
 
 Ju, Schaefer and Warren 2005, "Mean value coordinates for closed triangular meshes": for a
 point ``x`` and a closed mesh, weights ``lambda_v`` with ``sum_v lambda_v = 1`` and

@@ -1,5 +1,31 @@
-"""Sphere sets of a scene's occluders, attached to the animation (private; the public names
-are re-exported by :mod:`warpshade.geometry.spheres`)."""
+"""SHEXP's blocker spheres of a scene: sphere sets of the occluder meshes, attached to the
+animation, and their per-frame centres and radii on a Warp device.
+
+The sphere geometry (fitting, attachment coordinates, hierarchy) is
+:mod:`warpshade.geometry.spheres`; this module decides which scene mesh gets which spheres
+and how they follow it, reading the scene only through its public interface
+(``scene.meshes``, ``scene.skeletons``, ``scene.points_at``, ``scene.frames``,
+``scene.frame_index``, ``mesh.transforms``, ``Skeleton.skinning_transforms``):
+
+* :func:`spheres_for_scene` fits every closed occluder mesh (world space, at one frame) and
+  attaches its centres (:data:`ATTACHMENT_KINDS`): static/rigid meshes by the mesh transform;
+  skinned meshes by mean value coordinates pushed through the bone weights, or by linear blend
+  skinning of the centre with its cluster's mean skin weights; deforming closed meshes by
+  dense MVC over the vertices; deforming open (shell) meshes by a triangle frame. Radii stay
+  fixed in mesh-local units (times a safety factor, times the mesh transform's scale,
+  optionally grown until they bound every frame of the scene's own animation:
+  :meth:`SceneSpheres.calibrate_radii`).
+* :class:`SceneSpheres` holds the sets and attachments (artifact form ``to_arrays``) and the
+  float64 reference of the animation (:meth:`SceneSpheres.centres_at`,
+  :meth:`SceneSpheres.radii_at`).
+* :class:`SphereAnimator` evaluates centres and radii per frame with kernels only, reading a
+  :class:`~warpshade.scene.state.FrameState` (``mesh_transforms``, ``mesh_scales``,
+  ``skin_matrices``, ``points``): a recorded frame (:func:`warpshade._wp.record_program`)
+  replays it.
+* :func:`scene_receiver_clusters` clusters the scene's vertices for the hierarchy cut.
+
+Matrices on the host are USD row-vector (``[p, 1] @ M``); on the device, Warp column-vector.
+"""
 
 from __future__ import annotations
 
@@ -8,22 +34,25 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._wp import resolve_device, wp
-from . import _spheres_fit as _fit
-from . import _spheres_kernels as _k
-from . import _spheres_mvc as _mvc
-from ._spheres_core import SphereSet, fit_spheres, solid_volume
+from ..._wp import resolve_device, wp
+from ...geometry.spheres import ReceiverClusters, SphereSet, cluster_receivers, fit_spheres, make_solid, solid_volume
+from ...geometry.spheres import attach as _attach
+from ...geometry.spheres import kernels as _k
+from ...geometry.spheres.fit import RADIUS_PAD_RELATIVE
 
-# ---- scenes and animation -------------------------------------------------------------------
+__all__ = ["ATTACHMENT_KINDS", "SceneSpheres", "SphereAnimator", "scene_receiver_clusters", "spheres_for_scene"]
+
 #: Attachment kinds (how a set's centres follow its mesh).
 ATTACHMENT_KINDS = ("rigid", "skinned", "vertex_weights", "triangle_frame")
 
 
+# ---- float64 transforms of the reference path ------------------------------------------------
 def _mesh_transform(scene, mesh, t: int) -> np.ndarray:
-    """Row-vector local-to-world of a mesh at frame index t (skeleton-to-world when skinned)."""
+    """Row-vector local-to-world of a mesh at frame index t, (4, 4) float64: skeleton-to-world
+    for skinned meshes (what ``FrameState.mesh_transforms`` holds on the device)."""
     if mesh.animation == "skinned":
-        skel = scene.skeletons[mesh.skin.skeleton]
-        return skel.skel_to_world[min(t, skel.skel_to_world.shape[0] - 1)]
+        world = scene.skeletons[mesh.skin.skeleton].skel_to_world
+        return world[min(t, world.shape[0] - 1)]
     return mesh.transforms[min(t, mesh.transforms.shape[0] - 1)]
 
 
@@ -32,15 +61,15 @@ def _transform_scale(matrix: np.ndarray) -> float:
     return float(np.linalg.svd(np.asarray(matrix, np.float64)[:3, :3], compute_uv=False)[0])
 
 
-def _skinning_matrices(scene, skeleton_index: int, t: int, joint_transforms=None, skel_to_world=None) -> np.ndarray:
-    """inverse(bind) @ skel_space @ skel_to_world per joint, (J, 4, 4) row-vector, float64."""
-    skel = scene.skeletons[skeleton_index]
-    tt = min(t, skel.local_transforms.shape[0] - 1)
-    space = skel.skel_space_transforms(tt) if joint_transforms is None else np.asarray(joint_transforms, np.float64)
-    world = skel.skel_to_world[min(t, skel.skel_to_world.shape[0] - 1)] if skel_to_world is None else skel_to_world
-    return np.linalg.inv(skel.bind_transforms) @ space @ world
+def _skinning_matrices(scene, mesh, t: int) -> np.ndarray:
+    """Bind space to world per joint of a skinned mesh's skeleton at frame index t:
+    ``inverse(bind) @ skel_space @ skel_to_world``, (J, 4, 4) row-vector float64 (the
+    transposes of ``FrameState.skin_matrices``)."""
+    skel = scene.skeletons[mesh.skin.skeleton]
+    return skel.skinning_transforms(min(t, skel.local_transforms.shape[0] - 1)) @ _mesh_transform(scene, mesh, t)
 
 
+# ---- the blocker model of a scene --------------------------------------------------------------
 @dataclass
 class SceneSpheres:
     """Sphere sets of a scene's occluder meshes, attached so they follow the animation.
@@ -49,7 +78,8 @@ class SceneSpheres:
     ``sphere_offset[k] : sphere_offset[k + 1]``.
 
     Attributes:
-        sets: one :class:`SphereSet` per occluder mesh, fit in world space at ``frame``.
+        sets: one :class:`~warpshade.geometry.spheres.SphereSet` per occluder mesh, fit in world
+            space at ``frame``.
         mesh_index: scene mesh index of each set, (M,) int64.
         mesh_path: prim path of each set's mesh.
         frame: the time code the spheres were fit at.
@@ -118,7 +148,7 @@ class SceneSpheres:
                 m = _mesh_transform(scene, mesh, t)
                 out[sl] = att["local_centres"] @ m[:3, :3] + m[3, :3]
             elif kind == "skinned":
-                mats = _skinning_matrices(scene, int(att["skeleton"]), t, skel_to_world=_mesh_transform(scene, mesh, t))
+                mats = _skinning_matrices(scene, mesh, t)
                 idx = att["joint_index"]
                 valid = idx >= 0
                 m = mats[np.where(valid, idx, 0)]  # (S_k, B, 4, 4)
@@ -131,11 +161,11 @@ class SceneSpheres:
                 if kind == "vertex_weights":
                     out[sl] = att["weights"] @ pts
                 else:
-                    out[sl] = _triangle_frame_points(pts, att["triangle"], att["bary"], att["local_offset"])
+                    out[sl] = _attach.triangle_frame_points(pts, att["triangle"], att["bary"], att["local_offset"])
         return out
 
     def mesh_scales_at(self, scene, frame: float) -> np.ndarray:
-        """Per set, the largest singular value of its mesh transform at a time code, (M,)."""
+        """Per set, the largest singular value of its mesh transform at a time code, (M,) float64."""
         t = scene.frame_index(frame)
         return np.array([_transform_scale(_mesh_transform(scene, scene.meshes[int(m)], t)) for m in self.mesh_index])
 
@@ -194,7 +224,7 @@ class SceneSpheres:
                     if np.any(dist[i] <= radii):
                         continue
                     j = int(np.argmin(dist[i] - radii))
-                    self.rest_radii[lo + j] = dist[i, j] / scales[k] * (1.0 + _fit.RADIUS_PAD_RELATIVE)
+                    self.rest_radii[lo + j] = dist[i, j] / scales[k] * (1.0 + RADIUS_PAD_RELATIVE)
         return self.rest_radii / np.maximum(old, 1e-300)
 
     # -- artifact form --
@@ -242,186 +272,22 @@ class SceneSpheres:
         )
 
 
-def _triangle_frames(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """Rows (unit edge a->b, normal x edge, unit normal) per triangle, (n, 3, 3) float64."""
-    e = b - a
-    n = np.cross(e, c - a)
-    ln = np.linalg.norm(n, axis=1, keepdims=True)
-    le = np.linalg.norm(e, axis=1, keepdims=True)
-    ok = (ln[:, 0] > 1e-30) & (le[:, 0] > 1e-30)
-    n = np.where(ok[:, None], n / np.maximum(ln, 1e-300), [0.0, 0.0, 1.0])
-    e = np.where(ok[:, None], e / np.maximum(le, 1e-300), [1.0, 0.0, 0.0])
-    return np.stack([e, np.cross(n, e), n], axis=1)
-
-
-def _triangle_frame_points(points, triangle, bary, local_offset) -> np.ndarray:
-    a, b, c = (points[triangle[:, k]] for k in range(3))
-    frames = _triangle_frames(a, b, c)
-    base = bary[:, :1] * a + bary[:, 1:2] * b + bary[:, 2:3] * c
-    return base + np.einsum("si,sij->sj", local_offset, frames)
-
-
-def _closest_on_triangles(x: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Closest point of each triangle to x (Ericson's region test), returns (points, bary)."""
-    ab, ac, ap = b - a, c - a, x - a
-    d1, d2 = np.einsum("ij,ij->i", ab, ap), np.einsum("ij,ij->i", ac, ap)
-    bp = x - b
-    d3, d4 = np.einsum("ij,ij->i", ab, bp), np.einsum("ij,ij->i", ac, bp)
-    cp = x - c
-    d5, d6 = np.einsum("ij,ij->i", ab, cp), np.einsum("ij,ij->i", ac, cp)
-    va = d3 * d6 - d5 * d4
-    vb = d5 * d2 - d1 * d6
-    vc = d1 * d4 - d3 * d2
-    n = x.shape[0]
-    bary = np.zeros((n, 3))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        denom = va + vb + vc
-        v = vb / denom
-        w = vc / denom
-        bary[:] = np.stack([1 - v - w, v, w], axis=1)
-        # edge and vertex regions
-        t_ab = d1 / (d1 - d3)
-        t_ac = d2 / (d2 - d6)
-        t_bc = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-        regions = [
-            ((d1 <= 0) & (d2 <= 0), np.stack([np.ones(n), np.zeros(n), np.zeros(n)], 1)),
-            ((d3 >= 0) & (d4 <= d3), np.stack([np.zeros(n), np.ones(n), np.zeros(n)], 1)),
-            ((d6 >= 0) & (d5 <= d6), np.stack([np.zeros(n), np.zeros(n), np.ones(n)], 1)),
-            ((vc <= 0) & (d1 >= 0) & (d3 <= 0), np.stack([1 - t_ab, t_ab, np.zeros(n)], 1)),
-            ((vb <= 0) & (d2 >= 0) & (d6 <= 0), np.stack([1 - t_ac, np.zeros(n), t_ac], 1)),
-            ((va <= 0) & ((d4 - d3) >= 0) & ((d5 - d6) >= 0), np.stack([np.zeros(n), 1 - t_bc, t_bc], 1)),
-        ]
-    done = np.zeros(n, dtype=bool)
-    for mask, value in regions:
-        m = mask & ~done
-        bary[m] = value[m]
-        done |= m
-    bary = np.nan_to_num(bary, nan=1.0 / 3.0)
-    return bary[:, :1] * a + bary[:, 1:2] * b + bary[:, 2:3] * c, bary
-
-
-def _attach_triangle_frame(points: np.ndarray, faces: np.ndarray, centres: np.ndarray) -> dict:
-    """Each centre as a point of its nearest triangle plus an offset in that triangle's frame."""
-    tri = np.zeros((centres.shape[0], 3), np.int32)
-    bary = np.zeros((centres.shape[0], 3))
-    offset = np.zeros((centres.shape[0], 3))
-    a, b, c = (points[faces[:, k]] for k in range(3))
-    for i, x in enumerate(centres):
-        q, w = _closest_on_triangles(np.broadcast_to(x, a.shape), a, b, c)
-        f = int(np.argmin(np.linalg.norm(q - x, axis=1)))
-        frame = _triangle_frames(a[f : f + 1], b[f : f + 1], c[f : f + 1])[0]
-        tri[i], bary[i], offset[i] = faces[f], w[f], frame @ (x - q[f])
-    return {"triangle": tri, "bary": bary, "local_offset": offset}
-
-
-def _representatives(solid) -> np.ndarray:
-    """For each merged vertex, the first original vertex that maps to it."""
-    _, first = np.unique(solid.merged_index, return_index=True)
-    return first
-
-
-def _mvc_weights(solid, centres: np.ndarray, sphere_set: SphereSet | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Mean value coordinates of each centre over the caller's vertices, (S, V), and the
-    linear-precision error ``|sum_v w_v p_v - centre|`` per centre.
-
-    On a mesh of several closed components each centre uses the component that holds most of
-    its cluster's surface samples (``sphere_set`` given), so it moves with what it bounds.
-    """
-    vlabel = _mvc.vertex_components(solid.merged_faces, solid.merged_points.shape[0])
-    comps = vlabel[solid.merged_faces[:, 0]]
-    rep = _representatives(solid)
-    dominant = [None] * centres.shape[0]
-    if sphere_set is not None and np.unique(comps).size > 1:
-        sample_comp = vlabel[solid.merged_index[solid.faces[sphere_set.sample_face, 0]]]
-        for i in range(centres.shape[0]):
-            own = sample_comp[sphere_set.sample_sphere == i]
-            if own.size:
-                dominant[i] = int(np.bincount(own).argmax())
-    w = np.zeros((centres.shape[0], solid.points.shape[0]))
-    err = np.zeros(centres.shape[0])
-    for i, x in enumerate(centres):
-        lam = _mvc.component_mvc(solid.merged_points, solid.merged_faces, x, comps, component=dominant[i])
-        w[i, rep] = lam
-        err[i] = float(np.linalg.norm(lam @ solid.merged_points - x))
-    return w, err
-
-
-def _bone_coordinates(weights: np.ndarray, skin, bind_points: np.ndarray, joint_count: int, max_bones: int) -> dict:
-    """Pre-multiply per-vertex coordinates by skin weights: per sphere (bone, q_j, b_j).
-
-    ``centre = sum_j [q_j, b_j] @ M_j`` with ``b_j = sum_v w_v W_vj`` and ``q_j = sum_v w_v W_vj
-    p_v`` (bind-space points), exact for any joint matrices when every bone is kept. Only the
-    ``max_bones`` bones of largest |b_j| are stored; each dropped bone's (q_j, b_j) is folded
-    into the strongest kept bone, which keeps the fit-pose centre and the weight sum exact.
-    """
-    idx = np.asarray(skin.joint_indices, np.int64)
-    wts = np.asarray(skin.joint_weights, np.float64)
-    s_count = weights.shape[0]
-    b = np.zeros((s_count, joint_count))
-    q = np.zeros((s_count, joint_count, 3))
-    for k in range(idx.shape[1]):
-        vw = weights * wts[None, :, k]  # (S, V)
-        for j in np.unique(idx[:, k]):
-            sel = idx[:, k] == j
-            b[:, j] += vw[:, sel].sum(axis=1)
-            q[:, j] += vw[:, sel] @ bind_points[sel]
-    bones = min(max_bones, joint_count)
-    order = np.argsort(-np.abs(b), axis=1)
-    keep = order[:, :bones]
-    rows = np.arange(s_count)[:, None]
-    jb = b[rows, keep].copy()
-    jq = q[rows, keep].copy()
-    dropped = order[:, bones:]
-    if dropped.shape[1]:
-        jb[:, 0] += b[rows, dropped].sum(axis=1)
-        jq[:, 0] += q[rows, dropped].sum(axis=1)
-    used = (np.abs(jb) > 0) | np.any(jq != 0, axis=2)
-    used[:, 0] = True
-    return {
-        "joint_index": np.where(used, keep, -1).astype(np.int32),
-        "joint_point": np.where(used[..., None], jq, 0.0),
-        "joint_weight": np.where(used, jb, 0.0),
-    }
-
-
 def _attach_skinned(scene, mesh, solid, sphere_set: SphereSet, t: int, method: str, max_bones: int) -> dict:
-    centres = sphere_set.centres
+    """Attachment arrays of a skinned mesh's spheres (see :func:`spheres_for_scene`)."""
     skin = mesh.skin
     skel = scene.skeletons[skin.skeleton]
-    bind = np.asarray(skin.geom_bind_transform, np.float64)
-    bind_points = mesh.points @ bind[:3, :3] + bind[3, :3]
     if method == "mvc":
-        weights, err = _mvc_weights(solid, centres, sphere_set)
+        bind = np.asarray(skin.geom_bind_transform, np.float64)
+        bind_points = mesh.points @ bind[:3, :3] + bind[3, :3]
+        weights, err = _attach.mvc_weights(solid, sphere_set.centres, sphere_set)
+        att = _attach.bone_coordinates(weights, skin.joint_indices, skin.joint_weights, bind_points, skel.joint_count, max_bones)
+        att.update({"skeleton": np.int64(skin.skeleton), "method": np.array("mvc"), "mvc_error": err})
     elif method == "skin_weights":
-        # linear blend skinning of the centre itself, with the mean skin weights of the surface
-        # samples its sphere bounds (barycentric blends of their triangle's vertex weights)
-        idx = np.asarray(skin.joint_indices, np.int64)
-        wts = np.asarray(skin.joint_weights, np.float64)
-        vertex_bones = np.zeros((mesh.vertex_count, skel.joint_count))
-        for kk in range(idx.shape[1]):
-            np.add.at(vertex_bones, (np.arange(mesh.vertex_count), idx[:, kk]), wts[:, kk])
-        tri = np.asarray(mesh.faces, np.int64)[sphere_set.sample_face]
-        sample_bones = np.einsum("nk,nkj->nj", sphere_set.sample_bary, vertex_bones[tri])
-        bone = np.zeros((centres.shape[0], skel.joint_count))
-        np.add.at(bone, sphere_set.sample_sphere, sample_bones)
-        bone /= np.maximum(bone.sum(axis=1, keepdims=True), 1e-300)
-        mats = _skinning_matrices(scene, skin.skeleton, t, skel_to_world=_mesh_transform(scene, mesh, t))
-        bones = min(max_bones, skel.joint_count)
-        order = np.argsort(-bone, axis=1)[:, :bones]
-        rows = np.arange(bone.shape[0])[:, None]
-        jb = bone[rows, order]
-        jb = jb / jb.sum(axis=1, keepdims=True)
-        # the centre carried back to bind space through the blended fit-frame transform
-        blended = np.einsum("sk,skab->sab", jb, mats[order])
-        homo = np.concatenate([centres, np.ones((centres.shape[0], 1))], axis=1)
-        bind_centre = np.einsum("sa,sab->sb", homo, np.linalg.inv(blended))[:, :3]
-        att = {"joint_index": order.astype(np.int32), "joint_point": jb[..., None] * bind_centre[:, None, :], "joint_weight": jb}
+        att = _attach.skin_weight_coordinates(sphere_set.centres, sphere_set, mesh.faces, skin.joint_indices, skin.joint_weights,
+                                              _skinning_matrices(scene, mesh, t), max_bones)
         att.update({"skeleton": np.int64(skin.skeleton), "method": np.array("skin_weights")})
-        return att
     else:
         raise ValueError(f"mesh {mesh.path}: skinned attachment must be 'mvc' or 'skin_weights', got {method!r}")
-    att = _bone_coordinates(weights, skin, bind_points, skel.joint_count, max_bones)
-    att.update({"skeleton": np.int64(skin.skeleton), "method": np.array("mvc"), "mvc_error": err})
     return att
 
 
@@ -487,7 +353,8 @@ def spheres_for_scene(
             (:meth:`SceneSpheres.calibrate_radii`).
         progress: tqdm bars.
         device: Warp device.
-        **fit_options: passed to :func:`fit_spheres` (grid_cells, teleports, seed, ...).
+        **fit_options: passed to :func:`~warpshade.geometry.spheres.fit_spheres` (grid_cells,
+            teleports, seed, ...).
 
     Returns:
         :class:`SceneSpheres`. Attachment arrays per kind: "rigid" ``local_centres`` (S_k, 3);
@@ -521,7 +388,7 @@ def spheres_for_scene(
         mesh = scene.meshes[i]
         pts = world[mesh.vertex_offset : mesh.vertex_offset + mesh.vertex_count]
         try:
-            solid = _fit.make_solid(
+            solid = make_solid(
                 pts, mesh.faces, mesh.path, open_mesh="shell" if open_meshes == "shell" else "error", shell_thickness=shell_thickness, device=device
             )
         except ValueError as exc:
@@ -576,11 +443,11 @@ def spheres_for_scene(
             attachments.append(_attach_skinned(scene, mesh, solid, s, t, skinned_attachment, max_bones))
         elif solid.closed:
             kinds.append("vertex_weights")
-            weights, err = _mvc_weights(solid, s.centres, s)
+            weights, err = _attach.mvc_weights(solid, s.centres, s)
             attachments.append({"weights": weights, "mvc_error": err})
         else:
             kinds.append("triangle_frame")
-            attachments.append(_attach_triangle_frame(solid.points, solid.faces, s.centres))
+            attachments.append(_attach.triangle_frame_attachment(solid.points, solid.faces, s.centres))
     result = SceneSpheres(
         sets=sets,
         mesh_index=np.array([i for i, _ in solids], dtype=np.int64),
@@ -599,16 +466,49 @@ def spheres_for_scene(
     return result
 
 
-class SphereAnimator:
-    """Per-frame world-space sphere centres and radii on a Warp device.
+def scene_receiver_clusters(scene, frame: float | None = None, vertices_per_cluster: int = 300, meshes=None,
+                            iterations: int = 30, seed: int = 0) -> ReceiverClusters:
+    """Lloyd clusters of each scene mesh's vertices at a frame
+    (:func:`~warpshade.geometry.spheres.cluster_receivers` on ``scene.points_at(frame)``).
 
-    Fixed device buffers are allocated once; :meth:`prepare` uploads the frame's matrices
-    (host work) and :meth:`launch` only launches kernels on fixed buffers, so a frame graph can
-    capture it. :meth:`update` does both from a :class:`warpshade.scene.FrameState`.
+    Args:
+        scene: the scene; frame: time code of the positions clustered (default first frame).
+        vertices_per_cluster, iterations, seed: see ``cluster_receivers``.
+        meshes: scene mesh indices to cluster (default: all).
+
+    Returns:
+        :class:`~warpshade.geometry.spheres.ReceiverClusters` in scene vertex indexing, with
+        ``cluster_mesh`` the scene mesh index.
+    """
+    frame = float(scene.frames[0]) if frame is None else float(frame)
+    offsets = [m.vertex_offset for m in scene.meshes] + [scene.vertex_count]
+    return cluster_receivers(scene.points_at(frame), offsets, vertices_per_cluster, meshes=meshes, iterations=iterations, seed=seed,
+                             names=[f"mesh {m.path} at frame {frame:g}" for m in scene.meshes])
+
+
+class SphereAnimator:
+    """Per-frame world-space sphere centres and radii on a Warp device, kernels only.
+
+    Everything static (attachment arrays, rest radii, index tables) is uploaded once;
+    :meth:`launch` only launches kernels that gather from the frame's
+    :class:`~warpshade.scene.state.FrameState` arrays by index, so it can be recorded and
+    replayed (:func:`warpshade._wp.record_program`):
+
+    * rigid / static sets: ``state.mesh_transforms[mesh]`` applied to mesh-local centres;
+    * skinned sets: ``state.skin_matrices[state.joint_offsets[skeleton] + joint]`` applied to
+      the bone coordinates;
+    * deforming sets: dense vertex weights or triangle frames over ``state.points``;
+    * radii: rest radius times ``state.mesh_scales[mesh]``.
+
+    Args:
+        scene: the :class:`~warpshade.scene.Scene` the spheres were fit to (mesh vertex ranges).
+        spheres: its :class:`SceneSpheres`.
+        device: Warp device (None = Warp's default).
 
     Attributes:
-        centres: wp.array(vec3), (S,), world space, in :class:`SceneSpheres` order.
-        radii: wp.array(float32), (S,), world units.
+        centres: wp.array(vec3), shape (max(S, 1),), world space, in :class:`SceneSpheres` order.
+        radii: wp.array(float32), shape (max(S, 1),), world units.
+        sphere_count: S.
     """
 
     def __init__(self, scene, spheres: SceneSpheres, device=None):
@@ -616,130 +516,82 @@ class SphereAnimator:
         self.device = dev
         self.scene = scene
         self.spheres = spheres
-        s_count = spheres.sphere_count
+        self.sphere_count = s_count = spheres.sphere_count
+        self._mesh_count = len(scene.meshes)
         self.centres = wp.zeros(max(s_count, 1), dtype=wp.vec3, device=dev)
         self.radii = wp.zeros(max(s_count, 1), dtype=wp.float32, device=dev)
-        self._rest_radii = wp.array(spheres.rest_radii.astype(np.float32), dtype=wp.float32, device=dev)
-        self._sphere_set = wp.array(spheres.sphere_set, dtype=wp.int32, device=dev)
-        set_count = len(spheres.sets)
-        self._mesh_scale = wp.ones(max(set_count, 1), dtype=wp.float32, device=dev)
-        self._set_matrices = wp.zeros(max(set_count, 1), dtype=wp.mat44, device=dev)
+
+        def i32(a):
+            return wp.array(np.asarray(a, np.int32), dtype=wp.int32, device=dev)
+
+        def f32(a, dtype=wp.float32):
+            return wp.array(np.asarray(a, np.float32), dtype=dtype, device=dev)
+
+        self._rest_radii = f32(spheres.rest_radii)
+        self._sphere_mesh = i32(spheres.sphere_mesh)
         off = spheres.sphere_offset
         rigid_c, rigid_m, rigid_s = [], [], []
-        skin_i, skin_p, skin_w, skin_s = [], [], [], []
-        self._skeletons = sorted({int(a["skeleton"]) for k, a in zip(spheres.kinds, spheres.attachments) if k == "skinned"})
-        joint_base, base = {}, 0
-        for sk in self._skeletons:
-            joint_base[sk] = base
-            base += scene.skeletons[sk].joint_count
-        self._joint_base = joint_base
-        self._joint_matrices = wp.zeros(max(base, 1), dtype=wp.mat44, device=dev)
-        self._per_mesh = []  # (kernel, inputs) of vertex-weight / triangle-frame sets
-        bones = max([a["joint_index"].shape[1] for k, a in zip(spheres.kinds, spheres.attachments) if k == "skinned"] or [1])
+        skinned: dict[int, list] = {}  # skeleton -> per set (joint_index, joint_point, joint_weight, sphere ids)
+        self._deforming = []  # (kernel, count, inputs before the points, inputs after them)
         for k, (kind, att) in enumerate(zip(spheres.kinds, spheres.attachments)):
             ids = np.arange(off[k], off[k + 1], dtype=np.int32)
-            mesh = scene.meshes[int(spheres.mesh_index[k])]
+            mesh_index = int(spheres.mesh_index[k])
+            mesh = scene.meshes[mesh_index]
             if kind == "rigid":
                 rigid_c.append(att["local_centres"])
-                rigid_m.append(np.full(ids.size, k, np.int32))
+                rigid_m.append(np.full(ids.size, mesh_index, np.int32))
                 rigid_s.append(ids)
             elif kind == "skinned":
-                ji = att["joint_index"].astype(np.int64)
-                pad = bones - ji.shape[1]
-                ji = np.where(ji >= 0, ji + joint_base[int(att["skeleton"])], -1)
-                skin_i.append(np.pad(ji, ((0, 0), (0, pad)), constant_values=-1))
-                skin_p.append(np.pad(att["joint_point"], ((0, 0), (0, pad), (0, 0))))
-                skin_w.append(np.pad(att["joint_weight"], ((0, 0), (0, pad))))
-                skin_s.append(ids)
+                skinned.setdefault(int(att["skeleton"]), []).append((att["joint_index"], att["joint_point"], att["joint_weight"], ids))
             elif kind == "vertex_weights":
-                self._per_mesh.append(
-                    (
-                        _k.vertex_weight_centres_kernel,
-                        ids.size,
-                        [
-                            wp.array(att["weights"].astype(np.float32), dtype=wp.float32, device=dev),
-                            None,
-                            int(mesh.vertex_offset),
-                            wp.array(ids, dtype=wp.int32, device=dev),
-                        ],
-                    )
-                )
+                self._deforming.append((_k.vertex_weight_centres_kernel, ids.size, [f32(att["weights"])], [int(mesh.vertex_offset), i32(ids)]))
             else:
-                self._per_mesh.append(
-                    (
-                        _k.triangle_frame_centres_kernel,
-                        ids.size,
-                        [
-                            wp.array(att["triangle"].astype(np.int32), dtype=wp.int32, device=dev),
-                            wp.array(att["bary"].astype(np.float32), dtype=wp.vec3, device=dev),
-                            wp.array(att["local_offset"].astype(np.float32), dtype=wp.vec3, device=dev),
-                            None,
-                            int(mesh.vertex_offset),
-                            wp.array(ids, dtype=wp.int32, device=dev),
-                        ],
-                    )
-                )
+                self._deforming.append((_k.triangle_frame_centres_kernel, ids.size,
+                                        [i32(att["triangle"]), f32(att["bary"], wp.vec3), f32(att["local_offset"], wp.vec3)],
+                                        [int(mesh.vertex_offset), i32(ids)]))
         self._rigid = None
         if rigid_s:
-            self._rigid = [
-                wp.array(np.concatenate(rigid_c).astype(np.float32), dtype=wp.vec3, device=dev),
-                wp.array(np.concatenate(rigid_m), dtype=wp.int32, device=dev),
-                self._set_matrices,
-                wp.array(np.concatenate(rigid_s), dtype=wp.int32, device=dev),
-            ]
-        self._skinned = None
-        if skin_s:
-            self._skinned = [
-                wp.array(np.concatenate(skin_i).astype(np.int32), dtype=wp.int32, device=dev),
-                wp.array(np.concatenate(skin_p).astype(np.float32), dtype=wp.vec3, device=dev),
-                wp.array(np.concatenate(skin_w).astype(np.float32), dtype=wp.float32, device=dev),
-                self._joint_matrices,
-                wp.array(np.concatenate(skin_s), dtype=wp.int32, device=dev),
-            ]
+            self._rigid = (f32(np.concatenate(rigid_c), wp.vec3), i32(np.concatenate(rigid_m)), i32(np.concatenate(rigid_s)))
+        self._skinned = []  # (skeleton, joint_index, joint_point, joint_weight, sphere ids): one launch per skeleton
+        for skeleton, parts in sorted(skinned.items()):
+            bones = max(p[0].shape[1] for p in parts)
+            pad = [bones - p[0].shape[1] for p in parts]
+            ji = np.concatenate([np.pad(p[0], ((0, 0), (0, n)), constant_values=-1) for p, n in zip(parts, pad)])
+            jp = np.concatenate([np.pad(p[1], ((0, 0), (0, n), (0, 0))) for p, n in zip(parts, pad)])
+            jw = np.concatenate([np.pad(p[2], ((0, 0), (0, n))) for p, n in zip(parts, pad)])
+            self._skinned.append((skeleton, i32(ji), f32(jp, wp.vec3), f32(jw),
+                                  i32(np.concatenate([p[3] for p in parts]))))
 
-    def prepare(self, frame_state) -> None:
-        """Upload the frame's mesh transforms, joint matrices and radius scales (host work)."""
-        from .skinning import joint_matrices_for_warp
+    def _check(self, state) -> None:
+        """Refuse a frame state of another device or scene (host attribute reads only)."""
+        if str(state.points.device) != str(self.device):
+            raise ValueError(f"SphereAnimator: frame state on {state.points.device}, animator on {self.device}")
+        if state.mesh_transforms.shape[0] != self._mesh_count or state.mesh_scales.shape[0] != self._mesh_count:
+            raise ValueError(f"SphereAnimator: frame state has {state.mesh_transforms.shape[0]} mesh transforms, "
+                             f"the scene {self._mesh_count} meshes")
 
-        sp, scene = self.spheres, self.scene
-        t = int(frame_state.frame_index)
-        mats = np.stack([np.asarray(frame_state.mesh_transforms[int(m)], np.float64) for m in sp.mesh_index])
-        self._set_matrices.assign(joint_matrices_for_warp(mats))
-        self._mesh_scale.assign(np.array([_transform_scale(m) for m in mats], np.float32))
-        if self._skeletons:
-            blocks = []
-            for sk in self._skeletons:
-                # the skeleton's world transform is the skinned mesh's transform in the frame state
-                mesh_k = next(k for k, (kind, a) in enumerate(zip(sp.kinds, sp.attachments)) if kind == "skinned" and int(a["skeleton"]) == sk)
-                blocks.append(
-                    _skinning_matrices(scene, sk, t, joint_transforms=frame_state.joint_transforms[sk], skel_to_world=mats[mesh_k])
-                )
-            self._joint_matrices.assign(joint_matrices_for_warp(np.concatenate(blocks)))
-
-    def launch(self, points) -> None:
-        """Compute centres and radii on the device (kernels on fixed buffers only).
+    def launch(self, state) -> None:
+        """Centres and radii of the frame held by ``state`` (kernels on fixed buffers only).
 
         Args:
-            points: the frame's world-space scene points, wp.array(vec3) (vertex_count,) (used by
-                deforming meshes).
+            state: the frame's :class:`~warpshade.scene.state.FrameState` on this device
+                (``mesh_transforms``, ``mesh_scales``, ``skin_matrices``, ``joint_offsets``,
+                ``points`` are read; its arrays' addresses are what a recording captures).
         """
+        self._check(state)
         dev = self.device
         if self._rigid is not None:
-            wp.launch(_k.rigid_centres_kernel, dim=self._rigid[0].shape[0], inputs=self._rigid + [self.centres], device=dev)
-        if self._skinned is not None:
-            wp.launch(_k.skinned_centres_kernel, dim=self._skinned[0].shape[0], inputs=self._skinned + [self.centres], device=dev)
-        for kernel, count, inputs in self._per_mesh:
-            args = [points if a is None else a for a in inputs]
-            wp.launch(kernel, dim=count, inputs=args + [self.centres], device=dev)
-        if self.spheres.sphere_count:
-            wp.launch(
-                _k.scale_radii_kernel,
-                dim=self.spheres.sphere_count,
-                inputs=[self._rest_radii, self._sphere_set, self._mesh_scale, self.radii],
-                device=dev,
-            )
+            local, mesh, ids = self._rigid
+            wp.launch(_k.rigid_centres_kernel, dim=ids.shape[0], inputs=[local, mesh, state.mesh_transforms, ids, self.centres], device=dev)
+        for skeleton, ji, jp, jw, ids in self._skinned:
+            wp.launch(_k.skinned_centres_kernel, dim=ids.shape[0], device=dev,
+                      inputs=[ji, jp, jw, state.skin_matrices, int(state.joint_offsets[skeleton]), ids, self.centres])
+        for kernel, count, head, tail in self._deforming:
+            wp.launch(kernel, dim=count, inputs=[*head, state.points, *tail, self.centres], device=dev)
+        if self.sphere_count:
+            wp.launch(_k.scale_radii_kernel, dim=self.sphere_count, device=dev,
+                      inputs=[self._rest_radii, self._sphere_mesh, state.mesh_scales, self.radii])
 
-    def update(self, frame_state) -> None:
-        """:meth:`prepare` then :meth:`launch` with ``frame_state.points``."""
-        self.prepare(frame_state)
-        self.launch(frame_state.points)
+    def update(self, state) -> None:
+        """The same as :meth:`launch`."""
+        self.launch(state)

@@ -1,5 +1,5 @@
-"""Sphere hierarchy, receiver clusters and the hierarchy cut (private; the public names are
-re-exported by :mod:`warpshade.geometry.spheres`)."""
+"""Sphere hierarchy, receiver clusters and the hierarchy cut (the public names are re-exported
+by :mod:`warpshade.geometry.spheres`)."""
 
 from __future__ import annotations
 
@@ -8,9 +8,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._wp import resolve_device, wp
-from . import _spheres_kernels as _k
-from ._spheres_core import _check_spheres
+from ..._wp import resolve_device, wp
+from . import kernels as _k
+from .core import _check_spheres
 
 #: Angular radius threshold of the hierarchy cut (the paper uses 20-30 degrees).
 DEFAULT_THETA_MAX_DEGREES = 25.0
@@ -432,15 +432,15 @@ class SphereTreeRefit:
 # ---- receiver clusters and the hierarchy cut ---------------------------------------------------
 @dataclass
 class ReceiverClusters:
-    """Lloyd clusters of receiver vertices (scene vertex indexing), sec. 6.3.
+    """Lloyd clusters of receiver vertices (the vertex indexing of the clustered points), sec. 6.3.
 
     Attributes:
         cluster_start: CSR offsets, (C + 1,) int32: cluster ``c`` holds
             ``cluster_vertices[cluster_start[c] : cluster_start[c + 1]]``.
-        cluster_vertices: scene vertex indices, int32.
-        cluster_mesh: scene mesh index of each cluster, (C,) int32.
+        cluster_vertices: vertex indices (of the clustered points), int32.
+        cluster_mesh: mesh index of each cluster, (C,) int32.
         representative: the vertex p* of each cluster (closest to its centroid at the frame
-            the clusters were built), (C,) int32, scene vertex index. Fixed over the animation
+            the clusters were built), (C,) int32, vertex index. Fixed over the animation
             so ratio vectors do not flicker.
         vertices_per_cluster: the target used.
     """
@@ -489,49 +489,64 @@ class ReceiverClusters:
         )
 
 
-def cluster_receivers(scene, frame: float | None = None, vertices_per_cluster: int = 300, meshes=None, iterations: int = 30, seed: int = 0) -> ReceiverClusters:
-    """Lloyd (k-means) clustering of each receiver mesh's vertices at a frame.
+def cluster_receivers(
+    points,
+    mesh_offsets,
+    vertices_per_cluster: int = 300,
+    meshes=None,
+    iterations: int = 30,
+    seed: int = 0,
+    names=None,
+) -> ReceiverClusters:
+    """Lloyd (k-means) clustering of each receiver mesh's vertices.
 
     Args:
-        scene: the scene; frame: time code of the positions clustered (default first frame).
-        vertices_per_cluster: target cluster size; a mesh of V vertices gets
-            ``max(1, round(V / vertices_per_cluster))`` clusters (the paper uses several hundred).
-        meshes: scene mesh indices to cluster (default: all).
+        points: positions of all vertices, meshes concatenated, (V, 3) float (the frame the
+            clusters are built at; world space).
+        mesh_offsets: first vertex of each mesh, then V, (M + 1,) int: mesh ``m`` owns
+            vertices ``mesh_offsets[m] : mesh_offsets[m + 1]``.
+        vertices_per_cluster: target cluster size; a mesh of n vertices gets
+            ``max(1, round(n / vertices_per_cluster))`` clusters (the paper uses several hundred).
+        meshes: indices of the meshes to cluster (default: all).
         iterations: Lloyd iterations.
-        seed: seeds the k-means++ initialisation.
+        seed: seeds the k-means++ initialisation (mesh ``m`` uses the stream ``[seed, m]``).
+        names: mesh names for error messages (default ``"mesh <m>"``).
 
     Returns:
-        :class:`ReceiverClusters` (empty clusters dropped).
+        :class:`ReceiverClusters` in the indexing of ``points`` (empty clusters dropped).
     """
     from scipy.cluster.vq import kmeans2
 
     if vertices_per_cluster < 1:
         raise ValueError(f"cluster_receivers: vertices_per_cluster must be >= 1, got {vertices_per_cluster}")
-    frame = float(scene.frames[0]) if frame is None else float(frame)
-    world = scene.points_at(frame)
-    ids = range(len(scene.meshes)) if meshes is None else [int(m) for m in meshes]
+    world = np.asarray(points, np.float64).reshape(-1, 3)
+    offsets = np.asarray(mesh_offsets, np.int64).reshape(-1)
+    if offsets.size < 2 or offsets[0] != 0 or offsets[-1] != world.shape[0] or np.any(np.diff(offsets) < 0):
+        raise ValueError(f"cluster_receivers: mesh_offsets must rise from 0 to the {world.shape[0]} points, got {offsets.tolist()}")
+    ids = range(offsets.size - 1) if meshes is None else [int(m) for m in meshes]
     starts, verts, owners, reps = [0], [], [], []
     for m in ids:
-        mesh = scene.meshes[m]
-        p = world[mesh.vertex_offset : mesh.vertex_offset + mesh.vertex_count]
+        first, count = int(offsets[m]), int(offsets[m + 1] - offsets[m])
+        p = world[first : first + count]
         if not np.all(np.isfinite(p)):
-            raise ValueError(f"cluster_receivers: mesh {mesh.path} has NaN or infinite points at frame {frame}")
-        k = max(1, round(mesh.vertex_count / vertices_per_cluster))
+            name = names[m] if names is not None else f"mesh {m}"
+            raise ValueError(f"cluster_receivers: {name} has NaN or infinite points")
+        k = max(1, round(count / vertices_per_cluster))
         if k == 1:
-            labels = np.zeros(mesh.vertex_count, dtype=np.int64)
+            labels = np.zeros(count, dtype=np.int64)
         else:
             _, labels = kmeans2(p, k, iter=iterations, minit="++", seed=np.random.default_rng([seed, m]))
         for j in np.unique(labels):
             local = np.nonzero(labels == j)[0]
             centroid = p[local].mean(axis=0)
             rep = local[int(np.argmin(np.linalg.norm(p[local] - centroid, axis=1)))]
-            verts.append(local + mesh.vertex_offset)
+            verts.append(local + first)
             starts.append(starts[-1] + local.size)
             owners.append(m)
-            reps.append(rep + mesh.vertex_offset)
+            reps.append(rep + first)
     return ReceiverClusters(
         cluster_start=np.asarray(starts, np.int32),
-        cluster_vertices=np.concatenate(verts).astype(np.int32),
+        cluster_vertices=np.concatenate(verts).astype(np.int32) if verts else np.zeros(0, np.int32),
         cluster_mesh=np.asarray(owners, np.int32),
         representative=np.asarray(reps, np.int32),
         vertices_per_cluster=int(vertices_per_cluster),
@@ -545,7 +560,7 @@ class ReceiverBounds:
         centres: wp.array(vec3), (C,): mean of the cluster's deformed points.
         radii: wp.array(float32), (C,): max distance from that centre (times 1 + pad).
         representative_points: wp.array(vec3), (C,): the deformed p* of each cluster.
-        representative: wp.array(int32), (C,): p*'s scene vertex index.
+        representative: wp.array(int32), (C,): p*'s vertex index.
     """
 
     def __init__(self, clusters: ReceiverClusters, device=None):
@@ -561,7 +576,7 @@ class ReceiverBounds:
         self.representative_points = wp.zeros(n, dtype=wp.vec3, device=dev)
 
     def launch(self, points) -> None:
-        """Recompute from the frame's world-space scene points, wp.array(vec3)."""
+        """Recompute from the frame's world-space points, wp.array(vec3) (the clusters' vertex indexing)."""
         if self.clusters.cluster_count:
             wp.launch(
                 _k.cluster_bounds_kernel,

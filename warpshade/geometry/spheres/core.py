@@ -1,5 +1,5 @@
-"""Sphere sets bounding one solid: construction, outside-volume estimators, coverage
-(private; the public names are re-exported by :mod:`warpshade.geometry.spheres`)."""
+"""Sphere sets bounding one solid: construction, outside-volume estimators, coverage (the
+public names are re-exported by :mod:`warpshade.geometry.spheres`)."""
 
 from __future__ import annotations
 
@@ -10,9 +10,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._wp import resolve_device, wp
-from . import _spheres_fit as _fit
-from . import _spheres_kernels as _k
+from ..._wp import launch_parallel, resolve_device, wp
+from . import fit as _fit
+from . import kernels as _k
 
 #: Occupancy-grid cells of the construction: at least this many, and this many per sphere
 #: (the bunny at 128 spheres: E 0.279 with 120k cells, 0.250 with 240k).
@@ -211,7 +211,8 @@ def outside_volume(
     uni = np.empty(replicates)
     for rep in range(replicates):
         ub = wp.array(balls[rep].astype(np.float32), dtype=wp.vec3, device=dev)
-        _k.launch_split(_k.ball_samples_kernel, n, lambda s, ub=ub: [mid, th, cw, rw, ub, s, outside, union_w], dev)
+        launch_parallel(_k.ball_samples_kernel, n, lambda start, stop, ub=ub: [mid, th, cw, rw, ub, start, outside, union_w], dev,
+                        min_count=_fit.SPLIT_MIN)
         per[rep] = ball_volume * outside.numpy().reshape(s_count, samples_per_sphere).astype(np.float64).mean(axis=1)
         uni[rep] = float(np.sum(ball_volume * union_w.numpy().reshape(s_count, samples_per_sphere).astype(np.float64).mean(axis=1)))
     root = math.sqrt(replicates)
@@ -260,7 +261,8 @@ def solid_volume(
     for rep in range(replicates):
         u = qmc.Sobol(d=3, scramble=True, seed=np.random.default_rng([seed, 7, rep])).random(samples)
         x = wp.array((lo + u * (hi - lo)).astype(np.float32), dtype=wp.vec3, device=dev)
-        _k.launch_split(_k.box_samples_kernel, samples, lambda s, x=x: [mid, th, x, s, inside], dev)
+        launch_parallel(_k.box_samples_kernel, samples, lambda start, stop, x=x: [mid, th, x, start, inside], dev,
+                        min_count=_fit.SPLIT_MIN)
         vols[rep] = box * float(inside.numpy().astype(np.float64).mean())
     return float(vols.mean()), float(vols.std(ddof=1) / math.sqrt(replicates))
 

@@ -1,13 +1,15 @@
-"""Blocker sphere sets: construction, animation, hierarchy and receiver clusters (SHEXP, sec. 6).
+"""Blocker sphere sets: construction, attachment, hierarchy and receiver clusters (SHEXP, sec. 6).
 
 Ren et al. 2006 ("Real-time soft shadows in dynamic scenes using spherical harmonic
 exponentiation") shadow with sets of spheres that *bound* each blocker: every point of the
 solid lies in some sphere, so no light leaks through, while the outside volume is small so
-shadows are not too big. This module builds and animates those spheres; the SHEXP maths
-(log-space accumulation) lives in ``warpshade.methods``.
+shadows are not too big. This package fits those spheres to a triangle mesh, computes the
+coordinates that attach them to it, and builds the hierarchy and receiver clusters; the SHEXP
+maths (log-space accumulation) and the scene's blocker model live in
+:mod:`warpshade.methods.shexp`.
 
-Construction (:func:`fit_spheres`, :func:`spheres_for_scene`). The variational Lloyd-style
-construction of sec. 6.2 (``_spheres_fit`` has the details): flood-fill clustering of surface
+Construction (:func:`fit_spheres`). The variational Lloyd-style construction of sec. 6.2
+(:mod:`.fit` has the details): flood-fill clustering of surface
 and interior samples by outside-volume cost, Powell centre updates minimising the outside volume
 of each cluster's bounding sphere (all clusters in lockstep, the objective evaluated by a Warp
 kernel on an occupancy grid; scipy's Powell is the reference it is tested against), and cluster
@@ -27,18 +29,17 @@ the same way in the bounding box.
 Closed meshes only, by default: a sphere set bounds a *solid*. An open mesh (a cloth sheet, a
 ground plane) raises ValueError naming the mesh, unless ``open_mesh="shell"``, which bounds the
 shell of half-thickness ``shell_thickness`` around the surface instead (for thin blockers that
-must cast shadows). :func:`spheres_for_scene` skips open meshes unless asked for shells.
+must cast shadows).
 
-Animation (:class:`SceneSpheres`, :class:`SphereAnimator`). Centres follow their mesh:
-static/rigid meshes by the mesh transform; skinned meshes by the mean value coordinates (MVC)
-of each centre w.r.t. the fit-pose mesh (on a mesh of several closed parts, the part holding
-most of the sphere's samples), pre-multiplied by the per-vertex bone weights into a few (bone,
-weighted bind-space point) pairs per sphere -- exactly the MVC of the deformed mesh when every
-bone is kept -- or, as an alternative, by linear blend skinning of the centre with its cluster's
-mean skin weights; deforming closed meshes by dense MVC over the vertices; deforming open
-(shell) meshes by a barycentric point plus an offset fixed in the nearest triangle's frame.
-Radii stay fixed (times a safety factor, times the mesh transform's scale, optionally grown
-until they bound every frame of the scene's own animation).
+Attachment (:mod:`.attach`). Coordinates that carry a fitted centre along with its mesh:
+mean value coordinates (MVC) w.r.t. the fit-pose mesh (on a mesh of several closed parts, the
+part holding most of the sphere's samples), optionally pre-multiplied by per-vertex bone
+weights into a few (bone, weighted bind-space point) pairs -- exactly the MVC of the skinned
+mesh when every bone is kept; linear blend skinning of the centre with its cluster's mean skin
+weights; or, for open shells, a barycentric point plus an offset fixed in the nearest
+triangle's frame. Which mesh of a scene gets which, and the per-frame animation on the device,
+are SHEXP's blocker model (:mod:`warpshade.methods.shexp.spheres`); nothing in this package
+reads a scene.
 
 Hierarchy (:func:`build_sphere_tree`, :class:`SphereTree`, :class:`SphereTreeRefit`).
 Bottom-up Lloyd clustering of sphere centres with branching about 4 (sec. 6.3), each parent's
@@ -49,27 +50,24 @@ Receivers (:func:`cluster_receivers`, :class:`ReceiverBounds`, :class:`Hierarchy
 clusters of receiver vertices with per-frame bounding spheres and representative vertices, and
 the per-cluster cut of eq. 36 as flat arrays the shading kernel loops over.
 
-Every kernel has a float64 NumPy reference (``*_reference``, :meth:`SceneSpheres.centres_at`,
+Every kernel has a float64 NumPy reference (``*_reference``,
 :meth:`ReceiverClusters.bounds_reference`) that the tests compare with.
 
 Typical use (precompute once, cache the ``to_arrays()`` dicts; then per frame)::
 
-    spheres = spheres_for_scene(scene, budget=64)
-    tree = build_sphere_tree(spheres.centres, spheres.radii_at(scene, spheres.frame), groups=spheres.sphere_mesh)
-    clusters = cluster_receivers(scene, vertices_per_cluster=300)
-    animator = SphereAnimator(scene, spheres, device)
+    sphere_set = fit_spheres(points, faces, 32, name="/World/Body")
+    tree = build_sphere_tree(sphere_set.centres, sphere_set.radii)
+    clusters = cluster_receivers(receiver_points, mesh_offsets, vertices_per_cluster=300)
     refit = SphereTreeRefit(tree, device)
     bounds = ReceiverBounds(clusters, device)
     cut = HierarchyCut(refit, clusters.cluster_count, theta_max_degrees=25.0)
-    # per frame: host uploads, then kernels on fixed buffers only
-    animator.prepare(frame_state)
-    animator.launch(points)                       # animator.centres / animator.radii: (S,)
-    refit.launch(animator.centres, animator.radii)
-    bounds.launch(points)
-    cut.launch(bounds.centres, bounds.radii)      # cut.cut_nodes (C, capacity), cut.cut_count (C,)
+    # per frame: kernels on fixed buffers only
+    refit.launch(sphere_centres, sphere_radii)   # wp arrays (S,) vec3 / float32
+    bounds.launch(points)                        # wp.array(vec3) (V,)
+    cut.launch(bounds.centres, bounds.radii)     # cut.cut_nodes (C, capacity), cut.cut_count (C,)
 """
 
-from ._spheres_core import (
+from .core import (
     DEFAULT_GRID_CELLS,
     GRID_CELLS_PER_SPHERE,
     OutsideVolume,
@@ -80,14 +78,9 @@ from ._spheres_core import (
     outside_volume,
     solid_volume,
 )
-from ._spheres_kernels import cut_accept, merge_sphere_pair
-from ._spheres_scene import (
-    ATTACHMENT_KINDS,
-    SceneSpheres,
-    SphereAnimator,
-    spheres_for_scene,
-)
-from ._spheres_tree import (
+from .fit import Solid, make_solid
+from .kernels import cut_accept, merge_sphere_pair
+from .tree import (
     DEFAULT_THETA_MAX_DEGREES,
     REFIT_MODES,
     HierarchyCut,
@@ -102,7 +95,6 @@ from ._spheres_tree import (
 )
 
 __all__ = [
-    "ATTACHMENT_KINDS",
     "DEFAULT_GRID_CELLS",
     "DEFAULT_THETA_MAX_DEGREES",
     "GRID_CELLS_PER_SPHERE",
@@ -111,8 +103,7 @@ __all__ = [
     "OutsideVolume",
     "ReceiverBounds",
     "ReceiverClusters",
-    "SceneSpheres",
-    "SphereAnimator",
+    "Solid",
     "SphereSet",
     "SphereTree",
     "SphereTreeRefit",
@@ -123,9 +114,9 @@ __all__ = [
     "cut_accept",
     "cut_reference",
     "fit_spheres",
+    "make_solid",
     "merge_sphere_pair",
     "outside_volume",
     "refit_reference",
     "solid_volume",
-    "spheres_for_scene",
 ]
