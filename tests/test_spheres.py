@@ -11,19 +11,14 @@ per-frame animation are :mod:`warpshade.methods.shexp.spheres`, driven here by a
 :class:`~warpshade.scene.FrameEvaluator` as a frame would drive them.
 """
 
-import importlib
 import io
 import math
-import sys
-import types
-from pathlib import Path
 
 import numpy as np
 import pytest
 import trimesh
 from scipy.spatial.transform import Rotation
 
-import warpshade
 from warpshade._wp import record_program
 from warpshade.geometry import spheres as sp
 from warpshade.geometry.spheres import attach
@@ -33,33 +28,7 @@ from warpshade.io import load_scene
 from warpshade.scene import FrameEvaluator, Mesh, Scene
 
 
-def _import_method_module(name: str):
-    """Import a module of :mod:`warpshade.methods` even when a package ``__init__`` above it
-    fails to import (they import every method's stages, which may be mid-port): the parent
-    packages are then stand-ins, only while the module loads, and the module's own errors
-    still surface."""
-    try:
-        return importlib.import_module(name)
-    except ImportError:
-        pass
-    root = Path(warpshade.__file__).parent
-    added = []
-    parts = name.split(".")
-    for depth in range(2, len(parts)):
-        package = ".".join(parts[:depth])
-        if package not in sys.modules:
-            stand_in = types.ModuleType(package)
-            stand_in.__path__ = [str(root.joinpath(*parts[1:depth]))]
-            sys.modules[package] = stand_in
-            added.append(package)
-    try:
-        return importlib.import_module(name)
-    finally:
-        for package in added:
-            sys.modules.pop(package, None)
-
-
-ss = _import_method_module("warpshade.methods.shexp.spheres")
+from warpshade.methods.shexp import spheres as ss  # noqa: E402
 
 #: Coarse construction settings for tests (a few hundred ms per fit).
 FAST_FIT = {"grid_cells": 8000, "iterations": 4, "teleports": 2, "samples_per_sphere": 256}
@@ -391,7 +360,7 @@ def test_recorded_animator_replays_the_skinned_figure(figure_scene, figure_spher
 def test_recorded_blocker_frames_match_uncaptured_launches(figure_scene, device):
     # SHEXP's per-frame blocker pass (animator, refit, receiver bounds, cut, ratio vectors)
     # recorded with the scene evaluation and replayed, against uncaptured launches
-    blockers = _import_method_module("warpshade.methods.shexp.blockers")  # imports the SHEXP kernels
+    from warpshade.methods.shexp import blockers
     scene = figure_scene
     model = blockers.build_blocker_model(scene, 12, hierarchy=True, vertices_per_cluster=300, **FAST_FIT)
     frames = blockers.BlockerFrames(scene, model, 3, theta_max_degrees=25.0, device=device)

@@ -3,7 +3,7 @@
 :class:`ShexpShader` owns the structs and buffers of :mod:`.kernels` for one configuration
 (order, exp method, shading path, accumulation, self-shadowing rule) and a fixed problem size
 (vertex count, blocker node count, clusters x cut capacity, sphere lights). Host-side setters
-upload into those fixed buffers (``prepare`` work); :meth:`ShexpShader.launch` only launches
+upload into those fixed buffers (host work, between frames); :meth:`ShexpShader.launch` only launches
 kernels on fixed buffers, so a frame is recordable; the ``bind_*`` methods point it at device
 arrays that other code fills per frame (the frame state's lighting, the animated spheres). On
 the CPU the receiver pass is split into chunks over a small thread pool
