@@ -1,10 +1,27 @@
 """warpshade: soft shadows and relighting for animated USD scenes on NVIDIA Warp.
 
-The package is layered (lower layers never import upper ones)::
+The package is layered; a module imports only modules of its own layer or of layers to its
+left, at module level and inside functions alike (``tests/test_layers.py`` checks it, and that
+there is no import cycle)::
 
-    basis -> geometry -> scene -> io -> transfer -> methods -> reference -> graph -> render -> cli
+    _wp, _fileio, _hashing -> basis -> geometry -> scene -> io -> transfer -> methods -> reference -> graph -> render -> measure -> cli
 
-Only ``warpshade.io`` imports ``pxr``.
+* ``_wp``, ``_fileio``, ``_hashing``: Warp set-up and launch helpers, atomic files, content hashes;
+* ``basis``: spherical functions (SH, ZH, quadrature), no scene objects;
+* ``geometry``: meshes on the device: BVH, normals, skinning, tangent frames, sphere sets;
+* ``scene``: the static ``Scene``, the per-frame ``FrameState`` and the kernels that fill it,
+  lights and their per-frame device form, materials;
+* ``io``: USD and images in and out (the only place that imports ``pxr``);
+* ``transfer``: ray-traced visibility and transfer;
+* ``methods``: one package per technique, each ``stages``/``kernels``/``model``/``reference``/
+  ``rows``/``budget``;
+* ``reference``: brute-force ray-traced ground truth;
+* ``graph``: the stage-graph runtime (TOML specs, cache, precompute, the recorded frame);
+* ``render``: preview images;
+* ``measure``: ground-truth caches, errors, pictures, outputs, error budgets, harness settings;
+* ``cli``: the ``warpshade`` command.
+
+The top-level ``warpshade`` module itself is a facade (``load_usd``, ``load_scene``).
 """
 
 from __future__ import annotations

@@ -74,7 +74,22 @@ def resolve_device(device=None) -> wp.context.Device:
 
 # ---- parallel CPU launches -----------------------------------------------------------------
 def cpu_workers() -> int:
-    """Threads a chunked CPU launch uses: the cores this process may run on (at most 8)."""
+    """Threads a chunked CPU launch uses: ``$WARPSHADE_THREADS`` if set (1 = every CPU launch is
+    one launch, so a recorded CPU frame is one replay), else the cores this process may run on,
+    at most 8.
+
+    Raises:
+        ValueError: ``WARPSHADE_THREADS`` is not a positive integer.
+    """
+    env = os.environ.get("WARPSHADE_THREADS")
+    if env:
+        try:
+            value = int(env)
+        except ValueError:
+            value = 0
+        if value < 1:
+            raise ValueError(f"WARPSHADE_THREADS must be a positive integer, got {env!r}")
+        return value
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     return max(1, min(int(cores), 8))
 

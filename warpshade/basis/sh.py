@@ -39,14 +39,11 @@ private modules that callers need are re-exported here (see ``__all__``); import
 from __future__ import annotations
 
 import math
-import os
-import threading
-from concurrent.futures import ThreadPoolExecutor
 from typing import Callable
 
 import numpy as np
 
-from .._wp import resolve_device, wp
+from .._wp import cpu_workers, launch_parallel, resolve_device, wp
 from . import _conventions, _gaunt, _rotation, _shexp, _shexp_kernels, quadrature
 from ._core import (
     MAX_ORDER,
@@ -196,34 +193,18 @@ def _wp_rows(values: np.ndarray, dev):
 #: (benchmarks/bench_sh.py, "single/chunked").
 CPU_CHUNK_MIN_ROWS = 32768
 
-_pool_lock = threading.Lock()
-_pool: ThreadPoolExecutor | None = None
-
-
 def _launch_rows(kernel, count: int, inputs: list, row_args: set, dev) -> None:
-    """Launch a one-thread-per-row kernel; on the CPU, chunk large launches over a thread pool.
+    """Launch a one-thread-per-row kernel; on the CPU, chunk large launches over a thread pool
+    (:func:`warpshade._wp.launch_parallel`, one chunk per core).
 
     ``row_args`` are the positions in ``inputs`` of arrays indexed by the thread id; they are
     sliced along their first axis per chunk (contiguous views), the others are shared.
     """
-    global _pool
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    workers = min(cores, 8)
-    if not dev.is_cpu or workers < 2 or count < CPU_CHUNK_MIN_ROWS:
-        wp.launch(kernel, dim=count, inputs=inputs, device=dev)
-        return
-    with _pool_lock:
-        if _pool is None:
-            _pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="warpshade-sh")
-    bounds = np.linspace(0, count, workers + 1).astype(int)
 
-    def launch(chunk: int) -> None:
-        lo, hi = int(bounds[chunk]), int(bounds[chunk + 1])
-        args = [a[lo:hi] if i in row_args else a for i, a in enumerate(inputs)]
-        wp.launch(kernel, dim=hi - lo, inputs=args, device=dev)
+    def chunk(lo, hi):
+        return [a[lo:hi] if i in row_args else a for i, a in enumerate(inputs)]
 
-    for future in [_pool.submit(launch, c) for c in range(workers)]:
-        future.result()
+    launch_parallel(kernel, count, chunk, dev, min_count=CPU_CHUNK_MIN_ROWS, chunks=cpu_workers())
 
 
 # ----------------------------------------------------------------------------------------------

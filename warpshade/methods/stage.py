@@ -264,14 +264,12 @@ def register_stage(cls: type[Stage]) -> type[Stage]:
     return cls
 
 
-def _load_builtin_stages() -> None:
-    # Importing the methods package registers every built-in stage type.
-    import warpshade.methods  # noqa: F401
-
-
 def stage_types() -> dict[str, type[Stage]]:
-    """All registered stage types, name -> class."""
-    _load_builtin_stages()
+    """All registered stage types, name -> class.
+
+    The built-in ones are registered by importing :mod:`warpshade.methods` (which Python does
+    before this module: it is the package's), plugins by importing their modules.
+    """
     return dict(_REGISTRY)
 
 

@@ -33,9 +33,12 @@ import numpy as np
 
 from .._wp import HostInput, resolve_device, wp
 
-__all__ = ["Change", "FrameState", "FrameEvaluator", "DEVICE_SAMPLE_BYTES"]
+__all__ = ["Change", "FrameState", "FrameEvaluator", "DEVICE_SAMPLE_BYTES", "CPU_REFIT_NOTE"]
 
 wp.set_module_options({"enable_backward": False})
+
+#: Why the BVH refit is a Python call of a recorded CPU frame (on CUDA it is captured).
+CPU_REFIT_NOTE = "BVH refit: Warp's CPU graph capture does not record wp.Mesh.refit (measured on Warp 1.19)"
 
 #: Deforming meshes whose point samples (all frames) fit in this many bytes are kept on the
 #: device; larger ones are uploaded one frame at a time (a Python call in the frame program).
@@ -347,7 +350,11 @@ class FrameEvaluator:
         if self.state.lighting is not None:
             self.state.lighting.launch()
         if self.state.bvh is not None and self.moving:
-            self.state.bvh.refit()
+            if recorder is not None and self.device.is_cpu:
+                # Warp's CPU capture (1.19) does not record wp.Mesh.refit: a stale BVH would replay
+                recorder.call(self.state.bvh.refit, CPU_REFIT_NOTE)
+            else:
+                self.state.bvh.refit()
 
     def evaluate(self, frame) -> FrameState:
         """:meth:`set_frame` then :meth:`launch` (uncaptured); returns :attr:`state`."""

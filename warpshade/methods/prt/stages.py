@@ -7,6 +7,10 @@
 * ``prt.unshadowed`` (per frame): the cheapest baseline, irradiance indexed by the current
   normal, ``albedo / pi * sum_lm A_l L_lm y_lm(n)`` with the clamped-cosine factors ``A_l``.
   No visibility; valid for deforming meshes too.
+* ``prt.trace`` (per frame): the brute-force baseline every dynamic method has to beat -- the
+  transfer ray traced again at every frame against the frame's BVH (refit inside the recorded
+  frame), then shaded like ``prt.shade``. Exact up to SH truncation and sampling on any
+  animation; costs ``samples`` rays per vertex per frame.
 
 Both clamp negative radiance (SH truncation rings below zero in deep shadow) to zero. The
 stages only declare ports and parameters and bind buffers; the maths is in :mod:`.kernels`,
@@ -22,7 +26,7 @@ from ..stage import Param, Port, Stage, register_stage
 from . import kernels
 from .model import TransferModel, bake_transfer
 
-__all__ = ["TransferStage", "ShadeTransferStage", "UnshadowedStage"]
+__all__ = ["TransferStage", "ShadeTransferStage", "TracedShadeStage", "UnshadowedStage"]
 
 _ORDER = order_param(4, minimum=1, maximum=10)
 _RADIANCE = Port("float32", ("V", 3), "outgoing radiance, linear RGB")
@@ -115,3 +119,41 @@ class UnshadowedStage(Stage):
         self._lighting.launch()
         wp.launch(self._kernel, dim=self._radiance.shape[0], device=self._radiance.device,
                   inputs=[self._normals, self._lighting.light, self._albedo, self._radiance])
+
+
+@register_stage
+class TracedShadeStage(Stage):
+    type_name = "prt.trace"
+    kind = "frame"
+    needs_bvh = True
+    description = "transfer ray traced at every frame against the frame's BVH, then shaded (brute-force baseline)"
+    parameters = {
+        "order": _ORDER,
+        "samples": Param(256, int, "rays per vertex per frame", minimum=16),
+        "seed": Param(0, int, "seed of the per-vertex sample rotations (the same rays every frame)"),
+        **WINDOW_PARAMS,
+    }
+
+    def input_ports(self):
+        return {"points": Port("vec3", ("V",)), "normals": Port("vec3", ("V",)), "albedo": Port("float32", ("V", 3)),
+                "lighting": Port("lighting")}
+
+    def output_ports(self):
+        return {"radiance": _RADIANCE}
+
+    def setup(self, ctx, inputs):
+        from ...transfer import TransferTracer
+
+        p = self.params
+        self._points, self._normals, self._albedo = inputs["points"], inputs["normals"], inputs["albedo"]
+        self._tracer = TransferTracer(ctx.scene, p["order"], p["samples"], space="world", device=ctx.device, seed=p["seed"],
+                                      bvh=ctx.state.bvh)
+        self._lighting = ShLighting.for_stage(inputs["lighting"], p["order"], p)
+        self._radiance = wp.zeros((ctx.dims["V"], 3), dtype=wp.float32, device=ctx.device)
+        return {"radiance": self._radiance}
+
+    def launch(self, state):
+        self._tracer.launch(self._points, self._normals)
+        self._lighting.launch()
+        wp.launch(kernels.shade_transfer_kernel, dim=self._radiance.shape[0], device=self._radiance.device,
+                  inputs=[self._tracer.transfer_sh, self._lighting.light, self._albedo, self._radiance])
