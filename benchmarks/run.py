@@ -36,99 +36,34 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from warpshade._fileio import atomic_path, write_json_atomic, write_text_atomic  # noqa: E402
-from warpshade._wp import wp  # noqa: E402
-from warpshade.graph import GraphSpec, LightingSource, StageSpec, error_metrics, combine_metrics  # noqa: E402
-from warpshade.graph.cache import ArtifactCache, default_cache_dir, hash_json  # noqa: E402
-from warpshade.graph.runtime import scene_fingerprint  # noqa: E402
+from warpshade._wp import cpu_workers, wp  # noqa: E402
+from warpshade.graph.cache import ArtifactCache  # noqa: E402
+from warpshade.measure import (  # noqa: E402
+    BENCH_SCENES,
+    ground_truth,
+    load_bench_scene,
+    pick_frames,
+    reference_model,
+    run_setting,
+    scene_kinds,
+    setting_error,
+)
+from warpshade.measure.scenes import ROTATE_DEGREES_PER_FRAME  # noqa: E402
 from warpshade.methods.harness import all_rows  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
-
-#: Bundled scenes: spec, load options, and how many frames a static scene is given (the
-#: lighting rotates over them, so a static scene still has per-frame work).
-SCENES = {
-    "bunny": {"spec": "warp-example:bunny", "options": {"ground_plane": True}},
-    "bear": {"spec": "warp-example:bear", "options": {"ground_plane": True}},
-    "blockers": {"spec": str(ROOT / "usd_assets" / "blockers.usda"), "options": {}},
-    "figure": {"spec": str(ROOT / "usd_assets" / "figure.usda"), "options": {}},
-    "cloth": {"spec": str(ROOT / "usd_assets" / "cloth.usda"), "options": {}},
-    "bend": {"spec": str(ROOT / "usd_assets" / "bend.usda"), "options": {}},
-}
-STATIC_FRAME_COUNT = 24
-ROTATE_DEGREES_PER_FRAME = 5.0
+SCENES = BENCH_SCENES
 
 
-def scene_kinds(scene) -> set:
-    kinds = {"all", "static" if scene.is_static else "dynamic"}
-    kinds |= {m.animation for m in scene.meshes if m.animation in ("skinned", "deforming")}
-    return kinds
-
-
-def load_bench_scene(key):
-    from warpshade.graph.graph import extend_static_frames
-    from warpshade.io import load_scene
-
-    cfg = SCENES[key]
-    scene = load_scene(cfg["spec"], **cfg["options"])
-    if scene.is_static:
-        scene = extend_static_frames(scene, STATIC_FRAME_COUNT)
-    return scene
-
-
-def pick_frames(scene, count):
-    f = scene.frames
-    idx = np.unique(np.linspace(0, len(f) - 1, count).round().astype(int))
-    return f[idx]
-
-
-def ground_truth(scene, lighting, frames, samples, device, cache, model=None):
-    """Reference radiance and standard error per frame, cached by scene/lighting/frame/samples.
-
-    ``model=None`` gives the diffuse reference; a stage's ``reference_model`` (BRDF, eye,
-    colour) gives the glossy one.
-    """
-    from warpshade.reference import shade_glossy
-    from warpshade.reference.shading import ESTIMATOR_VERSION, shade
-
-    fp = scene_fingerprint(scene)
-    if model is None:
-        tag, desc = "gt-", {"estimator": ESTIMATOR_VERSION}
-    else:
-        tag = "gt-glossy-"
-        desc = {"model": {"brdf": model["brdf"].describe(), "eye": np.asarray(model["eye"]).tolist(),
-                          "color": np.asarray(model["color"]).tolist()}}
-    out = {}
-    for f in frames:
-        key = tag + hash_json({"scene": fp, "frame": float(f), "samples": samples, **desc,
-                               "lighting": lighting.fingerprint()})[:32]
-        hit = cache.load(key)
-        if hit is None:
-            t0 = time.perf_counter()
-            if model is None:
-                res = shade(scene, f, lighting.lights_at(f), samples, device=device, seed=12345)
-            else:
-                res = shade_glossy(scene, f, lighting=lighting.lights_at(f), samples=samples, device=device,
-                                   seed=12345, **model)
-            hit = {"radiance": np.asarray(res.radiance), "stderr": np.asarray(res.stderr)}
-            cache.store(key, hit)
-            kind = "ground truth" if model is None else "glossy ground truth"
-            print(f"    {kind} frame {f:g}: {samples} spp in {time.perf_counter() - t0:.1f} s", flush=True)
-        out[float(f)] = hit
-    return out
-
-
-def run_row(row, scene, lighting, device, timing_frames, gt, precompute_cache, progress=False, glossy_gt=None):
-    """Run one row; ``precompute_cache`` = (ArtifactCache private to this harness run, dict of
+def run_row(row, scene, lighting, device, timing_frames, gt_frames, truth_for, precompute_cache, progress=False):
+    """Run one row; ``truth_for(model)`` gives the (cached) ground truth the row's output is
+    measured against; ``precompute_cache`` = (ArtifactCache private to this harness run, dict of
     artifact key -> seconds it took when it was computed), so rows sharing a precompute (the
     same sphere set, the same transfer) compute it once and all report its real cost."""
-    spec = GraphSpec(
-        stages=[StageSpec(n, t, dict(p), dict(i)) for (n, t, p, i) in row.stages],
-        output=row.output, name=f"{row.method}-{row.setting}".replace(" ", "-"),
-    )
     cache, seconds_by_key = precompute_cache
-    t0 = time.perf_counter()
-    rt = spec.compile(scene, device=device, cache_dir=cache.root, progress=progress, lighting=lighting)
-    compile_s = time.perf_counter() - t0
+    res = run_setting(scene, lighting, row.stages, gt_frames, output=row.output, timing_frames=timing_frames, device=device,
+                      cache_dir=cache.root, name=f"{row.method}-{row.setting}".replace(" ", "-"), progress=progress)
+    rt = res["runtime"]
     precompute_s = 0.0
     for name, timing in rt.timings.items():
         key = rt.artifact_keys.get(name)
@@ -137,35 +72,23 @@ def run_row(row, scene, lighting, device, timing_frames, gt, precompute_cache, p
         if timing.cache == "miss":
             seconds_by_key[key] = timing.precompute_s
         precompute_s += seconds_by_key.get(key, timing.precompute_s)
-    out_stage = next(s for s in rt.stages if s.name == row.output.split(".", 1)[0])
-    model = out_stage.reference_model(rt)
-    reference = "diffuse"
-    if model is not None:  # e.g. glossy LDPRT: measured against the glossy reference
-        gt = glossy_gt(model)
-        reference = f"glossy {model['brdf'].name}"
-    rt.run(timing_frames, record=True, warmup=True)
-    timing = rt.timing_summary()
-    per_frame = []
-    for f, ref in gt.items():
-        est = rt.results.get(f)
-        if est is None:
-            est = rt.step(f).numpy().copy()
-        m = error_metrics(est, ref["radiance"], ref["stderr"])
-        m["frame"] = f
-        per_frame.append(m)
-    err = combine_metrics(per_frame)
+    model = reference_model(rt)
+    reference = "diffuse" if model is None else f"glossy {model['brdf'].name}"  # e.g. glossy LDPRT
+    err = setting_error(res["radiance"], truth_for(model))
+    per_frame = err.pop("per_frame")
     return {
         "method": row.method,
         "setting": row.setting,
         "params": [dict(name=n, type=t, **p) for (n, t, p, _) in row.stages],
         "notes": row.notes,
-        "median_frame_ms": 1e3 * timing["median_frame_s"],
-        "median_host_ms": 1e3 * timing["median_host_s"],
-        "stage_ms": {k: 1e3 * v["median_frame_s"] for k, v in timing["stages"].items() if v.get("median_frame_s") is not None},
+        "median_frame_ms": res["frame_ms"],
+        "median_host_ms": res["host_ms"],
+        "stage_ms": res["stage_ms"],
+        "uncaptured": res["uncaptured"],
         "precompute_s": precompute_s,
-        "compile_and_setup_s": compile_s,
-        "model_bytes": rt.model_bytes(),
-        "frames_timed": timing["frames_timed"],
+        "compile_and_setup_s": res["compile_s"],
+        "model_bytes": res["model_bytes"],
+        "frames_timed": res["frames_timed"],
         "error": err,
         "error_per_frame": per_frame,
         "reference": reference,
@@ -301,30 +224,28 @@ def main(argv=None) -> int:
     gt_count = 1 if args.quick else 2
     out_dir = Path(args.out)
     out_dir.mkdir(parents=True, exist_ok=True)
-    cache = ArtifactCache(default_cache_dir() / "harness")
     date = datetime.date.today().isoformat()
 
     for device in devices:
         results = []
         scratch = tempfile.TemporaryDirectory(prefix="warpshade-harness-")
-        precompute_cache = (ArtifactCache(scratch.name), {})
+        precompute_cache = (ArtifactCache(scratch.name), {})  # ground truth stays in the shared truth cache
         t_all = time.perf_counter()
         for key in scene_keys:
-            scene = load_bench_scene(key)
+            scene, lighting = load_bench_scene(key)
             kinds = scene_kinds(scene) | {key}
             applicable = [r for r in rows if kinds & set(r.scenes)]
             if not applicable:
                 continue
             print(f"[{device}] {key}: {scene.vertex_count:,} vertices, {len(scene.frames)} frames, {len(applicable)} rows", flush=True)
-            lighting = LightingSource(scene.lights, scene.up_axis, ROTATE_DEGREES_PER_FRAME, float(scene.frames[0]))
             gt_frames = pick_frames(scene, gt_count + 2)[1:-1] if gt_count < len(scene.frames) else scene.frames
-            gt = ground_truth(scene, lighting, gt_frames, gt_samples, device, cache)
+            ground_truth(scene, lighting, gt_frames, gt_samples, device, progress=True)  # diffuse, computed up front
             t_frames = pick_frames(scene, timing_frames)
             for row in applicable:
                 try:
-                    r = run_row(row, scene, lighting, device, t_frames, gt, precompute_cache,
-                                glossy_gt=lambda model: ground_truth(scene, lighting, gt_frames, gt_samples, device,
-                                                                     cache, model))
+                    r = run_row(row, scene, lighting, device, t_frames, gt_frames,
+                                lambda model: ground_truth(scene, lighting, gt_frames, gt_samples, device, model=model,
+                                                           progress=True), precompute_cache)
                 except Exception as exc:  # a failing row is reported, never silently dropped
                     print(f"    {row.label:28s} FAILED: {exc}", flush=True)
                     results.append({"scene": key, "device": device, "method": row.method, "setting": row.setting,
@@ -342,6 +263,7 @@ def main(argv=None) -> int:
             "date": date, "device": device, "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores",
             "warp": wp.config.version, "gt_samples": gt_samples, "timing_frames": timing_frames, "quick": args.quick,
             "rotate_degrees_per_frame": ROTATE_DEGREES_PER_FRAME,
+            "threads": cpu_workers() if device == "cpu" else None,
             "command": "python benchmarks/run.py" + (" --quick" if args.quick else ""),
             "seconds": time.perf_counter() - t_all,
         }
