@@ -3,17 +3,77 @@
 Every file warpshade writes (USD layers, images, reports, cached artifacts, benchmark results)
 goes through :func:`atomic_path`, so an interrupted run never leaves a truncated file where a
 complete one is expected, and a reader sees either the old file or the new one.
+
+Temporary files are named ``.<stem>-<pid>-<random><suffix>``. A process killed while writing
+(SIGKILL: no clean-up runs) leaves its temporary file behind; the next write to the same
+destination removes those of processes that no longer run (:func:`remove_stale_temporaries`).
 """
 
 from __future__ import annotations
 
 import json
 import os
+import re
 import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 
-__all__ = ["atomic_path", "write_text_atomic", "write_json_atomic"]
+__all__ = ["atomic_path", "write_text_atomic", "write_json_atomic", "remove_stale_temporaries", "check_writable_dir"]
+
+
+def _pid_alive(pid: int) -> bool:
+    if pid <= 0:
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # alive, owned by someone else
+        return True
+    return True
+
+
+def remove_stale_temporaries(path) -> list[Path]:
+    """Remove the temporary files of :func:`atomic_path` for ``path`` left by dead processes.
+
+    Returns:
+        The removed paths.
+    """
+    path = Path(path)
+    pattern = re.compile(rf"^\.{re.escape(path.stem)}-(\d+)-.+{re.escape(path.suffix)}$")
+    removed = []
+    try:
+        entries = list(path.parent.iterdir())
+    except OSError:
+        return removed
+    for entry in entries:
+        m = pattern.match(entry.name)
+        if m and int(m.group(1)) != os.getpid() and not _pid_alive(int(m.group(1))):
+            try:
+                entry.unlink()
+                removed.append(entry)
+            except OSError:
+                pass
+    return removed
+
+
+def check_writable_dir(directory, what: str = "output directory") -> Path:
+    """Create ``directory`` if needed and check that files can be created in it.
+
+    Raises:
+        OSError: naming the directory (it is a file, or cannot be created or written).
+    """
+    d = Path(directory)
+    if d.exists() and not d.is_dir():
+        raise NotADirectoryError(f"{what} {d} is an existing file, not a directory")
+    try:
+        d.mkdir(parents=True, exist_ok=True)
+        fd, probe = tempfile.mkstemp(prefix=f".warpshade-probe-{os.getpid()}-", dir=d)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        raise PermissionError(f"{what} {d} is not writable ({exc.strerror or exc})") from None
+    return d
 
 
 @contextmanager
@@ -31,8 +91,12 @@ def atomic_path(path, suffix: str | None = None, exists: bool = True):
     exception the temporary file is removed and ``path`` is left untouched.
     """
     path = Path(path)
+    if path.exists() and path.is_dir():
+        raise IsADirectoryError(f"cannot write {path}: it is a directory")
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}-", suffix=suffix if suffix is not None else path.suffix, dir=path.parent)
+    remove_stale_temporaries(path if suffix is None else path.with_suffix(suffix))
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}-{os.getpid()}-", suffix=suffix if suffix is not None else path.suffix,
+                               dir=path.parent)
     os.close(fd)
     if not exists:
         os.unlink(tmp)

@@ -41,20 +41,46 @@ __all__ = [
 ]
 
 _initialised = False
+#: What Warp's native start-up printed (e.g. that no CUDA driver was found); shown only when a
+#: CUDA device is asked for, or with WARPSHADE_VERBOSE set.
+_init_messages = ""
 
 
 def init() -> None:
-    """Initialise Warp once, without the start-up banner unless WARPSHADE_VERBOSE is set."""
-    global _initialised
+    """Initialise Warp once, quietly unless WARPSHADE_VERBOSE is set.
+
+    Warp's native library reports a missing CUDA driver on stderr at start-up, on every machine
+    without a GPU; that note is kept (:func:`resolve_device` repeats it when a CUDA device is
+    asked for) instead of being printed by every command.
+    """
+    global _initialised, _init_messages
     if _initialised:
         return
-    if not os.environ.get("WARPSHADE_VERBOSE"):
-        # Warp >= 1.10 uses log_level; older versions use the quiet flag.
-        if hasattr(wp, "LOG_WARNING"):
-            wp.config.log_level = wp.LOG_WARNING
-        wp.config.quiet = True
-    wp.init()
+    if os.environ.get("WARPSHADE_VERBOSE"):
+        wp.init()
+        _initialised = True
+        return
+    # Warp >= 1.10 uses log_level; older versions use the quiet flag.
+    if hasattr(wp, "LOG_WARNING"):
+        wp.config.log_level = wp.LOG_WARNING
+    wp.config.quiet = True
+    import sys
+    import tempfile
+
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as captured:
+        os.dup2(captured.fileno(), 2)
+        try:
+            wp.init()
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            captured.seek(0)
+            _init_messages = captured.read().decode(errors="replace").strip()
     _initialised = True
+    if _init_messages and "CUDA driver" not in _init_messages:
+        print(_init_messages, file=sys.stderr)  # anything else Warp said is worth seeing
 
 
 def resolve_device(device=None) -> wp.context.Device:
@@ -69,7 +95,8 @@ def resolve_device(device=None) -> wp.context.Device:
         return wp.get_device(device)
     except Exception as exc:  # Warp raises RuntimeError / ValueError depending on version
         available = ", ".join(str(d) for d in wp.get_devices())
-        raise ValueError(f"device {device!r} is not available (available: {available})") from exc
+        note = f"; Warp: {_init_messages}" if _init_messages and "cuda" in str(device).lower() else ""
+        raise ValueError(f"device {device!r} is not available (available: {available}){note}") from exc
 
 
 # ---- parallel CPU launches -----------------------------------------------------------------

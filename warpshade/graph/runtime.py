@@ -54,15 +54,30 @@ def parse_frames(spec, scene) -> np.ndarray:
     if spec is None:
         return frames.copy()
     if isinstance(spec, (list, tuple, np.ndarray)):
+        if len(spec) == 0:
+            raise ValueError("the list of frames is empty")
         return np.array([scene.frames[scene.frame_index(f)] for f in spec])
-    text = str(spec).strip()
+    if not isinstance(spec, str):
+        raise TypeError(f"frames must be 'A:B', one time code or a list of time codes, got {spec!r}")
+
+    def number(part: str, default: float) -> float:
+        if not part.strip():
+            return default
+        try:
+            value = float(part)
+        except ValueError:
+            raise ValueError(f"{part.strip()!r} in {spec!r} is not a number (expected 'A:B', 'A' or a list)") from None
+        if not np.isfinite(value):
+            raise ValueError(f"{spec!r} is not a finite time code")
+        return value
+
+    text = spec.strip()
     if ":" in text:
         a, b = text.split(":", 1)
-        lo = float(a) if a.strip() else -np.inf
-        hi = float(b) if b.strip() else np.inf
+        lo, hi = number(a, -np.inf), number(b, np.inf)
         sel = frames[(frames >= lo) & (frames < hi)]
     else:
-        sel = np.array([frames[scene.frame_index(float(text))]])
+        sel = np.array([frames[scene.frame_index(number(text, np.nan))]])
     if sel.size == 0:
         raise ValueError(
             f"frames {spec!r} select nothing from the scene's time codes {frames[0]:g}..{frames[-1]:g}"
@@ -104,6 +119,47 @@ def _unflatten(flat: dict, ports: dict) -> dict:
 
 
 _DTYPES = {"float32": wp.float32, "float64": wp.float64, "int32": wp.int32, "vec3": wp.vec3, "mat33": wp.mat33}
+#: NumPy dtype kind and trailing element shape of the artifact of each array port dtype.
+_ARTIFACT_LAYOUT = {"float32": ("f", ()), "float64": ("f", ()), "int32": ("iu", ()), "vec3": ("f", (3,)), "mat33": ("f", (3, 3))}
+
+
+def artifact_problem(port: Port, value, dims: dict) -> str | None:
+    """Why ``value`` is not a valid artifact of ``port`` (None when it is).
+
+    Checks the dtype kind, the shape against the port's (symbols resolved with ``dims``; vec3 and
+    mat33 ports hold trailing 3 / 3x3 float axes) and, for floats, that every value is finite.
+    An "arrays" port needs a dict of numeric arrays with finite floats.
+    """
+    if port.dtype == "arrays":
+        if not isinstance(value, dict):
+            return "is not a set of named arrays"
+        for k, v in value.items():
+            a = np.asarray(v)
+            if a.dtype.kind == "O":
+                return f"entry {k!r} holds Python objects"
+            if a.dtype.kind == "f" and not np.all(np.isfinite(a)):
+                return f"entry {k!r} has NaN or infinite values"
+        return None
+    if port.dtype not in _ARTIFACT_LAYOUT:
+        return None
+    kinds, inner = _ARTIFACT_LAYOUT[port.dtype]
+    a = np.asarray(value)
+    if a.dtype.kind not in kinds:
+        return f"has dtype {a.dtype}, the port is {port.dtype}"
+    want = tuple(dims.get(d, d) if isinstance(d, str) else int(d) for d in port.shape)
+    shape = a.shape
+    if inner:
+        flat = (int(np.prod(inner)),)
+        if shape[len(want):] == flat:
+            shape = shape[: len(want)] + inner
+        if shape[len(want):] != inner:
+            return f"has shape {a.shape}, the port is {port.dtype} of shape {want}"
+        shape = shape[: len(want)]
+    if len(shape) != len(want) or any(isinstance(w, int) and w != s for w, s in zip(want, shape)):
+        return f"has shape {a.shape}, the port needs {want}"
+    if a.dtype.kind == "f" and not np.all(np.isfinite(a)):
+        return f"has {int(np.count_nonzero(~np.isfinite(a)))} NaN or infinite values"
+    return None
 
 
 def _to_device(array: np.ndarray, port: Port, device, where: str):
@@ -187,17 +243,34 @@ class Runtime:
             raise GraphError(f"scene port {wire.port!r} is per-frame")
         return self.artifacts[wire.provider][wire.port]
 
-    def _valid_cached(self, st, cached, ports):
-        """The cached artifact of ``st`` when it has every port and passes the stage's check."""
+    def _artifact_problems(self, st, out: dict, ports: dict) -> list[str]:
+        dims = {**self.ctx.dims, **st.dims()}
+        problems = []
+        for name, port in ports.items():
+            if name not in out:
+                problems.append(f"output {name!r} is missing")
+                continue
+            why = artifact_problem(port, out[name], dims)
+            if why:
+                problems.append(f"output {name!r} {why}")
+        return problems
+
+    def _valid_cached(self, st, key, cached, ports):
+        """The cached artifact of ``st`` when it matches the stage's ports and passes its check;
+        else None, the entry is removed and the reason recorded in :attr:`stale_artifacts`."""
         if cached is None:
             return None
         out = _unflatten(cached, ports)
-        if not set(out) >= set(ports):
-            return None
-        try:
-            st.check_artifact({k: v for k, v in out.items() if k in ports})
-        except (ValueError, KeyError) as exc:
-            self.stale_artifacts.append(f"{st.name}: {exc}")
+        problems = self._artifact_problems(st, out, ports)
+        if not problems:
+            try:
+                st.check_artifact({k: v for k, v in out.items() if k in ports})
+            except (ValueError, KeyError) as exc:
+                problems = [str(exc)]
+        if problems:
+            reason = "; ".join(problems)
+            self.stale_artifacts.append(f"{st.name}: {reason}")
+            self.cache.discard(key, f"stage {st.name!r}: {reason}")
             return None
         return out
 
@@ -220,22 +293,23 @@ class Runtime:
             key = f"{st.type_name.replace('.', '-')}-{hash_json(key_parts)[:32]}"
             self.artifact_keys[st.name] = key
             t0 = time.perf_counter()
+            damaged_before = len(self.cache.damaged)
             cached = self.cache.load(key)
+            for path, why in self.cache.damaged[damaged_before:]:
+                self.stale_artifacts.append(f"{st.name}: cache entry {path} {why}")
             timing = self.timings[st.name]
             ports = st.output_ports()
-            out = self._valid_cached(st, cached, ports)
+            out = self._valid_cached(st, key, cached, ports)
             if out is not None:
                 timing.cache = "hit"
                 if _REPORT_KEY in out:
                     st.report = json.loads(str(out.pop(_REPORT_KEY)))
             else:
                 out = st.precompute(self.ctx, inputs)
-                missing = set(ports) - set(out)
-                if missing:
-                    raise GraphError(f"stage {st.name!r}: precompute did not produce {sorted(missing)}")
-                for name, port in ports.items():
-                    if port.dtype == "arrays" and not isinstance(out[name], dict):
-                        raise GraphError(f"stage {st.name!r}: output {name!r} must be a dict of arrays")
+                problems = self._artifact_problems(st, out, ports)
+                if problems:
+                    raise GraphError(f"stage {st.name!r} ({st.type_name}): its precompute produced an invalid artifact: "
+                                     + "; ".join(problems))
                 timing.cache = "miss" if self.cache.enabled else "off"
                 stored = _flatten(out, ports)
                 if st.report:

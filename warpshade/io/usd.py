@@ -73,9 +73,11 @@ from __future__ import annotations
 import math
 import os
 import warnings
+from pathlib import Path
 
 import numpy as np
 
+from .._limits import MAX_TIME_CODES
 from ..scene import lighting
 from ..scene.scene import Camera, Mesh, Scene, Skeleton, SkinBinding
 
@@ -189,13 +191,45 @@ def load_usd(path) -> Scene:
     from pxr import Usd
 
     path = resolve_scene_path(path)
-    try:
-        stage = Usd.Stage.Open(path, Usd.Stage.LoadAll)
-    except Exception as exc:  # pxr.Tf.ErrorException
-        raise ValueError(f"USD file {path}: cannot be opened as a USD stage ({_first_line(exc)})") from exc
+    if Path(path).is_dir():
+        raise ValueError(f"USD file {path}: is a directory")
+    with _quiet_stderr() as printed:
+        try:
+            stage = Usd.Stage.Open(path, Usd.Stage.LoadAll)
+        except Exception as exc:  # pxr.Tf.ErrorException
+            raise ValueError(f"USD file {path}: cannot be opened as a USD stage ({_first_line(exc)})") from exc
     if stage is None:
-        raise ValueError(f"USD file {path}: cannot be opened as a USD stage")
+        raise ValueError(f"USD file {path}: cannot be opened as a USD stage" + (f" ({printed[0]})" if printed else ""))
+    errors = [str(e).strip() for e in stage.GetCompositionErrors()]
+    if errors:
+        more = f" (and {len(errors) - 1} more composition error(s))" if len(errors) > 1 else ""
+        raise ValueError(f"USD file {path}: {errors[0]}{more}")
     return _StageReader(stage, path).read()
+
+
+class _quiet_stderr:
+    """Collect what the USD libraries print on stderr while a stage is opened (their warnings
+    about missing layers become one clear error instead of a screenful); yields the lines."""
+
+    def __enter__(self):
+        import sys
+        import tempfile
+
+        sys.stderr.flush()
+        self._lines: list[str] = []
+        self._file = tempfile.TemporaryFile()
+        self._saved = os.dup(2)
+        os.dup2(self._file.fileno(), 2)
+        return self._lines
+
+    def __exit__(self, *exc):
+        os.dup2(self._saved, 2)
+        os.close(self._saved)
+        self._file.seek(0)
+        text = self._file.read().decode(errors="replace")
+        self._file.close()
+        self._lines.extend(line.strip() for line in text.splitlines() if line.strip())
+        return False
 
 
 def _value_or(value, fallback: float) -> float:
@@ -232,6 +266,10 @@ class _StageReader:
         start, end = float(st.GetStartTimeCode()), float(st.GetEndTimeCode())
         if not (math.isfinite(start) and math.isfinite(end)) or end < start:
             raise ValueError(f"USD file {self.path}: invalid time code range {start}..{end}")
+        count = math.floor(end) - math.ceil(start) + 1
+        if count > MAX_TIME_CODES:
+            raise ValueError(f"USD file {self.path}: startTimeCode {start:g} .. endTimeCode {end:g} spans {count:,} time codes; "
+                             f"at most {MAX_TIME_CODES:,} are sampled (warpshade._limits.MAX_TIME_CODES)")
         frames = np.arange(math.ceil(start), math.floor(end) + 1, dtype=np.float64)
         if frames.size == 0:
             frames = np.array([start])

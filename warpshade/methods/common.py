@@ -16,7 +16,7 @@ from .._wp import wp
 from ..basis import sh
 from .stage import Param
 
-__all__ = ["order_param", "WINDOW", "WINDOW_SIZE", "WINDOW_PARAMS", "window_args", "band_weights", "ShLighting"]
+__all__ = ["order_param", "rays_param", "WINDOW", "WINDOW_SIZE", "WINDOW_PARAMS", "window_args", "band_weights", "ShLighting"]
 
 wp.set_module_options({"enable_backward": False})
 
@@ -24,6 +24,13 @@ wp.set_module_options({"enable_backward": False})
 def order_param(default: int = 4, minimum: int = 1, maximum: int = 10) -> Param:
     """The SH order parameter ``order`` (n bands, n*n coefficients) with a method's range."""
     return Param(default, int, "SH order n (n*n coefficients)", minimum=minimum, maximum=maximum)
+
+
+def rays_param(default: int, doc: str = "rays per vertex", minimum: int = 16) -> Param:
+    """A ray-count parameter, bounded by :data:`warpshade._limits.MAX_RAYS_PER_VERTEX`."""
+    from .._limits import MAX_RAYS_PER_VERTEX
+
+    return Param(default, int, doc, minimum=minimum, maximum=MAX_RAYS_PER_VERTEX)
 
 
 #: SH window of the lighting (and, for SHEXP, the visibility).

@@ -31,6 +31,7 @@ its own through :meth:`Stage.dims`.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -103,6 +104,10 @@ class Param:
             raise StageError(
                 f"stage {stage!r}: parameter {name!r} must be {self.type.__name__}, got {value!r}"
             )
+        if self.type is float and not math.isfinite(value):
+            raise StageError(f"stage {stage!r}: parameter {name!r} must be finite, got {value!r}")
+        if self.type is tuple and any(isinstance(x, float) and not math.isfinite(x) for x in value):
+            raise StageError(f"stage {stage!r}: parameter {name!r} must hold finite numbers, got {value!r}")
         if self.choices is not None and value not in self.choices:
             raise StageError(f"stage {stage!r}: parameter {name!r} must be one of {self.choices}, got {value!r}")
         if self.minimum is not None and value < self.minimum:

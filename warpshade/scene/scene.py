@@ -339,7 +339,17 @@ class Scene:
         return all(m.animation == "static" or (m.animation == "rigid" and m.transforms.shape[0] == 1) for m in self.meshes)
 
     def frame_index(self, frame: float) -> int:
-        """Index of a time code in ``frames``; raises ValueError naming the valid range."""
+        """Index of a time code in ``frames``.
+
+        Raises:
+            TypeError: ``frame`` is not a number (a string, a bool).
+            ValueError: it is not finite, or not one of the sampled time codes (the message
+                names the valid range).
+        """
+        if isinstance(frame, (bool, np.bool_)) or not isinstance(frame, (int, float, np.integer, np.floating)):
+            raise TypeError(f"frame must be a number (a time code), got {frame!r}")
+        if not np.isfinite(frame):
+            raise ValueError(f"frame must be a finite time code, got {frame!r}")
         idx = int(np.argmin(np.abs(self.frames - float(frame))))
         if abs(self.frames[idx] - float(frame)) > 1e-6:
             raise ValueError(

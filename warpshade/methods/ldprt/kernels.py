@@ -16,8 +16,7 @@ from the lighting SH. The linear band turns like a vector: local coefficients
 
 import functools
 
-import warp as wp
-
+from ..._wp import wp
 from ...basis.sh_warp import SHTables, sh_kernels
 from ...basis.zh import zh_kernels
 

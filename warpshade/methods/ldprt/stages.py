@@ -34,7 +34,7 @@ import numpy as np
 from ..._wp import wp
 from ...basis.zh import DEFAULT_RIDGE as _RIDGE
 from ...basis.sh_warp import sh_kernels
-from ..common import ShLighting, order_param
+from ..common import ShLighting, order_param, rays_param
 from ..stage import Param, Port, Stage, StageError, register_stage
 from . import kernels
 from .glossy import BRDF_KINDS
@@ -55,7 +55,7 @@ __all__ = [
 
 _ORDER = order_param(4, minimum=1, maximum=8)
 _LOBES = Param(4, int, "lobes per vertex (the maximum when target_error is set)", minimum=1, maximum=8)
-_SAMPLES = Param(256, int, "rays per vertex of the transfer simulation", minimum=16)
+_SAMPLES = rays_param(256, "rays per vertex of the transfer simulation")
 _FRAME = Param(None, float, "time code of the bake pose (default: the scene's first frame)")
 
 
@@ -438,7 +438,7 @@ class WrinkleTableStage(Stage):
     description = "sinusoidal groove transfer ray traced over (phase, depth), fitted with 3 bilinear ZH lobes"
     parameters = {
         "order": Param(4, int, "SH order n", minimum=3, maximum=8),
-        "samples": Param(512, int, "rays per groove sample", minimum=16),
+        "samples": rays_param(512, "rays per groove sample"),
         "phase_samples": Param(32, int, "phases traced per groove period", minimum=4),
         "depth_samples": Param(10, int, "depths traced from 0 to max_depth", minimum=2),
         "phase_controls": Param(16, int, "control points of the bilinear model in phase (periodic)", minimum=2),

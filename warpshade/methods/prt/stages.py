@@ -21,7 +21,7 @@ from __future__ import annotations
 
 from ..._wp import wp
 from ...basis import sh
-from ..common import WINDOW_PARAMS, ShLighting, order_param
+from ..common import WINDOW_PARAMS, ShLighting, order_param, rays_param
 from ..stage import Param, Port, Stage, register_stage
 from . import kernels
 from .model import TransferModel, bake_transfer
@@ -39,7 +39,7 @@ class TransferStage(Stage):
     description = "ray-traced diffuse transfer vectors per vertex (world frame) at one frame"
     parameters = {
         "order": _ORDER,
-        "samples": Param(256, int, "rays per vertex", minimum=16),
+        "samples": rays_param(256, "rays per vertex"),
         "frame": Param(None, float, "time code to bake (default: the scene's first frame)"),
         "seed": Param(0, int, "seed of the per-vertex sample rotations"),
     }
@@ -129,7 +129,7 @@ class TracedShadeStage(Stage):
     description = "transfer ray traced at every frame against the frame's BVH, then shaded (brute-force baseline)"
     parameters = {
         "order": _ORDER,
-        "samples": Param(256, int, "rays per vertex per frame", minimum=16),
+        "samples": rays_param(256, "rays per vertex per frame"),
         "seed": Param(0, int, "seed of the per-vertex sample rotations (the same rays every frame)"),
         **WINDOW_PARAMS,
     }

@@ -28,7 +28,7 @@ import numpy as np
 
 from ..._wp import wp
 from ...basis import sh
-from ..common import WINDOW, WINDOW_SIZE, ShLighting, band_weights, order_param
+from ..common import WINDOW, WINDOW_SIZE, ShLighting, band_weights, order_param, rays_param
 from ..stage import Param, Port, Stage, StageError, register_stage
 from . import kernels
 from .blockers import BlockerFrames, BlockerModel, build_blocker_model, static_mesh_mask
@@ -118,7 +118,7 @@ class StaticBakeStage(Stage):
     type_name = "shexp.static_bake"
     kind = "precompute"
     description = "cosine-weighted visibility of static occluders for static receivers (sec. 7)"
-    parameters = {"order": _ORDER, "samples": Param(256, int, "rays per receiver", minimum=16),
+    parameters = {"order": _ORDER, "samples": rays_param(256, "rays per receiver"),
                   "seed": Param(0, int, "seed of the per-vertex sample rotations")}
 
     def dims(self):
@@ -252,7 +252,7 @@ class SphereTraceStage(Stage):
     kind = "frame"
     description = "ray tracing against the blocker spheres instead of the mesh (paper Fig. 7b)"
     parameters = {
-        "samples": Param(512, int, "rays per receiver (MIS: half cosine, half environment)", minimum=4),
+        "samples": rays_param(512, "rays per receiver (MIS: half cosine, half environment)", minimum=4),
         "rule": Param("continuous", str, "self-shadowing rule applied to the spheres", choices=kernels.RULES),
         "seed": Param(0, int, "random seed"),
     }
