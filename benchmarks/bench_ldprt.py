@@ -10,18 +10,20 @@ scene, lighting and frames:
   direct SH evaluation, and the full local SH transfer rotated per vertex (no ZH fit);
 
 errors (relative RMS over vertices, debiased by the ground truth's own noise, and per mesh) on
-several frames, median time per frame over all 60 frames, precompute time.
+several frames, median time per frame over all 60 frames (the recorded frame replayed), the
+time of each stage (a profile over every frame), precompute time.
 
 Part 2 -- shading cost per vertex, measured side by side in one run on synthetic per-vertex
 data: light-specialised table (O(nN)) vs direct SH evaluation at the rotated axes (O(n^2 N)) vs
 rotating the full SH transfer vector with the zxzxz rotation (O(n^3)), for n = 4, 6 and
 N = 1..4; ratios to the table variant. Also the table build time and its interpolation error.
 
-Writes ``benchmarks/results/ldprt-<date>-cpu[-quick].json`` and ``...-errors.png`` / ``...-cost.png``.
+Writes ``ldprt-<date>-cpu[-quick].json`` and ``...-errors.png`` / ``...-cost.png`` into ``--out``
+(default ``benchmarks/results``).
 
 Usage::
 
-    python benchmarks/bench_ldprt.py [--quick] [--scenes figure,bend] [--order 4] [--gt-samples 2048]
+    python benchmarks/bench_ldprt.py [--quick] [--scenes figure,bend] [--order 4] [--gt-samples 2048] [--out DIR]
 """
 
 from __future__ import annotations
@@ -40,20 +42,22 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from warpshade._fileio import atomic_path, write_json_atomic
-from warpshade._wp import wp
-from warpshade.graph import (
-    GraphSpec,
-    LightingSource,
-    StageSpec,
+from warpshade._wp import resolve_device, wp
+from warpshade.measure import (
     combine_metrics,
     error_metrics,
+    ground_truth,
+    load_bench_scene,
+    pick_frames,
+    run_setting,
+    setting_error,
 )
-from warpshade.graph.cache import ArtifactCache, default_cache_dir, hash_json
-from warpshade.graph.runtime import scene_fingerprint
 
 RESULTS = ROOT / "benchmarks" / "results"
-SCENES = {"figure": ROOT / "usd_assets" / "figure.usda", "bend": ROOT / "usd_assets" / "bend.usda",
-          "cloth": ROOT / "usd_assets" / "cloth.usda"}
+#: Deforming bundled scenes (keys of :data:`warpshade.measure.BENCH_SCENES`).
+SCENES = ("figure", "bend", "cloth")
+#: Seed of this benchmark's ray-traced ground truth.
+GT_SEED = 4242
 
 
 def methods(order: int, samples: int, quick: bool) -> list[tuple[str, tuple]]:
@@ -83,63 +87,39 @@ def _ldprt(order, samples, lobes, evaluation="table", target=None):
             ("shade", "ldprt.shade", {"order": order, "lobes": lobes, "evaluation": evaluation}, {}))
 
 
-def ground_truth(scene, lighting, frames, samples, device, cache):
-    from warpshade.reference import shade
-
-    out = {}
-    fp = scene_fingerprint(scene)
-    for f in frames:
-        key = "gt-ldprt-" + hash_json({"scene": fp, "frame": float(f), "samples": samples,
-                                       "lighting": lighting.fingerprint()})[:32]
-        hit = cache.load(key)
-        if hit is None:
-            t0 = time.perf_counter()
-            res = shade(scene, f, lighting.lights_at(f), samples, device=device, seed=4242)
-            hit = {"radiance": np.asarray(res.radiance), "stderr": np.asarray(res.stderr)}
-            cache.store(key, hit)
-            print(f"    ground truth frame {f:g}: {samples} spp in {time.perf_counter() - t0:.1f} s", flush=True)
-        out[float(f)] = hit
-    return out
-
-
 def mesh_slices(scene) -> dict:
     return {m.path.rsplit("/", 1)[-1]: slice(m.vertex_offset, m.vertex_offset + m.vertex_count) for m in scene.meshes}
 
 
 def run_method(label, stages, scene, lighting, device, gt):
-    spec = GraphSpec(stages=[StageSpec(n, t, dict(p), dict(i)) for (n, t, p, i) in stages], output="shade.radiance",
-                     name=label.replace(" ", "-"))
-    t0 = time.perf_counter()
-    rt = spec.compile(scene, device=device, cache_dir=None, progress=False, lighting=lighting)
-    compile_s = time.perf_counter() - t0
-    rt.run(scene.frames, record=True, warmup=True)
+    """One setting over every frame: replayed time per frame, per-stage times (profiled over
+    every frame), precompute, errors on the ground-truth frames, overall and per mesh."""
+    res = run_setting(scene, lighting, stages, list(gt), timing_frames=scene.frames, device=device, cache_dir=None,
+                      name=label.replace(" ", "-"), profile=False)
+    rt = res["runtime"]
+    stage_ms = {k: 1e3 * v for k, v in rt.profile(scene.frames).items() if k != "scene"}
     timing = rt.timing_summary()
-    per_frame, per_mesh = [], {k: [] for k in mesh_slices(scene)}
+    err = setting_error(res["radiance"], gt)
+    per_frame = err.pop("per_frame")
+    per_mesh = {k: [] for k in mesh_slices(scene)}
     for f, ref in gt.items():
-        est = rt.results[f]
-        m = error_metrics(est, ref["radiance"], ref["stderr"])
-        m["frame"] = f
-        per_frame.append(m)
+        est = res["radiance"][f]
         for name, sl in mesh_slices(scene).items():
             mm = error_metrics(est[sl], ref["radiance"][sl], ref["stderr"][sl])
             mm["frame"] = f
             per_mesh[name].append(mm)
-    report = {}
-    for st in rt.stages:
-        if hasattr(st, "report"):
-            report = st.report
     return {
         "method": label,
-        "median_frame_ms": 1e3 * timing["median_frame_s"],
-        "stage_ms": {k: 1e3 * v["median_frame_s"] for k, v in timing["stages"].items() if v.get("median_frame_s")},
+        "median_frame_ms": res["frame_ms"],
+        "stage_ms": stage_ms,
         "precompute_s": sum(v.get("precompute_s", 0.0) for v in timing["stages"].values()),
-        "compile_and_precompute_s": compile_s,
-        "model_bytes": rt.model_bytes(),
-        "error": combine_metrics(per_frame),
+        "compile_and_precompute_s": res["compile_s"],
+        "model_bytes": res["model_bytes"],
+        "error": err,
         "error_per_frame": per_frame,
         "error_per_mesh": {k: combine_metrics(v) for k, v in per_mesh.items()},
         "error_per_mesh_per_frame": per_mesh,
-        "fit": report,
+        "fit": res["reports"].get("fit"),
     }
 
 
@@ -338,23 +318,24 @@ def main(argv=None) -> int:
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--skip-cost", action="store_true")
     ap.add_argument("--cost-only", action="store_true", help="only part 2 (written as ldprt-cost-<date>-<device>)")
+    ap.add_argument("--out", default=str(RESULTS), help="output directory (default benchmarks/results)")
     args = ap.parse_args(argv)
+    keys = [] if args.cost_only else args.scenes.split(",")
+    unknown = [k for k in keys if k not in SCENES]
+    if unknown:
+        ap.error(f"--scenes: unknown scene(s) {unknown} (known: {', '.join(SCENES)})")
 
-    from warpshade.io import load_scene
-
-    device = wp.get_device(args.device)
-    cache = ArtifactCache(default_cache_dir())
+    device = resolve_device(args.device)
     result = {"date": datetime.date.today().isoformat(), "device": str(device),
               "machine": f"{platform.machine()}, {os.cpu_count()} cores", "warp": wp.config.version,
               "command": "python benchmarks/bench_ldprt.py " + " ".join(argv if argv is not None else sys.argv[1:]),
               "order": args.order, "samples": args.samples, "gt_samples": args.gt_samples, "scenes": {}}
-    for key in ([] if args.cost_only else args.scenes.split(",")):
-        scene = load_scene(str(SCENES[key]))
-        lighting = LightingSource(scene.lights, scene.up_axis)
+    for key in keys:
+        scene, lighting = load_bench_scene(key, rotate_degrees_per_frame=0.0)  # the scenes' own lights, fixed
         count = 4 if args.quick else 7
-        frames = scene.frames[np.unique(np.linspace(0, len(scene.frames) - 1, count).round().astype(int))]
+        frames = pick_frames(scene, count)
         print(f"{key}: {scene.vertex_count} vertices, ground truth on frames {list(frames)}", flush=True)
-        gt = ground_truth(scene, lighting, frames, args.gt_samples, device, cache)
+        gt = ground_truth(scene, lighting, frames, args.gt_samples, device, seed=GT_SEED, progress=True)
         rows = []
         for label, stages in methods(args.order, args.samples, args.quick):
             t0 = time.perf_counter()
@@ -378,9 +359,10 @@ def main(argv=None) -> int:
         result["table_error"] = table_error(device, (4, 6), (64, 128, 256))
     else:
         result["cost"], result["table_error"] = [], []
-    RESULTS.mkdir(parents=True, exist_ok=True)
+    out_dir = Path(args.out)
+    out_dir.mkdir(parents=True, exist_ok=True)
     kind = "ldprt-cost" if args.cost_only else "ldprt"
-    stem = RESULTS / f"{kind}-{result['date']}-{device.alias.replace(':', '')}{'-quick' if args.quick else ''}"
+    stem = out_dir / f"{kind}-{result['date']}-{device.alias.replace(':', '')}{'-quick' if args.quick else ''}"
     write_json_atomic(f"{stem}.json", result, indent=1)
     charts(result, str(stem))
     written = [f"{stem}.json"] + [str(p) for p in (Path(f"{stem}-errors.png"), Path(f"{stem}-cost.png")) if p.exists()]

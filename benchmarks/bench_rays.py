@@ -30,7 +30,6 @@ import platform
 import statistics
 import sys
 import time
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -39,8 +38,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from warpshade._fileio import write_json_atomic  # noqa: E402
-from warpshade._wp import resolve_device, wp  # noqa: E402
-from warpshade.geometry.bvh import RAY_MAX_DISTANCE, Visibility  # noqa: E402
+from warpshade._wp import cpu_workers, launch_parallel, resolve_device, wp  # noqa: E402
+from warpshade.geometry.bvh import RAY_MAX_DISTANCE, Visibility, _occlusion_kernel  # noqa: E402
 from warpshade.transfer import TransferTracer, sample_rays  # noqa: E402
 
 DEFAULT_SCENE = ROOT / "usd_assets" / "blockers.usda"
@@ -150,7 +149,7 @@ def main(argv=None):
     parser.add_argument("--receivers", type=int, default=4096)
     parser.add_argument("--samples", type=int, default=256)
     parser.add_argument("--order", type=int, default=4)
-    parser.add_argument("--workers", type=int, default=None, help="thread-pool size for chunked CPU launches (default: all cores)")
+    parser.add_argument("--workers", type=int, default=None, help="thread-pool size for chunked CPU launches (default: warpshade._wp.cpu_workers())")
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--no-mitsuba", action="store_true")
     parser.add_argument("--no-convergence", action="store_true")
@@ -162,7 +161,7 @@ def main(argv=None):
     frame = float(scene.frames[0])
     rng = np.random.default_rng(0)
     receivers = rng.choice(scene.vertex_count, args.receivers, replace=scene.vertex_count < args.receivers)
-    workers = args.workers or (os.cpu_count() or 1)
+    workers = args.workers or cpu_workers()
     rays = args.receivers * args.samples
     print(f"scene {scene_name}: {scene.vertex_count} vertices, {scene.triangle_count} triangles; "
           f"{args.receivers} receivers x {args.samples} samples = {rays} rays on {dev}")
@@ -191,11 +190,10 @@ def main(argv=None):
     seconds = timed(lambda: bvh.occluded(o_wp, d_wp, out=out), args.repeats, dev)
     record("anyhit_explicit_single", seconds, rays, workers=1)
     if dev.is_cpu and workers > 1:
-        bounds = np.linspace(0, len(origins), 4 * workers + 1).astype(int)
-        pool = ThreadPoolExecutor(workers)
-
+        # the same any-hit kernel over 4 x workers slices of the batch, launched from the thread pool
         def chunked():
-            list(pool.map(lambda k: bvh.occluded(o_wp[bounds[k]:bounds[k + 1]], d_wp[bounds[k]:bounds[k + 1]], out=out[bounds[k]:bounds[k + 1]]), range(len(bounds) - 1)))
+            launch_parallel(_occlusion_kernel, len(origins), lambda lo, hi: [bvh.mesh.id, o_wp[lo:hi], d_wp[lo:hi],
+                                                                           float(RAY_MAX_DISTANCE), out[lo:hi]], dev, workers)
 
         seconds = timed(chunked, args.repeats, dev)
         record("anyhit_explicit_chunked", seconds, rays, workers=workers)

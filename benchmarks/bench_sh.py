@@ -32,13 +32,12 @@ import subprocess
 import sys
 import tempfile
 import time
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
 from warpshade._fileio import write_json_atomic
-from warpshade._wp import resolve_device, wp
+from warpshade._wp import launch_parallel, resolve_device, wp
 from warpshade.basis import quadrature, sh
 from warpshade.basis.sh_warp import sh_kernels
 
@@ -78,21 +77,19 @@ class Case:
         self.kernel, self.inputs_fn, self.row_args = kernel, inputs_fn, row_args
 
 
-def chunked_launcher(kernel, inputs, row_args, count, device, pool, workers):
-    """Launch ``kernel`` over ``workers`` contiguous row ranges in parallel.
+def chunked_launcher(kernel, inputs, row_args, count, device, workers):
+    """Launch ``kernel`` over ``workers`` contiguous row ranges in parallel
+    (:func:`warpshade._wp.launch_parallel`, one chunk per worker).
 
     ``row_args`` lists the indices of the inputs indexed by the thread id (sliced per chunk);
     the others (tables, constants) are shared.
     """
-    bounds = np.linspace(0, count, workers + 1).astype(int)
 
-    def launch(c):
-        lo, hi = bounds[c], bounds[c + 1]
-        args = [a[lo:hi] if i in row_args else a for i, a in enumerate(inputs)]
-        wp.launch(kernel, dim=hi - lo, inputs=args, device=device)
+    def inputs_for(lo, hi):
+        return [a[lo:hi] if i in row_args else a for i, a in enumerate(inputs)]
 
     def run():
-        list(pool.map(launch, range(workers)))
+        launch_parallel(kernel, count, inputs_for, device, workers=workers, chunks=workers)
         wp.synchronize_device(device)
 
     return run
@@ -170,49 +167,48 @@ def build_cases(sizes, device, rng):
 def run_cases(cases, device, repeats, workers):
     dev = resolve_device(device)
     rows = []
-    with ThreadPoolExecutor(max_workers=workers) as pool:
-        for c in cases:
-            inputs = c.inputs_fn()
+    for c in cases:
+        inputs = c.inputs_fn()
 
-            def single(c=c, inputs=inputs):
-                wp.launch(c.kernel, dim=c.count, inputs=inputs, device=dev)
-                wp.synchronize_device(dev)
+        def single(c=c, inputs=inputs):
+            wp.launch(c.kernel, dim=c.count, inputs=inputs, device=dev)
+            wp.synchronize_device(dev)
 
-            chunked = chunked_launcher(c.kernel, inputs, c.row_args, c.count, dev, pool, workers)
-            single()  # warm-up: compile / load the module
-            single_out = inputs[-1].numpy().copy()
-            inputs[-1].zero_()
-            chunked()
-            if not np.array_equal(inputs[-1].numpy(), single_out):
-                raise RuntimeError(f"{c.name} n={c.order}: chunked launches disagree with one launch")
-            ref_out = c.reference()  # warm-up (caches the Gaunt tensor, etc.)
-            # Correctness guard: the timed kernel computes what the reference computes.
-            err = float(np.abs(c.host_api() - ref_out).max())
-            t_ref = median_time(c.reference, max(1, repeats // 2))
-            # Single and chunked launches alternate so that background load hits both alike.
-            t_kernel, t_chunked = median_times_interleaved([single, chunked], repeats)
-            t_host = median_time(c.host_api, max(1, repeats // 2))
-            row = {
-                "case": c.name,
-                "order": c.order,
-                "count": c.count,
-                "numpy_s": t_ref,
-                "warp_kernel_s": t_kernel,
-                "warp_chunked_s": t_chunked,
-                "warp_host_api_s": t_host,
-                "speedup_kernel_vs_numpy": t_ref / t_kernel,
-                "speedup_chunked_vs_single_launch": t_kernel / t_chunked,
-                "speedup_host_api_vs_numpy": t_ref / t_host,
-                "max_abs_diff_vs_float64": err,
-            }
-            rows.append(row)
-            print(
-                f"{c.name:8s} n={c.order:2d} count={c.count:8d}  numpy {t_ref * 1e3:9.2f} ms  "
-                f"warp {t_kernel * 1e3:8.2f} ms  chunked({workers}) {t_chunked * 1e3:8.2f} ms  "
-                f"host-api {t_host * 1e3:8.2f} ms  | numpy/warp {row['speedup_kernel_vs_numpy']:6.1f}x  "
-                f"single/chunked {row['speedup_chunked_vs_single_launch']:4.2f}x  max|diff| {err:.1e}",
-                flush=True,
-            )
+        chunked = chunked_launcher(c.kernel, inputs, c.row_args, c.count, dev, workers)
+        single()  # warm-up: compile / load the module
+        single_out = inputs[-1].numpy().copy()
+        inputs[-1].zero_()
+        chunked()
+        if not np.array_equal(inputs[-1].numpy(), single_out):
+            raise RuntimeError(f"{c.name} n={c.order}: chunked launches disagree with one launch")
+        ref_out = c.reference()  # warm-up (caches the Gaunt tensor, etc.)
+        # Correctness guard: the timed kernel computes what the reference computes.
+        err = float(np.abs(c.host_api() - ref_out).max())
+        t_ref = median_time(c.reference, max(1, repeats // 2))
+        # Single and chunked launches alternate so that background load hits both alike.
+        t_kernel, t_chunked = median_times_interleaved([single, chunked], repeats)
+        t_host = median_time(c.host_api, max(1, repeats // 2))
+        row = {
+            "case": c.name,
+            "order": c.order,
+            "count": c.count,
+            "numpy_s": t_ref,
+            "warp_kernel_s": t_kernel,
+            "warp_chunked_s": t_chunked,
+            "warp_host_api_s": t_host,
+            "speedup_kernel_vs_numpy": t_ref / t_kernel,
+            "speedup_chunked_vs_single_launch": t_kernel / t_chunked,
+            "speedup_host_api_vs_numpy": t_ref / t_host,
+            "max_abs_diff_vs_float64": err,
+        }
+        rows.append(row)
+        print(
+            f"{c.name:8s} n={c.order:2d} count={c.count:8d}  numpy {t_ref * 1e3:9.2f} ms  "
+            f"warp {t_kernel * 1e3:8.2f} ms  chunked({workers}) {t_chunked * 1e3:8.2f} ms  "
+            f"host-api {t_host * 1e3:8.2f} ms  | numpy/warp {row['speedup_kernel_vs_numpy']:6.1f}x  "
+            f"single/chunked {row['speedup_chunked_vs_single_launch']:4.2f}x  max|diff| {err:.1e}",
+            flush=True,
+        )
     return rows
 
 

@@ -24,12 +24,14 @@ Parts (``--parts``, default all), each measured side by side in one run:
 * ``shading`` -- the three shading paths (direct: one SH product per receiver; the L*H(N)
   lat-long table over normals, rebuilt per frame; the product-matrix path (M_L g).H(N)) on
   41k receivers with varied normals: time per frame and difference from direct.
-* ``budget`` -- :func:`warpshade.methods.shexp.budget.choose_setting` on two bundled scenes.
+* ``budget`` -- the error budget (:func:`warpshade.measure.budget.choose` over
+  :func:`warpshade.methods.shexp.budget.candidates`) on two bundled scenes: the cheapest
+  setting (order, sphere budget, exp method) for each of the targets 0.1, 0.15, 0.2 and 0.25.
 * ``compile`` -- cold compile time of the per-order receiver kernels (subprocess, empty cache).
 
 Usage::
 
-    python benchmarks/bench_shexp.py [--parts speed,battle,exp] [--quick] [--repeats 7]
+    python benchmarks/bench_shexp.py [--parts speed,battle,exp] [--quick] [--repeats 7] [--out DIR]
 
 Writes ``benchmarks/results/shexp-<date>-cpu.json`` (atomically) and a PNG of the speed ratios.
 """
@@ -266,6 +268,184 @@ def part_shading(args) -> dict:
     return out
 
 
+# ---- errors against ray-traced ground truth on the bundled scenes (paper Fig. 7) --------------
+
+#: Scenes of ``--parts scenes`` and the leaf-sphere budget of their tables.
+SCENE_BUDGETS = {"blockers": 16, "figure": 48, "bunny": 32, "bear": 32}
+#: Exp methods compared in ``--parts scenes`` (method, series degree).
+SCENE_METHODS = (("hyb", None), ("ps_star", 2), ("ol", None), ("ps", 10))
+#: Seed of the rays traced against the blocker spheres.
+SPHERE_TRACE_SEED = 7
+
+
+def _rel(a: dict, b: dict) -> float:
+    """Relative RMS of ``a`` against ``b`` pooled over frames (both {frame: (V, 3)})."""
+    num = np.mean([np.mean((np.asarray(a[f], np.float64) - b[f]) ** 2) for f in b])
+    den = np.mean([np.mean(np.asarray(b[f], np.float64) ** 2) for f in b])
+    return float(np.sqrt(num / den))
+
+
+def sphere_trace_errors(scene, lighting, frames, budget: int, orders, samples: int = 1024, device="cpu") -> dict:
+    """Radiance of ray tracing against the blocker spheres, with the environment and with SH lighting.
+
+    Returns ``{"env": {frame: (V, 3)}, "sh": {order: {frame: (V, 3)}}}``: the same traced rays
+    give the environment integral and the cosine-weighted visibility transfer, shaded with each
+    order's SH lighting. The blocker spheres are the ``shexp.blockers`` artifact of ``budget``
+    (the one the SHEXP rows use), animated per frame by :class:`BlockerFrames` from the
+    frame's state.
+    """
+    from warpshade.measure import run_setting
+    from warpshade.methods.shexp.blockers import BlockerFrames, BlockerModel
+    from warpshade.methods.shexp.pipeline import ShexpShader, SphereTracer
+    from warpshade.scene import FrameEvaluator
+
+    res = run_setting(scene, lighting, [("blockers", "shexp.blockers", {"budget": budget}, {}),
+                                        ("trace", "shexp.sphere_trace", {"samples": 4}, {})],
+                      frames[:1], output="trace.radiance", device=device, name="shexp-blockers", profile=False)
+    model = BlockerModel.from_arrays(res["runtime"].artifacts["blockers"]["model"])
+    evaluator = FrameEvaluator(scene, device, lighting=lighting)
+    state = evaluator.state
+    shader = ShexpShader(max(orders), scene.vertex_count, model.node_count, device=device)
+    blockers = BlockerFrames(scene, model, 2, ratio=False, device=device)
+    shader.bind_receivers(state.points, state.normals, evaluator.albedo)
+    blockers.bind(shader)
+    # the environment turns with the frame: the tracer reads its rotation from the state
+    tracer = SphereTracer(shader, state.lighting.environment_map(0), samples, seed=SPHERE_TRACE_SEED)
+    env_out, sh_out = {}, {o: {} for o in orders}
+    for f in frames:
+        evaluator.evaluate(f)
+        blockers.launch(state)
+        tracer.launch()
+        env_out[float(f)] = tracer.radiance.numpy().astype(np.float64).copy()
+        t_full = tracer.transfer.numpy().astype(np.float64)
+        for o in orders:
+            rgb = t_full[:, : o * o] @ lighting.sh(o, f).T
+            sh_out[o][float(f)] = scene.albedo / np.pi * np.maximum(rgb, 0.0)
+    return {"env": env_out, "sh": sh_out}
+
+
+def scene_errors(quick: bool = False, orders=(3, 4, 5, 6), scenes=None, gt_samples: int | None = None, device="cpu") -> dict:
+    """The error table of ``--parts scenes``: n = 3..6, every exp method, flat vs hierarchy,
+    product accumulation, and ray tracing against the spheres with the environment and with the
+    order-n SH lighting, which separates sphere approximation, lighting band limit, product
+    truncation and log space (the paper's Figure 7)."""
+    from warpshade.measure import error_frames, ground_truth, load_bench_scene, run_setting, setting_error
+    from warpshade.methods.shexp.rows import graph_stages
+
+    keys = list(scenes or (("blockers", "figure") if quick else tuple(SCENE_BUDGETS)))
+    gt_samples = gt_samples or (512 if quick else 2048)
+    out = {}
+    for key in keys:
+        t0 = time.perf_counter()
+        scene, lighting = load_bench_scene(key)
+        frames = error_frames(scene, 1 if quick else 2)
+        gt = ground_truth(scene, lighting, frames, gt_samples, device)
+        gt_rad = {f: v["radiance"] for f, v in gt.items()}
+        budget = SCENE_BUDGETS[key]
+        rows = []
+
+        def record(label, stages, output="shade.radiance", **facts):
+            res = run_setting(scene, lighting, stages, frames, output, device=device, name=f"shexp-{label}".replace(" ", "-"))
+            err = setting_error(res["radiance"], gt)
+            stage_ms = res["stage_ms"].get("shade")
+            row = {"label": label, **facts, "rel_rms": err["rel_rms"], "rel_rms_debiased": err.get("rel_rms_debiased"),
+                   "rel_p99": err["rel_p99"], "noise_rel_rms": err.get("noise_rel_rms"), "stage_ms": stage_ms,
+                   "fallbacks": int(res["diagnostics"].get("shade", {}).get("fallbacks", 0))}
+            rows.append(row)
+            print(f"    {key:9s} {label:26s} rel RMS {row['rel_rms']:.4f}  shade {stage_ms or 0:.2f} ms", flush=True)
+            return res["radiance"]
+
+        shexp, product = {}, {}
+        for order in orders:
+            record(f"unshadowed n{order}", (("shade", "prt.unshadowed", {"order": order}, {}),), order=order, kind="unshadowed")
+            for method, degree in (SCENE_METHODS if (order == 4 or not quick) else SCENE_METHODS[:1]):
+                name = {"hyb": "HYB", "ps_star": f"PS*-{degree}", "ol": "OL", "ps": f"PS-{degree}"}[method]
+                rad = record(f"SHEXP n{order} {name}", graph_stages(order, method, budget, degree=degree), order=order,
+                             method=method, degree=degree, kind="shexp", hierarchy=False, budget=budget)
+                if method == "hyb":
+                    shexp[order] = rad
+            product[order] = record(f"product n{order}", graph_stages(order, budget=budget, accumulate="product"), order=order,
+                                    kind="product", budget=budget)
+        record("SHEXP n4 HYB tree", graph_stages(4, "hyb", budget, hierarchy=True), order=4, method="hyb", kind="shexp",
+               hierarchy=True, budget=budget)
+        traced = sphere_trace_errors(scene, lighting, frames, budget, orders, samples=1024 if quick else 2048, device=device)
+        sources = {}
+        for order in orders:
+            sources[str(order)] = {
+                "sphere_approximation": _rel(traced["env"], gt_rad),
+                "lighting_band_limit": _rel(traced["sh"][order], traced["env"]),
+                "product_truncation": _rel(product[order], traced["sh"][order]),
+                "log_space": _rel(shexp[order], product[order]),
+                "shexp_vs_truth": _rel(shexp[order], gt_rad),
+                "product_vs_truth": _rel(product[order], gt_rad),
+                "traced_spheres_sh_vs_truth": _rel(traced["sh"][order], gt_rad),
+            }
+            s = sources[str(order)]
+            print(f"    {key:9s} n{order} error sources: spheres {s['sphere_approximation']:.4f}, SH lighting "
+                  f"{s['lighting_band_limit']:.4f}, product truncation {s['product_truncation']:.4f}, log space "
+                  f"{s['log_space']:.4f}", flush=True)
+        out[key] = {"vertex_count": scene.vertex_count, "frames": [float(f) for f in frames], "gt_samples": gt_samples,
+                    "leaf_spheres": budget, "rows": rows, "error_sources": sources, "seconds": time.perf_counter() - t0}
+    return out
+
+
+def part_scenes(args) -> dict:
+    return scene_errors(quick=args.quick, orders=args.orders)
+
+
+# ---- error budget: the setting chosen per target -------------------------------------------
+
+#: Targets (relative RMS) and scenes of ``--parts budget``: the candidates are measured once per
+#: scene, and the choice for each target is read off them.
+BUDGET_TARGETS = (0.1, 0.15, 0.2, 0.25)
+BUDGET_SCENES = ("blockers", "figure")
+
+
+def _candidate_row(c) -> dict:
+    """One measured candidate as a flat row (order, sphere budget, exp method, error, time)."""
+    return {"order": c.facts["order"], "spheres": c.facts["spheres"], "method": c.facts["method"], "rel_rms": c.rel_rms,
+            "stage_ms": c.stage_ms, "leaf_spheres": int(c.facts.get("leaf_spheres", 0)),
+            "fallbacks": int(c.diagnostics.get("shade", {}).get("fallbacks", 0)), "meets_target": c.meets_target}
+
+
+def budget_report(quick: bool = False, targets=BUDGET_TARGETS, scenes=BUDGET_SCENES, device="cpu") -> dict:
+    """:func:`warpshade.measure.budget.choose` over SHEXP's candidates on two bundled scenes,
+    and the choice read off the same measurements for each target."""
+    from warpshade.measure import choose, load_bench_scene, pick
+    from warpshade.methods.shexp import budget
+
+    out = {"targets": list(targets), "scenes": {}}
+    for key in scenes:
+        scene, lighting = load_bench_scene(key)
+        cands = budget.candidates(orders=(3, 4, 6) if quick else budget.DEFAULT_ORDERS,
+                                  spheres=(8, 32) if quick else budget.DEFAULT_SPHERE_BUDGETS,
+                                  methods=("ol", "hyb") if quick else budget.DEFAULT_METHODS)
+        choice = choose(scene, cands, min(targets), lighting=lighting, method="shexp", gt_samples=512 if quick else 1024,
+                        device=device, progress=True)
+        per_target = {}
+        for t in targets:
+            c, met = pick(choice.candidates, t)
+            row = _candidate_row(c)
+            per_target[str(t)] = {k: row[k] for k in ("order", "spheres", "leaf_spheres", "method", "rel_rms", "stage_ms")}
+            per_target[str(t)]["met"] = met
+            print(f"  {key}: target {t:.3f} -> n{row['order']}, {row['leaf_spheres']} leaf spheres (budget {row['spheres']}), "
+                  f"{row['method']}: error {c.rel_rms:.4f}, {c.stage_ms:.2f} ms/frame{'' if met else ' (NOT met: most accurate)'}",
+                  flush=True)
+        chosen, met = pick(choice.candidates, min(targets))
+        search = {"scene": choice.scene, "target": choice.target, "chosen": {**_candidate_row(chosen), "label": chosen.label},
+                  "met": met, "candidates": [_candidate_row(c) for c in choice.candidates], "frames": choice.frames,
+                  "gt_samples": choice.gt_samples, "seconds": choice.seconds}
+        out["scenes"][key] = {"per_target": per_target, "search": search}
+    out["choices_differ"] = {
+        str(t): len({(out["scenes"][k]["per_target"][str(t)]["order"], out["scenes"][k]["per_target"][str(t)]["spheres"],
+                      out["scenes"][k]["per_target"][str(t)]["method"]) for k in scenes}) > 1 for t in targets}
+    return out
+
+
+def part_budget(args) -> dict:
+    return budget_report(quick=args.quick)
+
+
 _COLD_COMPILE = r"""
 import sys, time, tempfile, numpy as np
 import warp as wp
@@ -324,19 +504,23 @@ def speed_chart(speed: dict, path: Path) -> None:
     plt.close(fig)
 
 
-PARTS = {"speed": part_speed, "battle": part_battle, "exp": part_exp, "shading": part_shading, "compile": part_compile}
+PARTS = {"speed": part_speed, "battle": part_battle, "exp": part_exp, "shading": part_shading, "compile": part_compile,
+         "scenes": part_scenes, "budget": part_budget}
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--parts", default=None, help=f"comma-separated parts (default all: {','.join(PARTS)} plus scenes,budget)")
+    ap.add_argument("--parts", default=None, help=f"comma-separated parts (default all: {','.join(PARTS)})")
     ap.add_argument("--orders", default="3,4,5,6")
     ap.add_argument("--repeats", type=int, default=7)
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--out", default=str(RESULTS_DIR))
     args = ap.parse_args(argv)
     args.orders = [int(o) for o in args.orders.split(",")]
-    parts = args.parts.split(",") if args.parts else list(PARTS) + ["scenes", "budget"]
+    parts = args.parts.split(",") if args.parts else list(PARTS)
+    unknown = [p for p in parts if p not in PARTS]
+    if unknown:
+        ap.error(f"unknown part(s) {unknown} (parts: {', '.join(PARTS)})")
     date = _dt.date.today().isoformat()
     result = {
         "date": date,
@@ -350,18 +534,7 @@ def main(argv=None) -> int:
     for part in parts:
         print(f"[{part}]", flush=True)
         t0 = time.perf_counter()
-        if part in PARTS:
-            result[part] = PARTS[part](args)
-        elif part == "scenes":
-            from warpshade.methods.shexp.evaluation import scene_errors
-
-            result[part] = scene_errors(quick=args.quick, orders=args.orders)
-        elif part == "budget":
-            from warpshade.methods.shexp.budget import budget_report
-
-            result[part] = budget_report(quick=args.quick)
-        else:
-            ap.error(f"unknown part {part!r}")
+        result[part] = PARTS[part](args)
         result.setdefault("seconds", {})[part] = time.perf_counter() - t0
     out_dir = Path(args.out)
     stem = f"shexp-{date}-cpu" + ("-quick" if args.quick else "")

@@ -5,11 +5,12 @@ Usage::
 
     python benchmarks/bench_spheres.py                 # counts 8 16 32 64 128, CPU
     python benchmarks/bench_spheres.py --quick         # counts 8 16 32, fewer frames
-    python benchmarks/bench_spheres.py --counts 64 --meshes bunny
+    python benchmarks/bench_spheres.py --counts 64 --meshes bunny --out /tmp/spheres
 
-Writes ``benchmarks/results/spheres-<date>.json`` and ``spheres-<date>.png`` (E vs count next
-to the paper's Figure 4 numbers, the 64-sphere sets drawn over their meshes, and the figure's
-per-frame bounding statistics). Measured:
+Writes ``spheres-<date>.json`` and ``spheres-<date>.png`` into ``--out`` (default
+``benchmarks/results``; the PNG: E vs count next to the paper's Figure 4 numbers, the
+64-sphere sets drawn over their meshes, and the figure's per-frame bounding statistics).
+Measured:
 
 * ``fits``: for the figure body, Warp's bunny and bear, per sphere count: E = sum_i V(S_i - T)
   / V(T) (eq. 35, QMC with standard error), the union form, the grid estimate the optimiser
@@ -357,6 +358,7 @@ def main():
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--skip-animation", action="store_true")
+    parser.add_argument("--out", default=str(ROOT / "benchmarks" / "results"), help="output directory (default benchmarks/results)")
     args = parser.parse_args()
     device = resolve_device(args.device)
     counts = args.counts or ([8, 16, 32] if args.quick else [8, 16, 32, 64, 128])
@@ -369,7 +371,7 @@ def main():
         print("hierarchy", json.dumps({k: v for k, v in hierarchy.items()}, indent=None))
     split = split_launch_ratio(device)
     date = datetime.date.today().isoformat()
-    out_dir = ROOT / "benchmarks" / "results"
+    out_dir = Path(args.out)
     out_dir.mkdir(parents=True, exist_ok=True)
     png = out_dir / f"spheres-{date}.png"
     plot(png, rows, animation)

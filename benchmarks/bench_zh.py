@@ -12,11 +12,12 @@
 3. Throughput of the batched fit (fits per second, vectorised BFGS) against per-vertex
    ``scipy.optimize.minimize(method="BFGS")`` on the same vertices, one run.
 
-Writes ``benchmarks/results/zh-<date>-s<samples>.json`` and ``.png`` (samples = transfer rays).
+Writes ``zh-<date>-s<samples>.json`` and ``.png`` (samples = transfer rays) into ``--out``
+(default ``benchmarks/results``).
 
 Usage::
 
-    python benchmarks/bench_zh.py [--quick] [--vectors 200] [--samples 1024]
+    python benchmarks/bench_zh.py [--quick] [--vectors 200] [--samples 1024] [--out DIR]
 """
 
 from __future__ import annotations
@@ -162,6 +163,7 @@ def main(argv=None) -> int:
     ap.add_argument("--vectors", type=int, default=200)
     ap.add_argument("--samples", type=int, default=1024)
     ap.add_argument("--restarts", type=int, default=4)
+    ap.add_argument("--out", default=str(RESULTS), help="output directory (default benchmarks/results)")
     args = ap.parse_args(argv)
     count = 40 if args.quick else args.vectors
     result = {"date": datetime.date.today().isoformat(), "machine": f"{platform.machine()}, {os.cpu_count()} cores",
@@ -173,8 +175,9 @@ def main(argv=None) -> int:
     print("mesh transfer:", flush=True)
     result["mesh"] = mesh_transfer(args.samples, args.quick)
     result["seconds"] = time.perf_counter() - t0
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    stem = RESULTS / f"zh-{result['date']}-s{args.samples}"
+    out_dir = Path(args.out)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    stem = out_dir / f"zh-{result['date']}-s{args.samples}"
     write_json_atomic(f"{stem}.json", result, indent=1)
     chart(result, Path(f"{stem}.png"))
     print(f"wrote {stem}.json, {stem}.png")
