@@ -205,6 +205,7 @@ def test_cache_entry_not_matching_the_stage_is_recomputed(moving_scene, tmp_path
     assert rt.timings["bake"].cache == "hit" and not rt.stale_artifacts, "the recomputed artifact replaced it"
 
 
+@pytest.mark.filterwarnings("ignore:overflow encountered in cast")
 def test_a_precompute_that_produces_nan_is_an_error_naming_the_stage(moving_scene, tmp_path):
     # 1e300 is a finite parameter that overflows the float32 artifact
     with pytest.raises(GraphError, match=r"stage 'bake' \(test.const\): its precompute produced an invalid artifact: "

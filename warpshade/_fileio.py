@@ -18,7 +18,8 @@ import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 
-__all__ = ["atomic_path", "write_text_atomic", "write_json_atomic", "remove_stale_temporaries", "check_writable_dir"]
+__all__ = ["atomic_path", "write_text_atomic", "write_json_atomic", "remove_stale_temporaries", "check_writable_dir",
+           "captured_stderr"]
 
 
 def _pid_alive(pid: int) -> bool:
@@ -55,6 +56,27 @@ def remove_stale_temporaries(path) -> list[Path]:
             except OSError:
                 pass
     return removed
+
+
+@contextmanager
+def captured_stderr():
+    """Collect what native libraries print on file descriptor 2 (USD's diagnostics, Warp's
+    start-up notes) while the block runs; yields a list that holds the lines afterwards."""
+    import sys
+
+    lines: list[str] = []
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as captured:
+        os.dup2(captured.fileno(), 2)
+        try:
+            yield lines
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            captured.seek(0)
+            text = captured.read().decode(errors="replace")
+            lines.extend(line.strip() for line in text.splitlines() if line.strip())
 
 
 def check_writable_dir(directory, what: str = "output directory") -> Path:

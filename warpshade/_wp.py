@@ -65,19 +65,12 @@ def init() -> None:
         wp.config.log_level = wp.LOG_WARNING
     wp.config.quiet = True
     import sys
-    import tempfile
 
-    sys.stderr.flush()
-    saved = os.dup(2)
-    with tempfile.TemporaryFile() as captured:
-        os.dup2(captured.fileno(), 2)
-        try:
-            wp.init()
-        finally:
-            os.dup2(saved, 2)
-            os.close(saved)
-            captured.seek(0)
-            _init_messages = captured.read().decode(errors="replace").strip()
+    from ._fileio import captured_stderr
+
+    with captured_stderr() as printed:
+        wp.init()
+    _init_messages = " ".join(printed)
     _initialised = True
     if _init_messages and "CUDA driver" not in _init_messages:
         print(_init_messages, file=sys.stderr)  # anything else Warp said is worth seeing

@@ -1,4 +1,13 @@
-"""The ``warpshade`` command line."""
+"""warpshade: soft shadows and relighting for animated USD scenes, measured against ray tracing.
+
+Commands: demo (run the bundled demo), run (a stage graph end to end), info (what a USD scene
+holds), list-stages (ready-made graphs and stage types with their parameters), selfcheck (the
+Warp SH kernels against float64).
+
+A known problem (a bad file, flag, parameter or environment) ends in one or two lines,
+"warpshade <command>: error: <what>, <where>", with exit code 2; an unexpected failure prints a
+short message (add --debug for the traceback) and exits with 1.
+"""
 
 from __future__ import annotations
 
@@ -41,14 +50,10 @@ def _cmd_info(args) -> int:
     from .io.usd import load_scene, resolve_scene_path
     from .scene import DistantLight, Environment, SphereLight
 
-    try:
-        path = resolve_scene_path(args.scene)
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            scene = load_scene(path, ground_plane=args.ground_plane, sky=False)
-    except (FileNotFoundError, ValueError) as exc:
-        print(f"warpshade info: error: {exc}", file=sys.stderr)
-        return 2
+    path = resolve_scene_path(args.scene)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        scene = load_scene(path, ground_plane=args.ground_plane, sky=False)
     frames = scene.frames
     print(f"scene   {args.scene}" + (f"  ({path})" if path != args.scene else ""))
     print(f"up axis {scene.up_axis}    frames {len(frames)} (time codes {frames[0]:g}..{frames[-1]:g}) at {scene.fps:g} fps")
@@ -136,8 +141,19 @@ def _find_graph(name: str):
     raise FileNotFoundError(f"stage graph {name!r} not found (looked in: {', '.join(map(str, _stage_dirs())) or 'no stages/ folder'})")
 
 
+def _describe_param(name, param) -> str:
+    bits = [f"{param.type.__name__}", f"default {param.default!r}"]
+    if param.choices is not None:
+        bits.append("one of " + ", ".join(repr(c) for c in param.choices))
+    if param.minimum is not None or param.maximum is not None:
+        lo = "" if param.minimum is None else f"{param.minimum:g}"
+        hi = "" if param.maximum is None else f"{param.maximum:g}"
+        bits.append(f"range [{lo}, {hi}]")
+    return f"      {name:20s} {'; '.join(bits)}" + (f" -- {param.doc}" if param.doc else "")
+
+
 def _cmd_list_stages(args) -> int:
-    """List the ready-made stage graphs and every registered stage type."""
+    """List the ready-made stage graphs and every registered stage type with its parameters."""
     from .graph import GraphError, load, stage_types
 
     for d in _stage_dirs():
@@ -148,37 +164,70 @@ def _cmd_list_stages(args) -> int:
                 print(f"  {f.name:34s} {g.description or g.name}")
             except GraphError as exc:
                 print(f"  {f.name:34s} [invalid: {exc}]")
-    print("stage types:")
+    print("stage types (parameters: type; default; allowed values -- meaning):")
     for name, cls in sorted(stage_types().items()):
         print(f"  {name:26s} {cls.kind:10s} {cls.description}")
+        if args.brief:
+            continue
+        for pname, param in sorted(cls.parameters.items()):
+            print(_describe_param(pname, param))
     return 0
 
 
-def _run_graph(graph_file, frames=None, device=None, out_dir=None, validate=False, previews=True, progress=True):
+class CliError(Exception):
+    """A problem with what the command was asked to do (reported in one line, exit code 2)."""
+
+
+def _run_graph(graph_file, frames=None, device=None, out_dir=None, validate=False, previews=True, progress=True,
+               usd_format="auto"):
     """Run one stage graph end to end; returns (runtime, outputs dict).
 
-    Composes the runtime (precompute, frames) with the measuring layer (ground truth, pictures,
-    the USD layer and the report).
+    Everything is checked before any work: the graph file, the output directory (writable, not
+    a file), the scene, ``--frames``, the ``[validate]`` frames measured (those the run steps)
+    and the lighting. Then the runtime (precompute, frames) is composed with the measuring layer
+    (ground truth, pictures, the USD layer and the report). Nothing is written outside the
+    output directory: every output is named by the graph's name, which cannot hold a path.
     """
     import time
     from pathlib import Path
 
-    from .graph import load
+    from ._fileio import check_writable_dir
+    from .graph import GraphError, load
+    from .io.usd_write import usd_output_name
     from .measure import measure_error, render_comparisons, render_previews, write_report, write_usd
 
     spec = load(graph_file)
     out = Path(out_dir if out_dir is not None else Path("warpshade-out") / spec.name)
+    check_writable_dir(out, "--out directory")
     t0 = time.perf_counter()
-    rt = spec.compile(device=device, progress=progress)
-    rt.run(frames)
-    outputs = {"usd": write_usd(rt, out / f"{spec.name}.usda")}
+    scene = spec.load_scene()
+    try:
+        run_frames = spec.run_frames(scene, frames)
+    except GraphError as exc:
+        raise CliError(f"--frames {frames!r}: {str(exc).split(': ', 1)[-1]}" if frames is not None else str(exc)) from None
+    measured = left_out = []
+    if validate:
+        measured, left_out = spec.validation_frames(scene, run_frames)
+    rt = spec.compile(scene, device=device, progress=progress)
+    rt.run(run_frames)
+    outputs = {"left_out": left_out}
+
+    def inside(name: str) -> Path:
+        path = out / name
+        if path.resolve().parent != out.resolve():
+            raise CliError(f"output {name!r} would be written outside --out {out}")
+        return path
+
+    outputs["usd"] = write_usd(rt, inside(usd_output_name(spec.name, rt.scene, len(rt.results), usd_format)))
     if previews:
         outputs["png"] = render_previews(rt, out)
-    measurement = measure_error(rt) if validate else None
+    measurement = measure_error(rt, measured) if validate else None
     error = measurement.error if measurement is not None else None
+    if error is not None and left_out:
+        error["frames_left_out"] = left_out
     if validate and previews:
         outputs["png"] = [*outputs.get("png", []), *render_comparisons(rt, measurement, out)]
-    outputs["report"] = write_report(rt, out / f"{spec.name}.json", error=error)
+    outputs["report"] = write_report(rt, inside(f"{spec.name}.json"), error=error)
     outputs["seconds"] = time.perf_counter() - t0
     outputs["error"] = error
     return rt, outputs
@@ -191,11 +240,15 @@ def _print_run(rt, outputs) -> None:
     print(f"  precompute {pre:.2f} s, median frame {1e3 * (t['median_frame_s'] or 0):.2f} ms "
           f"(host-side Python {1e3 * (t['median_host_s'] or 0):.3f} ms, "
           f"{'one recorded frame replayed' if t['captured'] else 'not recorded'})")
+    for line in rt.stale_artifacts:
+        print(f"  recomputed a cached artifact: {line}")
     err = outputs.get("error")
     if err:
         m = err["mean"]
         print(f"  error vs ray-traced ground truth ({err['samples']} spp): relative RMS {m['rel_rms']:.4f}, "
               f"p99 {m['rel_p99']:.4f} (ground-truth noise {m.get('noise_rel_rms', float('nan')):.4f})")
+    if outputs.get("left_out"):
+        print(f"  [validate] frame(s) {outputs['left_out']} are outside the frames run and were not measured")
     print(f"  USD     {outputs['usd']}")
     for p in outputs.get("png", []):
         print(f"  PNG     {p}")
@@ -204,14 +257,9 @@ def _print_run(rt, outputs) -> None:
 
 def _cmd_run(args) -> int:
     """Run a stage graph: precompute (cached), frame loop, USD + PNG + JSON outputs."""
-    from .graph import GraphError
-
-    try:
-        graph_file = _find_graph(args.graph)
-        rt, outputs = _run_graph(graph_file, args.frames, args.device, args.out, args.validate, not args.no_previews)
-    except (GraphError, FileNotFoundError, ValueError) as exc:
-        print(f"warpshade run: error: {exc}", file=sys.stderr)
-        return 2
+    graph_file = _find_graph(args.graph)
+    rt, outputs = _run_graph(graph_file, args.frames, args.device, args.out, args.validate, not args.no_previews,
+                             usd_format=args.usd_format)
     _print_run(rt, outputs)
     return 0
 
@@ -221,55 +269,122 @@ DEMO_GRAPH = "demo.toml"
 
 def _cmd_demo(args) -> int:
     """Run the default bundled scene end to end and say where the outputs are."""
-    from .graph import GraphError
-
-    try:
-        graph_file = _find_graph(DEMO_GRAPH)
-        rt, outputs = _run_graph(graph_file, None, args.device, args.out or "warpshade-out/demo", validate=True)
-    except (GraphError, FileNotFoundError, ValueError) as exc:
-        print(f"warpshade demo: error: {exc}", file=sys.stderr)
-        return 2
+    graph_file = _find_graph(DEMO_GRAPH)
+    rt, outputs = _run_graph(graph_file, None, args.device, args.out or "warpshade-out/demo", validate=True)
     print(f"warpshade demo ({graph_file}):")
     _print_run(rt, outputs)
     return 0
 
 
+def _order(text: str) -> int:
+    from .basis.sh_warp import MAX_KERNEL_ORDER
+
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer, got {text!r}") from None
+    if not 1 <= value <= MAX_KERNEL_ORDER:
+        raise argparse.ArgumentTypeError(f"must be in 1..{MAX_KERNEL_ORDER}, got {value}")
+    return value
+
+
+def _frames(text: str) -> str:
+    from .graph import GraphError
+    from .graph.spec import check_frames_spec
+
+    try:
+        check_frames_spec(text, "value")
+    except GraphError as exc:
+        raise argparse.ArgumentTypeError(str(exc).split(": ", 1)[-1]) from None
+    return text
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="warpshade", description=__doc__)
-    sub = parser.add_subparsers(dest="command", required=True)
-    p = sub.add_parser("selfcheck", help="check the Warp SH kernels against the float64 reference")
-    p.add_argument("--order", type=int, default=6)
-    p.add_argument("--device", default="cpu")
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
+                        help="show the Python traceback of an error")
+    device = argparse.ArgumentParser(add_help=False)
+    device.add_argument("--device", default=None, help="Warp device: cpu, cuda:0, ... (default: Warp's default device)")
+    parser = argparse.ArgumentParser(prog="warpshade", description=__doc__, parents=[common],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    p = sub.add_parser("selfcheck", parents=[common], help="check the Warp SH kernels against the float64 reference",
+                       description="Evaluate the SH basis with the Warp kernels and check it against the float64 reference.")
+    p.add_argument("--order", type=_order, default=6, help="SH order n (n*n coefficients), 1..12 (default 6)")
+    p.add_argument("--device", default="cpu", help="Warp device (default: cpu)")
     p.set_defaults(func=_cmd_selfcheck)
     p = sub.add_parser(
-        "info",
+        "info", parents=[common],
         help="print what a USD scene contains (meshes, skinning, lights, camera, frames, bounds)",
         description="SCENE is a USD file, warp-example:NAME (e.g. warp-example:bunny) or bundled:NAME.",
     )
     p.add_argument("scene", help="USD file or scene spec")
     p.add_argument("--ground-plane", action="store_true", help="add a ground plane under the scene first")
     p.set_defaults(func=_cmd_info)
-    p = sub.add_parser("run", help="run a stage graph (TOML) end to end: USD + PNG + JSON report")
+    p = sub.add_parser("run", parents=[common, device], help="run a stage graph (TOML) end to end: USD + PNG + JSON report",
+                       description="Run a stage graph: precompute (cached), every frame, then write the USD layer, "
+                                   "PNG previews and a JSON report into --out.")
     p.add_argument("graph", help="path to a stage graph, or the name of one in stages/")
-    p.add_argument("--frames", default=None, help="time codes A:B (A <= t < B); default: the graph's range")
-    p.add_argument("--device", default=None, help="Warp device: cpu, cuda:0 (default: Warp's default)")
+    p.add_argument("--frames", type=_frames, default=None,
+                   help="time codes to run: A:B (A <= t < B; either end may be left out) or one time code "
+                        "(default: the graph's [graph] frames, else every frame of the scene)")
     p.add_argument("--out", default=None, help="output directory (default: warpshade-out/<graph name>)")
-    p.add_argument("--validate", action="store_true", help="measure error against ray-traced ground truth")
-    p.add_argument("--no-previews", action="store_true", help="skip the PNG previews")
+    p.add_argument("--validate", action="store_true",
+                   help="measure the error against ray-traced ground truth on the graph's [validate] frames that are run")
+    p.add_argument("--no-previews", action="store_true", help="skip the PNG previews and comparison pictures")
+    p.add_argument("--usd-format", choices=("auto", "usda", "usdc"), default="auto",
+                   help="USD layer format: text (usda), binary (usdc) or auto (binary above 32 MiB of colours)")
     p.set_defaults(func=_cmd_run)
-    p = sub.add_parser("demo", help="run the default bundled scene end to end and print where its outputs are")
-    p.add_argument("--device", default=None)
+    p = sub.add_parser("demo", parents=[common, device], help="run the default bundled scene end to end and print where its outputs are",
+                       description="Run stages/demo.toml (Warp's bunny under a rotating sky, static PRT) with validation.")
     p.add_argument("--out", default=None, help="output directory (default: warpshade-out/demo)")
     p.set_defaults(func=_cmd_demo)
-    p = sub.add_parser("list-stages", help="list ready-made stage graphs and registered stage types")
+    p = sub.add_parser("list-stages", parents=[common], help="list ready-made stage graphs and stage types with their parameters",
+                       description="List the stage graphs in ./stages and the source checkout's stages/, and every "
+                                   "registered stage type with its parameters.")
+    p.add_argument("--brief", action="store_true", help="stage types without their parameters")
     p.set_defaults(func=_cmd_list_stages)
     return parser
 
 
+def _message(exc: BaseException) -> str:
+    if isinstance(exc, OSError) and exc.strerror and exc.filename and str(exc.filename) not in str(exc.strerror):
+        text = f"{exc.strerror}: {exc.filename}"
+    else:
+        text = str(exc) or type(exc).__name__
+    if isinstance(exc, MemoryError):
+        text = f"ran out of memory ({text})"
+    return text
+
+
 def main(argv=None) -> int:
+    import traceback
+
+    from .methods.stage import StageError
+
     parser = build_parser()
     args = parser.parse_args(argv)
-    return int(args.func(args) or 0)
+    debug = getattr(args, "debug", False)
+    try:
+        return int(args.func(args) or 0)
+    except KeyboardInterrupt:
+        print(f"warpshade {args.command}: interrupted", file=sys.stderr)
+        return 130
+    except (CliError, StageError, ValueError, OSError, MemoryError) as exc:
+        if debug:
+            traceback.print_exc()
+        text = _message(exc).strip()
+        lines = text.splitlines()
+        print(f"warpshade {args.command}: error: {lines[0] if lines else text}", file=sys.stderr)
+        for line in lines[1:3]:
+            print(f"  {line}", file=sys.stderr)
+        return 2
+    except Exception as exc:  # a bug: short, with the way to the traceback
+        if debug:
+            raise
+        print(f"warpshade {args.command}: unexpected error: {type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}\n"
+              f"  run it again with --debug to see the traceback", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":

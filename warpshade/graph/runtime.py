@@ -462,14 +462,16 @@ class Runtime:
             else:
                 st.launch(self.state)
 
-    def step(self, frame, lighting=None):
+    def step(self, frame, lighting=None, record: bool = False):
         """Shade one frame.
 
         Args:
-            frame: a time code of the scene.
+            frame: a time code of the scene (a number; ValueError names the valid range).
             lighting: optional override of the SH lighting for this frame: world-frame SH
                 coefficients (3, n*n) of at least the graph's highest order, an Environment, a
                 DistantLight or a list of them (projected to SH on the host).
+            record: keep a host copy of the result in :attr:`results` (what the USD layer,
+                previews and error measurement of :mod:`warpshade.measure` read).
 
         Returns:
             the output device array (per-vertex radiance, (vertex_count, 3) float32). The same
@@ -495,6 +497,8 @@ class Runtime:
         wp.synchronize_device(self.device)
         self.host_s.append(t_host - t_start)
         self.frame_s.append(time.perf_counter() - t_start)
+        if record:
+            self.results[float(self.state.frame)] = self.output.numpy().copy()
         return self.output
 
     def run(self, frames=None, record: bool = True, warmup: bool = True) -> np.ndarray:
@@ -511,9 +515,7 @@ class Runtime:
             self.step(sel[0])
             self.reset_timings()
         for f in tqdm(sel, desc=f"{self.spec.name}: frames", disable=not self.progress, unit="frame"):
-            out = self.step(f)
-            if record:
-                self.results[float(f)] = out.numpy().copy()
+            self.step(f, record=record)
         return sel
 
     def profile(self, frames=None, repeats: int = 1) -> dict:

@@ -77,6 +77,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._fileio import captured_stderr
 from .._limits import MAX_TIME_CODES
 from ..scene import lighting
 from ..scene.scene import Camera, Mesh, Scene, Skeleton, SkinBinding
@@ -193,7 +194,7 @@ def load_usd(path) -> Scene:
     path = resolve_scene_path(path)
     if Path(path).is_dir():
         raise ValueError(f"USD file {path}: is a directory")
-    with _quiet_stderr() as printed:
+    with captured_stderr() as printed:
         try:
             stage = Usd.Stage.Open(path, Usd.Stage.LoadAll)
         except Exception as exc:  # pxr.Tf.ErrorException
@@ -207,29 +208,6 @@ def load_usd(path) -> Scene:
     return _StageReader(stage, path).read()
 
 
-class _quiet_stderr:
-    """Collect what the USD libraries print on stderr while a stage is opened (their warnings
-    about missing layers become one clear error instead of a screenful); yields the lines."""
-
-    def __enter__(self):
-        import sys
-        import tempfile
-
-        sys.stderr.flush()
-        self._lines: list[str] = []
-        self._file = tempfile.TemporaryFile()
-        self._saved = os.dup(2)
-        os.dup2(self._file.fileno(), 2)
-        return self._lines
-
-    def __exit__(self, *exc):
-        os.dup2(self._saved, 2)
-        os.close(self._saved)
-        self._file.seek(0)
-        text = self._file.read().decode(errors="replace")
-        self._file.close()
-        self._lines.extend(line.strip() for line in text.splitlines() if line.strip())
-        return False
 
 
 def _value_or(value, fallback: float) -> float:

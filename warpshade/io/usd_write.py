@@ -11,15 +11,16 @@ The file is exported to a temporary name and moved into place atomically.
 
 from __future__ import annotations
 
+import errno
 import os
 from pathlib import Path
 
 import numpy as np
 from pxr import Sdf, Usd, UsdGeom, Vt
 
-from .._fileio import atomic_path
+from .._fileio import atomic_path, captured_stderr
 
-__all__ = ["write_vertex_colors"]
+__all__ = ["write_vertex_colors", "usd_output_name", "USDA_MAX_BYTES"]
 
 
 def _safe_name(path: str) -> str:
@@ -58,14 +59,41 @@ def write_vertex_colors(path, scene, frames, colors, extra_primvars: dict | None
         raise ValueError(f"write_vertex_colors: output must end in .usda, .usdc or .usd, got {path.name}")
 
     with atomic_path(path, exists=False) as tmp:  # Sdf creates the layer itself, in the same directory
-        _author(str(tmp), path, source, scene, frames, colors, extra_primvars)
+        with captured_stderr() as printed:  # USD reports a failed save with a line per write
+            try:
+                _author(str(tmp), path, source, scene, frames, colors, extra_primvars)
+            except ValueError:
+                raise
+            except Exception as exc:  # OSError, pxr.Tf.ErrorException (a full disk, a vanished directory)
+                detail = f" ({printed[0]})" if printed else ""
+                code = getattr(exc, "errno", None) or errno.EIO
+                raise OSError(code, f"could not write the USD layer {path}{detail}: {getattr(exc, 'strerror', None) or exc}") from None
     return path
+
+
+#: Above this many bytes of colour data a layer written as ``format="auto"`` is binary (.usdc):
+#: text takes ~3x the bytes and far longer to write and read.
+USDA_MAX_BYTES = 32 * 2**20
+
+
+def usd_output_name(stem: str, scene, frame_count: int, fmt: str = "auto") -> str:
+    """The USD file name of a run's layer: ``<stem>.usda`` or ``<stem>.usdc``.
+
+    Args:
+        fmt: "usda", "usdc" or "auto" (binary when the time-sampled colours exceed
+            :data:`USDA_MAX_BYTES`: vertex_count x frames x 3 floats).
+    """
+    if fmt not in ("auto", "usda", "usdc"):
+        raise ValueError(f"USD format must be 'auto', 'usda' or 'usdc', got {fmt!r}")
+    if fmt == "auto":
+        fmt = "usdc" if scene.vertex_count * frame_count * 12 > USDA_MAX_BYTES else "usda"
+    return f"{stem}.{fmt}"
 
 
 def _author(tmp, path, source, scene, frames, colors, extra_primvars):
     layer = Sdf.Layer.CreateNew(tmp)
     if layer is None:
-        raise OSError(f"could not create USD layer {tmp}")
+        raise OSError(errno.EIO, f"could not create USD layer {tmp}")
     stage = Usd.Stage.Open(layer)
     src_stage = None
     if source is not None:
@@ -107,7 +135,7 @@ def _author(tmp, path, source, scene, frames, colors, extra_primvars):
                 epv.Set(conv(np.ascontiguousarray(arr[t, sl])), Usd.TimeCode(float(f)))
 
     if not layer.Save():
-        raise OSError(f"could not save USD layer {tmp}")
+        raise OSError(errno.EIO, f"could not save USD layer {tmp}")
 
 
 def _editable_source_mesh(src_stage, mesh):

@@ -148,8 +148,10 @@ def fit_transfer(
     )
 
 
-def local_transfer(scene, frame, order: int, samples: int, device=None, seed: int = 0, vertices=None) -> np.ndarray:
+def local_transfer(scene, frame, order: int, samples: int, device=None, seed: int = 0, vertices=None,
+                   progress: bool = False) -> np.ndarray:
     """Ray-traced diffuse transfer in the per-vertex tangent frame at ``frame``, (V, n*n) float32."""
     from ...transfer import compute
 
-    return compute(scene, frame, order, samples, space="local", device=device, seed=seed, vertices=vertices).transfer
+    return compute(scene, frame, order, samples, space="local", device=device, seed=seed, vertices=vertices,
+                   progress=progress).transfer

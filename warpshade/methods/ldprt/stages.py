@@ -99,7 +99,7 @@ class FitStage(Stage):
     def precompute(self, ctx, inputs):
         p = self.params
         t = local_transfer(ctx.scene, _bake_frame(ctx, p["frame"]), p["order"], p["samples"], device=ctx.device,
-                           seed=p["seed"])
+                           seed=p["seed"], progress=ctx.progress)
         model = fit_transfer(t, p["lobes"], target_error=p["target_error"], stored_bands=p["stored_bands"],
                              restarts=p["restarts"], restart_error=p["restart_error"], seed=p["seed"],
                              ridge=p["ridge"])
@@ -125,7 +125,7 @@ class LocalTransferStage(Stage):
     def precompute(self, ctx, inputs):
         p = self.params
         t = local_transfer(ctx.scene, _bake_frame(ctx, p["frame"]), p["order"], p["samples"], device=ctx.device,
-                           seed=p["seed"])
+                           seed=p["seed"], progress=ctx.progress)
         return {"transfer": np.asarray(t, np.float32)}
 
 
@@ -302,7 +302,7 @@ class GlossyFitStage(Stage):
         brdf = brdf_from_params(p["brdf"], p["roughness"], p["exponent"], p["f0"])
         fac = factorize(brdf, p["order"], p["rank"], p["view_resolution"])
         vis = compute(ctx.scene, _bake_frame(ctx, p["frame"]), p["order"], p["samples"], space="local",
-                      device=ctx.device, seed=p["seed"], below_horizon=p["below_horizon"]).visibility
+                      device=ctx.device, seed=p["seed"], below_horizon=p["below_horizon"], progress=ctx.progress).visibility
         model = fit_glossy(vis, fac, p["lobes"], restarts=p["restarts"], seed=p["seed"], ridge=p["ridge"])
         v = vis.shape[0]
         self.report = {"svd_truncation_error": fac.truncation_error(), "fit_total_error": model.total_error,

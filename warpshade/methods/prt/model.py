@@ -50,9 +50,10 @@ class TransferModel:
         return cls(t)
 
 
-def bake_transfer(scene, frame, order: int, samples: int, seed: int = 0, device=None) -> TransferModel:
-    """Ray trace the transfer of every vertex of ``scene`` at time code ``frame``."""
+def bake_transfer(scene, frame, order: int, samples: int, seed: int = 0, device=None, progress: bool = False) -> TransferModel:
+    """Ray trace the transfer of every vertex of ``scene`` at time code ``frame`` (``progress``:
+    a progress bar over the vertices)."""
     from ...transfer import compute
 
-    result = compute(scene, frame, order, samples, space="world", device=device, seed=seed)
+    result = compute(scene, frame, order, samples, space="world", device=device, seed=seed, progress=progress)
     return TransferModel(np.asarray(result.transfer, dtype=np.float32))

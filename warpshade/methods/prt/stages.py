@@ -53,7 +53,7 @@ class TransferStage(Stage):
     def precompute(self, ctx, inputs):
         p = self.params
         frame = float(ctx.scene.frames[0]) if p["frame"] is None else p["frame"]
-        return bake_transfer(ctx.scene, frame, p["order"], p["samples"], p["seed"], ctx.device).arrays()
+        return bake_transfer(ctx.scene, frame, p["order"], p["samples"], p["seed"], ctx.device, ctx.progress).arrays()
 
     def check_artifact(self, outputs):
         TransferModel.from_arrays(outputs, order=self.params["order"])

@@ -146,7 +146,7 @@ class StaticBakeStage(Stage):
             meshes = [replace(m) for m, s in zip(scene.meshes, static) if s]
             sub = Scene(meshes, frames=scene.frames[:1], lights=scene.lights, up_axis=scene.up_axis, source=scene.source)
             t = compute(sub, float(sub.frames[0]), order, self.params["samples"], space="world", device=ctx.device,
-                        seed=self.params["seed"]).transfer
+                        seed=self.params["seed"], progress=ctx.progress).transfer
             k = 0
             for m, s in zip(scene.meshes, static):
                 if s:
