@@ -146,8 +146,8 @@ def _describe_param(name, param) -> str:
     if param.choices is not None:
         bits.append("one of " + ", ".join(repr(c) for c in param.choices))
     if param.minimum is not None or param.maximum is not None:
-        lo = "" if param.minimum is None else f"{param.minimum:g}"
-        hi = "" if param.maximum is None else f"{param.maximum:g}"
+        lo = "" if param.minimum is None else (f"{param.minimum}" if param.type is int else f"{param.minimum:g}")
+        hi = "" if param.maximum is None else (f"{param.maximum}" if param.type is int else f"{param.maximum:g}")
         bits.append(f"range [{lo}, {hi}]")
     return f"      {name:20s} {'; '.join(bits)}" + (f" -- {param.doc}" if param.doc else "")
 
@@ -348,8 +348,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _message(exc: BaseException) -> str:
-    if isinstance(exc, OSError) and exc.strerror and exc.filename and str(exc.filename) not in str(exc.strerror):
-        text = f"{exc.strerror}: {exc.filename}"
+    if isinstance(exc, OSError) and exc.strerror:
+        text = str(exc.strerror)
+        if exc.filename and str(exc.filename) not in text:
+            text = f"{text}: {exc.filename}"
     else:
         text = str(exc) or type(exc).__name__
     if isinstance(exc, MemoryError):
