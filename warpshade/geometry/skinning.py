@@ -99,9 +99,12 @@ def transform_normals_kernel(
     v = wp.tid()
     m = matrices[matrix_index]
     m3 = wp.mat33(m[0, 0], m[0, 1], m[0, 2], m[1, 0], m[1, 1], m[1, 2], m[2, 0], m[2, 1], m[2, 2])
-    n = wp.transpose(wp.inverse(m3)) * normals[v]
-    if area_sums != 0 and wp.determinant(m3) < 0.0:
-        n = -n
+    det = wp.determinant(m3)
+    n = wp.vec3(0.0)
+    if wp.abs(det) > 1.0e-30:  # a transform that flattens the mesh: the fallback normal below
+        n = wp.transpose(wp.inverse(m3)) * normals[v]
+        if area_sums != 0 and det < 0.0:
+            n = -n
     length = wp.length(n)
     if length > 1.0e-30:
         n = n / length

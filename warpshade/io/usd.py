@@ -73,6 +73,7 @@ from __future__ import annotations
 import math
 import os
 import warnings
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -263,10 +264,23 @@ class _StageReader:
         return mats
 
     # -- main ------------------------------------------------------------------------------
+    @contextmanager
+    def _reading(self, prim):
+        """Turn what malformed data makes the USD bindings or NumPy raise (TypeError,
+        IndexError, ...) into a ValueError naming the prim; ValueErrors pass as they are."""
+        try:
+            yield
+        except (ValueError, FileNotFoundError):
+            raise
+        except Exception as exc:
+            raise ValueError(f"prim {prim.GetPath()} in {self.path}: cannot be read ({type(exc).__name__}: "
+                             f"{_first_line(exc)})") from exc
+
     def read(self) -> Scene:
         from pxr import Usd, UsdGeom, UsdLux
 
-        skins, skeletons = self._read_skinning()
+        with self._reading(self.stage.GetPseudoRoot()):
+            skins, skeletons = self._read_skinning()
         meshes: list[Mesh] = []
         lights = []
         camera = None
@@ -284,22 +298,23 @@ class _StageReader:
                     self.skipped.append((str(prim.GetPath()), "invisible"))
                     it.PruneChildren()
                     continue
-            if prim.IsA(UsdGeom.PointInstancer):
-                meshes.extend(self._read_point_instancer(prim))
-                it.PruneChildren()
-                continue
-            if prim.IsA(UsdGeom.Mesh):
-                mesh = self._read_mesh(prim, skins.get(str(prim.GetPath())))
-                if mesh is not None:
-                    meshes.append(mesh)
-            elif prim.IsA(UsdGeom.Gprim):
-                self.skipped.append((str(prim.GetPath()), f"implicit {prim.GetTypeName()} (only Mesh prims are read)"))
-            elif prim.HasAPI(UsdLux.LightAPI):
-                light = self._read_light(prim)
-                if light is not None:
-                    lights.append(self._with_track(prim, light))
-            elif prim.IsA(UsdGeom.Camera) and camera is None:
-                camera = self._read_camera(prim)
+            with self._reading(prim):
+                if prim.IsA(UsdGeom.PointInstancer):
+                    meshes.extend(self._read_point_instancer(prim))
+                    it.PruneChildren()
+                    continue
+                if prim.IsA(UsdGeom.Mesh):
+                    mesh = self._read_mesh(prim, skins.get(str(prim.GetPath())))
+                    if mesh is not None:
+                        meshes.append(mesh)
+                elif prim.IsA(UsdGeom.Gprim):
+                    self.skipped.append((str(prim.GetPath()), f"implicit {prim.GetTypeName()} (only Mesh prims are read)"))
+                elif prim.HasAPI(UsdLux.LightAPI):
+                    light = self._read_light(prim)
+                    if light is not None:
+                        lights.append(self._with_track(prim, light))
+                elif prim.IsA(UsdGeom.Camera) and camera is None:
+                    camera = self._read_camera(prim)
         if not meshes:
             raise ValueError(f"USD file {self.path}: contains no (visible, renderable) UsdGeom.Mesh prims")
         return Scene(
@@ -540,6 +555,9 @@ class _StageReader:
         pv = self._primvar(mesh.GetPrim(), "displayColor")
         if pv is not None:
             values = pv.ComputeFlattened(self.times[0])
+            if values is not None and not hasattr(values, "__len__"):
+                raise ValueError(f"mesh {path} in {self.path}: primvars:displayColor has a value of unknown type "
+                                 f"({pv.GetTypeName()})")
             if values is not None and len(values):
                 corner_w = np.repeat(poly_area, counts)
                 col = self._to_vertex(values, str(pv.GetInterpolation()), path, "displayColor", vertex_count, indices, counts, corner_w)
@@ -658,7 +676,11 @@ class _StageReader:
         if not joints:
             raise ValueError(f"skeleton {path} in {self.path}: has no joints")
         j = len(joints)
-        parents = np.asarray(query.GetTopology().GetParentIndices(), dtype=np.int64)
+        topology = query.GetTopology()
+        valid, why = topology.Validate()
+        if not valid:
+            raise ValueError(f"skeleton {path} in {self.path}: invalid joint hierarchy ({why})")
+        parents = np.asarray(topology.GetParentIndices(), dtype=np.int64)
         bind = np.array(query.GetJointWorldBindTransforms(), dtype=np.float64).reshape(-1, 4, 4)
         if bind.shape[0] != j:
             raise ValueError(f"skeleton {path} in {self.path}: {bind.shape[0]} bindTransforms for {j} joints")

@@ -226,14 +226,30 @@ class Scene:
         if self.frames.shape[0] == 0:
             raise ValueError(f"scene {source or '<arrays>'}: needs at least one frame")
         t = self.frames.shape[0]
+        if not np.all(np.isfinite(self.frames)) or np.any(np.diff(self.frames) <= 0):
+            raise ValueError(f"scene {source or '<arrays>'}: frames must be finite and increasing")
         for skel in self.skeletons:
             j = skel.joint_count
+            parents = np.asarray(skel.parents).reshape(-1)
+            if parents.shape != (j,) or np.any(parents >= np.arange(j)) or np.any(parents < -1):
+                raise ValueError(f"skeleton {skel.path}: parents must list each joint's parent before it (USD joint "
+                                 f"order), -1 for roots; got {parents.tolist()[:16]}")
+            bind = np.asarray(skel.bind_transforms, np.float64)
+            if bind.shape != (j, 4, 4) or not np.all(np.isfinite(bind)) or np.any(np.abs(np.linalg.det(bind[:, :3, :3])) < 1e-12):
+                raise ValueError(f"skeleton {skel.path}: bind transforms must be ({j}, 4, 4), finite and invertible")
             if skel.local_transforms.shape[1:] != (j, 4, 4) or skel.local_transforms.shape[0] not in (1, t):
                 raise ValueError(
                     f"skeleton {skel.path}: local_transforms must be ({t}, {j}, 4, 4), got {skel.local_transforms.shape}"
                 )
+        for skel in self.skeletons:
+            if not (np.all(np.isfinite(skel.local_transforms)) and np.all(np.isfinite(skel.skel_to_world))):
+                raise ValueError(f"skeleton {skel.path}: joint or skeleton transforms have NaN or infinite entries")
         offset = 0
         for mesh in self.meshes:
+            for what, values in (("points", mesh.points), ("transforms", mesh.transforms), ("point samples", mesh.point_samples),
+                                 ("normals", mesh.normals)):
+                if values is not None and not np.all(np.isfinite(values)):
+                    raise ValueError(f"mesh {mesh.path}: {what} have NaN or infinite values")
             mesh.vertex_offset = offset
             offset += mesh.vertex_count
             if mesh.transforms.shape[0] not in (1, t):
@@ -268,6 +284,11 @@ class Scene:
                 f"mesh {mesh.path}: joint_indices {idx.shape} and joint_weights {w.shape} must both be "
                 f"({mesh.vertex_count}, K)"
             )
+        bind = np.asarray(skin.geom_bind_transform, np.float64)
+        if bind.shape != (4, 4) or not np.all(np.isfinite(bind)) or abs(np.linalg.det(bind[:3, :3])) < 1e-12:
+            raise ValueError(f"mesh {mesh.path}: geom bind transform must be a finite, invertible (4, 4) matrix")
+        if not (np.all(np.isfinite(w)) and np.all(w >= 0)):
+            raise ValueError(f"mesh {mesh.path}: joint weights must be finite and >= 0")
         if idx.size and (idx.min() < 0 or idx.max() >= skel.joint_count):
             raise ValueError(
                 f"mesh {mesh.path}: joint indices {int(idx.min())}..{int(idx.max())} do not match skeleton "
@@ -350,8 +371,10 @@ class Scene:
             raise TypeError(f"frame must be a number (a time code), got {frame!r}")
         if not np.isfinite(frame):
             raise ValueError(f"frame must be a finite time code, got {frame!r}")
-        idx = int(np.argmin(np.abs(self.frames - float(frame))))
-        if abs(self.frames[idx] - float(frame)) > 1e-6:
+        f = float(frame)
+        i = int(np.searchsorted(self.frames, f))  # frames increase: the nearest is at i - 1 or i
+        idx = i - 1 if i == len(self.frames) or (i > 0 and f - self.frames[i - 1] < self.frames[i] - f) else i
+        if abs(self.frames[idx] - f) > 1e-6:
             raise ValueError(
                 f"scene {self.source or '<arrays>'}: frame {frame} is not one of the sampled time codes "
                 f"({self.frames[0]:g}..{self.frames[-1]:g}, {len(self.frames)} frames)"
