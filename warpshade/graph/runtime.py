@@ -399,9 +399,7 @@ class Runtime:
         self.state.lighting = FrameLighting(lighting, self.scene.frames, self.evaluator.input, self.device)
         self.evaluator.input.host[1] = 0
         self._override_on = False
-        for st in self.frame_stages:
-            st.notify_changed(Change.LIGHTING)
-        self._setup(0)
+        self._setup(0)  # the lights may differ in number: every stage binds the new arrays
 
     def set_albedo(self, albedo, prims=None) -> None:
         """New diffuse albedo for every vertex or for the meshes ``prims`` (see
@@ -482,9 +480,11 @@ class Runtime:
         if lighting is not None:
             self._set_override(lighting)
             self._override_on = True
+            self.notify_changed(Change.LIGHTING)
         elif self._override_on:
             self.state.lighting.clear_override()
             self._override_on = False
+            self.notify_changed(Change.LIGHTING)
         t_host = time.perf_counter()
         if self._program is not None:
             self._program.replay()

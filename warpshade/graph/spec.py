@@ -321,6 +321,13 @@ class GraphSpec:
         except (TypeError, ValueError) as exc:
             raise GraphError(f"{where}: {exc}") from None
 
+    def _check_validate_frames(self, scene) -> None:
+        for f in self.validate_spec.get("frames") or ():
+            try:
+                scene.frame_index(f)
+            except (TypeError, ValueError) as exc:
+                raise GraphError(f"graph {self.name!r}: [validate] frames: {exc}") from None
+
     def validation_frames(self, scene, run_frames=None) -> tuple[list, list]:
         """The ``[validate]`` frames a run measures, and those it leaves out.
 
@@ -338,12 +345,8 @@ class GraphSpec:
         wanted = self.validate_spec.get("frames")
         if wanted is None:
             return [run[0]], []
+        self._check_validate_frames(scene)
         where = f"graph {self.name!r}: [validate] frames"
-        for f in wanted:
-            try:
-                scene.frame_index(f)
-            except ValueError as exc:
-                raise GraphError(f"{where}: {exc}") from None
         measured = [float(f) for f in wanted if any(abs(float(f) - r) <= 1e-6 for r in run)]
         left_out = [float(f) for f in wanted if float(f) not in measured]
         if not measured:
@@ -368,12 +371,7 @@ class GraphSpec:
         if scene is None:
             scene = self.load_scene()
         self.run_frames(scene)
-        if self.validate_spec.get("frames") is not None:
-            for f in self.validate_spec["frames"]:
-                try:
-                    scene.frame_index(f)
-                except ValueError as exc:
-                    raise GraphError(f"graph {self.name!r}: [validate] frames: {exc}") from None
+        self._check_validate_frames(scene)
         if lighting is None:
             lighting = self.lighting_source(scene)
         return Runtime(self, scene, device=device, lighting=lighting, **kwargs)
