@@ -66,7 +66,7 @@ def _vec3f(a) -> Vt.Vec3fArray:
     return Vt.Vec3fArray.FromNumpy(_r(a).astype(np.float32).reshape(-1, 3))
 
 
-def _new_stage(animated: bool) -> Usd.Stage:
+def _new_stage(animated: bool, frame_count: int = FRAME_COUNT) -> Usd.Stage:
     layer = Sdf.Layer.CreateAnonymous(".usda")
     stage = Usd.Stage.Open(layer)
     UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
@@ -75,17 +75,22 @@ def _new_stage(animated: bool) -> Usd.Stage:
     stage.SetFramesPerSecond(FPS)
     if animated:
         stage.SetStartTimeCode(0)
-        stage.SetEndTimeCode(FRAME_COUNT - 1)
+        stage.SetEndTimeCode(frame_count - 1)
     world = UsdGeom.Xform.Define(stage, "/World")
     stage.SetDefaultPrim(world.GetPrim())
     return stage
 
 
 def _save(stage: Usd.Stage, path: str) -> None:
-    text = stage.GetRootLayer().ExportToString()
-    tmp = path + ".tmp"
-    with open(tmp, "w", encoding="utf-8", newline="\n") as fh:
-        fh.write(text)
+    """Write the stage's root layer: text for ``.usda``, USD's crate format for ``.usdc``."""
+    if path.endswith(".usdc"):
+        tmp = path[: -len(".usdc")] + ".tmp.usdc"  # the extension picks the file format
+        if not stage.GetRootLayer().Export(tmp):
+            raise OSError(f"could not write {tmp}")
+    else:
+        tmp = path + ".tmp"
+        with open(tmp, "w", encoding="utf-8", newline="\n") as fh:
+            fh.write(stage.GetRootLayer().ExportToString())
     os.replace(tmp, path)
 
 
@@ -423,50 +428,74 @@ def _figure_skin_geometry():
     )
 
 
-def make_figure(out_dir: str) -> str:
-    stage = _new_stage(animated=True)
-    _sky(stage)
-    _ground(stage)
-    root = UsdSkel.Root.Define(stage, "/World/Figure")
-    root.AddTranslateOp().Set(Gf.Vec3d(*FIGURE_ROOT_TRANSLATE))
-    root.AddRotateZOp().Set(FIGURE_ROOT_ROTATE_Z)
-    paths = joint_paths(FIGURE_JOINTS)
-    skel = UsdSkel.Skeleton.Define(stage, "/World/Figure/Skel")
+def _skeleton(stage, root_path, joints, rotations, frame_count):
+    """A Skeleton and its Animation under ``root_path``: rest/bind poses from ``joints`` offsets.
+
+    ``joints`` lists (name, parent, rest offset from the parent); rest rotations are identity, so
+    the authored rotations ``rotations(frame)`` (rotation vectors, (J, 3)) are the joint angles
+    relative to the rest pose. Returns the Skeleton and the joint paths.
+    """
+    paths = joint_paths(joints)
+    skel = UsdSkel.Skeleton.Define(stage, f"{root_path}/Skel")
     skel.CreateJointsAttr(Vt.TokenArray(paths))
     world = {}
     local_rest, bind = [], []
-    for name, par, off in FIGURE_JOINTS:
+    for name, par, off in joints:
         world[name] = np.asarray(off, float) + (world[par] if par else 0.0)
         local_rest.append(Gf.Matrix4d().SetTranslate(Gf.Vec3d(*_r(off))))
         bind.append(Gf.Matrix4d().SetTranslate(Gf.Vec3d(*_r(world[name]))))
     skel.CreateRestTransformsAttr(Vt.Matrix4dArray(local_rest))
     skel.CreateBindTransformsAttr(Vt.Matrix4dArray(bind))
-    anim = UsdSkel.Animation.Define(stage, "/World/Figure/Anim")
+    anim = UsdSkel.Animation.Define(stage, f"{root_path}/Anim")
     anim.CreateJointsAttr(Vt.TokenArray(paths))
-    anim.CreateTranslationsAttr(Vt.Vec3fArray([Gf.Vec3f(*_r(off)) for _, _, off in FIGURE_JOINTS]))
+    anim.CreateTranslationsAttr(Vt.Vec3fArray([Gf.Vec3f(*_r(off)) for _, _, off in joints]))
     anim.CreateScalesAttr(Vt.Vec3hArray([Gf.Vec3h(1.0, 1.0, 1.0)] * len(paths)))
-    rotations = anim.CreateRotationsAttr()
-    for f in range(FRAME_COUNT):
-        rotations.Set(_quat_array(figure_joint_rotations(f)), f)
+    attr = anim.CreateRotationsAttr()
+    for f in range(frame_count):
+        attr.Set(_quat_array(rotations(f)), f)
     UsdSkel.BindingAPI.Apply(skel.GetPrim()).CreateAnimationSourceRel().SetTargets([anim.GetPath()])
+    return skel, paths
+
+
+def _bind_skin(mesh, skel, indices, weights, element_size, geom_bind, joints=None, constant=False):
+    """Bind a mesh to a skeleton: per-vertex (or ``constant``) joint indices and weights."""
+    binding = UsdSkel.BindingAPI.Apply(mesh.GetPrim())
+    binding.CreateSkeletonRel().SetTargets([skel.GetPath()])
+    if joints is not None:  # the mesh's own joint order, which its indices refer to
+        binding.CreateJointsAttr(Vt.TokenArray(joints))
+    binding.CreateJointIndicesPrimvar(constant, element_size).Set(Vt.IntArray([int(v) for v in np.ravel(indices)]))
+    binding.CreateJointWeightsPrimvar(constant, element_size).Set(Vt.FloatArray([float(v) for v in _r(weights).ravel()]))
+    binding.CreateGeomBindTransformAttr(geom_bind)
+    return binding
+
+
+def _write_figure(out_dir: str, file_name: str, rotations, frame_count: int) -> str:
+    """The figure (one character: skeleton, skinned body, ground, sky, camera) in one clip."""
+    stage = _new_stage(animated=True, frame_count=frame_count)
+    _sky(stage)
+    _ground(stage)
+    root = UsdSkel.Root.Define(stage, "/World/Figure")
+    root.AddTranslateOp().Set(Gf.Vec3d(*FIGURE_ROOT_TRANSLATE))
+    root.AddRotateZOp().Set(FIGURE_ROOT_ROTATE_Z)
+    skel, paths = _skeleton(stage, "/World/Figure", FIGURE_JOINTS, rotations, frame_count)
 
     pts, counts, idx, infl, w = _figure_skin_geometry()
     # Author points in a local frame offset from skeleton space; geomBindTransform undoes it.
     body = _mesh(stage, "/World/Figure/Body", pts - FIGURE_GEOM_BIND_OFFSET, counts, idx, (0.78, 0.62, 0.5))
-    binding = UsdSkel.BindingAPI.Apply(body.GetPrim())
-    binding.CreateSkeletonRel().SetTargets([skel.GetPath()])
     # The mesh names the joints in its own (reversed) order; indices refer to that order.
     order = list(reversed(range(len(paths))))
-    binding.CreateJointsAttr(Vt.TokenArray([paths[k] for k in order]))
     to_mesh_order = {k: i for i, k in enumerate(order)}
     mesh_infl = np.vectorize(to_mesh_order.get)(infl)
-    binding.CreateJointIndicesPrimvar(False, 2).Set(Vt.IntArray([int(v) for v in mesh_infl.ravel()]))
-    binding.CreateJointWeightsPrimvar(False, 2).Set(Vt.FloatArray([float(v) for v in _r(w).ravel()]))
-    binding.CreateGeomBindTransformAttr(Gf.Matrix4d().SetTranslate(Gf.Vec3d(*FIGURE_GEOM_BIND_OFFSET)))
+    geom_bind = Gf.Matrix4d().SetTranslate(Gf.Vec3d(*FIGURE_GEOM_BIND_OFFSET))
+    _bind_skin(body, skel, mesh_infl, w, 2, geom_bind, joints=[paths[k] for k in order])
     _camera(stage, eye=(1.2, -3.8, 1.6), target=(0.3, -0.2, 1.0))
-    path = os.path.join(out_dir, "figure.usda")
+    path = os.path.join(out_dir, file_name)
     _save(stage, path)
     return path
+
+
+def make_figure(out_dir: str) -> str:
+    return _write_figure(out_dir, "figure.usda", figure_joint_rotations, FRAME_COUNT)
 
 
 # ---- (c) cloth ------------------------------------------------------------------------------
@@ -536,25 +565,7 @@ def make_bend(out_dir: str) -> str:
     stage = _new_stage(animated=True)
     _sky(stage)
     UsdSkel.Root.Define(stage, "/World/Bend")
-    paths = joint_paths(BEND_JOINTS)
-    skel = UsdSkel.Skeleton.Define(stage, "/World/Bend/Skel")
-    skel.CreateJointsAttr(Vt.TokenArray(paths))
-    world = {}
-    rest, bind = [], []
-    for name, par, off in BEND_JOINTS:
-        world[name] = np.asarray(off, float) + (world[par] if par else 0.0)
-        rest.append(Gf.Matrix4d().SetTranslate(Gf.Vec3d(*off)))
-        bind.append(Gf.Matrix4d().SetTranslate(Gf.Vec3d(*world[name])))
-    skel.CreateRestTransformsAttr(Vt.Matrix4dArray(rest))
-    skel.CreateBindTransformsAttr(Vt.Matrix4dArray(bind))
-    anim = UsdSkel.Animation.Define(stage, "/World/Bend/Anim")
-    anim.CreateJointsAttr(Vt.TokenArray(paths))
-    anim.CreateTranslationsAttr(Vt.Vec3fArray([Gf.Vec3f(*off) for _, _, off in BEND_JOINTS]))
-    anim.CreateScalesAttr(Vt.Vec3hArray([Gf.Vec3h(1.0, 1.0, 1.0)] * len(paths)))
-    rotations = anim.CreateRotationsAttr()
-    for f in range(FRAME_COUNT):
-        rotations.Set(_quat_array(bend_joint_rotations(f)), f)
-    UsdSkel.BindingAPI.Apply(skel.GetPrim()).CreateAnimationSourceRel().SetTargets([anim.GetPath()])
+    skel, _ = _skeleton(stage, "/World/Bend", BEND_JOINTS, bend_joint_rotations, FRAME_COUNT)
 
     rings = 33
     profile = [(BEND_HEIGHT * k / (rings - 1), BEND_RADIUS) for k in range(rings)]
@@ -568,11 +579,7 @@ def make_bend(out_dir: str) -> str:
     infl = np.stack([lower, lower + 1], 1)
     w = np.stack([1.0 - w_upper, w_upper], 1)
     mesh = _mesh(stage, "/World/Bend/Tube", pts, counts, idx, (0.7, 0.7, 0.72))
-    binding = UsdSkel.BindingAPI.Apply(mesh.GetPrim())
-    binding.CreateSkeletonRel().SetTargets([skel.GetPath()])
-    binding.CreateJointIndicesPrimvar(False, 2).Set(Vt.IntArray([int(v) for v in infl.ravel()]))
-    binding.CreateJointWeightsPrimvar(False, 2).Set(Vt.FloatArray([float(v) for v in _r(w).ravel()]))
-    binding.CreateGeomBindTransformAttr(Gf.Matrix4d(1.0))
+    _bind_skin(mesh, skel, infl, w, 2, Gf.Matrix4d(1.0))
     _camera(stage, eye=(3.5, -3.5, 2.2), target=(0.0, 0.0, 1.0))
     path = os.path.join(out_dir, "bend.usda")
     _save(stage, path)
