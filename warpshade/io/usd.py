@@ -119,28 +119,28 @@ def resolve_scene_path(spec) -> str:
         spec := PATH                    a .usd/.usda/.usdc/.usdz file
               | "warp-example:" NAME     NAME[.usd] in warp.examples.get_asset_directory()
                                          (e.g. warp-example:bunny, warp-example:bear)
-              | "bundled:" NAME          NAME[.usda] in the repository's usd_assets/
-                                         (e.g. bundled:figure)
+              | "bundled:" NAME          NAME[.usda or .usdc, in that order] in the
+                                         repository's usd_assets/ (e.g. bundled:figure)
 
     Raises:
         FileNotFoundError: naming the file (and, for the prefixed forms, what is available).
     """
     spec = os.fspath(spec)
-    for prefix, directory_fn, ext in (
-        ("warp-example:", _warp_asset_directory, ".usd"),
-        ("bundled:", bundled_asset_directory, ".usda"),
+    for prefix, directory_fn, extensions in (
+        ("warp-example:", _warp_asset_directory, (".usd",)),
+        ("bundled:", bundled_asset_directory, (".usda", ".usdc")),
     ):
         if spec.startswith(prefix):
             name = spec[len(prefix) :]
             directory = directory_fn()
             candidates = [os.path.join(directory, name)]
             if not os.path.splitext(name)[1]:
-                candidates.insert(0, os.path.join(directory, name + ext))
+                candidates[:0] = [os.path.join(directory, name + ext) for ext in extensions]
             for cand in candidates:
                 if os.path.isfile(cand):
                     return cand
             available = sorted(
-                os.path.splitext(f)[0] for f in (os.listdir(directory) if os.path.isdir(directory) else []) if f.endswith(ext)
+                {os.path.splitext(f)[0] for f in (os.listdir(directory) if os.path.isdir(directory) else []) if f.endswith(extensions)}
             )
             raise FileNotFoundError(
                 f"scene spec {spec!r}: no file {candidates[0]} (available: {', '.join(available) or 'none'})"
