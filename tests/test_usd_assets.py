@@ -1,4 +1,5 @@
-"""The bundled scenes: the generator reproduces them byte for byte, their structure, `warpshade info`."""
+"""The bundled scenes: the generator reproduces them byte for byte, their structure, `warpshade info`,
+and the training / held-out clips of the figure for data-driven PRT."""
 
 import importlib.util
 import os
@@ -12,6 +13,14 @@ from warpshade.io.usd import bundled_asset_directory, load_usd
 ASSETS = bundled_asset_directory()
 FILES = ["sky.hdr", "blockers.usda", "figure.usda", "cloth.usda", "bend.usda"]
 MAX_BYTES = 2 * 1024 * 1024  # issue 3: each bundled file < 2 MB
+#: The clips of the data-driven PRT characters: (training clip, held-out clips) per character.
+CLIPS = {
+    "figure": ("figure_train", ["figure", "figure_walk"]),
+}
+CLIP_FILES = ["figure_train.usda", "figure_walk.usda"]
+MAX_CLIP_BYTES = 8 * 1024 * 1024
+#: Every held-out joint-angle component stays at least this far (radians) inside the training range.
+RANGE_MARGIN = 0.02
 
 
 @pytest.fixture(scope="module")
@@ -22,13 +31,25 @@ def generator():
     return module
 
 
+@pytest.fixture(scope="module")
+def clips():
+    """Every clip of the characters, loaded once: name -> (Scene, joint angles (T, J, 3))."""
+    out = {}
+    for train, tests in CLIPS.values():
+        for name in [train, *tests]:
+            scene = load_usd(f"bundled:{name}")
+            skel = scene.skeletons[0]
+            out[name] = scene, np.stack([skel.joint_angles(t) for t in range(len(scene.frames))])
+    return out
+
+
 def test_generator_reproduces_the_bundled_files(tmp_path, generator):
     written = generator.generate(str(tmp_path))
-    assert sorted(os.path.basename(p) for p in written) == sorted(FILES)
-    for name in FILES:
+    assert sorted(os.path.basename(p) for p in written) == sorted(FILES + CLIP_FILES)
+    for name in FILES + CLIP_FILES:
         bundled = os.path.join(ASSETS, name)
         size = os.path.getsize(bundled)
-        assert size < MAX_BYTES, f"{name} is {size} bytes"
+        assert size < (MAX_CLIP_BYTES if name in CLIP_FILES else MAX_BYTES), f"{name} is {size} bytes"
         with open(bundled, "rb") as a, open(tmp_path / name, "rb") as b:
             assert a.read() == b.read(), f"{name} differs from the generator's output: rerun python usd_assets/generate.py"
 
@@ -47,8 +68,8 @@ def test_blockers_structure():
     assert np.ptp(centre_x) > 3.0  # the big sphere crosses most of the 6 m plane
 
 
-def test_figure_structure_and_arms_cross_in_front_of_the_torso():
-    scene = load_usd("bundled:figure")
+def test_figure_structure_and_arms_cross_in_front_of_the_torso(clips):
+    scene = clips["figure"][0]
     body = next(m for m in scene.meshes if m.animation == "skinned")
     assert 1000 <= body.vertex_count <= 5000 and len(scene.frames) >= 60
     assert scene.skeletons[0].joint_count >= 10
@@ -95,3 +116,68 @@ def test_info_reports_bad_input_without_a_traceback(capsys, tmp_path):
     assert main(["info", str(tmp_path / "missing.usda")]) == 2
     err = capsys.readouterr().err
     assert "error: USD file not found" in err and "missing.usda" in err and "Traceback" not in err
+
+
+# ---- training and held-out clips ----------------------------------------------------------------
+def _character_parts(scene):
+    """What must not change between the clips of one character: everything but the animation."""
+    skel = scene.skeletons[0]
+    meshes = [
+        (m.path, m.animation, m.faces, m.points, m.albedo)
+        + ((m.skin.joint_indices, m.skin.joint_weights, m.skin.geom_bind_transform) if m.skin is not None else ())
+        for m in scene.meshes
+    ]
+    rig = (skel.path, skel.joint_names, skel.parents, skel.bind_transforms, skel.rest_transforms, skel.skel_to_world[0])
+    camera = (scene.camera.position, scene.camera.target, scene.camera.vertical_fov)
+    return meshes, rig, camera, [light.path for light in scene.lights], scene.up_axis, scene.fps
+
+
+def _assert_same(a, b, where):
+    if isinstance(a, (list, tuple)):
+        assert len(a) == len(b), where
+        for k, (x, y) in enumerate(zip(a, b)):
+            _assert_same(x, y, f"{where}[{k}]")
+    elif isinstance(a, np.ndarray):
+        np.testing.assert_array_equal(a, b, err_msg=where)
+    else:
+        assert a == b, where
+
+
+@pytest.mark.parametrize("character", sorted(CLIPS))
+def test_clips_share_the_character_exactly(clips, character):
+    train, tests = CLIPS[character]
+    reference = _character_parts(clips[train][0])
+    for name in tests:
+        _assert_same(_character_parts(clips[name][0]), reference, f"{name} vs {train}")
+    train_angles = clips[train][1]
+    for name in tests:  # ... and each clip animates it in its own way
+        angles = clips[name][1]
+        assert np.ptp(angles, axis=0).max() > 0.3 and np.abs(angles - train_angles[: len(angles)]).max() > 0.3, name
+
+
+@pytest.mark.parametrize("character", sorted(CLIPS))
+def test_held_out_joint_angles_lie_inside_the_training_ranges(clips, character):
+    train, tests = CLIPS[character]
+    angles = clips[train][1]
+    assert angles.shape[0] >= 200
+    lo, hi = angles.min(axis=0), angles.max(axis=0)
+    names = [n.rsplit("/", 1)[-1] for n in clips[train][0].skeletons[0].joint_names]
+    for name in tests:
+        test_angles = clips[name][1]
+        assert test_angles.shape[0] >= 60
+        inside = np.minimum(test_angles.min(axis=0) - lo, hi - test_angles.max(axis=0))  # (J, 3)
+        j, k = np.unravel_index(np.argmin(inside), inside.shape)
+        assert inside.min() >= RANGE_MARGIN, f"{name}: {names[j]} component {'xyz'[k]} is {inside.min():.3f} rad from the edge"
+
+
+@pytest.mark.parametrize("character", sorted(CLIPS))
+def test_training_clip_moves_the_joints_independently(clips, character):
+    """Every joint-angle component varies, and the standardised (frames x components) design matrix
+    is well conditioned: a linear regression on joint angles can tell the components apart."""
+    angles = clips[CLIPS[character][0]][1]
+    design = angles.reshape(len(angles), -1)
+    assert design.std(axis=0).min() > 0.005
+    z = (design - design.mean(axis=0)) / design.std(axis=0)
+    singular = np.linalg.svd(z / np.sqrt(len(z)), compute_uv=False)
+    assert singular[0] / singular[-1] < 100.0
+    assert np.abs(np.corrcoef(z.T) - np.eye(z.shape[1])).max() < 0.95

@@ -1,7 +1,7 @@
 """Write the bundled test scenes of warpshade (run: ``python usd_assets/generate.py [--out DIR]``).
 
 Every scene is Z-up, in metres (``metersPerUnit = 1``), 24 frames per second, time codes
-0..59 (60 frames) for animated scenes, and has:
+0..59 (60 frames) for animated scenes unless said otherwise below, and has:
 
 * a ``DomeLight`` (/World/Sky) whose lat-long texture ``sky.hdr`` (64 x 128, Radiance RGBE) is
   a procedural sky with a soft sun, written by this script; the dome carries USD's
@@ -22,6 +22,16 @@ Scenes:
   standing on a separate static 40 x 40 ground grid. The mesh lists its joints in its own
   order (``skel:joints``, reversed) and has a non-identity ``geomBindTransform``; the
   SkelRoot is translated and turned, so loading exercises every part of the binding.
+* ``figure_train.usda`` and ``figure_walk.usda`` -- the same figure (identical mesh, skeleton,
+  binding, ground, sky and camera: one function writes all three files, only the joint
+  rotations differ) in two more clips, for data-driven PRT, which learns transfer as a linear
+  function of the joint angles on one clip and is tested on others. ``figure_train`` (300
+  frames) is a range-of-motion clip (:func:`range_of_motion_clip`): each joint swept alone
+  through its range, then all joints at once as sums of sinusoids at incommensurate
+  frequencies, over ``FIGURE_LIMITS``, which hold every joint-angle component of
+  ``figure.usda`` and ``figure_walk.usda`` with at least 0.05 rad to spare. ``figure_walk``
+  (96 frames) is a held-out walk in place: arms swinging against the legs, hips and head
+  turning, a forward reach with the right arm at the end.
 * ``cloth.usda`` -- a 30 x 30 sheet (faceVarying ``st`` UVs) with time-sampled points:
   travelling waves plus finer wrinkles, sagging at the free edge, over a ground grid.
 * ``bend.usda`` -- a capped cylinder (24-gon caps) skinned to a 4-joint chain that bends and
@@ -54,12 +64,18 @@ SKY_FILE = "sky.hdr"
 SKY_SIZE = (64, 128)
 #: Sun direction (towards the sun), world space, Z-up: in front of the figure (-Y), high.
 SUN_DIRECTION = np.array([0.35, -0.6, 0.72]) / np.linalg.norm([0.35, -0.6, 0.72])
-SCENES = ("blockers", "figure", "cloth", "bend")
+SCENES = ("blockers", "figure", "figure_train", "figure_walk", "cloth", "bend")
 
 
 # ---- small helpers --------------------------------------------------------------------------
 def _r(a) -> np.ndarray:
     return np.round(np.asarray(a, dtype=np.float64), DECIMALS)
+
+
+def _smoothstep(x):
+    """0 below 0, 1 above 1, 3x^2 - 2x^3 between."""
+    x = np.clip(x, 0.0, 1.0)
+    return x * x * (3.0 - 2.0 * x)
 
 
 def _vec3f(a) -> Vt.Vec3fArray:
@@ -297,6 +313,168 @@ def make_blockers(out_dir: str) -> str:
     return path
 
 
+# ---- skeletons and skinning ----------------------------------------------------------------
+def joint_paths(joints):
+    names = {}
+    for name, parent, _ in joints:
+        names[name] = name if parent is None else f"{names[parent]}/{name}"
+    return [names[n] for n, _, _ in joints]
+
+
+def _quat_array(rotvecs) -> Vt.QuatfArray:
+    q = Rotation.from_rotvec(rotvecs).as_quat()  # (x, y, z, w)
+    q = _r(q)
+    return Vt.QuatfArray([Gf.Quatf(float(w), Gf.Vec3f(float(x), float(y), float(z))) for x, y, z, w in q])
+
+
+def _skeleton(stage, root_path, joints, rotations, frame_count):
+    """A Skeleton and its Animation under ``root_path``: rest/bind poses from ``joints`` offsets.
+
+    ``joints`` lists (name, parent, rest offset from the parent); rest rotations are identity, so
+    the authored rotations ``rotations(frame)`` (rotation vectors, (J, 3)) are the joint angles
+    relative to the rest pose. Returns the Skeleton and the joint paths.
+    """
+    paths = joint_paths(joints)
+    skel = UsdSkel.Skeleton.Define(stage, f"{root_path}/Skel")
+    skel.CreateJointsAttr(Vt.TokenArray(paths))
+    world = {}
+    local_rest, bind = [], []
+    for name, par, off in joints:
+        world[name] = np.asarray(off, float) + (world[par] if par else 0.0)
+        local_rest.append(Gf.Matrix4d().SetTranslate(Gf.Vec3d(*_r(off))))
+        bind.append(Gf.Matrix4d().SetTranslate(Gf.Vec3d(*_r(world[name]))))
+    skel.CreateRestTransformsAttr(Vt.Matrix4dArray(local_rest))
+    skel.CreateBindTransformsAttr(Vt.Matrix4dArray(bind))
+    anim = UsdSkel.Animation.Define(stage, f"{root_path}/Anim")
+    anim.CreateJointsAttr(Vt.TokenArray(paths))
+    anim.CreateTranslationsAttr(Vt.Vec3fArray([Gf.Vec3f(*_r(off)) for _, _, off in joints]))
+    anim.CreateScalesAttr(Vt.Vec3hArray([Gf.Vec3h(1.0, 1.0, 1.0)] * len(paths)))
+    attr = anim.CreateRotationsAttr()
+    for f in range(frame_count):
+        attr.Set(_quat_array(rotations(f)), f)
+    UsdSkel.BindingAPI.Apply(skel.GetPrim()).CreateAnimationSourceRel().SetTargets([anim.GetPath()])
+    return skel, paths
+
+
+def _bind_skin(mesh, skel, indices, weights, element_size, geom_bind, joints=None, constant=False):
+    """Bind a mesh to a skeleton: per-vertex (or ``constant``) joint indices and weights."""
+    binding = UsdSkel.BindingAPI.Apply(mesh.GetPrim())
+    binding.CreateSkeletonRel().SetTargets([skel.GetPath()])
+    if joints is not None:  # the mesh's own joint order, which its indices refer to
+        binding.CreateJointsAttr(Vt.TokenArray(joints))
+    binding.CreateJointIndicesPrimvar(constant, element_size).Set(Vt.IntArray([int(v) for v in np.ravel(indices)]))
+    binding.CreateJointWeightsPrimvar(constant, element_size).Set(Vt.FloatArray([float(v) for v in _r(weights).ravel()]))
+    binding.CreateGeomBindTransformAttr(geom_bind)
+    return binding
+
+
+def _write_character(out_dir, file_name, root_path, joints, rotations, frame_count, dress, camera, place=None) -> str:
+    """One clip of a skinned character over the ground grid, under the sky, with a camera.
+
+    Args:
+        root_path: the SkelRoot, which ``place(root)`` (optional) may move; the skeleton and its
+            animation (:func:`_skeleton`: ``joints``, ``rotations(frame)``) go below it.
+        dress: ``dress(stage, skeleton, joint paths)`` adds the character's skinned meshes.
+        camera: (eye, target).
+    """
+    stage = _new_stage(animated=True, frame_count=frame_count)
+    _sky(stage)
+    _ground(stage)
+    root = UsdSkel.Root.Define(stage, root_path)
+    if place is not None:
+        place(root)
+    skel, paths = _skeleton(stage, root_path, joints, rotations, frame_count)
+    dress(stage, skel, paths)
+    _camera(stage, *camera)
+    path = os.path.join(out_dir, file_name)
+    _save(stage, path)
+    return path
+
+
+# ---- range-of-motion training clips -----------------------------------------------------------
+#: Frames of one single-joint sweep in a range-of-motion clip.
+SWEEP_FRAMES = 12
+#: Frequency band (Hz) of the sinusoids of the mixed part, and their relative amplitudes.
+MIXED_BAND = (0.2, 0.8)
+MIXED_AMPLITUDES = (1.0, 0.55, 0.3)
+_GOLDEN = 0.6180339887498949  # Weyl sequences: frequencies and phases that never repeat
+_PLASTIC = 0.7548776662466927
+
+
+def joint_limits(joints, limits) -> np.ndarray:
+    """Per-joint rotation-vector ranges, shape (J, 3, 2) (lo, hi per component), from a table.
+
+    ``limits`` maps a joint name to ((lo, hi) for x, y, z); a left/right pair is given once
+    under the name without its side letter ("Shoulder" for "LShoulder" and "RShoulder"), for
+    the left side; the right side is its mirror image in the x = 0 plane, (x, y, z) -> (x, -y, -z).
+    """
+    out = np.zeros((len(joints), 3, 2))
+    for j, (name, _, _) in enumerate(joints):
+        sided = name[0] in "LR" and name[1:2].isupper()
+        lim = np.asarray(limits[name[1:] if sided else name], dtype=np.float64)
+        if sided and name[0] == "R":
+            lim = np.stack([lim[0], -lim[1, ::-1], -lim[2, ::-1]])
+        if np.any(lim[:, 0] >= lim[:, 1]):
+            raise ValueError(f"joint limits of {name}: every range needs lo < hi")
+        out[j] = lim
+    return out
+
+
+def _sweep_pattern() -> np.ndarray:
+    """One joint's normalised sweep, (SWEEP_FRAMES, 3): each component reaches -1 and +1.
+
+    x: two 6-frame lobes (+, -); y and z: three 4-frame lobes with the signs (+, -, +) and
+    (+, +, -), so the three components are not proportional. Each lobe is sin^2-shaped: it leaves
+    and returns to 0 with zero velocity and passes through its peak on a frame; the pattern
+    starts and ends at 0.
+    """
+    t = np.arange(SWEEP_FRAMES)
+    six = np.sin(np.pi * (t % 6) / 6) ** 2
+    four = np.sin(np.pi * (t % 4) / 4) ** 2
+    return np.stack(
+        [six * np.where(t < 6, 1.0, -1.0), four * np.array([1.0, -1.0, 1.0])[t // 4], four * np.array([1.0, 1.0, -1.0])[t // 4]],
+        1,
+    )
+
+
+def range_of_motion_clip(limits: np.ndarray, mixed_frames: int) -> np.ndarray:
+    """A training clip that covers ``limits`` (J, 3, 2) and moves the joints independently.
+
+    Every joint's base pose is the centre of its ranges (the clip's first frame, in general not
+    the rest pose), so no joint's mean changes between the two parts (a shared offset would
+    correlate all joints). The parts:
+
+    1. single-joint sweeps, one joint at a time in skeleton order (SWEEP_FRAMES each, the
+       others at their base): every component of the joint's rotation vector goes from the
+       centre to both ends of its range and back (:func:`_sweep_pattern`);
+    2. ``mixed_frames`` of every joint at once: each component is the centre of its range plus
+       half its width times a sum of three sinusoids (amplitudes MIXED_AMPLITUDES, normalised
+       to [-1, 1]), every sinusoid of the clip at its own frequency in MIXED_BAND (a Weyl
+       sequence, so no two are commensurate in practice) and phase.
+
+    Returns:
+        rotation vectors, shape (J * SWEEP_FRAMES + mixed_frames, J, 3); every value lies in
+        its range, and both ends of every range are reached exactly.
+    """
+    centre = 0.5 * (limits[..., 0] + limits[..., 1])
+    half = 0.5 * (limits[..., 1] - limits[..., 0])
+    joint_count = len(limits)
+    pattern = _sweep_pattern()
+    sweeps = np.tile(centre, (joint_count * SWEEP_FRAMES, 1, 1))
+    for j in range(joint_count):
+        sweeps[j * SWEEP_FRAMES : (j + 1) * SWEEP_FRAMES, j] += pattern * half[j]
+    t = np.arange(mixed_frames, dtype=np.float64)[:, None, None]
+    amplitudes = np.asarray(MIXED_AMPLITUDES)
+    wave = np.zeros((mixed_frames, joint_count, 3))
+    for i, a in enumerate(amplitudes):
+        n = 3 * np.arange(joint_count * 3).reshape(joint_count, 3) + i
+        freq = MIXED_BAND[0] + (MIXED_BAND[1] - MIXED_BAND[0]) * np.mod(0.5 + n * _GOLDEN, 1.0)
+        phase = 2 * np.pi * np.mod(n * _PLASTIC, 1.0)
+        wave += a * np.sin(2 * np.pi * freq * t / FPS + phase)
+    mixed = centre + half * wave / amplitudes.sum()
+    return np.concatenate([sweeps, mixed])
+
+
 # ---- (b) figure -----------------------------------------------------------------------------
 #: name, parent, rest offset from the parent joint (skeleton space, no rest rotations)
 FIGURE_JOINTS = [
@@ -334,13 +512,6 @@ FIGURE_ROOT_ROTATE_Z = 20.0
 FIGURE_GEOM_BIND_OFFSET = np.array([0.0, 0.05, -0.1])
 
 
-def joint_paths(joints):
-    names = {}
-    for name, parent, _ in joints:
-        names[name] = name if parent is None else f"{names[parent]}/{name}"
-    return [names[n] for n, _, _ in joints]
-
-
 def figure_joint_rotations(frame: int) -> np.ndarray:
     """Joint-local rotations (rotation vectors, radians) of the figure at a frame, shape (12, 3).
 
@@ -371,10 +542,56 @@ def figure_joint_rotations(frame: int) -> np.ndarray:
     return np.stack([rot[name] for name, _, _ in FIGURE_JOINTS])
 
 
-def _quat_array(rotvecs) -> Vt.QuatfArray:
-    q = Rotation.from_rotvec(rotvecs).as_quat()  # (x, y, z, w)
-    q = _r(q)
-    return Vt.QuatfArray([Gf.Quatf(float(w), Gf.Vec3f(float(x), float(y), float(z))) for x, y, z, w in q])
+FIGURE_WALK_FRAMES = 96
+FIGURE_WALK_PERIOD = 32  # frames per stride (left and right step)
+
+
+def figure_walk_rotations(frame: int) -> np.ndarray:
+    """Joint-local rotation vectors of the figure's walk clip at a frame, shape (12, 3).
+
+    A walk in place, three strides of 32 frames: the legs swing (+-0.4 rad) with the knees
+    bending through each swing, the hips sway and turn with the stride while the spine
+    counter-twists, the arms swing in counter-phase with the legs (forward and back, slightly
+    out from the body), and the head looks slowly around. Over the last stride the right arm
+    reaches forward to shoulder height with the elbow straightening. Unlike ``figure.usda``
+    (arms lifting in phase with the step, across the chest) the arms move opposite the legs,
+    over a different range, and the hips and head turn.
+    """
+    ph = 2 * np.pi * frame / FIGURE_WALK_PERIOD
+    slow = 2 * np.pi * frame / FIGURE_WALK_FRAMES
+    reach = _smoothstep((frame - 60) / 14.0) * (1.0 - _smoothstep((frame - 82) / 12.0))
+    rot = {name: np.zeros(3) for name, _, _ in FIGURE_JOINTS}
+    rot["Hips"] = np.array([0.0, 0.04 * np.sin(ph), 0.08 * np.sin(ph)])
+    rot["Spine"] = np.array([0.04, 0.0, -0.15 * np.sin(ph)])
+    rot["Chest"] = np.array([0.06 + 0.03 * np.cos(2 * ph), 0.0, 0.0])
+    rot["Neck"] = np.array([0.1 * np.sin(slow), 0.0, 0.3 * np.sin(slow + 1.0)])
+    rot["LShoulder"] = np.array([0.35 * np.sin(ph) - 0.1, -0.1, 0.0])
+    rot["RShoulder"] = np.array([-0.35 * np.sin(ph) - 0.1 - 1.0 * reach, 0.1 - 0.3 * reach, 0.0])
+    rot["LElbow"] = np.array([-0.3 - 0.15 * (1.0 - np.sin(ph)), 0.0, 0.0])
+    rot["RElbow"] = np.array([(-0.3 - 0.15 * (1.0 + np.sin(ph))) * (1.0 - 0.7 * reach), 0.0, 0.0])
+    rot["LHip"] = np.array([-0.4 * np.sin(ph), 0.0, 0.0])
+    rot["RHip"] = np.array([0.4 * np.sin(ph), 0.0, 0.0])
+    rot["LKnee"] = np.array([0.3 * (1.0 + np.cos(ph)), 0.0, 0.0])
+    rot["RKnee"] = np.array([0.3 * (1.0 - np.cos(ph)), 0.0, 0.0])
+    return np.stack([rot[name] for name, _, _ in FIGURE_JOINTS])
+
+
+#: Range of motion of the figure's training clip (rotation-vector components, radians; right
+#: side mirrored, see :func:`joint_limits`): the ranges of figure.usda and figure_walk.usda
+#: with at least 0.05 rad to spare on each side.
+FIGURE_LIMITS = {
+    "Hips": ((-0.1, 0.1), (-0.1, 0.1), (-0.15, 0.15)),
+    "Spine": ((-0.1, 0.15), (-0.1, 0.1), (-0.4, 0.4)),
+    "Chest": ((-0.15, 0.2), (-0.1, 0.1), (-0.1, 0.1)),
+    "Neck": ((-0.25, 0.25), (-0.1, 0.1), (-0.45, 0.45)),
+    "Shoulder": ((-1.6, 0.4), (-0.25, 0.85), (-0.1, 0.65)),
+    "Elbow": ((-0.95, 0.0), (-0.1, 0.1), (-0.2, 0.2)),
+    "Hip": ((-0.55, 0.55), (-0.2, 0.05), (-0.2, 0.2)),
+    "Knee": ((-0.05, 0.75), (-0.05, 0.05), (-0.1, 0.1)),
+}
+#: The figure's training clip: joint-local rotation vectors per frame, (300, 12, 3) (12 joints x
+#: SWEEP_FRAMES of sweeps, then 156 frames of all joints at once).
+FIGURE_TRAIN_CLIP = range_of_motion_clip(joint_limits(FIGURE_JOINTS, FIGURE_LIMITS), 156)
 
 
 def _figure_skin_geometry():
@@ -428,57 +645,8 @@ def _figure_skin_geometry():
     )
 
 
-def _skeleton(stage, root_path, joints, rotations, frame_count):
-    """A Skeleton and its Animation under ``root_path``: rest/bind poses from ``joints`` offsets.
-
-    ``joints`` lists (name, parent, rest offset from the parent); rest rotations are identity, so
-    the authored rotations ``rotations(frame)`` (rotation vectors, (J, 3)) are the joint angles
-    relative to the rest pose. Returns the Skeleton and the joint paths.
-    """
-    paths = joint_paths(joints)
-    skel = UsdSkel.Skeleton.Define(stage, f"{root_path}/Skel")
-    skel.CreateJointsAttr(Vt.TokenArray(paths))
-    world = {}
-    local_rest, bind = [], []
-    for name, par, off in joints:
-        world[name] = np.asarray(off, float) + (world[par] if par else 0.0)
-        local_rest.append(Gf.Matrix4d().SetTranslate(Gf.Vec3d(*_r(off))))
-        bind.append(Gf.Matrix4d().SetTranslate(Gf.Vec3d(*_r(world[name]))))
-    skel.CreateRestTransformsAttr(Vt.Matrix4dArray(local_rest))
-    skel.CreateBindTransformsAttr(Vt.Matrix4dArray(bind))
-    anim = UsdSkel.Animation.Define(stage, f"{root_path}/Anim")
-    anim.CreateJointsAttr(Vt.TokenArray(paths))
-    anim.CreateTranslationsAttr(Vt.Vec3fArray([Gf.Vec3f(*_r(off)) for _, _, off in joints]))
-    anim.CreateScalesAttr(Vt.Vec3hArray([Gf.Vec3h(1.0, 1.0, 1.0)] * len(paths)))
-    attr = anim.CreateRotationsAttr()
-    for f in range(frame_count):
-        attr.Set(_quat_array(rotations(f)), f)
-    UsdSkel.BindingAPI.Apply(skel.GetPrim()).CreateAnimationSourceRel().SetTargets([anim.GetPath()])
-    return skel, paths
-
-
-def _bind_skin(mesh, skel, indices, weights, element_size, geom_bind, joints=None, constant=False):
-    """Bind a mesh to a skeleton: per-vertex (or ``constant``) joint indices and weights."""
-    binding = UsdSkel.BindingAPI.Apply(mesh.GetPrim())
-    binding.CreateSkeletonRel().SetTargets([skel.GetPath()])
-    if joints is not None:  # the mesh's own joint order, which its indices refer to
-        binding.CreateJointsAttr(Vt.TokenArray(joints))
-    binding.CreateJointIndicesPrimvar(constant, element_size).Set(Vt.IntArray([int(v) for v in np.ravel(indices)]))
-    binding.CreateJointWeightsPrimvar(constant, element_size).Set(Vt.FloatArray([float(v) for v in _r(weights).ravel()]))
-    binding.CreateGeomBindTransformAttr(geom_bind)
-    return binding
-
-
-def _write_figure(out_dir: str, file_name: str, rotations, frame_count: int) -> str:
-    """The figure (one character: skeleton, skinned body, ground, sky, camera) in one clip."""
-    stage = _new_stage(animated=True, frame_count=frame_count)
-    _sky(stage)
-    _ground(stage)
-    root = UsdSkel.Root.Define(stage, "/World/Figure")
-    root.AddTranslateOp().Set(Gf.Vec3d(*FIGURE_ROOT_TRANSLATE))
-    root.AddRotateZOp().Set(FIGURE_ROOT_ROTATE_Z)
-    skel, paths = _skeleton(stage, "/World/Figure", FIGURE_JOINTS, rotations, frame_count)
-
+def _dress_figure(stage, skel, paths) -> None:
+    """The figure's skinned body."""
     pts, counts, idx, infl, w = _figure_skin_geometry()
     # Author points in a local frame offset from skeleton space; geomBindTransform undoes it.
     body = _mesh(stage, "/World/Figure/Body", pts - FIGURE_GEOM_BIND_OFFSET, counts, idx, (0.78, 0.62, 0.5))
@@ -488,14 +656,31 @@ def _write_figure(out_dir: str, file_name: str, rotations, frame_count: int) -> 
     mesh_infl = np.vectorize(to_mesh_order.get)(infl)
     geom_bind = Gf.Matrix4d().SetTranslate(Gf.Vec3d(*FIGURE_GEOM_BIND_OFFSET))
     _bind_skin(body, skel, mesh_infl, w, 2, geom_bind, joints=[paths[k] for k in order])
-    _camera(stage, eye=(1.2, -3.8, 1.6), target=(0.3, -0.2, 1.0))
-    path = os.path.join(out_dir, file_name)
-    _save(stage, path)
-    return path
+
+
+def _place_figure(root) -> None:
+    root.AddTranslateOp().Set(Gf.Vec3d(*FIGURE_ROOT_TRANSLATE))
+    root.AddRotateZOp().Set(FIGURE_ROOT_ROTATE_Z)
+
+
+def _write_figure(out_dir: str, file_name: str, rotations, frame_count: int) -> str:
+    """The figure (skeleton, skinned body, ground, sky, camera) in one clip."""
+    return _write_character(
+        out_dir, file_name, "/World/Figure", FIGURE_JOINTS, rotations, frame_count, _dress_figure,
+        camera=((1.2, -3.8, 1.6), (0.3, -0.2, 1.0)), place=_place_figure,
+    )
 
 
 def make_figure(out_dir: str) -> str:
     return _write_figure(out_dir, "figure.usda", figure_joint_rotations, FRAME_COUNT)
+
+
+def make_figure_train(out_dir: str) -> str:
+    return _write_figure(out_dir, "figure_train.usda", FIGURE_TRAIN_CLIP.__getitem__, len(FIGURE_TRAIN_CLIP))
+
+
+def make_figure_walk(out_dir: str) -> str:
+    return _write_figure(out_dir, "figure_walk.usda", figure_walk_rotations, FIGURE_WALK_FRAMES)
 
 
 # ---- (c) cloth ------------------------------------------------------------------------------
@@ -586,7 +771,14 @@ def make_bend(out_dir: str) -> str:
     return path
 
 
-MAKERS = {"blockers": make_blockers, "figure": make_figure, "cloth": make_cloth, "bend": make_bend}
+MAKERS = {
+    "blockers": make_blockers,
+    "figure": make_figure,
+    "figure_train": make_figure_train,
+    "figure_walk": make_figure_walk,
+    "cloth": make_cloth,
+    "bend": make_bend,
+}
 
 
 def generate(out_dir: str = HERE, scenes=SCENES) -> list[str]:
