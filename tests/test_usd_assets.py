@@ -1,6 +1,7 @@
 """The bundled scenes: the generator reproduces them byte for byte, their structure, `warpshade info`,
-and the training / held-out clips of the figure for data-driven PRT."""
+and the training / held-out clips of the two characters (figure, wanderer) for data-driven PRT."""
 
+import dataclasses
 import importlib.util
 import os
 
@@ -9,6 +10,7 @@ import pytest
 
 from warpshade.cli import main
 from warpshade.io.usd import bundled_asset_directory, load_usd
+from warpshade.scene.scene import Scene
 
 ASSETS = bundled_asset_directory()
 FILES = ["sky.hdr", "blockers.usda", "figure.usda", "cloth.usda", "bend.usda"]
@@ -16,8 +18,9 @@ MAX_BYTES = 2 * 1024 * 1024  # issue 3: each bundled file < 2 MB
 #: The clips of the data-driven PRT characters: (training clip, held-out clips) per character.
 CLIPS = {
     "figure": ("figure_train", ["figure", "figure_walk"]),
+    "wanderer": ("wanderer_train", ["wanderer_test"]),
 }
-CLIP_FILES = ["figure_train.usda", "figure_walk.usda"]
+CLIP_FILES = ["figure_train.usda", "figure_walk.usda", "wanderer_train.usdc", "wanderer_test.usdc"]
 MAX_CLIP_BYTES = 8 * 1024 * 1024
 #: Every held-out joint-angle component stays at least this far (radians) inside the training range.
 RANGE_MARGIN = 0.02
@@ -33,7 +36,7 @@ def generator():
 
 @pytest.fixture(scope="module")
 def clips():
-    """Every clip of the characters, loaded once: name -> (Scene, joint angles (T, J, 3))."""
+    """Every clip of the two characters, loaded once: name -> (Scene, joint angles (T, J, 3))."""
     out = {}
     for train, tests in CLIPS.values():
         for name in [train, *tests]:
@@ -181,3 +184,57 @@ def test_training_clip_moves_the_joints_independently(clips, character):
     singular = np.linalg.svd(z / np.sqrt(len(z)), compute_uv=False)
     assert singular[0] / singular[-1] < 100.0
     assert np.abs(np.corrcoef(z.T) - np.eye(z.shape[1])).max() < 0.95
+
+
+def test_wanderer_structure(clips, generator):
+    scene = clips["wanderer_test"][0]
+    skel = scene.skeletons[0]
+    names = [n.rsplit("/", 1)[-1] for n in skel.joint_names]
+    body, hat = (next(m for m in scene.meshes if m.path == f"/World/Wanderer/{p}") for p in ("Body", "Hat"))
+    ground = next(m for m in scene.meshes if m.path == "/World/Ground")
+    assert body.animation == hat.animation == "skinned" and ground.animation == "static"
+    assert body.vertex_count + hat.vertex_count >= 10_000 and skel.joint_count >= 20
+    assert names == [j[0] for j in generator.WANDERER_JOINTS]
+    parent = {names[j]: (names[p] if p >= 0 else None) for j, p in enumerate(skel.parents)}
+    for chain in (["Hips", "Spine", "Chest", "Neck", "Head"], ["LHip", "LKnee", "LAnkle"], ["RHip", "RKnee", "RAnkle"]):
+        assert all(parent[b] == a for a, b in zip(chain, chain[1:])), chain
+    for side in "LR":
+        assert parent[f"{side}Wrist"] == f"{side}Elbow" and parent[f"{side}Elbow"] == f"{side}Shoulder"
+        digits = [n[1:-1] for n in names if n.startswith(side) and n.endswith("1") and parent[n] == f"{side}Wrist"]
+        assert len(digits) >= 3 and all(parent[f"{side}{d}2"] == f"{side}{d}1" for d in digits), digits
+        for d in digits:  # the fingers are small detail, skinned to their own joints
+            tip = names.index(f"{side}{d}2")
+            assert np.sum(body.skin.joint_indices[:, 0] == tip) > 20
+    # the body: 4 influences, blended smoothly (up to 3 non-zero at once), weights sum to 1
+    assert body.skin.joint_indices.shape[1] == 4
+    nonzero = (body.skin.joint_weights > 1e-3).sum(axis=1)
+    assert nonzero.min() >= 1 and nonzero.max() >= 3 and np.mean(nonzero >= 2) > 0.3
+    np.testing.assert_allclose(body.skin.joint_weights.sum(axis=1), 1.0, atol=1e-5)
+    # the hat: rigidly on the head joint, and its brim is broad
+    assert np.all(hat.skin.joint_indices == names.index("Head")) and np.all(hat.skin.joint_weights == 1.0)
+    assert np.ptp(hat.points[:, 0]) > 0.8 and np.ptp(body.points[:, 0]) < 1.0
+    assert scene.camera is not None and scene.lights and scene.lights[0].path.endswith("sky.hdr")
+    np.testing.assert_allclose(skel.joint_angles(60), generator.wanderer_test_rotations(60), atol=1e-3)
+
+
+def test_the_hat_casts_a_wide_shadow_that_moves_with_the_head(clips):
+    """Visibility (ambient occlusion, ray traced) of the upper body with and without the hat: the
+    hat darkens it, and where it darkens it changes between looking up (frame 60) and the bow (95)."""
+    from warpshade.transfer import compute
+
+    scene = clips["wanderer_test"][0]
+    body = next(m for m in scene.meshes if m.path == "/World/Wanderer/Body")
+    upper = np.flatnonzero((body.points[:, 2] > 1.25) & (body.points[:, 2] < 1.75))[::6] + body.vertex_offset
+    assert 200 <= len(upper) <= 400
+    hatless = Scene(
+        [dataclasses.replace(m) for m in scene.meshes if not m.path.endswith("/Hat")],
+        frames=scene.frames, fps=scene.fps, skeletons=scene.skeletons, lights=scene.lights, up_axis=scene.up_axis,
+    )
+    assert all(m.vertex_offset == n.vertex_offset for m, n in zip(hatless.meshes, scene.meshes))
+    darkening = []
+    for frame in (60.0, 95.0):
+        with_hat, without = (compute(s, frame, order=1, samples=64, vertices=upper).ambient_occlusion for s in (scene, hatless))
+        darkening.append(without - with_hat)
+    for d in darkening:
+        assert d.mean() > 0.05 and np.mean(d > 0.1) > 0.2
+    assert np.mean(np.abs(darkening[1] - darkening[0]) > 0.1) > 0.15  # 64-sample noise alone moves ~1 %

@@ -32,6 +32,19 @@ Scenes:
   ``figure.usda`` and ``figure_walk.usda`` with at least 0.05 rad to spare. ``figure_walk``
   (96 frames) is a held-out walk in place: arms swinging against the legs, hips and head
   turning, a forward reach with the right arm at the end.
+* ``wanderer_train.usdc`` and ``wanderer_test.usdc`` -- a larger character at the scale of the
+  paper's "Master Pai" (11.5k vertices, a large hat): the wanderer, 33 joints (hips, spine,
+  chest, neck, head; shoulder, elbow and wrist of each arm; thumb, index, middle and ring
+  finger of each hand with two segments each; hip, knee and ankle of each leg) and about
+  12,300 skinned vertices: a body of smooth tubes (torso, neck and head in one; each arm,
+  palm, finger, leg and foot) with elliptical, tapering cross-sections, 10,578 vertices skinned
+  with 4 influences (smoothstep blends across every joint, up to three non-zero; the top of
+  the chest takes part of each shoulder), and a wide-brimmed hat (1,682 vertices, brim radius
+  0.45 m) skinned rigidly to the head joint (constant interpolation, its own ``skel:joints``),
+  whose shadow sweeps over the face, shoulders and chest as the head turns, tilts and bows.
+  Ground grid, sky and camera as the figure's. ``wanderer_train`` (600 frames) is a
+  range-of-motion clip over ``WANDERER_LIMITS`` (as above); ``wanderer_test`` (120 frames) is
+  held out: a walk, a reach up to grip the brim while looking up, and a bow.
 * ``cloth.usda`` -- a 30 x 30 sheet (faceVarying ``st`` UVs) with time-sampled points:
   travelling waves plus finer wrinkles, sagging at the free edge, over a ground grid.
 * ``bend.usda`` -- a capped cylinder (24-gon caps) skinned to a 4-joint chain that bends and
@@ -39,6 +52,9 @@ Scenes:
 
 Output is deterministic: coordinates, weights and quaternions are rounded to 1e-4 (camera
 matrices to 1e-6) before they are written, so the files only change when this script changes. A test regenerates them and compares bytes.
+The binary ``.usdc`` (crate) files are reproducible byte for byte too, with a given USD release
+(the thread count does not matter); like the text of the ``.usda`` files, they may change with
+a USD release that writes another crate version.
 """
 
 from __future__ import annotations
@@ -49,6 +65,7 @@ import sys
 
 import numpy as np
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade, UsdSkel, Vt
+from scipy.interpolate import PchipInterpolator
 from scipy.spatial.transform import Rotation
 
 HERE = os.path.dirname(os.path.abspath(__file__))
@@ -64,7 +81,7 @@ SKY_FILE = "sky.hdr"
 SKY_SIZE = (64, 128)
 #: Sun direction (towards the sun), world space, Z-up: in front of the figure (-Y), high.
 SUN_DIRECTION = np.array([0.35, -0.6, 0.72]) / np.linalg.norm([0.35, -0.6, 0.72])
-SCENES = ("blockers", "figure", "figure_train", "figure_walk", "cloth", "bend")
+SCENES = ("blockers", "figure", "figure_train", "figure_walk", "cloth", "bend", "wanderer_train", "wanderer_test")
 
 
 # ---- small helpers --------------------------------------------------------------------------
@@ -262,6 +279,50 @@ def box(size: float, cells: int = 4):
     return np.asarray(pts), np.asarray(counts), np.asarray(idx)
 
 
+def _orthonormal_side(direction, hint=(1.0, 0.0, 0.0)):
+    """``direction`` normalised, and the unit vector perpendicular to it closest to ``hint``."""
+    d = np.asarray(direction, float) / np.linalg.norm(direction)
+    side = np.asarray(hint, float) - np.dot(hint, d) * d
+    return d, side / np.linalg.norm(side)
+
+
+def tube(origin, direction, knots, around, rings, caps, cap_rings=5, hint=(1.0, 0.0, 0.0)):
+    """A closed tube along a straight axis with an elliptical, varying cross-section.
+
+    Args:
+        origin: where the axis parameter s = 0 lies (skeleton space).
+        direction: the axis (normalised here).
+        knots: (s, rx, ry) rows, s increasing: radii along the side axis (``hint`` made
+            perpendicular to the axis) and along ``direction x side``, interpolated smoothly
+            (monotone cubic) over the ``rings`` evenly spaced rings from the first to the last s.
+        around: vertices per ring.
+        caps: lengths of the rounded (elliptical quarter-circle) ends before the first and after
+            the last knot, each with ``cap_rings`` rings and a pole.
+
+    Returns:
+        points (N, 3), counts, indices, and each point's axis parameter s (N,).
+    """
+    knots = np.asarray(knots, float)
+    s_body = np.linspace(knots[0, 0], knots[-1, 0], rings)
+    radii = PchipInterpolator(knots[:, 0], knots[:, 1:], axis=0)(s_body)
+    ring_s, ring_r = [], []
+    t = np.linspace(0.0, np.pi / 2, cap_rings + 1)[:-1]  # pole first
+    ring_s += list(s_body[0] - caps[0] * np.cos(t))
+    ring_r += [radii[0] * np.sin(a) for a in t]
+    ring_s += list(s_body)
+    ring_r += list(radii)
+    ring_s += list(s_body[-1] + caps[1] * np.cos(t[::-1]))
+    ring_r += [radii[-1] * np.sin(a) for a in t[::-1]]
+    profile = [(s, 0.0 if k in (0, len(ring_s) - 1) else 1.0) for k, s in enumerate(ring_s)]
+    pts, counts, idx, ring_of = revolution(profile, around)
+    ring_r = np.asarray(ring_r)
+    local = pts * np.concatenate([ring_r[ring_of], np.ones((len(pts), 1))], 1)
+    d, side = _orthonormal_side(direction, hint)
+    other = np.cross(d, side)
+    world = np.asarray(origin, float) + local[:, :1] * side + local[:, 1:2] * other + local[:, 2:3] * d
+    return world, counts, idx, local[:, 2]
+
+
 def _ground(stage, path="/World/Ground", size=6.0, material=False):
     pts, counts, idx = grid(40, size)
     mesh = _mesh(stage, path, pts, counts, idx, color=None if material else (0.8, 0.8, 0.8))
@@ -389,6 +450,44 @@ def _write_character(out_dir, file_name, root_path, joints, rotations, frame_cou
     path = os.path.join(out_dir, file_name)
     _save(stage, path)
     return path
+
+
+def chain_weights(s, chain) -> np.ndarray:
+    """Smooth skinning weights along a tube that follows a chain of joints, (N, len(chain)).
+
+    Args:
+        s: the points' axis parameters (N,).
+        chain: (joint, s where its bone begins, blend half-width) rows in order along the
+            tube; the first joint owns everything before the second's start, the last
+            everything after its own. Across each bone start the weight passes from the previous
+            joint to the next by a smoothstep over +-half-width (0.5 each at the start), so a
+            point near a bone shorter than its two half-widths takes three joints.
+
+    Returns:
+        weights per chain joint, rows sum to 1.
+    """
+    w = np.ones((len(s), len(chain)))
+    for k in range(1, len(chain)):
+        _, start, half = chain[k]
+        rise = _smoothstep((s - start + half) / (2.0 * half))
+        w[:, k] *= rise
+        w[:, k - 1] *= 1.0 - rise
+    return w / w.sum(1, keepdims=True)
+
+
+def strongest_influences(joints, weights, count: int):
+    """The ``count`` largest weights per row (strongest first) and their joints, renormalised.
+
+    ``joints`` (N, M) or (M,) joint indices, ``weights`` (N, M); with fewer than ``count``
+    columns, each row is padded with its strongest joint at weight 0.
+    """
+    joints = np.broadcast_to(np.asarray(joints), weights.shape)
+    order = np.argsort(-weights, axis=1, kind="stable")[:, :count]
+    if order.shape[1] < count:
+        order = np.concatenate([order, np.repeat(order[:, :1], count - order.shape[1], 1)], 1)
+    w = np.take_along_axis(weights, order, 1)
+    w = np.where(np.arange(count) < weights.shape[1], w, 0.0)
+    return np.take_along_axis(joints, order, 1), w / w.sum(1, keepdims=True)
 
 
 # ---- range-of-motion training clips -----------------------------------------------------------
@@ -771,6 +870,315 @@ def make_bend(out_dir: str) -> str:
     return path
 
 
+# ---- (e) wanderer ---------------------------------------------------------------------------
+_THUMB_DIRECTION = np.array([-0.2, -0.5, -1.0]) / np.linalg.norm([-0.2, -0.5, -1.0])
+#: Digits of the left hand: name, first joint's offset from the wrist, (first segment length,
+#: direction); the right hand mirrors x. The palm faces the body (-x on the left hand), the
+#: fingers hang down from its lower edge and the thumb leaves its front edge, pointing down,
+#: forward and in.
+WANDERER_DIGITS = [
+    ("Thumb", (-0.01, -0.036, -0.03), (0.035, tuple(_THUMB_DIRECTION))),
+    ("Index", (0.0, -0.026, -0.09), (0.045, (0.0, 0.0, -1.0))),
+    ("Middle", (0.0, 0.0, -0.092), (0.048, (0.0, 0.0, -1.0))),
+    ("Ring", (0.0, 0.026, -0.088), (0.042, (0.0, 0.0, -1.0))),
+]
+#: Length of each digit's second (tip) segment.
+WANDERER_TIP_LENGTH = {"Thumb": 0.032, "Index": 0.036, "Middle": 0.038, "Ring": 0.034}
+
+
+def _wanderer_joints():
+    """(name, parent, rest offset) of the wanderer's 33 joints, parents first, left side before right."""
+    joints = [
+        ("Hips", None, (0.0, 0.0, 0.95)),
+        ("Spine", "Hips", (0.0, 0.0, 0.12)),
+        ("Chest", "Spine", (0.0, 0.0, 0.22)),
+        ("Neck", "Chest", (0.0, 0.0, 0.2)),
+        ("Head", "Neck", (0.0, 0.0, 0.1)),
+    ]
+    for side, sx in (("L", 1.0), ("R", -1.0)):
+        joints += [
+            (f"{side}Shoulder", "Chest", (0.2 * sx, 0.0, 0.14)),
+            (f"{side}Elbow", f"{side}Shoulder", (0.0, 0.0, -0.28)),
+            (f"{side}Wrist", f"{side}Elbow", (0.0, 0.0, -0.25)),
+        ]
+        for digit, base, first in WANDERER_DIGITS:
+            first_offset = np.asarray(first[1]) * first[0] * np.array([sx, 1.0, 1.0])
+            joints += [
+                (f"{side}{digit}1", f"{side}Wrist", (base[0] * sx, base[1], base[2])),
+                (f"{side}{digit}2", f"{side}{digit}1", tuple(first_offset)),
+            ]
+    for side, sx in (("L", 1.0), ("R", -1.0)):
+        joints += [
+            (f"{side}Hip", "Hips", (0.1 * sx, 0.0, -0.06)),
+            (f"{side}Knee", f"{side}Hip", (0.0, 0.0, -0.42)),
+            (f"{side}Ankle", f"{side}Knee", (0.0, 0.0, -0.39)),
+        ]
+    return joints
+
+
+WANDERER_JOINTS = _wanderer_joints()
+WANDERER_TEST_FRAMES = 120
+
+
+def _wanderer_parts():
+    """The body's tubes: (part name, :func:`tube` arguments, :func:`chain_weights` chain).
+
+    Chains hold joint indices (skeleton order); the parts are built in the bind pose, from the
+    joints' rest positions (rest rotations are identity).
+    """
+    index = {name: k for k, (name, _, _) in enumerate(WANDERER_JOINTS)}
+    world = {}
+    for name, par, off in WANDERER_JOINTS:
+        world[name] = np.asarray(off, float) + (world[par] if par else 0.0)
+    down = (0.0, 0.0, -1.0)
+    parts = [
+        # torso, neck and head in one tube along +z (s = height): hips, waist, chest, shoulders,
+        # neck, jaw, skull; wider (x) than deep (y) below the neck
+        (
+            "Torso",
+            dict(
+                origin=(0.0, 0.0, 0.0),
+                direction=(0.0, 0.0, 1.0),
+                knots=[
+                    (0.86, 0.13, 0.1), (0.95, 0.15, 0.11), (1.07, 0.13, 0.095), (1.2, 0.145, 0.1),
+                    (1.32, 0.17, 0.11), (1.4, 0.185, 0.1), (1.46, 0.13, 0.075), (1.5, 0.055, 0.055),
+                    (1.57, 0.055, 0.058), (1.61, 0.075, 0.085), (1.67, 0.095, 0.105), (1.72, 0.098, 0.105),
+                    (1.77, 0.085, 0.09),
+                ],
+                around=48, rings=52, caps=(0.07, 0.04), cap_rings=6,
+            ),
+            [("Hips", 0.0, 0.0), ("Spine", 1.07, 0.06), ("Chest", 1.29, 0.08), ("Neck", 1.49, 0.06), ("Head", 1.59, 0.05)],
+        ),
+    ]
+    for side in "LR":
+        sx = 1.0 if side == "L" else -1.0
+        parts += [
+            (
+                f"{side}Arm",  # shoulder to wrist, s = distance below the shoulder
+                dict(
+                    origin=world[f"{side}Shoulder"], direction=down,
+                    knots=[(0.0, 0.055, 0.055), (0.1, 0.05, 0.05), (0.26, 0.04, 0.042), (0.29, 0.038, 0.04),
+                           (0.4, 0.037, 0.035), (0.5, 0.027, 0.024), (0.53, 0.026, 0.02)],
+                    around=24, rings=32, caps=(0.05, 0.015),
+                ),
+                [("Chest", 0.0, 0.0), (f"{side}Shoulder", 0.0, 0.04), (f"{side}Elbow", 0.28, 0.05), (f"{side}Wrist", 0.53, 0.02)],
+            ),
+            (
+                f"{side}Palm",  # thin across x (the palm faces the body), wide along y
+                dict(
+                    origin=world[f"{side}Wrist"], direction=down,
+                    knots=[(0.0, 0.014, 0.03), (0.04, 0.016, 0.042), (0.085, 0.013, 0.04)],
+                    around=20, rings=12, caps=(0.012, 0.01),
+                ),
+                [(f"{side}Elbow", 0.0, 0.0), (f"{side}Wrist", 0.0, 0.03)],
+            ),
+            (
+                f"{side}Leg",  # hip to ankle
+                dict(
+                    origin=world[f"{side}Hip"], direction=down,
+                    knots=[(0.0, 0.085, 0.085), (0.12, 0.08, 0.08), (0.38, 0.058, 0.058), (0.42, 0.052, 0.054),
+                           (0.52, 0.052, 0.058), (0.72, 0.04, 0.042), (0.81, 0.036, 0.036)],
+                    around=28, rings=38, caps=(0.06, 0.03),
+                ),
+                [("Hips", 0.0, 0.0), (f"{side}Hip", 0.0, 0.06), (f"{side}Knee", 0.42, 0.05), (f"{side}Ankle", 0.81, 0.03)],
+            ),
+            (
+                f"{side}Foot",  # heel to toe along -y, flat underneath
+                dict(
+                    origin=world[f"{side}Ankle"] + np.array([0.0, 0.05, -0.035]), direction=(0.0, -1.0, 0.0),
+                    knots=[(0.0, 0.04, 0.04), (0.08, 0.045, 0.035), (0.21, 0.042, 0.022)],
+                    around=24, rings=16, caps=(0.03, 0.02),
+                ),
+                [(f"{side}Ankle", 0.0, 0.0)],  # rigid
+            ),
+        ]
+        for digit, _, (first_length, direction) in WANDERER_DIGITS:
+            length = first_length + WANDERER_TIP_LENGTH[digit]
+            parts.append(
+                (
+                    f"{side}{digit}",
+                    dict(
+                        origin=world[f"{side}{digit}1"], direction=np.asarray(direction) * (sx, 1.0, 1.0),
+                        knots=[(0.0, 0.011, 0.011), (first_length, 0.0095, 0.0095), (length, 0.0085, 0.0085)],
+                        around=10, rings=10, caps=(0.009, 0.008), cap_rings=3,
+                    ),
+                    [(f"{side}Wrist", 0.0, 0.0), (f"{side}{digit}1", 0.0, 0.025), (f"{side}{digit}2", first_length, 0.025)],
+                )
+            )
+    return [(name, args, [(index[j], start, half) for j, start, half in chain]) for name, args, chain in parts]
+
+
+#: Share of the shoulder joint in the torso's skin over each shoulder (the top of the chest next
+#: to the arm follows a raised arm part of the way).
+WANDERER_SHOULDER_SHARE = 0.4
+
+
+def _wanderer_body():
+    """Bind-pose (skeleton space) body points, faces, and 4-influence weights (skeleton order)."""
+    index = {name: k for k, (name, _, _) in enumerate(WANDERER_JOINTS)}
+    pts_all, counts_all, idx_all, infl_all, w_all = [], [], [], [], []
+    base = 0
+    for name, args, chain in _wanderer_parts():
+        pts, counts, idx, s = tube(**args)
+        joints = [c[0] for c in chain]
+        w = chain_weights(s, chain)
+        if name == "Torso":  # blend in the shoulder on either side over the top of the chest
+            lateral = _smoothstep((np.abs(pts[:, 0]) - 0.08) / 0.09)
+            band = _smoothstep((pts[:, 2] - 1.33) / 0.08) * (1.0 - _smoothstep((pts[:, 2] - 1.45) / 0.05))
+            share = WANDERER_SHOULDER_SHARE * lateral * band
+            shoulder = np.where(pts[:, 0] > 0.0, index["LShoulder"], index["RShoulder"])
+            joints = np.concatenate([np.broadcast_to(joints, w.shape), shoulder[:, None]], 1)
+            w = np.concatenate([w * (1.0 - share[:, None]), share[:, None]], 1)
+        infl, w = strongest_influences(joints, w, 4)
+        pts_all.append(pts)
+        counts_all.append(counts)
+        idx_all.append(idx + base)
+        infl_all.append(infl)
+        w_all.append(w)
+        base += len(pts)
+    return tuple(np.concatenate(a) for a in (pts_all, counts_all, idx_all, infl_all, w_all))
+
+
+#: The hat's profile (r, z above the brim's base), a closed surface of revolution from the
+#: ceiling inside the crown out along the underside of the brim and back over the top.
+WANDERER_HAT_BASE = 1.745  # skeleton-space height of the brim where it meets the crown
+WANDERER_HAT_PROFILE = [
+    (0.0, 0.068), (0.05, 0.068), (0.09, 0.062), (0.1, 0.045), (0.1, 0.02), (0.1, 0.0), (0.13, -0.003),
+    (0.17, -0.007), (0.21, -0.011), (0.25, -0.016), (0.29, -0.021), (0.33, -0.026), (0.37, -0.031),
+    (0.41, -0.036), (0.44, -0.04), (0.448, -0.033), (0.44, -0.026), (0.41, -0.022), (0.37, -0.017),
+    (0.33, -0.012), (0.29, -0.007), (0.25, -0.002), (0.21, 0.003), (0.17, 0.008), (0.13, 0.012),
+    (0.112, 0.018), (0.114, 0.05), (0.115, 0.09), (0.108, 0.115), (0.085, 0.133), (0.05, 0.142), (0.0, 0.145),
+]
+
+
+def _wanderer_hat():
+    """The hat's points (skeleton space, bind pose: on the head), counts and indices."""
+    profile = [(z, 0.0 if k in (0, len(WANDERER_HAT_PROFILE) - 1) else 1.0) for k, (_, z) in enumerate(WANDERER_HAT_PROFILE)]
+    pts, counts, idx, ring_of = revolution(profile, 56)
+    radius = np.array([r for r, _ in WANDERER_HAT_PROFILE])[ring_of]
+    pts[:, :2] *= radius[:, None]
+    pts[:, 2] += WANDERER_HAT_BASE
+    return pts, counts, idx
+
+
+def wanderer_test_rotations(frame: int) -> np.ndarray:
+    """Joint-local rotation vectors of the wanderer's test clip at a frame, shape (33, 3).
+
+    120 frames: the wanderer walks in place (strides of 32 frames, arms swinging against the
+    legs; fading out over frames 36-52), raises the right hand to the front of the hat's brim,
+    grips it and looks up (frames 36-86), then bows with the hands together in front of the
+    chest and straightens again (frames 76-118); the head turns from side to side throughout.
+    The hat's shadow sweeps over the face, shoulders and chest as the head turns, tilts and
+    bows, and the raised arm shadows the face.
+    """
+    t = float(frame)
+    ph = 2 * np.pi * t / 32.0
+    walk = 1.0 - _smoothstep((t - 36.0) / 16.0)
+    reach = _smoothstep((t - 36.0) / 16.0) * (1.0 - _smoothstep((t - 72.0) / 14.0))
+    bow = _smoothstep((t - 76.0) / 16.0) * (1.0 - _smoothstep((t - 104.0) / 14.0))
+    rot = {name: np.zeros(3) for name, _, _ in WANDERER_JOINTS}
+
+    def add(name, value, weight=1.0):
+        rot[name] = rot[name] + weight * np.asarray(value, dtype=np.float64)
+
+    add("Hips", [0.0, 0.03 * np.sin(ph), 0.07 * np.sin(ph)], walk)
+    add("Spine", [0.03, 0.0, -0.12 * np.sin(ph)], walk)
+    add("Chest", [0.04 + 0.02 * np.cos(2 * ph), 0.0, 0.0], walk)
+    add("Head", [0.0, 0.0, 0.35 * np.sin(2 * np.pi * t / 80.0)])
+    add("Neck", [0.05 * np.sin(2 * np.pi * t / 60.0), 0.0, 0.1 * np.sin(2 * np.pi * t / 80.0 - 0.5)])
+    for side, lateral in (("L", 1.0), ("R", -1.0)):  # lateral: the sign of y and z on this side
+        stride = lateral * np.sin(ph)  # > 0 while this side's leg swings forward
+        swing = lateral * np.cos(ph)
+        add(f"{side}Hip", [-0.38 * stride, 0.0, 0.0], walk)
+        add(f"{side}Knee", [0.3 * (1.0 + swing), 0.0, 0.0], walk)
+        add(f"{side}Ankle", [0.15 * np.sin(lateral * ph + 1.0), 0.0, 0.0], walk)
+        add(f"{side}Shoulder", [0.32 * stride, -0.08 * lateral, 0.0], walk)
+        add(f"{side}Elbow", [-0.2, 0.0, 0.0])
+        add(f"{side}Elbow", [-0.1 * (1.0 - stride), 0.0, 0.0], walk)
+        add(f"{side}Thumb1", [0.1, 0.1 * lateral, 0.0])
+        add(f"{side}Thumb2", [0.0, 0.15 * lateral, 0.0])
+        for digit in ("Index", "Middle", "Ring"):  # relaxed fingers curl a little towards the palm
+            add(f"{side}{digit}1", [0.0, 0.15 * lateral, 0.0])
+            add(f"{side}{digit}2", [0.0, 0.2 * lateral, 0.0])
+        # the bow: hands together in front of the chest
+        add(f"{side}Shoulder", [-0.45, 0.3 * lateral, 0.0], bow)
+        add(f"{side}Elbow", [-1.0, 0.0, 0.1 * lateral], bow)
+        add(f"{side}Knee", [0.08, 0.0, 0.0], bow)
+    # the reach: right hand up to the front of the brim, fingers gripping it, looking up
+    add("RShoulder", [-1.8, -0.35, 0.0], reach)
+    add("RElbow", [-0.9, 0.0, 0.0], reach)
+    add("RWrist", [0.4, 0.0, 0.0], reach)
+    add("RThumb1", [-0.3, -0.3, 0.0], reach)
+    add("RThumb2", [0.0, -0.4, 0.0], reach)
+    for k, digit in enumerate(("Index", "Middle", "Ring")):
+        add(f"R{digit}1", [0.0, -0.6 - 0.05 * k, 0.0], reach)
+        add(f"R{digit}2", [0.0, -0.75, 0.0], reach)
+    add("Neck", [-0.12, 0.0, 0.0], reach)
+    add("Head", [-0.1, 0.0, 0.0], reach)
+    add("Spine", [0.2, 0.0, 0.0], bow)
+    add("Chest", [0.2, 0.0, 0.0], bow)
+    add("Neck", [0.12, 0.0, 0.0], bow)
+    add("Head", [0.12, 0.0, 0.0], bow)
+    return np.stack([rot[name] for name, _, _ in WANDERER_JOINTS])
+
+
+_FINGER_LIMITS = (((-0.1, 0.1), (-0.15, 1.0), (-0.1, 0.1)), ((-0.05, 0.05), (-0.05, 1.1), (-0.05, 0.05)))
+#: Range of motion of the wanderer's training clip (left side; see :func:`joint_limits`): the
+#: ranges of wanderer_test.usdc with at least 0.05 rad to spare, and every joint's other
+#: components over a small plausible range. Fingers curl about +y on the left hand.
+WANDERER_LIMITS = {
+    "Hips": ((-0.1, 0.1), (-0.1, 0.1), (-0.15, 0.15)),
+    "Spine": ((-0.1, 0.3), (-0.1, 0.1), (-0.2, 0.2)),
+    "Chest": ((-0.1, 0.3), (-0.1, 0.1), (-0.15, 0.15)),
+    "Neck": ((-0.25, 0.2), (-0.1, 0.1), (-0.2, 0.2)),
+    "Head": ((-0.2, 0.2), (-0.1, 0.1), (-0.45, 0.45)),
+    "Shoulder": ((-1.95, 0.45), (-0.2, 0.5), (-0.15, 0.15)),
+    "Elbow": ((-1.35, 0.0), (-0.1, 0.1), (-0.15, 0.25)),
+    "Wrist": ((-0.4, 0.55), (-0.25, 0.25), (-0.2, 0.2)),
+    "Thumb1": ((-0.35, 0.25), (-0.05, 0.55), (-0.15, 0.15)),
+    "Thumb2": ((-0.1, 0.1), (-0.05, 0.7), (-0.1, 0.1)),
+    "Index1": _FINGER_LIMITS[0],
+    "Index2": _FINGER_LIMITS[1],
+    "Middle1": _FINGER_LIMITS[0],
+    "Middle2": _FINGER_LIMITS[1],
+    "Ring1": _FINGER_LIMITS[0],
+    "Ring2": _FINGER_LIMITS[1],
+    "Hip": ((-0.5, 0.5), (-0.2, 0.1), (-0.2, 0.2)),
+    "Knee": ((-0.05, 0.8), (-0.05, 0.05), (-0.1, 0.1)),
+    "Ankle": ((-0.3, 0.3), (-0.1, 0.1), (-0.15, 0.15)),
+}
+#: The wanderer's training clip: joint-local rotation vectors per frame, (600, 33, 3) (33 joints
+#: x SWEEP_FRAMES of sweeps, then 204 frames of all joints at once).
+WANDERER_TRAIN_CLIP = range_of_motion_clip(joint_limits(WANDERER_JOINTS, WANDERER_LIMITS), 204)
+
+
+def _dress_wanderer(stage, skel, paths) -> None:
+    """The wanderer's skinned body and the hat, rigidly on the head joint."""
+    pts, counts, idx, infl, w = _wanderer_body()
+    body = _mesh(stage, "/World/Wanderer/Body", pts, counts, idx, (0.62, 0.45, 0.34))
+    _bind_skin(body, skel, infl, w, 4, Gf.Matrix4d(1.0))
+    pts, counts, idx = _wanderer_hat()
+    hat = _mesh(stage, "/World/Wanderer/Hat", pts, counts, idx, (0.82, 0.72, 0.45))
+    head = [p for p in paths if p.endswith("/Head")]
+    _bind_skin(hat, skel, [0], [1.0], 1, Gf.Matrix4d(1.0), joints=head, constant=True)
+
+
+def _write_wanderer(out_dir: str, file_name: str, rotations, frame_count: int) -> str:
+    """The wanderer (skeleton, skinned body, hat, ground, sky, camera) in one clip."""
+    return _write_character(
+        out_dir, file_name, "/World/Wanderer", WANDERER_JOINTS, rotations, frame_count, _dress_wanderer,
+        camera=((1.3, -3.2, 1.6), (0.0, 0.0, 1.0)),
+    )
+
+
+def make_wanderer_train(out_dir: str) -> str:
+    return _write_wanderer(out_dir, "wanderer_train.usdc", WANDERER_TRAIN_CLIP.__getitem__, len(WANDERER_TRAIN_CLIP))
+
+
+def make_wanderer_test(out_dir: str) -> str:
+    return _write_wanderer(out_dir, "wanderer_test.usdc", wanderer_test_rotations, WANDERER_TEST_FRAMES)
+
+
 MAKERS = {
     "blockers": make_blockers,
     "figure": make_figure,
@@ -778,6 +1186,8 @@ MAKERS = {
     "figure_walk": make_figure_walk,
     "cloth": make_cloth,
     "bend": make_bend,
+    "wanderer_train": make_wanderer_train,
+    "wanderer_test": make_wanderer_test,
 }
 
 
