@@ -4,10 +4,11 @@ The package is layered; a module imports only modules of its own layer or of lay
 left, at module level and inside functions alike (``tests/test_layers.py`` checks it, and that
 there is no import cycle)::
 
-    _wp, _fileio, _hashing, _limits -> basis -> geometry -> scene -> io -> transfer -> methods -> reference -> graph -> render -> measure -> cli
+    _wp, _fileio, _hashing, _limits, _tasks -> basis -> geometry -> scene -> io -> transfer -> methods -> reference -> graph -> render -> measure -> cli
 
-* ``_wp``, ``_fileio``, ``_hashing``, ``_limits``: Warp set-up and launch helpers, atomic files,
-  content hashes, the sizes refused before allocating;
+* ``_wp``, ``_fileio``, ``_hashing``, ``_limits``, ``_tasks``: Warp set-up and launch helpers,
+  atomic files, content hashes, the sizes refused before allocating, the executor that runs
+  precompute tasks serially, in local worker processes or on a Dask cluster;
 * ``basis``: spherical functions (SH, ZH, quadrature), no scene objects;
 * ``geometry``: meshes on the device: BVH, normals, skinning, tangent frames, sphere sets;
 * ``scene``: the static ``Scene``, the per-frame ``FrameState`` and the kernels that fill it,
