@@ -227,80 +227,82 @@ def _sampled_lights(
     env: EnvironmentMap,
     lights: AnalyticLights,
     method: int,
-    j: int,
+    point_count: int,
     shift_brdf: wp.vec2,
     shift_env: wp.vec4,
     shift_area: wp.vec2,
 ) -> wp.vec3:
-    """``acc`` plus one sample point of the environment, disc and sphere lights at a shading point.
+    """``acc`` plus the environment, disc and sphere lights at a shading point, summed over
+    the sample points ``j = 0 .. point_count - 1``.
 
-    The point is number ``j`` of the R2 set under the given Cranley-Patterson shifts (``j = 0``
+    The points are the R2 set under the given Cranley-Patterson shifts (``point_count = 1``
     with uniformly random shifts is one independent uniform sample); strategies as in the module
     docstring (``method`` 0 / 1 / 2 = BRDF / light / MIS). No tint: the caller applies it.
     """
-    if env.enabled != 0:
-        if method != 1:
-            d = brdf_sample(brdf, n, v, _r2(j, shift_brdf[0], _R2_A1), _r2(j, shift_brdf[1], _R2_A2))
-            f = brdf_eval(brdf, n, v, d) * wp.max(wp.dot(n, d), 0.0)
-            pdf_b = brdf_pdf(brdf, n, v, d)
-            if f > 0.0 and pdf_b > 0.0:
-                if not wp.mesh_query_ray_anyhit(mesh_id, origin, d, _RAY_MAX):
-                    denom = pdf_b
-                    if method == 2:
-                        denom = pdf_b + env_pdf(env, d)
-                    acc += env_radiance(env, d) * (f / denom)
-        if method != 0:
-            s = env_sample(
-                env,
-                _r2(j, shift_env[0], _R2_A1),
-                _r2(j, shift_env[1], _R2_A2),
-                _r2(j, shift_env[2], _R2_A1),
-                _r2(j, shift_env[3], _R2_A2),
-            )
-            d = wp.vec3(s[0], s[1], s[2])
-            f = brdf_eval(brdf, n, v, d) * wp.max(wp.dot(n, d), 0.0)
-            if f > 0.0 and s[3] > 0.0:
-                if not wp.mesh_query_ray_anyhit(mesh_id, origin, d, _RAY_MAX):
-                    denom = s[3]
-                    if method == 2:
-                        denom = s[3] + brdf_pdf(brdf, n, v, d)
-                    acc += env_radiance(env, d) * (f / denom)
-    for k in range(lights.distant_direction.shape[0]):
-        cos_half = lights.distant_cos_half[k]
-        if cos_half < 1.0:
-            # a per-light offset decorrelates the lights' point sets
-            u1 = _r2(j, shift_area[0] + 0.318 * float(k), _R2_A1)
-            u2 = _r2(j, shift_area[1] + 0.618 * float(k), _R2_A2)
-            d = _cone_dir(lights.distant_direction[k], cos_half, u1, u2)
-            c = wp.dot(n, d)
-            if c > 0.0:
-                if not wp.mesh_query_ray_anyhit(mesh_id, origin, d, _RAY_MAX):
-                    acc += lights.distant_irradiance[k] * (brdf_eval(brdf, n, v, d) * c)
-    for k in range(lights.sphere_position.shape[0]):
-        to_centre = lights.sphere_position[k] - origin
-        dist = wp.length(to_centre)
-        radius = lights.sphere_radius[k]
-        u1 = _r2(j, shift_area[0] + 0.414 * float(k + 1), _R2_A1)
-        u2 = _r2(j, shift_area[1] + 0.732 * float(k + 1), _R2_A2)
-        if dist <= radius:
-            d = brdf_sample(brdf, n, v, u1, u2)
-            pdf_b = brdf_pdf(brdf, n, v, d)
-            if pdf_b > 0.0:
-                acc += lights.sphere_radiance[k] * (brdf_eval(brdf, n, v, d) * wp.max(wp.dot(n, d), 0.0) / pdf_b)
-        else:
-            axis = to_centre / dist
-            sin_a = radius / dist
-            cos_a = wp.sqrt(wp.max(0.0, 1.0 - sin_a * sin_a))
-            d = _cone_dir(axis, cos_a, u1, u2)
-            c = wp.dot(n, d)
-            if c > 0.0:
-                # distance to the near intersection with the light sphere
-                b = wp.dot(to_centre, d)
-                disc = b * b - (dist * dist - radius * radius)
-                t_hit = b - wp.sqrt(wp.max(disc, 0.0))
-                if not wp.mesh_query_ray_anyhit(mesh_id, origin, d, t_hit):
-                    solid = 2.0 * wp.pi * (1.0 - cos_a)
-                    acc += lights.sphere_radiance[k] * (brdf_eval(brdf, n, v, d) * c * solid)
+    for j in range(point_count):
+        if env.enabled != 0:
+            if method != 1:
+                d = brdf_sample(brdf, n, v, _r2(j, shift_brdf[0], _R2_A1), _r2(j, shift_brdf[1], _R2_A2))
+                f = brdf_eval(brdf, n, v, d) * wp.max(wp.dot(n, d), 0.0)
+                pdf_b = brdf_pdf(brdf, n, v, d)
+                if f > 0.0 and pdf_b > 0.0:
+                    if not wp.mesh_query_ray_anyhit(mesh_id, origin, d, _RAY_MAX):
+                        denom = pdf_b
+                        if method == 2:
+                            denom = pdf_b + env_pdf(env, d)
+                        acc += env_radiance(env, d) * (f / denom)
+            if method != 0:
+                s = env_sample(
+                    env,
+                    _r2(j, shift_env[0], _R2_A1),
+                    _r2(j, shift_env[1], _R2_A2),
+                    _r2(j, shift_env[2], _R2_A1),
+                    _r2(j, shift_env[3], _R2_A2),
+                )
+                d = wp.vec3(s[0], s[1], s[2])
+                f = brdf_eval(brdf, n, v, d) * wp.max(wp.dot(n, d), 0.0)
+                if f > 0.0 and s[3] > 0.0:
+                    if not wp.mesh_query_ray_anyhit(mesh_id, origin, d, _RAY_MAX):
+                        denom = s[3]
+                        if method == 2:
+                            denom = s[3] + brdf_pdf(brdf, n, v, d)
+                        acc += env_radiance(env, d) * (f / denom)
+        for k in range(lights.distant_direction.shape[0]):
+            cos_half = lights.distant_cos_half[k]
+            if cos_half < 1.0:
+                # a per-light offset decorrelates the lights' point sets
+                u1 = _r2(j, shift_area[0] + 0.318 * float(k), _R2_A1)
+                u2 = _r2(j, shift_area[1] + 0.618 * float(k), _R2_A2)
+                d = _cone_dir(lights.distant_direction[k], cos_half, u1, u2)
+                c = wp.dot(n, d)
+                if c > 0.0:
+                    if not wp.mesh_query_ray_anyhit(mesh_id, origin, d, _RAY_MAX):
+                        acc += lights.distant_irradiance[k] * (brdf_eval(brdf, n, v, d) * c)
+        for k in range(lights.sphere_position.shape[0]):
+            to_centre = lights.sphere_position[k] - origin
+            dist = wp.length(to_centre)
+            radius = lights.sphere_radius[k]
+            u1 = _r2(j, shift_area[0] + 0.414 * float(k + 1), _R2_A1)
+            u2 = _r2(j, shift_area[1] + 0.732 * float(k + 1), _R2_A2)
+            if dist <= radius:
+                d = brdf_sample(brdf, n, v, u1, u2)
+                pdf_b = brdf_pdf(brdf, n, v, d)
+                if pdf_b > 0.0:
+                    acc += lights.sphere_radiance[k] * (brdf_eval(brdf, n, v, d) * wp.max(wp.dot(n, d), 0.0) / pdf_b)
+            else:
+                axis = to_centre / dist
+                sin_a = radius / dist
+                cos_a = wp.sqrt(wp.max(0.0, 1.0 - sin_a * sin_a))
+                d = _cone_dir(axis, cos_a, u1, u2)
+                c = wp.dot(n, d)
+                if c > 0.0:
+                    # distance to the near intersection with the light sphere
+                    b = wp.dot(to_centre, d)
+                    disc = b * b - (dist * dist - radius * radius)
+                    t_hit = b - wp.sqrt(wp.max(disc, 0.0))
+                    if not wp.mesh_query_ray_anyhit(mesh_id, origin, d, t_hit):
+                        solid = 2.0 * wp.pi * (1.0 - cos_a)
+                        acc += lights.sphere_radiance[k] * (brdf_eval(brdf, n, v, d) * c * solid)
     return acc
 
 
@@ -379,7 +381,7 @@ def _indirect_path(
         shift_env = wp.vec4(wp.randf(state), wp.randf(state), wp.randf(state), wp.randf(state))
         shift_area = wp.vec2(wp.randf(state), wp.randf(state))
         light = _delta_lights(mesh_id, o, ns, ns, surfaces.lambert, lights)
-        light = _sampled_lights(light, mesh_id, o, ns, ns, surfaces.lambert, env, lights, method, 0, shift_brdf, shift_env, shift_area)
+        light = _sampled_lights(light, mesh_id, o, ns, ns, surfaces.lambert, env, lights, method, 1, shift_brdf, shift_env, shift_area)
         acc += wp.cw_mul(throughput, light)
         if bounce + 1 < bounces:
             d = brdf_sample(surfaces.lambert, ns, ns, wp.randf(state), wp.randf(state))
@@ -462,12 +464,14 @@ def _estimator_kernel(
         s_path1 = wp.randf(state)
         s_path2 = wp.randf(state)
         path_seed = wp.randi(state)
-        acc = wp.vec3(0.0)
-        for j in range(points_per_replicate):
-            acc = _sampled_lights(acc, mesh_id, origin, n, v, brdf, env, lights, method, j, shift_brdf, shift_env, shift_area)
-            if bounces > 0:
-                acc = _indirect_path(acc, mesh_id, surfaces, origin, n, v, brdf, env, lights, method, bounces, offset,
-                                     _r2(j, s_path1, _R2_A1), _r2(j, s_path2, _R2_A2), path_seed, j)
+        acc = _sampled_lights(wp.vec3(0.0), mesh_id, origin, n, v, brdf, env, lights, method, points_per_replicate,
+                              shift_brdf, shift_env, shift_area)
+        if bounces > 0:
+            indirect = wp.vec3(0.0)
+            for j in range(points_per_replicate):
+                indirect = _indirect_path(indirect, mesh_id, surfaces, origin, n, v, brdf, env, lights, method, bounces,
+                                          offset, _r2(j, s_path1, _R2_A1), _r2(j, s_path2, _R2_A2), path_seed, j)
+            acc = acc + indirect
         x = wp.cw_mul(t, acc) / float(points_per_replicate)
         delta = x - mean
         mean += delta / float(rep + 1)
