@@ -1,8 +1,9 @@
 """Brute-force ray-traced ground truth that every method is measured against.
 
-``shade(scene, frame, lighting, samples)`` returns per-vertex outgoing radiance of the diffuse
-scene and its Monte Carlo standard error (:class:`ShadingResult`, NumPy float32, shape
-(receiver_count, 3)); see :mod:`warpshade.reference.shading` for the estimators.
+``shade(scene, frame, lighting, samples, bounces=0)`` returns per-vertex outgoing radiance of the
+diffuse scene, with ``bounces`` diffuse bounces of indirect light, and its Monte Carlo standard
+error (:class:`ShadingResult`, NumPy float32, shape (receiver_count, 3)); see
+:mod:`warpshade.reference.shading` for the estimators.
 ``shade_glossy(scene, frame, brdf, eye, ...)`` is the same for a BRDF of
 :mod:`warpshade.scene.materials` seen from a viewer (:mod:`warpshade.reference.glossy`). Both are
 one Monte Carlo estimator with the BRDF as a parameter (:mod:`warpshade.reference.estimator`;

@@ -32,6 +32,21 @@ at the sphere; a receiver inside the sphere sees it in every direction, estimate
 sampling without rays (``t L_e b max(0, n.s) / p_b``). Sphere lights are not part of the BVH
 (they cast no shadows on the environment).
 
+Indirect light (``bounces = k > 0``): every sample point also carries one path of up to ``k``
+diffuse bounces off the scene's triangles. Its first direction is drawn from the receiver's BRDF
+lobe (throughput ``t b cos / p_b``, i.e. ``rho`` for a Lambert receiver); a path goes on only
+where its closest hit is a front face (a back face or a miss ends it: the light that escapes is
+the direct part's, counted above), so the direct and the indirect parts split the hemisphere
+between them. At each hit ``q`` (albedo ``rho_q`` and shading normal ``n_q`` interpolated from
+the vertices by barycentrics, shadow rays from ``q + offset * n_geometric``) the throughput is
+multiplied by ``rho_q`` and next-event estimation adds the lights for the Lambert BRDF about
+``n_q`` with the strategies above -- the delta lights deterministically, one point of the
+environment (BRDF, light or MIS sampling with the balance heuristic, as the receiver's
+``method``) and of the area lights -- and before the last bounce a cosine-sampled continuation
+(``b cos / p_cos = 1``) leaves ``q``. Sphere lights are not geometry: paths pass through them.
+The next-event estimates of every vertex are the same functions as the receiver's direct part,
+so a diffuse and a glossy receiver share one estimator.
+
 Sampling is randomised quasi-Monte Carlo: the 2-D sample points of every strategy are an R2
 low-discrepancy set (the additive recurrence of the plastic number) under a random
 Cranley-Patterson shift, which stratifies the lobe and the environment's CDF (penumbrae
@@ -41,7 +56,13 @@ replicates of ``samples / K`` points (``samples / 2K`` for MIS, which casts two 
 point). The reported standard error is ``sqrt(var / K)`` with ``var`` the unbiased variance of
 the ``K`` replicate estimates (Welford's running update): the standard deviation of the
 returned mean, per channel. Shifts come from a counter-based hash of ``(seed, receiver,
-replicate)``, so results are reproducible and independent across seeds.
+replicate)``, so results are reproducible and independent across seeds. The paths' first
+directions are one more randomly shifted R2 set; their later dimensions (next-event and
+continuation at each bounce) are independent uniforms from a counter-based generator seeded per
+``(replicate, point)``. These numbers are drawn after the direct part's, whose stream is the
+same for every ``bounces``: with ``bounces = 0`` the results are bit-identical to the direct-only
+estimator, and with the same seed each path is extended, not redrawn, by one more bounce (so
+the radiance never decreases with ``bounces``).
 """
 
 from __future__ import annotations
@@ -53,7 +74,9 @@ from ..geometry.bvh import RAY_MAX_DISTANCE, Visibility
 from ..geometry.frames import onb_tangent
 from ..scene.lighting import DistantLight, Environment, SphereLight
 from ..scene.lighting_warp import EnvironmentMap, disabled_environment, env_pdf, env_radiance, env_sample, upload_environment
+from ..scene.materials import Lambert
 from ..scene.materials_warp import BRDFParams, brdf_eval, brdf_pdf, brdf_sample, upload_brdf
+from ..transfer.interreflection import check_albedo, check_bounces, hit_corners, hit_weights, interpolate_vec3
 from ..transfer.raytrace import CHUNK_MIN_RAYS, receiver_indices
 
 __all__ = [
@@ -61,6 +84,7 @@ __all__ = [
     "REPLICATES",
     "AnalyticLights",
     "DeviceLighting",
+    "DiffuseSurfaces",
     "MonteCarloShader",
     "ShadingResult",
     "strategy_index",
@@ -178,6 +202,197 @@ def _r2(j: int, shift: float, a: float) -> float:
     return x - wp.floor(x)
 
 
+@wp.func
+def _delta_lights(mesh_id: wp.uint64, origin: wp.vec3, n: wp.vec3, v: wp.vec3, brdf: BRDFParams, lights: AnalyticLights) -> wp.vec3:
+    """Delta distant lights at a shading point: ``sum b(v, l) E max(0, n.l) V(l)`` (no variance)."""
+    fixed = wp.vec3(0.0)
+    for k in range(lights.distant_direction.shape[0]):
+        if lights.distant_cos_half[k] >= 1.0:
+            l = lights.distant_direction[k]
+            c = wp.dot(n, l)
+            if c > 0.0:
+                if not wp.mesh_query_ray_anyhit(mesh_id, origin, l, _RAY_MAX):
+                    fixed += (brdf_eval(brdf, n, v, l) * c) * lights.distant_irradiance[k]
+    return fixed
+
+
+@wp.func
+def _sampled_lights(
+    acc: wp.vec3,
+    mesh_id: wp.uint64,
+    origin: wp.vec3,
+    n: wp.vec3,
+    v: wp.vec3,
+    brdf: BRDFParams,
+    env: EnvironmentMap,
+    lights: AnalyticLights,
+    method: int,
+    point_count: int,
+    shift_brdf: wp.vec2,
+    shift_env: wp.vec4,
+    shift_area: wp.vec2,
+) -> wp.vec3:
+    """``acc`` plus the environment, disc and sphere lights at a shading point, summed over
+    the sample points ``j = 0 .. point_count - 1``.
+
+    The points are the R2 set under the given Cranley-Patterson shifts (``point_count = 1``
+    with uniformly random shifts is one independent uniform sample); strategies as in the module
+    docstring (``method`` 0 / 1 / 2 = BRDF / light / MIS). No tint: the caller applies it.
+    """
+    for j in range(point_count):
+        if env.enabled != 0:
+            if method != 1:
+                d = brdf_sample(brdf, n, v, _r2(j, shift_brdf[0], _R2_A1), _r2(j, shift_brdf[1], _R2_A2))
+                f = brdf_eval(brdf, n, v, d) * wp.max(wp.dot(n, d), 0.0)
+                pdf_b = brdf_pdf(brdf, n, v, d)
+                if f > 0.0 and pdf_b > 0.0:
+                    if not wp.mesh_query_ray_anyhit(mesh_id, origin, d, _RAY_MAX):
+                        denom = pdf_b
+                        if method == 2:
+                            denom = pdf_b + env_pdf(env, d)
+                        acc += env_radiance(env, d) * (f / denom)
+            if method != 0:
+                s = env_sample(
+                    env,
+                    _r2(j, shift_env[0], _R2_A1),
+                    _r2(j, shift_env[1], _R2_A2),
+                    _r2(j, shift_env[2], _R2_A1),
+                    _r2(j, shift_env[3], _R2_A2),
+                )
+                d = wp.vec3(s[0], s[1], s[2])
+                f = brdf_eval(brdf, n, v, d) * wp.max(wp.dot(n, d), 0.0)
+                if f > 0.0 and s[3] > 0.0:
+                    if not wp.mesh_query_ray_anyhit(mesh_id, origin, d, _RAY_MAX):
+                        denom = s[3]
+                        if method == 2:
+                            denom = s[3] + brdf_pdf(brdf, n, v, d)
+                        acc += env_radiance(env, d) * (f / denom)
+        for k in range(lights.distant_direction.shape[0]):
+            cos_half = lights.distant_cos_half[k]
+            if cos_half < 1.0:
+                # a per-light offset decorrelates the lights' point sets
+                u1 = _r2(j, shift_area[0] + 0.318 * float(k), _R2_A1)
+                u2 = _r2(j, shift_area[1] + 0.618 * float(k), _R2_A2)
+                d = _cone_dir(lights.distant_direction[k], cos_half, u1, u2)
+                c = wp.dot(n, d)
+                if c > 0.0:
+                    if not wp.mesh_query_ray_anyhit(mesh_id, origin, d, _RAY_MAX):
+                        acc += lights.distant_irradiance[k] * (brdf_eval(brdf, n, v, d) * c)
+        for k in range(lights.sphere_position.shape[0]):
+            to_centre = lights.sphere_position[k] - origin
+            dist = wp.length(to_centre)
+            radius = lights.sphere_radius[k]
+            u1 = _r2(j, shift_area[0] + 0.414 * float(k + 1), _R2_A1)
+            u2 = _r2(j, shift_area[1] + 0.732 * float(k + 1), _R2_A2)
+            if dist <= radius:
+                d = brdf_sample(brdf, n, v, u1, u2)
+                pdf_b = brdf_pdf(brdf, n, v, d)
+                if pdf_b > 0.0:
+                    acc += lights.sphere_radiance[k] * (brdf_eval(brdf, n, v, d) * wp.max(wp.dot(n, d), 0.0) / pdf_b)
+            else:
+                axis = to_centre / dist
+                sin_a = radius / dist
+                cos_a = wp.sqrt(wp.max(0.0, 1.0 - sin_a * sin_a))
+                d = _cone_dir(axis, cos_a, u1, u2)
+                c = wp.dot(n, d)
+                if c > 0.0:
+                    # distance to the near intersection with the light sphere
+                    b = wp.dot(to_centre, d)
+                    disc = b * b - (dist * dist - radius * radius)
+                    t_hit = b - wp.sqrt(wp.max(disc, 0.0))
+                    if not wp.mesh_query_ray_anyhit(mesh_id, origin, d, t_hit):
+                        solid = 2.0 * wp.pi * (1.0 - cos_a)
+                        acc += lights.sphere_radiance[k] * (brdf_eval(brdf, n, v, d) * c * solid)
+    return acc
+
+
+@wp.struct
+class DiffuseSurfaces:
+    """What a diffuse bounce needs of the scene's triangles (indexed like the BVH's).
+
+    Fields:
+        indices: triangle vertex indices, flat (3 F,), int32 (the ``wp.Mesh``'s own).
+        normals: unit vertex normals of the frame, (V,) vec3, world (interpolated: shading normal).
+        albedo: per-vertex RGB albedo, (V,) vec3 (interpolated by barycentrics).
+        lambert: the Lambert BRDF of albedo 1 (the albedo is applied by the path's throughput).
+    """
+
+    indices: wp.array(dtype=wp.int32)
+    normals: wp.array(dtype=wp.vec3)
+    albedo: wp.array(dtype=wp.vec3)
+    lambert: BRDFParams
+
+
+@wp.func
+def _indirect_path(
+    acc: wp.vec3,
+    mesh_id: wp.uint64,
+    surfaces: DiffuseSurfaces,
+    origin: wp.vec3,
+    n: wp.vec3,
+    v: wp.vec3,
+    brdf: BRDFParams,
+    env: EnvironmentMap,
+    lights: AnalyticLights,
+    method: int,
+    bounces: int,
+    offset: float,
+    u1: float,
+    u2: float,
+    path_seed: int,
+    j: int,
+) -> wp.vec3:
+    """``acc`` plus one path of up to ``bounces`` diffuse bounces leaving a shading point.
+
+    The first direction is drawn from the shading point's BRDF lobe with the uniforms (u1, u2)
+    (weight ``b cos / p_b``); its closest hit ``q`` continues the path only on a front face
+    (a back face or a miss ends it: escaping light is the direct part's). At each vertex ``q``:
+    the throughput takes ``q``'s interpolated albedo, next-event estimation adds the lights with
+    :func:`_delta_lights` and one :func:`_sampled_lights` point (independent uniforms from
+    ``(path_seed, j)``) for the Lambert BRDF about the interpolated shading normal, and, before
+    the last bounce, a cosine-sampled continuation (weight ``b cos / p_cos = 1``) goes on.
+    """
+    d = brdf_sample(brdf, n, v, u1, u2)
+    f = brdf_eval(brdf, n, v, d) * wp.max(wp.dot(n, d), 0.0)
+    pdf = brdf_pdf(brdf, n, v, d)
+    if f <= 0.0 or pdf <= 0.0:
+        return acc
+    throughput = wp.vec3(f / pdf)
+    state = wp.rand_init(path_seed, j)
+    o = origin
+    for bounce in range(bounces):
+        q = wp.mesh_query_ray(mesh_id, o, d, _RAY_MAX)
+        if not q.result or q.sign <= 0.0:
+            break
+        corners = hit_corners(surfaces.indices, q.face)
+        weights = hit_weights(q.u, q.v)
+        throughput = wp.cw_mul(throughput, interpolate_vec3(surfaces.albedo, corners, weights))
+        if wp.max(throughput) <= 0.0:
+            break
+        ns = interpolate_vec3(surfaces.normals, corners, weights)
+        length = wp.length(ns)
+        if length > 1.0e-12:
+            ns = ns / length
+        else:
+            ns = q.normal  # vertex normals cancel (a fold): the face's own
+        # shadow rays leave the front side of the hit triangle (its geometric normal)
+        o = o + q.t * d + offset * q.normal
+        shift_brdf = wp.vec2(wp.randf(state), wp.randf(state))
+        shift_env = wp.vec4(wp.randf(state), wp.randf(state), wp.randf(state), wp.randf(state))
+        shift_area = wp.vec2(wp.randf(state), wp.randf(state))
+        light = _delta_lights(mesh_id, o, ns, ns, surfaces.lambert, lights)
+        light = _sampled_lights(light, mesh_id, o, ns, ns, surfaces.lambert, env, lights, method, 1, shift_brdf, shift_env, shift_area)
+        acc += wp.cw_mul(throughput, light)
+        if bounce + 1 < bounces:
+            d = brdf_sample(surfaces.lambert, ns, ns, wp.randf(state), wp.randf(state))
+            f = brdf_eval(surfaces.lambert, ns, ns, d) * wp.max(wp.dot(ns, d), 0.0)
+            pdf = brdf_pdf(surfaces.lambert, ns, ns, d)
+            if f <= 0.0 or pdf <= 0.0:
+                break
+            throughput = throughput * (f / pdf)
+    return acc
+
+
 @wp.kernel
 def _estimator_kernel(
     mesh_id: wp.uint64,
@@ -194,6 +409,8 @@ def _estimator_kernel(
     method: int,
     replicates: int,
     points_per_replicate: int,
+    bounces: int,
+    surfaces: DiffuseSurfaces,
     seed: int,
     offset: float,
     radiance: wp.array(dtype=wp.vec3),
@@ -203,7 +420,8 @@ def _estimator_kernel(
 
     ``points``, ``normals`` (unit) and ``tint`` are indexed by ``receivers[r]``; ``has_eye`` 0
     evaluates the BRDF with ``v = n`` (``eye`` unused); ``method`` 0 / 1 / 2 = BRDF / light / MIS
-    sampling; ``offset`` (world units) lifts shadow-ray origins along ``n``. Writes
+    sampling; ``bounces`` > 0 adds one path of that many diffuse bounces per sample point over
+    ``surfaces``; ``offset`` (world units) lifts shadow-ray origins along ``n``. Writes
     ``radiance[r]`` and ``stderr[r]`` (linear RGB).
     """
     r = receiver_start + wp.tid()
@@ -224,14 +442,7 @@ def _estimator_kernel(
     base = int(wp.rand_init(seed, vi))
 
     # Delta distant lights: deterministic, no variance.
-    fixed = wp.vec3(0.0)
-    for k in range(lights.distant_direction.shape[0]):
-        if lights.distant_cos_half[k] >= 1.0:
-            l = lights.distant_direction[k]
-            c = wp.dot(n, l)
-            if c > 0.0:
-                if not wp.mesh_query_ray_anyhit(mesh_id, origin, l, _RAY_MAX):
-                    fixed += (brdf_eval(brdf, n, v, l) * c) * lights.distant_irradiance[k]
+    fixed = _delta_lights(mesh_id, origin, n, v, brdf, lights)
 
     mean = wp.vec3(0.0)
     m2 = wp.vec3(0.0)
@@ -246,67 +457,21 @@ def _estimator_kernel(
         s_env4 = wp.randf(state)
         s_area1 = wp.randf(state)
         s_area2 = wp.randf(state)
-        acc = wp.vec3(0.0)
-        for j in range(points_per_replicate):
-            if env.enabled != 0:
-                if method != 1:
-                    d = brdf_sample(brdf, n, v, _r2(j, s_b1, _R2_A1), _r2(j, s_b2, _R2_A2))
-                    f = brdf_eval(brdf, n, v, d) * wp.max(wp.dot(n, d), 0.0)
-                    pdf_b = brdf_pdf(brdf, n, v, d)
-                    if f > 0.0 and pdf_b > 0.0:
-                        if not wp.mesh_query_ray_anyhit(mesh_id, origin, d, _RAY_MAX):
-                            denom = pdf_b
-                            if method == 2:
-                                denom = pdf_b + env_pdf(env, d)
-                            acc += env_radiance(env, d) * (f / denom)
-                if method != 0:
-                    s = env_sample(
-                        env, _r2(j, s_env1, _R2_A1), _r2(j, s_env2, _R2_A2), _r2(j, s_env3, _R2_A1), _r2(j, s_env4, _R2_A2)
-                    )
-                    d = wp.vec3(s[0], s[1], s[2])
-                    f = brdf_eval(brdf, n, v, d) * wp.max(wp.dot(n, d), 0.0)
-                    if f > 0.0 and s[3] > 0.0:
-                        if not wp.mesh_query_ray_anyhit(mesh_id, origin, d, _RAY_MAX):
-                            denom = s[3]
-                            if method == 2:
-                                denom = s[3] + brdf_pdf(brdf, n, v, d)
-                            acc += env_radiance(env, d) * (f / denom)
-            for k in range(lights.distant_direction.shape[0]):
-                cos_half = lights.distant_cos_half[k]
-                if cos_half < 1.0:
-                    # a per-light offset decorrelates the lights' point sets
-                    u1 = _r2(j, s_area1 + 0.318 * float(k), _R2_A1)
-                    u2 = _r2(j, s_area2 + 0.618 * float(k), _R2_A2)
-                    d = _cone_dir(lights.distant_direction[k], cos_half, u1, u2)
-                    c = wp.dot(n, d)
-                    if c > 0.0:
-                        if not wp.mesh_query_ray_anyhit(mesh_id, origin, d, _RAY_MAX):
-                            acc += lights.distant_irradiance[k] * (brdf_eval(brdf, n, v, d) * c)
-            for k in range(lights.sphere_position.shape[0]):
-                to_centre = lights.sphere_position[k] - origin
-                dist = wp.length(to_centre)
-                radius = lights.sphere_radius[k]
-                u1 = _r2(j, s_area1 + 0.414 * float(k + 1), _R2_A1)
-                u2 = _r2(j, s_area2 + 0.732 * float(k + 1), _R2_A2)
-                if dist <= radius:
-                    d = brdf_sample(brdf, n, v, u1, u2)
-                    pdf_b = brdf_pdf(brdf, n, v, d)
-                    if pdf_b > 0.0:
-                        acc += lights.sphere_radiance[k] * (brdf_eval(brdf, n, v, d) * wp.max(wp.dot(n, d), 0.0) / pdf_b)
-                else:
-                    axis = to_centre / dist
-                    sin_a = radius / dist
-                    cos_a = wp.sqrt(wp.max(0.0, 1.0 - sin_a * sin_a))
-                    d = _cone_dir(axis, cos_a, u1, u2)
-                    c = wp.dot(n, d)
-                    if c > 0.0:
-                        # distance to the near intersection with the light sphere
-                        b = wp.dot(to_centre, d)
-                        disc = b * b - (dist * dist - radius * radius)
-                        t_hit = b - wp.sqrt(wp.max(disc, 0.0))
-                        if not wp.mesh_query_ray_anyhit(mesh_id, origin, d, t_hit):
-                            solid = 2.0 * wp.pi * (1.0 - cos_a)
-                            acc += lights.sphere_radiance[k] * (brdf_eval(brdf, n, v, d) * c * solid)
+        shift_brdf = wp.vec2(s_b1, s_b2)
+        shift_env = wp.vec4(s_env1, s_env2, s_env3, s_env4)
+        shift_area = wp.vec2(s_area1, s_area2)
+        # the paths' numbers come after the direct part's, whose stream is unchanged
+        s_path1 = wp.randf(state)
+        s_path2 = wp.randf(state)
+        path_seed = wp.randi(state)
+        acc = _sampled_lights(wp.vec3(0.0), mesh_id, origin, n, v, brdf, env, lights, method, points_per_replicate,
+                              shift_brdf, shift_env, shift_area)
+        if bounces > 0:
+            indirect = wp.vec3(0.0)
+            for j in range(points_per_replicate):
+                indirect = _indirect_path(indirect, mesh_id, surfaces, origin, n, v, brdf, env, lights, method, bounces,
+                                          offset, _r2(j, s_path1, _R2_A1), _r2(j, s_path2, _R2_A2), path_seed, j)
+            acc = acc + indirect
         x = wp.cw_mul(t, acc) / float(points_per_replicate)
         delta = x - mean
         mean += delta / float(rep + 1)
@@ -328,9 +493,10 @@ class ShadingResult:
         stderr: its Monte Carlo standard error, shape (receiver_count, 3), float32.
         vertices: receiver vertex indices (rows), shape (receiver_count,), int64.
         samples, method, frame, seed: how it was computed.
+        bounces: diffuse bounces of the indirect light included (0: direct light only).
     """
 
-    def __init__(self, radiance, stderr, vertices, samples, method, frame, seed):
+    def __init__(self, radiance, stderr, vertices, samples, method, frame, seed, bounces: int = 0):
         self.radiance = radiance
         self.stderr = stderr
         self.vertices = vertices
@@ -338,12 +504,14 @@ class ShadingResult:
         self.method = method
         self.frame = frame
         self.seed = seed
+        self.bounces = bounces
 
     def __array__(self, dtype=None, copy=None):
         return np.asarray(self.radiance, dtype=dtype)
 
     def __repr__(self) -> str:
-        return f"ShadingResult(receivers={self.radiance.shape[0]}, samples={self.samples}, method={self.method!r})"
+        bounces = f", bounces={self.bounces}" if self.bounces else ""
+        return f"ShadingResult(receivers={self.radiance.shape[0]}, samples={self.samples}, method={self.method!r}{bounces})"
 
 
 def strategy_index(method: str, methods: tuple[str, ...], caller: str) -> int:
@@ -395,18 +563,24 @@ class MonteCarloShader:
         vertices: receiver vertex indices (default every vertex).
         workers: CPU launch threads (default: every core on the CPU device).
         offset: shadow-ray origin offset along the normal, world units (default: the BVH's).
+        bounces: diffuse bounces of the indirect light, 0..MAX_BOUNCES (0 = direct light only);
+            the surfaces reflect with the Lambert BRDF of ``scene.albedo`` (front faces only).
 
     Attributes:
         bvh: :class:`~warpshade.geometry.bvh.Visibility` of the scene (refit per frame).
         lighting: :class:`DeviceLighting`.
+        surfaces: :class:`DiffuseSurfaces` the paths bounce off (vertex normals of the frame
+            last given to :meth:`update`, ``scene.albedo``).
         brdf: the uploaded :class:`~warpshade.scene.materials_warp.BRDFParams`.
         tint: per-vertex tint, wp.array(vec3), shape (vertex_count,).
         radiance, stderr: per-receiver outputs, wp.array(vec3), shape (receiver_count,).
     """
 
     def __init__(self, scene, brdf, tint, method: str, methods: tuple[str, ...], caller: str, eye=None, lighting=None,
-                 samples: int = 256, device=None, seed: int = 0, vertices=None, workers=None, offset=None):
+                 samples: int = 256, device=None, seed: int = 0, vertices=None, workers=None, offset=None,
+                 bounces: int = 0):
         self.strategy = strategy_index(method, methods, caller)
+        self.bounces = check_bounces(bounces, caller)
         self.method = method
         self.scene = scene
         self.device = resolve_device(device)
@@ -427,10 +601,32 @@ class MonteCarloShader:
         self.tint = wp.array(np.ascontiguousarray(tint), dtype=wp.vec3, device=self.device)
         self.radiance = wp.zeros(self.vertices.shape[0], dtype=wp.vec3, device=self.device)
         self.stderr = wp.zeros(self.vertices.shape[0], dtype=wp.vec3, device=self.device)
+        self.surfaces = DiffuseSurfaces()
+        self.surfaces.indices = self.bvh.mesh.indices
+        self.surfaces.normals = wp.zeros(scene.vertex_count, dtype=wp.vec3, device=self.device)
+        albedo = check_albedo(scene.albedo, scene.vertex_count, caller) if self.bounces > 0 else scene.albedo
+        self.surfaces.albedo = wp.array(albedo, dtype=wp.vec3, device=self.device)
+        self.surfaces.lambert = upload_brdf(Lambert(1.0))
+        self._has_surface_normals = False
         self.frame = None
+
+    def update(self, points, normals) -> None:
+        """Refit the BVH to the frame's ``points`` and keep its vertex ``normals`` for the bounces.
+
+        Args:
+            points, normals: positions and unit normals of every scene vertex, wp.array(vec3),
+                shape (vertex_count,), world space.
+        """
+        self.bvh.update(points)
+        if self.bounces > 0:
+            wp.copy(self.surfaces.normals, normals)
+            self._has_surface_normals = True
 
     def shade_points(self, points, normals, tint, receivers, radiance, stderr, seed=None) -> None:
         """Shade arbitrary receivers (e.g. camera hit points) against the current BVH.
+
+        With ``bounces > 0`` the paths bounce off the scene as last set by :meth:`update` (or
+        :meth:`shade_state`), which must have been called.
 
         Args:
             points, normals: receiver positions and unit normals, wp.array(vec3), world space.
@@ -441,15 +637,18 @@ class MonteCarloShader:
         """
         lit = self.lighting
         seed = self.seed if seed is None else int(seed)
+        if self.bounces > 0 and not self._has_surface_normals:
+            raise ValueError("shade_points with bounces > 0 needs the frame's vertex normals: call update(points, normals) first")
 
         def inputs(start, stop):
             return [
                 self.bvh.id, points, normals, tint, receivers, start, self.brdf, self.has_eye, self.eye,
-                lit.environment, lit.lights, self.strategy, self.replicates, self.points_per_replicate, seed,
-                self.bvh.offset, radiance, stderr,
+                lit.environment, lit.lights, self.strategy, self.replicates, self.points_per_replicate, self.bounces,
+                self.surfaces, seed, self.bvh.offset, radiance, stderr,
             ]
 
         rays = receivers.shape[0] * self.replicates * self.points_per_replicate * (2 if self.strategy == 2 else 1)
+        rays *= 1 + 2 * self.bounces  # each bounce: a continuation ray and the next-event rays
         workers = self.workers if rays >= CHUNK_MIN_RAYS else 1
         launch_parallel(_estimator_kernel, receivers.shape[0], inputs, self.device, workers)
 
@@ -460,7 +659,7 @@ class MonteCarloShader:
             points, normals: the frame's vertex positions and unit normals, wp.array(vec3),
                 shape (vertex_count,), world space.
         """
-        self.bvh.update(points)
+        self.update(points, normals)
         self.shade_points(points, normals, self.tint, self.receivers, self.radiance, self.stderr)
 
     def shade(self, frame) -> ShadingResult:
@@ -473,5 +672,6 @@ class MonteCarloShader:
     def result(self) -> ShadingResult:
         """Host copies of the last shading (:class:`ShadingResult`)."""
         return ShadingResult(
-            self.radiance.numpy().copy(), self.stderr.numpy().copy(), self.vertices.copy(), self.samples, self.method, self.frame, self.seed
+            self.radiance.numpy().copy(), self.stderr.numpy().copy(), self.vertices.copy(), self.samples, self.method, self.frame,
+            self.seed, self.bounces,
         )

@@ -5,8 +5,17 @@ outgoing radiance (the same in every direction for a Lambertian surface) is::
 
     L_o = rho / pi * integral L_i(s) V(s) max(0, n . s) ds
 
-This is the estimator of :mod:`.estimator` with the Lambert BRDF ``b = 1 / pi``, the per-vertex
-tint ``t = rho`` and no viewer. Estimators of the environment term (per sample point):
+and with ``bounces = k`` diffuse bounces of indirect light (every surface Lambertian with the
+scene's per-vertex albedo, reflecting from its front faces only)::
+
+    L^(0)(p) = the direct radiance above
+    L^(b)(p) = L^(0)(p) + rho / pi * integral_{occluded s} L^(b-1)(q(s)) max(0, n . s) ds
+
+with ``q(s)`` the closest hit toward ``s`` (a back face sends nothing) -- the radiance the
+interreflected transfer of :mod:`warpshade.transfer.interreflection` reproduces. This is the
+estimator of :mod:`.estimator` with the Lambert BRDF ``b = 1 / pi``, the per-vertex tint
+``t = rho`` and no viewer; the bounces are paths with next-event estimation at every vertex
+(described there). Estimators of the environment term (per sample point):
 
 * ``"cosine"``: one direction from the cosine-weighted hemisphere of ``n`` -- the Lambert
   BRDF's lobe, so this is the BRDF-sampling strategy (``"brdf"`` of :mod:`.glossy`); estimate
@@ -64,7 +73,7 @@ class ReferenceShader(MonteCarloShader):
 
     Args:
         scene: :class:`~warpshade.scene.Scene`; albedo is ``scene.albedo``.
-        lighting, samples, device, seed, vertices, workers: as :func:`shade`.
+        lighting, samples, device, seed, vertices, workers, bounces: as :func:`shade`.
         method: "cosine", "light" or "mis".
         offset: shadow-ray origin offset along the normal, world units (default: the BVH's).
 
@@ -76,14 +85,15 @@ class ReferenceShader(MonteCarloShader):
     """
 
     def __init__(self, scene, lighting=None, samples: int = 256, method: str = "mis", device=None, seed: int = 0,
-                 vertices=None, workers=None, offset=None):
+                 vertices=None, workers=None, offset=None, bounces: int = 0):
         super().__init__(scene, Lambert(1.0), scene.albedo, method, METHODS, "reference.shade", eye=None,
                          lighting=lighting, samples=samples, device=device, seed=seed, vertices=vertices,
-                         workers=workers, offset=offset)
+                         workers=workers, offset=offset, bounces=bounces)
         self.albedo = self.tint
 
 
-def shade(scene, frame, lighting=None, samples: int = 256, device=None, method: str = "mis", seed: int = 0, vertices=None, workers=None) -> ShadingResult:
+def shade(scene, frame, lighting=None, samples: int = 256, device=None, method: str = "mis", seed: int = 0, vertices=None, workers=None,
+          bounces: int = 0) -> ShadingResult:
     """Ray-traced ground-truth radiance of every (or the selected) vertex at one frame.
 
     Args:
@@ -97,9 +107,11 @@ def shade(scene, frame, lighting=None, samples: int = 256, device=None, method: 
         seed: random seed.
         vertices: receiver vertex indices (default every vertex).
         workers: CPU launch threads (default: every core on the CPU device).
+        bounces: diffuse bounces of indirect light, 0..MAX_BOUNCES (module docstring); 0 is
+            the direct light only, bit-identical to the reference without bounces.
 
     Returns:
         :class:`ShadingResult`: ``radiance`` and ``stderr``, shape (receiver_count, 3), float32,
         linear RGB; ``numpy.asarray(result)`` is the radiance.
     """
-    return ReferenceShader(scene, lighting, samples, method, device, seed, vertices, workers).shade(frame)
+    return ReferenceShader(scene, lighting, samples, method, device, seed, vertices, workers, bounces=bounces).shade(frame)

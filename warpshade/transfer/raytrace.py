@@ -41,7 +41,6 @@ __all__ = [
     "CHUNK_MIN_RAYS",
     "TransferResult",
     "TransferTracer",
-    "compute",
     "sample_rays",
     "random_rotation",
     "receiver_indices",
@@ -184,6 +183,12 @@ class TransferResult:
         ambient_occlusion: shape (receiver_count,), float32 in [0, 1].
         vertices: receiver vertex indices (rows of the arrays above), shape (receiver_count,), int64.
         order, samples, space, frame, seed, offset: how it was computed.
+        transfer_rgb: interreflected transfer per RGB channel after ``bounces`` diffuse bounces
+            (:mod:`warpshade.transfer.interreflection`), shape (receiver_count, 3, order**2),
+            float32, world frame, no albedo and no 1/pi: outgoing radiance in channel c =
+            albedo_c / pi * dot(L_c, transfer_rgb[:, c]). None when ``bounces`` is 0 (then
+            :meth:`per_channel` is ``transfer`` broadcast to the channels).
+        bounces: diffuse bounces in ``transfer_rgb`` (0: none computed).
     """
 
     visibility: np.ndarray
@@ -196,6 +201,15 @@ class TransferResult:
     frame: float
     seed: int
     offset: float
+    transfer_rgb: np.ndarray | None = None
+    bounces: int = 0
+
+    def per_channel(self) -> np.ndarray:
+        """Transfer per RGB channel, shape (receiver_count, 3, order**2), float32: ``transfer_rgb``,
+        or the direct ``transfer`` broadcast to three channels (a read-only view) without bounces."""
+        if self.transfer_rgb is not None:
+            return self.transfer_rgb
+        return np.broadcast_to(self.transfer[:, None, :], (self.transfer.shape[0], 3, self.transfer.shape[1]))
 
 
 def _check_args(order, samples, space):
@@ -378,54 +392,8 @@ class TransferTracer:
         )
 
 
-def compute(
-    scene,
-    frame,
-    order: int,
-    samples: int,
-    space: str = "world",
-    device=None,
-    seed: int = 0,
-    vertices=None,
-    workers: int | None = None,
-    offset: float | None = None,
-    below_horizon: str = "traced",
-    progress: bool = False,
-) -> TransferResult:
-    """Ray-traced SH visibility, diffuse transfer and ambient occlusion at one frame.
-
-    Args:
-        scene: a :class:`~warpshade.scene.Scene`.
-        frame: time code (one of ``scene.frames``).
-        order: SH order n (n*n coefficients), 1..MAX_KERNEL_ORDER.
-        samples: rays per receiver (a randomly rotated spherical Fibonacci set).
-        space: "world" or "local" (per-vertex tangent frame, :mod:`warpshade.geometry.frames`).
-        device: Warp device (None = Warp's default).
-        seed: seed of the per-vertex random rotations.
-        vertices: receiver vertex indices (default: every vertex), any integer array.
-        workers: CPU launch threads (default: every core on the CPU device, 1 on CUDA); batches
-            under :data:`CHUNK_MIN_RAYS` rays use one launch.
-        offset: ray-origin offset in scene units (default: scene-scaled, see geometry.bvh).
-        below_horizon: "traced" (visibility of every direction is ray traced; below the
-            tangent plane rays mostly hit the receiver's own surface) or "visible" (directions
-            below the tangent plane count as visible and cast no ray). Transfer and AO, which
-            carry the cosine, are the same either way; "visible" suits visibility that is later
-            multiplied by a BRDF that already vanishes below the horizon (glossy LDPRT): an
-            unoccluded receiver then has V = 1 exactly, with no horizon step for the truncated
-            SH product to ring on.
-        progress: show a progress bar (tqdm) over the receivers.
-
-    Returns:
-        :class:`TransferResult` with NumPy float32 arrays (rows follow ``vertices``).
-    """
-    tracer = TransferTracer(scene, order, samples, space=space, vertices=vertices, device=device, seed=seed,
-                            workers=workers, offset=offset, below_horizon=below_horizon, progress=progress)
-    tracer.trace(frame)
-    return tracer.result()
-
-
 def sample_rays(scene, frame, samples: int, vertices=None, device=None, seed: int = 0, offset: float | None = None):
-    """The exact rays :func:`compute` traces (for cross-checks against other ray tracers).
+    """The exact rays :func:`warpshade.transfer.compute` traces (for cross-checks against other ray tracers).
 
     Returns:
         ``(origins, directions)``, float32 NumPy arrays of shape (receiver_count, samples, 3),
