@@ -172,6 +172,18 @@ def _run_in_worker(fn, index: int, task):
     return fn(task)
 
 
+def _main_hint() -> str:
+    """Why spawned workers die at start when this runs from a script, and the fix."""
+    import sys
+
+    main = sys.modules.get("__main__")
+    path = getattr(main, "__file__", None)
+    if path is None or getattr(getattr(main, "__spec__", None), "name", None):
+        return ""
+    return (f"; worker processes are spawned and import the main script {path}: if it starts work at its top level, "
+            "put that under `if __name__ == \"__main__\":`, or run with scheduler 'serial'")
+
+
 def _describe_exit(code: int | None) -> str:
     if code is None:
         return "still running"
@@ -313,7 +325,8 @@ class ProcessExecutor(Executor):
                     barren_breaks = 0 if (blamed or finished_here) else barren_breaks + 1
                     if barren_breaks > self.retries:
                         raise TaskError(f"{desc or 'tasks'}: the worker processes died {barren_breaks} times "
-                                        f"before finishing any task ({dead or 'unknown cause'})", None, desc)
+                                        f"before finishing any task ({dead or 'unknown cause'}){_main_hint()}",
+                                        None, desc)
             except BaseException:
                 self._stop_pool(kill=True)
                 raise

@@ -12,6 +12,7 @@ short message (add --debug for the traceback) and exits with 1.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 __all__ = ["main"]
@@ -179,7 +180,7 @@ class CliError(Exception):
 
 
 def _run_graph(graph_file, frames=None, device=None, out_dir=None, validate=False, previews=True, progress=True,
-               usd_format="auto"):
+               usd_format="auto", scheduler=None):
     """Run one stage graph end to end; returns (runtime, outputs dict).
 
     Everything is checked before any work: the graph file, the output directory (writable, not
@@ -191,10 +192,9 @@ def _run_graph(graph_file, frames=None, device=None, out_dir=None, validate=Fals
     import time
     from pathlib import Path
 
+    from . import _tasks
     from ._fileio import check_writable_dir
     from .graph import GraphError, load
-    from .io.usd_write import usd_output_name
-    from .measure import measure_error, render_comparisons, render_previews, write_report, write_usd
 
     spec = load(graph_file)
     out = Path(out_dir if out_dir is not None else Path("warpshade-out") / spec.name)
@@ -208,8 +208,30 @@ def _run_graph(graph_file, frames=None, device=None, out_dir=None, validate=Fals
     measured = left_out = []
     if validate:
         measured, left_out = spec.validation_frames(scene, run_frames)
-    rt = spec.compile(scene, device=device, progress=progress)
-    rt.run(run_frames)
+    # ground-truth frames go to the executor only when one is asked for (flag or environment)
+    try:
+        tasks = _tasks.executor(scheduler) if scheduler is not None or os.environ.get(_tasks.SCHEDULER_ENV) else None
+    except ValueError as exc:
+        raise CliError(f"--scheduler: {exc}") from None
+    try:
+        rt = spec.compile(scene, device=device, progress=progress, scheduler=scheduler)
+        rt.run(run_frames)
+        outputs = _finish_run(spec, rt, out, measured, left_out, validate, previews, usd_format, tasks)
+    finally:
+        if tasks is not None:
+            tasks.close()
+    outputs["seconds"] = time.perf_counter() - t0
+    return rt, outputs
+
+
+def _finish_run(spec, rt, out, measured, left_out, validate, previews, usd_format, tasks) -> dict:
+    """The measuring layer's part of a run: USD layer, previews, error, comparisons, report."""
+    from pathlib import Path
+
+    from .io.usd_write import usd_output_name
+    from .measure import measure_error, render_comparisons, render_previews, write_report, write_usd
+
+    out = Path(out)
     outputs = {"left_out": left_out}
 
     def inside(name: str) -> Path:
@@ -221,16 +243,15 @@ def _run_graph(graph_file, frames=None, device=None, out_dir=None, validate=Fals
     outputs["usd"] = write_usd(rt, inside(usd_output_name(spec.name, rt.scene, len(rt.results), usd_format)))
     if previews:
         outputs["png"] = render_previews(rt, out)
-    measurement = measure_error(rt, measured) if validate else None
+    measurement = measure_error(rt, measured, executor=tasks) if validate else None
     error = measurement.error if measurement is not None else None
     if error is not None and left_out:
         error["frames_left_out"] = left_out
     if validate and previews:
         outputs["png"] = [*outputs.get("png", []), *render_comparisons(rt, measurement, out)]
     outputs["report"] = write_report(rt, inside(f"{spec.name}.json"), error=error)
-    outputs["seconds"] = time.perf_counter() - t0
     outputs["error"] = error
-    return rt, outputs
+    return outputs
 
 
 def _print_run(rt, outputs) -> None:
@@ -259,7 +280,7 @@ def _cmd_run(args) -> int:
     """Run a stage graph: precompute (cached), frame loop, USD + PNG + JSON outputs."""
     graph_file = _find_graph(args.graph)
     rt, outputs = _run_graph(graph_file, args.frames, args.device, args.out, args.validate, not args.no_previews,
-                             usd_format=args.usd_format)
+                             usd_format=args.usd_format, scheduler=args.scheduler)
     _print_run(rt, outputs)
     return 0
 
@@ -334,6 +355,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-previews", action="store_true", help="skip the PNG previews and comparison pictures")
     p.add_argument("--usd-format", choices=("auto", "usda", "usdc"), default="auto",
                    help="USD layer format: text (usda), binary (usdc) or auto (binary above 32 MiB of colours)")
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="where independent precompute tasks (training frames, ground-truth frames) run: a Dask "
+                        "scheduler address (tcp://host:8786), 'local[:N]' worker processes or 'serial' "
+                        "(default: $WARPSHADE_SCHEDULER, else local worker processes)")
     p.set_defaults(func=_cmd_run)
     p = sub.add_parser("demo", parents=[common, device], help="run the default bundled scene end to end and print where its outputs are",
                        description="Run stages/demo.toml (Warp's bunny under a rotating sky, static PRT) with validation.")

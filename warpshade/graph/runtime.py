@@ -34,7 +34,7 @@ import numpy as np
 from .._fileio import _json_default
 from .._hashing import hash_json
 from .._wp import record_program, resolve_device, wp
-from ..methods.stage import Change, Port, StageContext
+from ..methods.stage import Change, Port, StageContext, StageError
 from ..scene.lighting import DistantLight, Environment, LightingSource, SphereLight
 from ..scene.state import FrameEvaluator
 from .cache import ArtifactCache, default_cache_dir
@@ -189,6 +189,9 @@ class Runtime:
             runs every frame's launches from Python (for debugging and profiling).
         lighting: the :class:`~warpshade.scene.LightingSource` of the run (default: the scene's
             lights, fixed).
+        scheduler: where precompute stages run their independent tasks (training frames):
+            None = ``$WARPSHADE_SCHEDULER`` or local worker processes; ``"serial"``,
+            ``"local:N"`` or a Dask scheduler address (:func:`warpshade._tasks.executor`).
 
     Attributes:
         state: the :class:`~warpshade.scene.state.FrameState` every frame is evaluated into.
@@ -198,7 +201,7 @@ class Runtime:
     """
 
     def __init__(self, spec, scene, device=None, cache_dir="default", progress: bool = True, capture: bool = True,
-                 lighting: LightingSource | None = None):
+                 lighting: LightingSource | None = None, scheduler: str | None = None):
         self.spec = spec
         self.scene = scene
         self.device = resolve_device(device)
@@ -208,7 +211,10 @@ class Runtime:
         dims = {"V": scene.vertex_count, "T": len(scene.frames), "F": scene.triangle_count}
         self.stages, self.wiring = spec.build(dims)
         self.lighting = lighting if lighting is not None else LightingSource.fixed(scene.lights, scene.up_axis)
-        self.ctx = StageContext(scene, self.device, dims, self.lighting, None, progress)
+        source = getattr(spec, "source_path", None)
+        self.scheduler = scheduler
+        self.ctx = StageContext(scene, self.device, dims, self.lighting, None, progress,
+                                base_dir=source.parent if source is not None else None, scheduler=scheduler)
         self.timings = {s.name: StageTiming() for s in self.stages}
         self.frame_s: list = []
         self.host_s: list = []
@@ -282,7 +288,7 @@ class Runtime:
             key_parts = {
                 "type": st.type_name,
                 "version": st.version,
-                "params": st.params,
+                "params": st.cache_params(),
                 "inputs": {
                     p: (self.artifact_keys[w.provider] + "." + w.port) if w.provider != "scene" else f"scene.{w.port}"
                     for p, w in self.wiring[st.name].items()
@@ -290,6 +296,14 @@ class Runtime:
             }
             if st.uses_scene or any(w.provider == "scene" for w in self.wiring[st.name].values()):
                 key_parts["scene"] = self.fingerprint
+            try:
+                extra = st.cache_key(self.ctx)
+            except StageError:
+                raise
+            except (OSError, ValueError) as exc:
+                raise GraphError(f"stage {st.name!r} ({st.type_name}): {exc}") from None
+            if extra:
+                key_parts["depends"] = extra
             key = f"{st.type_name.replace('.', '-')}-{hash_json(key_parts)[:32]}"
             self.artifact_keys[st.name] = key
             t0 = time.perf_counter()

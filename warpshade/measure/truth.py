@@ -41,15 +41,36 @@ def truth_cache(cache_dir="default"):
     return ArtifactCache(None if cache_dir is None else Path(cache_dir))
 
 
+def _is_diffuse(model) -> bool:
+    """The diffuse reference: no model, or only diffuse bounces (``{"bounces": k}``)."""
+    return model is None or set(model) == {"bounces"}
+
+
 def _model_description(model) -> dict:
     if model is None:
         return {"reference": "diffuse"}
+    if _is_diffuse(model):
+        return {"reference": "diffuse", "bounces": int(model["bounces"])}
     return {"brdf": model["brdf"].describe(), "eye": np.asarray(model["eye"], np.float64).tolist(),
             "color": np.asarray(model["color"], np.float64).tolist()}
 
 
+def _truth_task(task: dict) -> dict:
+    """One ground-truth frame (an executor task: everything it needs, its seed included)."""
+    from ..reference import shade, shade_glossy
+
+    model = task["model"]
+    if _is_diffuse(model):
+        res = shade(task["scene"], task["frame"], task["lights"], task["samples"], device=task["device"], seed=task["seed"],
+                    bounces=int(model["bounces"]) if model else 0)
+    else:
+        res = shade_glossy(task["scene"], task["frame"], lighting=task["lights"], samples=task["samples"],
+                           device=task["device"], seed=task["seed"], **task["model"])
+    return {"radiance": np.asarray(res.radiance), "stderr": np.asarray(res.stderr)}
+
+
 def ground_truth(scene, lighting, frames, samples: int = 1024, device="cpu", cache_dir="default", model=None,
-                 seed: int = GT_SEED, progress: bool = False) -> dict:
+                 seed: int = GT_SEED, progress: bool = False, executor=None) -> dict:
     """``{frame: {"radiance": (V, 3), "stderr": (V, 3)}}`` ray traced with MIS, cached on disk.
 
     Args:
@@ -63,33 +84,46 @@ def ground_truth(scene, lighting, frames, samples: int = 1024, device="cpu", cac
             :func:`~warpshade.reference.shade_glossy` (``brdf``, ``eye``, ``color``).
         seed: random seed of the estimator.
         progress: print one line per frame computed.
+        executor: a :class:`warpshade._tasks.Executor` to compute the frames missing from the
+            cache as independent tasks (local worker processes, a Dask cluster); None computes
+            them here, one after another. Same seeds either way, so the same result. Tasks run on
+            the worker's default Warp device (its GPU on a CUDA cluster).
     """
-    from ..reference import shade, shade_glossy
     from ..reference.shading import ESTIMATOR_VERSION
 
     cache = truth_cache(cache_dir)
     fp = scene.fingerprint()
     desc = _model_description(model)
-    out = {}
+    out, missing = {}, []
+    keys = {}
     for f in frames:
-        key = ("gt-" if model is None else "gt-glossy-") + hash_json(
+        key = ("gt-" if _is_diffuse(model) else "gt-glossy-") + hash_json(
             {"scene": fp, "frame": float(f), "samples": int(samples), "seed": int(seed), "estimator": ESTIMATOR_VERSION,
              "lighting": lighting.fingerprint(), **desc})[:32]
+        keys[float(f)] = key
         hit = cache.load(key)
         if hit is None or set(hit) != {"radiance", "stderr"}:
+            missing.append(float(f))
+        else:
+            out[float(f)] = hit
+    kind = "ground truth" if _is_diffuse(model) else "glossy ground truth"
+    tasks = [{"scene": scene, "frame": f, "lights": lighting.lights_at(f), "samples": int(samples), "seed": int(seed),
+              "model": model, "device": device if executor is None else None}
+             for f in missing]
+    if executor is not None and tasks:
+        results = executor.map(_truth_task, tasks, desc=f"{kind} ({samples} spp)", progress=progress)
+        for task, hit in zip(tasks, results):
+            cache.store(keys[task["frame"]], hit)
+            out[task["frame"]] = hit
+    else:
+        for task in tasks:
             t0 = time.perf_counter()
-            lights = lighting.lights_at(f)
-            if model is None:
-                res = shade(scene, f, lights, samples, device=device, seed=seed)
-            else:
-                res = shade_glossy(scene, f, lighting=lights, samples=samples, device=device, seed=seed, **model)
-            hit = {"radiance": np.asarray(res.radiance), "stderr": np.asarray(res.stderr)}
-            cache.store(key, hit)
+            hit = _truth_task(task)
+            cache.store(keys[task["frame"]], hit)
+            out[task["frame"]] = hit
             if progress:
-                kind = "ground truth" if model is None else "glossy ground truth"
-                print(f"    {kind} frame {float(f):g}: {samples} spp in {time.perf_counter() - t0:.1f} s", flush=True)
-        out[float(f)] = hit
-    return out
+                print(f"    {kind} frame {task['frame']:g}: {samples} spp in {time.perf_counter() - t0:.1f} s", flush=True)
+    return {float(f): out[float(f)] for f in frames}
 
 
 def reference_model(runtime) -> dict | None:
@@ -114,7 +148,7 @@ class Measurement:
 
 
 def measure_error(runtime, frames=None, samples: int | None = None, seed: int = VALIDATE_SEED,
-                  cache_dir="default") -> Measurement:
+                  cache_dir="default", executor=None) -> Measurement:
     """A run's output against ray-traced ground truth.
 
     Args:
@@ -124,6 +158,7 @@ def measure_error(runtime, frames=None, samples: int | None = None, seed: int = 
         samples: ground-truth rays per vertex (default: ``[validate]`` samples, else 1024).
         seed: ground-truth seed.
         cache_dir: where the ground truth is cached (:func:`truth_cache`).
+        executor: computes missing ground-truth frames as tasks (:func:`ground_truth`).
     """
     from ..graph.runtime import parse_frames
 
@@ -133,7 +168,8 @@ def measure_error(runtime, frames=None, samples: int | None = None, seed: int = 
     samples = int(spec.get("samples", 1024) if samples is None else samples)
     model = reference_model(runtime)
     sel = parse_frames(list(frames), runtime.scene)
-    truth = ground_truth(runtime.scene, runtime.lighting, sel, samples, runtime.device, cache_dir, model, seed)
+    truth = ground_truth(runtime.scene, runtime.lighting, sel, samples, runtime.device, cache_dir, model, seed,
+                         executor=executor)
     per_frame, refs, ests = [], {}, {}
     for f in sel:
         est = runtime.results.get(float(f))
@@ -146,5 +182,6 @@ def measure_error(runtime, frames=None, samples: int | None = None, seed: int = 
         refs[float(f)] = np.asarray(gt["radiance"])
         ests[float(f)] = est
     error = {"per_frame": per_frame, "mean": combine_metrics(per_frame), "samples": samples,
-             "reference": "diffuse" if model is None else f"glossy {model['brdf'].describe()}"}
+             "reference": ("diffuse" if model is None else f"diffuse, {model['bounces']} bounces") if _is_diffuse(model)
+             else f"glossy {model['brdf'].describe()}"}
     return Measurement(error, refs, ests)

@@ -129,6 +129,11 @@ class StageContext:
         state: the run's :class:`~warpshade.scene.state.FrameState` (its arrays keep their
             addresses; bind them in ``setup``); None during precompute.
         progress: whether long work may show progress bars.
+        base_dir: directory that relative file parameters resolve against (the stage graph
+            file's), or None (the working directory).
+        scheduler: where independent precompute tasks run (:func:`warpshade._tasks.executor`:
+            None = ``$WARPSHADE_SCHEDULER`` or local worker processes, ``"serial"``,
+            ``"local:N"``, a Dask scheduler address).
     """
 
     scene: Any
@@ -137,6 +142,24 @@ class StageContext:
     lighting: Any = None
     state: Any = None
     progress: bool = False
+    base_dir: Any = None
+    scheduler: Any = None
+
+    def executor(self):
+        """A new :class:`warpshade._tasks.Executor` for :attr:`scheduler` (use it as a context
+        manager so that its workers are released)."""
+        from .._tasks import executor
+
+        return executor(self.scheduler)
+
+    def resolve_path(self, path: str):
+        """``path`` made absolute against :attr:`base_dir` (a :class:`pathlib.Path`)."""
+        from pathlib import Path
+
+        p = Path(path).expanduser()
+        if not p.is_absolute() and self.base_dir is not None:
+            p = Path(self.base_dir) / p
+        return p.resolve()
 
 
 class Stage:
@@ -181,6 +204,17 @@ class Stage:
     def precompute(self, ctx, inputs: dict) -> dict:
         """Compute artifacts from host inputs. Returns output name -> NumPy array."""
         raise NotImplementedError(f"stage {self.name!r} ({self.type_name}) has no precompute")
+
+    def cache_params(self) -> dict:
+        """The parameters that enter the artifact's cache key (default: all of them). A stage
+        that names a file by path leaves the path out and puts the file's content in
+        :meth:`cache_key`, so the same file spelt two ways shares one cache entry."""
+        return self.params
+
+    def cache_key(self, ctx) -> dict:
+        """Content the artifact depends on beyond the parameters, inputs and the scene (e.g. the
+        fingerprint of another file the stage reads); part of the artifact's cache key."""
+        return {}
 
     def check_artifact(self, outputs: dict) -> None:
         """Raise ValueError when cached ``outputs`` are not a valid artifact of this stage.

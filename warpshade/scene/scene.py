@@ -272,6 +272,14 @@ class Scene:
         self._device_cache: dict = {}  # static device arrays per device (warpshade.scene.state)
         self._evaluators: dict = {}  # FrameEvaluator per device, for evaluate()
 
+    def __getstate__(self):
+        """Pickle the description only: device caches and evaluators stay with their process
+        (a scene is sent to worker processes and cluster workers as a task argument)."""
+        state = dict(self.__dict__)
+        state["_device_cache"] = {}
+        state["_evaluators"] = {}
+        return state
+
     def _check_skin(self, mesh: Mesh) -> None:
         skin = mesh.skin
         if not 0 <= skin.skeleton < len(self.skeletons):
