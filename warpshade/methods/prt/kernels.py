@@ -34,6 +34,23 @@ def shade_transfer_kernel(
     radiance[v, 2] = albedo[v, 2] * INV_PI * wp.max(b, 0.0)
 
 
+@wp.kernel
+def shade_transfer_rgb_kernel(
+    transfer: wp.array3d(dtype=wp.float32),
+    light: wp.array2d(dtype=wp.float32),
+    albedo: wp.array2d(dtype=wp.float32),
+    radiance: wp.array2d(dtype=wp.float32),
+):
+    """radiance[v, c] = albedo[v, c] / pi * max(0, dot(transfer[v, c, :], light[c, :])): per-channel
+    transfer (interreflected: the bounces depend on the albedo of what they hit)."""
+    v = wp.tid()
+    for c in range(3):
+        acc = float(0.0)
+        for i in range(transfer.shape[2]):
+            acc += transfer[v, c, i] * light[c, i]
+        radiance[v, c] = albedo[v, c] * INV_PI * wp.max(acc, 0.0)
+
+
 @functools.lru_cache(maxsize=None)
 def unshadowed_kernel(order: int):
     """Kernel shading by the normal-indexed irradiance of order-``order`` SH lighting.

@@ -13,10 +13,15 @@ def shade_transfer_reference(transfer, light, albedo) -> np.ndarray:
     """``albedo_c / pi * max(0, dot(L_c, t_v))``, shape (V, 3), float64.
 
     Args:
-        transfer: (V, n*n) world-frame transfer; light: (3, n*n) world-frame SH lighting;
+        transfer: (V, n*n) world-frame transfer, or (V, 3, n*n) per channel (interreflected);
+            light: (3, n*n) world-frame SH lighting;
             albedo: (V, 3) linear RGB.
     """
-    rgb = np.asarray(transfer, np.float64) @ np.asarray(light, np.float64).T
+    t = np.asarray(transfer, np.float64)
+    if t.ndim == 3:  # per-channel transfer (V, 3, n*n)
+        rgb = np.einsum("vci,ci->vc", t, np.asarray(light, np.float64))
+    else:
+        rgb = t @ np.asarray(light, np.float64).T
     return np.asarray(albedo, np.float64) / np.pi * np.maximum(rgb, 0.0)
 
 

@@ -64,23 +64,33 @@ class ShadeTransferStage(Stage):
     type_name = "prt.shade"
     kind = "frame"
     description = "shade by dot(lighting SH, transfer) per vertex and channel"
-    parameters = {"order": _ORDER, **WINDOW_PARAMS}
+    parameters = {
+        "order": _ORDER,
+        "color": Param(False, bool, "per-channel transfer (V, 3, C) on input transfer_rgb (interreflected)"),
+        "bounces": Param(0, int, "diffuse bounces in that transfer: what the run is measured against", minimum=0),
+        **WINDOW_PARAMS,
+    }
 
     def dims(self):
         return {"C": self.params["order"] ** 2}
 
     def input_ports(self):
-        return {
-            "transfer": Port("float32", ("V", "C"), "diffuse transfer vectors, world frame"),
-            "albedo": Port("float32", ("V", 3)),
-            "lighting": Port("lighting"),
-        }
+        if self.params["color"]:
+            transfer = {"transfer_rgb": Port("float32", ("V", 3, "C"), "per-channel transfer after bounces, world frame")}
+        else:
+            transfer = {"transfer": Port("float32", ("V", "C"), "diffuse transfer vectors, world frame")}
+        return {**transfer, "albedo": Port("float32", ("V", 3)), "lighting": Port("lighting")}
+
+    def reference_model(self):
+        """Interreflected transfer is measured against the reference with the same bounces."""
+        return {"bounces": self.params["bounces"]} if self.params["bounces"] else None
 
     def output_ports(self):
         return {"radiance": _RADIANCE}
 
     def setup(self, ctx, inputs):
-        self._transfer = inputs["transfer"]
+        self._transfer = inputs["transfer_rgb" if self.params["color"] else "transfer"]
+        self._kernel = kernels.shade_transfer_rgb_kernel if self.params["color"] else kernels.shade_transfer_kernel
         self._albedo = inputs["albedo"]
         self._lighting = ShLighting.for_stage(inputs["lighting"], self.params["order"], self.params)
         self._radiance = wp.zeros((ctx.dims["V"], 3), dtype=wp.float32, device=ctx.device)
@@ -88,7 +98,7 @@ class ShadeTransferStage(Stage):
 
     def launch(self, state):
         self._lighting.launch()
-        wp.launch(kernels.shade_transfer_kernel, dim=self._radiance.shape[0], device=self._radiance.device,
+        wp.launch(self._kernel, dim=self._radiance.shape[0], device=self._radiance.device,
                   inputs=[self._transfer, self._lighting.light, self._albedo, self._radiance])
 
 
