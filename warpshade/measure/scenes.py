@@ -19,6 +19,8 @@ BENCH_SCENES = {
     "bear": {"spec": "warp-example:bear", "options": {"ground_plane": True}},
     "blockers": {"spec": "bundled:blockers", "options": {}},
     "figure": {"spec": "bundled:figure", "options": {}},
+    "figure_walk": {"spec": "bundled:figure_walk", "options": {}},
+    "wanderer": {"spec": "bundled:wanderer_test", "options": {}},
     "cloth": {"spec": "bundled:cloth", "options": {}},
     "bend": {"spec": "bundled:bend", "options": {}},
 }

@@ -1,0 +1,133 @@
+"""Training data of the data-driven model: ray-traced transfer at every training pose.
+
+Each training frame is an independent job (ray tracing every vertex of one pose), so the frames
+are split into tasks of a few frames and run by an executor (:mod:`warpshade._tasks`): in this
+process, in local worker processes, or on a Dask cluster. A task carries the scene itself
+(pickled, without its device caches), its frames and their seeds, so every back end returns
+exactly what the serial loop returns.
+
+Seeds: frame ``i`` of the clip traces with seed ``frame_seed(seed, i)``: the per-vertex sample
+rotations differ from pose to pose, so the Monte Carlo noise of the training transfer is
+independent across poses and the least-squares fit averages it down (a fixed seed would give
+every pose the same noise pattern, which the bias term would then learn).
+"""
+
+from __future__ import annotations
+
+import hashlib
+
+import numpy as np
+
+__all__ = ["FRAMES_PER_TASK", "frame_seed", "topology_key", "check_same_character", "trace_task", "trace_training",
+           "parse_frame_selection"]
+
+#: Frames per task: enough work per task (seconds) to hide the task overhead, few enough for
+#: load balance and for a killed worker to lose little.
+FRAMES_PER_TASK = 4
+
+
+def frame_seed(seed: int, index: int) -> int:
+    """The ray seed of training frame ``index`` (distinct per frame, fixed per ``seed``)."""
+    return int((int(seed) * 1_000_003 + 7919 * int(index) + 1) % (2 ** 31 - 1))
+
+
+def topology_key(scene) -> np.ndarray:
+    """What a model trained on one clip needs of another: vertex count and order, faces, skin
+    weights, skeleton joints, rest and bind transforms. 4 int64 words of a SHA-256."""
+    h = hashlib.sha256()
+    h.update(np.int64(scene.vertex_count).tobytes())
+    h.update(np.ascontiguousarray(scene.faces, np.int64).tobytes())
+    for mesh in scene.meshes:
+        h.update(mesh.animation.encode())
+        if mesh.skin is not None:
+            h.update(np.ascontiguousarray(mesh.skin.joint_indices, np.int64).tobytes())
+            h.update(np.round(np.asarray(mesh.skin.joint_weights, np.float64), 5).tobytes())
+    for skel in scene.skeletons:
+        h.update("|".join(skel.joint_names).encode())
+        h.update(np.asarray(skel.parents, np.int64).tobytes())
+        h.update(np.round(np.asarray(skel.bind_transforms, np.float64), 5).tobytes())
+        h.update(np.round(np.asarray(skel.rest_transforms, np.float64), 5).tobytes())
+    return np.frombuffer(h.digest(), dtype=np.int64).copy()
+
+
+def check_same_character(train, test, where: str) -> None:
+    """Raise ValueError naming both scenes when ``test`` is not the character ``train`` holds."""
+    def name(s):
+        return s.source or "<arrays>"
+
+    if train.vertex_count != test.vertex_count:
+        raise ValueError(f"{where}: training scene {name(train)} has {train.vertex_count} vertices, "
+                         f"{name(test)} has {test.vertex_count}: a model applies to the same character only")
+    if [s.joint_names for s in train.skeletons] != [s.joint_names for s in test.skeletons]:
+        raise ValueError(f"{where}: the skeletons of {name(train)} and {name(test)} have different joints")
+    if not np.array_equal(topology_key(train), topology_key(test)):
+        raise ValueError(f"{where}: {name(train)} and {name(test)} differ in faces, skin weights, rest or bind "
+                         "transforms: a model applies to the same character only")
+
+
+def parse_frame_selection(spec, scene, where: str) -> np.ndarray:
+    """Frame indices of ``scene`` selected by ``spec``: None (all), ``"start:stop[:step]"`` over
+    frame indices, or a list of time codes."""
+    count = len(scene.frames)
+    if spec is None or spec == "":
+        return np.arange(count)
+    if isinstance(spec, str):
+        parts = spec.split(":")
+        try:
+            if len(parts) not in (2, 3):
+                raise ValueError
+            nums = [int(p) if p.strip() else None for p in parts]
+        except ValueError:
+            raise ValueError(f"{where}: frames {spec!r} must be 'start:stop[:step]' over frame indices") from None
+        idx = np.arange(count)[slice(*nums)]
+    else:
+        idx = np.asarray([scene.frame_index(float(f)) for f in spec], np.int64)
+    if idx.size == 0:
+        raise ValueError(f"{where}: frames {spec!r} select none of the {count} frames")
+    return idx
+
+
+def trace_task(task: dict) -> np.ndarray:
+    """Transfer of the task's frames: (frames, V, C) for the direct transfer, (frames, V, 3 * C)
+    with bounces (channel-major per vertex: ``[r coefficients, g ..., b ...]``), float32."""
+    from ...transfer import compute
+
+    scene = task["scene"]
+    out = []
+    for index, seed in zip(task["frame_indices"], task["seeds"]):
+        frame = float(scene.frames[int(index)])
+        res = compute(scene, frame, task["order"], task["samples"], space=task["space"], seed=int(seed),
+                      bounces=task["bounces"]) if task["bounces"] else \
+            compute(scene, frame, task["order"], task["samples"], space=task["space"], seed=int(seed))
+        if task["bounces"]:
+            out.append(np.asarray(res.transfer_rgb, np.float32).reshape(scene.vertex_count, -1))
+        else:
+            out.append(np.asarray(res.transfer, np.float32))
+    return np.stack(out)
+
+
+def trace_training(scene, frame_indices, order: int, samples: int, seed: int = 0, bounces: int = 0,
+                   space: str = "world", executor=None, progress: bool = False) -> np.ndarray:
+    """Training transfer at ``frame_indices`` of ``scene``, (p, V, C or 3C) float32.
+
+    Args:
+        executor: a :class:`warpshade._tasks.Executor` (default: :func:`warpshade._tasks.executor`,
+            closed afterwards).
+    """
+    from ... import _tasks
+
+    frame_indices = np.asarray(frame_indices, np.int64)
+    seeds = [frame_seed(seed, i) for i in frame_indices]
+    tasks = []
+    for lo in range(0, len(frame_indices), FRAMES_PER_TASK):
+        tasks.append({"scene": scene, "frame_indices": frame_indices[lo:lo + FRAMES_PER_TASK].tolist(),
+                      "seeds": seeds[lo:lo + FRAMES_PER_TASK], "order": int(order), "samples": int(samples),
+                      "space": space, "bounces": int(bounces)})
+    own = executor is None
+    ex = _tasks.executor() if own else executor
+    try:
+        parts = ex.map(trace_task, tasks, desc=f"training transfer ({len(frame_indices)} frames)", progress=progress)
+    finally:
+        if own:
+            ex.close()
+    return np.concatenate(parts)
