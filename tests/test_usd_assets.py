@@ -24,6 +24,24 @@ CLIP_FILES = ["figure_train.usda", "figure_walk.usda", "wanderer_train.usdc", "w
 MAX_CLIP_BYTES = 8 * 1024 * 1024
 #: Every held-out joint-angle component stays at least this far (radians) inside the training range.
 RANGE_MARGIN = 0.02
+#: Per character: the generator's joints and joint-limit table, and the training clip's frames
+#: (the range of motion, then the motion library).
+TRAINING = {
+    "figure": ("FIGURE_JOINTS", "FIGURE_LIMITS", 300, 600),
+    "wanderer": ("WANDERER_JOINTS", "WANDERER_LIMITS", 600, 1000),
+}
+#: The held-out clips stay held out (radians, RMS over all joint-angle components, i.e. the
+#: rotation-vector components of every joint): no test frame lies within HELD_OUT_POSE_RMS of a
+#: training frame, and no HELD_OUT_WINDOW consecutive test frames (half a second) lie within
+#: HELD_OUT_MOTION_RMS of as many consecutive training frames. A copy of a test clip, played
+#: at 0.5 to 2 times its speed (at any phase) or subsampled, comes within 0.007 of some test
+#: frame; scaled by 0.9, or with a few joints changed by 0.1 rad, its half-seconds come within
+#: 0.01-0.03 of the test's. The motion library's natural motions pass through generic poses near
+#: some test frames (standing, arms lowering in front): nearest frames 0.027 (wanderer), 0.055
+#: (figure_walk) and 0.077 (figure) away, nearest half-seconds 0.052, 0.077 and 0.10.
+HELD_OUT_POSE_RMS = 0.015
+HELD_OUT_MOTION_RMS = 0.04
+HELD_OUT_WINDOW = 12
 
 
 @pytest.fixture(scope="module")
@@ -238,3 +256,48 @@ def test_the_hat_casts_a_wide_shadow_that_moves_with_the_head(clips):
     for d in darkening:
         assert d.mean() > 0.05 and np.mean(d > 0.1) > 0.2
     assert np.mean(np.abs(darkening[1] - darkening[0]) > 0.1) > 0.15  # 64-sample noise alone moves ~1 %
+
+
+@pytest.mark.parametrize("character", sorted(CLIPS))
+def test_training_clip_is_the_range_of_motion_then_the_motion_library(clips, generator, character):
+    """The range of motion, unchanged, then natural motions: every pose inside the joint-limit
+    table, and no pose jumps anywhere in the library (the segments cross-fade)."""
+    joints, table, rom_frames, frames = TRAINING[character]
+    joints, table = getattr(generator, joints), getattr(generator, table)
+    limits = generator.joint_limits(joints, table)
+    clip = getattr(generator, f"{character.upper()}_TRAIN_CLIP")
+    angles = clips[CLIPS[character][0]][1]
+    assert clip.shape == (frames, len(joints), 3) and angles.shape == clip.shape
+    np.testing.assert_allclose(angles, clip, atol=2e-3)  # the file holds the generator's clip
+    mixed = rom_frames - len(joints) * generator.SWEEP_FRAMES
+    np.testing.assert_array_equal(clip[:rom_frames], generator.range_of_motion_clip(limits, mixed))
+    assert np.all(clip >= limits[..., 0] - 1e-9) and np.all(clip <= limits[..., 1] + 1e-9)
+    step = np.diff(clip[rom_frames - 1 :], axis=0)  # from the last frame of the range of motion on
+    assert np.abs(step).max() < 0.45
+    assert np.sqrt((step.reshape(len(step), -1) ** 2).mean(axis=1)).max() < 0.1
+
+
+def _nearest_rms(test, train, window=1):
+    """RMS (over components and ``window`` consecutive frames) from each stretch of ``window``
+    test frames to the nearest stretch of as many training frames; poses (T, J, 3), (N, J, 3)."""
+    a, b = test.reshape(len(test), -1), train.reshape(len(train), -1)
+    d2 = np.maximum((a * a).sum(1)[:, None] - 2.0 * a @ b.T + (b * b).sum(1)[None], 0.0) / a.shape[1]
+    t, n = d2.shape
+    stretch = sum(d2[k : t - window + 1 + k, k : n - window + 1 + k] for k in range(window)) / window
+    return np.sqrt(stretch.min(axis=1))
+
+
+@pytest.mark.parametrize("character", sorted(CLIPS))
+def test_held_out_clips_are_not_in_the_training_clip(clips, character):
+    train, tests = CLIPS[character]
+    train_angles = clips[train][1]
+    for name in tests:
+        test_angles = clips[name][1]
+        pose = _nearest_rms(test_angles, train_angles)
+        motion = _nearest_rms(test_angles, train_angles, HELD_OUT_WINDOW)
+        assert pose.min() > HELD_OUT_POSE_RMS, f"{name}: frame {pose.argmin()} is {pose.min():.4f} rad RMS from a training pose"
+        assert motion.min() > HELD_OUT_MOTION_RMS, f"{name}: frames from {motion.argmin()} are {motion.min():.4f} rad RMS from training frames"
+        # ... while the checks would catch the clip itself in the training clip, retimed or smaller
+        assert _nearest_rms(test_angles, np.concatenate([train_angles, test_angles[::2]])).min() < HELD_OUT_POSE_RMS
+        smaller = np.concatenate([train_angles, 0.9 * test_angles])
+        assert _nearest_rms(test_angles, smaller, HELD_OUT_WINDOW).min() < HELD_OUT_MOTION_RMS

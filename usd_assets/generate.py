@@ -25,13 +25,19 @@ Scenes:
 * ``figure_train.usda`` and ``figure_walk.usda`` -- the same figure (identical mesh, skeleton,
   binding, ground, sky and camera: one function writes all three files, only the joint
   rotations differ) in two more clips, for data-driven PRT, which learns transfer as a linear
-  function of the joint angles on one clip and is tested on others. ``figure_train`` (300
-  frames) is a range-of-motion clip (:func:`range_of_motion_clip`): each joint swept alone
-  through its range, then all joints at once as sums of sinusoids at incommensurate
-  frequencies, over ``FIGURE_LIMITS``, which hold every joint-angle component of
-  ``figure.usda`` and ``figure_walk.usda`` with at least 0.05 rad to spare. ``figure_walk``
-  (96 frames) is a held-out walk in place: arms swinging against the legs, hips and head
-  turning, a forward reach with the right arm at the end.
+  function of the joint angles on one clip and is tested on others. ``figure_train`` (600
+  frames, :func:`training_clip`) is a range of motion (frames 0-299,
+  :func:`range_of_motion_clip`): each joint swept alone through its range, then all joints at
+  once as sums of sinusoids at incommensurate frequencies, over ``FIGURE_LIMITS``, which hold
+  every joint-angle component of ``figure.usda`` and ``figure_walk.usda`` with at least 0.05 rad
+  to spare; then a motion library (frames 300-599, ``FIGURE_LIBRARY``), natural coordinated
+  motions cross-faded into each other, none of them a held-out motion: idle sway, arm swings,
+  four reaches (forward-up, out to the side, across the body, down to the floor), marching with
+  varied knee lift, a walk in place that livens up, torso twists and bends holding the arms in
+  front, head looks with the hands on the hips, a slow step with the left hand raised to head
+  height (shading the eyes). ``figure_walk`` (96 frames) is a held-out walk in place: arms
+  swinging against the legs, hips and head turning, a forward reach with the right arm at the
+  end.
 * ``wanderer_train.usdc`` and ``wanderer_test.usdc`` -- a larger character at the scale of the
   paper's "Master Pai" (11.5k vertices, a large hat): the wanderer, 33 joints (hips, spine,
   chest, neck, head; shoulder, elbow and wrist of each arm; thumb, index, middle and ring
@@ -42,9 +48,14 @@ Scenes:
   the chest takes part of each shoulder), and a wide-brimmed hat (1,682 vertices, brim radius
   0.45 m) skinned rigidly to the head joint (constant interpolation, its own ``skel:joints``),
   whose shadow sweeps over the face, shoulders and chest as the head turns, tilts and bows.
-  Ground grid, sky and camera as the figure's. ``wanderer_train`` (600 frames) is a
-  range-of-motion clip over ``WANDERER_LIMITS`` (as above); ``wanderer_test`` (120 frames) is
-  held out: a walk, a reach up to grip the brim while looking up, and a bow.
+  Ground grid, sky and camera as the figure's. ``wanderer_train`` (1000 frames) is a range of
+  motion over ``WANDERER_LIMITS`` (frames 0-599, as above), then a motion library (frames
+  600-999, ``WANDERER_LIBRARY``): a slow and a brisk walk (other strides and speeds than the test
+  walk), five reaches (forward, to the side, up, to the chest, up to a shelf to grip something),
+  picking something up from the floor, looking around (hands behind the back, then peering
+  down), waving, hand gestures (a fist opening and closing, pointing, counting), a shrug and a
+  crouch; ``wanderer_test`` (120 frames) is held out: a walk, a reach up to grip the brim while
+  looking up, and a bow.
 * ``cloth.usda`` -- a 30 x 30 sheet (faceVarying ``st`` UVs) with time-sampled points:
   travelling waves plus finer wrinkles, sagging at the free edge, over a ground grid.
 * ``bend.usda`` -- a capped cylinder (24-gon caps) skinned to a 4-joint chain that bends and
@@ -574,6 +585,85 @@ def range_of_motion_clip(limits: np.ndarray, mixed_frames: int) -> np.ndarray:
     return np.concatenate([sweeps, mixed])
 
 
+# ---- motion libraries: natural motions after the range of motion ------------------------------
+#: Frames over which consecutive parts of a training clip cross-fade (the range of motion into
+#: the first library segment, each segment into the next).
+LIBRARY_BLEND = 6
+
+
+class _Motion:
+    """One motion segment being built: joint rotation vectors over ``frames`` frames, (T, J, 3).
+
+    Terms are added per joint (:meth:`add`); a term for a sided joint is written for the left
+    side and mirrored for the right, (x, y, z) -> (x, -y, -z), as in :func:`joint_limits`, so one
+    expression serves both arms or legs.
+    """
+
+    def __init__(self, joints, frames: int):
+        self.index = {name: k for k, (name, _, _) in enumerate(joints)}
+        self.t = np.arange(frames, dtype=np.float64)
+        self.rot = np.zeros((frames, len(joints), 3))
+
+    def add(self, name: str, x=0.0, y=0.0, z=0.0, side: str = "") -> None:
+        """Add (x, y, z) (scalars or per-frame arrays) to joint ``side + name``."""
+        mirror = -1.0 if side == "R" else 1.0
+        x, y, z, _ = np.broadcast_arrays(np.asarray(x, np.float64), y, z, self.t)
+        self.rot[:, self.index[side + name]] += np.stack([x, mirror * y, mirror * z], -1)
+
+    def keys(self, times, values) -> np.ndarray:
+        """:func:`_keys` over this segment, the key times scaled so the last falls on its last frame."""
+        times = np.asarray(times, np.float64)
+        return _keys(self.t, times * (len(self.t) - 1) / times[-1], values)
+
+
+def _keys(t, times, values) -> np.ndarray:
+    """A smooth curve through (time, value) keys at the frames ``t`` (monotone cubic: no
+    overshoot, flat at every key that is a local extremum), held at the end values outside."""
+    times = np.asarray(times, np.float64)
+    return PchipInterpolator(times, np.asarray(values, np.float64))(np.clip(t, times[0], times[-1]))
+
+
+def _bump(t, start: float, rise: float, hold: float, fall: float) -> np.ndarray:
+    """0 before ``start``, up to 1 over ``rise`` frames (smoothstep), held, back to 0 over ``fall``."""
+    return _smoothstep((t - start) / rise) * (1.0 - _smoothstep((t - start - rise - hold) / fall))
+
+
+def _cross_fade(parts) -> np.ndarray:
+    """Clips (T_k, J, 3) joined into one: each overlaps the next by LIBRARY_BLEND frames, over
+    which the pose passes from one to the other (smoothstep weights), so nothing jumps."""
+    w = _smoothstep(np.arange(1, LIBRARY_BLEND + 1) / (LIBRARY_BLEND + 1))[:, None, None]
+    out = parts[0]
+    for part in parts[1:]:
+        mixed = (1.0 - w) * out[-LIBRARY_BLEND:] + w * part[:LIBRARY_BLEND]
+        out = np.concatenate([out[:-LIBRARY_BLEND], mixed, part[LIBRARY_BLEND:]])
+    return out
+
+
+def training_clip(limits: np.ndarray, mixed_frames: int, library) -> np.ndarray:
+    """A character's training clip: :func:`range_of_motion_clip`, then a motion library.
+
+    The range of motion reaches every joint's limits but moves the joints independently, about
+    the middle of their ranges; natural motions move them in coordinated patterns, mostly near
+    the rest pose, and a model linear in the joint angles trained on the range of motion alone
+    generalises badly to them. The library adds such motions -- like a motion-capture session
+    of the same actor, none of them a held-out clip's motion.
+
+    Args:
+        limits: the joint ranges, (J, 3, 2).
+        mixed_frames: frames of the range of motion's mixed part.
+        library: the motion segments, each (T_k, J, 3); every value is clipped to ``limits``.
+
+    Returns:
+        rotation vectors, (R + sum T_k - (len(library) - 1) * LIBRARY_BLEND, J, 3): the R frames
+        of the range of motion unchanged, its sinusoids running on for LIBRARY_BLEND more frames
+        while they fade into the first segment, then each segment fading into the next
+        (:func:`_cross_fade`). Every value lies in its range.
+    """
+    rom = range_of_motion_clip(limits, mixed_frames + LIBRARY_BLEND)
+    segments = [np.clip(s, limits[..., 0], limits[..., 1]) for s in library]
+    return _cross_fade([rom, *segments])
+
+
 # ---- (b) figure -----------------------------------------------------------------------------
 #: name, parent, rest offset from the parent joint (skeleton space, no rest rotations)
 FIGURE_JOINTS = [
@@ -688,9 +778,224 @@ FIGURE_LIMITS = {
     "Hip": ((-0.55, 0.55), (-0.2, 0.05), (-0.2, 0.2)),
     "Knee": ((-0.05, 0.75), (-0.05, 0.05), (-0.1, 0.1)),
 }
-#: The figure's training clip: joint-local rotation vectors per frame, (300, 12, 3) (12 joints x
-#: SWEEP_FRAMES of sweeps, then 156 frames of all joints at once).
-FIGURE_TRAIN_CLIP = range_of_motion_clip(joint_limits(FIGURE_JOINTS, FIGURE_LIMITS), 156)
+
+
+def _lift_across(lift, across) -> np.ndarray:
+    """A left shoulder's rotation vectors, (T, 3): the arm lifted forward by ``lift`` (about -x),
+    then swung ``across`` (about +y: the hand towards the body's midline), per frame."""
+    lift, across = np.broadcast_arrays(np.asarray(lift, np.float64), across)
+    zero = np.zeros(lift.shape)
+    swing = Rotation.from_rotvec(np.stack([zero, across, zero], -1))
+    return (swing * Rotation.from_rotvec(np.stack([-lift, zero, zero], -1))).as_rotvec()
+
+
+def _figure_idle(frames: int = 22) -> np.ndarray:
+    """Standing idle: the weight shifts from leg to leg (hips tilting, the spine countering, the
+    knees giving in turn), breathing, the arms hanging loosely, the head drifting."""
+    m = _Motion(FIGURE_JOINTS, frames)
+    ph = 2 * np.pi * m.t / frames
+    s = np.sin(ph)
+    m.add("Hips", 0.0, 0.06 * s, 0.04 * np.sin(ph + 1.2))
+    m.add("Spine", 0.02, -0.05 * s, 0.0)
+    m.add("Chest", 0.03 + 0.02 * np.sin(2 * ph), 0.0, 0.0)
+    m.add("Neck", 0.06 * np.sin(ph + 2.0), 0.0, 0.12 * np.sin(ph + 0.7))
+    for side, sign in (("L", 1.0), ("R", -1.0)):
+        m.add("Shoulder", 0.06 * sign * s, -0.06, 0.03, side=side)
+        m.add("Elbow", -0.15 - 0.05 * sign * s, side=side)
+        m.add("Knee", 0.05 + 0.07 * (1.0 - sign * s), side=side)
+        m.add("Hip", -0.03, 0.0, 0.03 * sign * s, side=side)
+    return m.rot
+
+
+def _figure_arm_swings(frames: int = 40) -> np.ndarray:
+    """Arm swings with the legs still: the left arm's swing grows while the right one's shrinks,
+    a little over a quarter cycle apart (not opposite), the cycle quickening; each arm swings
+    back half as far as forward, the hand comes across towards the midline and the elbow bends
+    as the arm comes forward; the torso twists with the left arm, the head a little against it,
+    the chest and the knees bob with every swing. The swings start from and end at the arms
+    hanging."""
+    m = _Motion(FIGURE_JOINTS, frames)
+    u = m.t / frames
+    ph = 2 * np.pi * (m.t / 24.0 + 0.2 * u * u)  # 24 frames per swing at first, quicker later
+    env = _bump(m.t, 0.0, 6.0, frames - 13.0, 6.0)
+    for side, amp, lag in (("L", 0.35 + 0.6 * u, 0.0), ("R", 0.9 - 0.5 * u, 0.6 * np.pi)):
+        fwd = np.sin(ph - lag)  # > 0: the arm is in front
+        swing = env * amp * (0.75 * fwd + 0.25 * fwd * fwd)  # +amp forward, -amp / 2 back
+        m.add("Shoulder", *_lift_across(0.2 + swing, 0.6 * np.maximum(swing, 0.0) - 0.05).T, side=side)
+        m.add("Elbow", -0.25 - 0.35 * env * (0.5 + 0.5 * fwd), side=side)
+    m.add("Spine", 0.0, 0.0, 0.25 * env * np.sin(ph))
+    m.add("Chest", 0.04 + 0.06 * env * np.sin(2 * ph), 0.0, 0.04 * env * np.sin(ph))
+    m.add("Neck", 0.05, 0.0, -0.1 * env * np.sin(ph))
+    for side in "LR":  # the knees give a little with each swing
+        m.add("Knee", 0.06 + 0.1 * env * (0.5 - 0.5 * np.cos(2 * ph)), side=side)
+    return m.rot
+
+
+def _figure_reaches(frames: int = 88) -> np.ndarray:
+    """Four reaches of 22 frames, out and back: the left hand forward and up (looking up after
+    it, leaning back), the right hand out to the side (turning towards it), the left hand across
+    the body to the right (the torso twisting), the right hand down to the floor in front
+    (bending at the spine and the knees); the free arm balances."""
+    m = _Motion(FIGURE_JOINTS, frames)
+    a, b, c, d = (_bump(m.t, frames / 4 * k + 1, 9.0, 3.0, 9.0) for k in range(4))
+    # forward and up, left
+    m.add("Shoulder", *_lift_across(1.5 * a, 0.1 * a).T, side="L")
+    m.add("Elbow", -0.1 * a, side="L")
+    m.add("Shoulder", 0.15 * a, -0.05 * a, side="R")
+    m.add("Elbow", -0.3 * a, side="R")
+    m.add("Spine", -0.07 * a, 0.0, 0.08 * a)
+    m.add("Chest", -0.08 * a)
+    m.add("Neck", -0.2 * a, 0.0, 0.12 * a)
+    # out to the side, right
+    m.add("Shoulder", -1.05 * b, -0.15 * b, 0.55 * b, side="R")
+    m.add("Elbow", -0.15 * b, side="R")
+    m.add("Shoulder", 0.1 * b, -0.1 * b, side="L")
+    m.add("Elbow", -0.35 * b, side="L")
+    m.add("Spine", 0.0, -0.05 * b, -0.2 * b)
+    m.add("Neck", -0.05 * b, 0.0, -0.32 * b)
+    m.add("Hips", 0.0, -0.05 * b, -0.06 * b)
+    # across the body to the right, left
+    m.add("Shoulder", *_lift_across(0.95 * c, 0.75 * c).T, side="L")
+    m.add("Elbow", -0.5 * c, side="L")
+    m.add("Shoulder", 0.12 * c, -0.12 * c, side="R")
+    m.add("Elbow", -0.2 * c, side="R")
+    m.add("Spine", 0.03 * c, 0.0, -0.28 * c)
+    m.add("Chest", 0.05 * c, 0.0, -0.06 * c)
+    m.add("Neck", 0.08 * c, 0.0, -0.18 * c)
+    # down to the floor in front, right
+    m.add("Shoulder", -0.6 * d, 0.08 * d, side="R")
+    m.add("Elbow", -0.1 * d, side="R")
+    m.add("Shoulder", -0.25 * d, -0.05 * d, side="L")
+    m.add("Elbow", -0.45 * d, side="L")
+    m.add("Hips", 0.08 * d)
+    m.add("Spine", 0.14 * d)
+    m.add("Chest", 0.19 * d)
+    m.add("Neck", 0.22 * d)
+    for side, knee in (("L", 0.45), ("R", 0.55)):
+        m.add("Hip", -0.8 * knee * d, side=side)
+        m.add("Knee", knee * d, side=side)
+    return m.rot
+
+
+def _figure_march(frames: int = 40) -> np.ndarray:
+    """Marching in place, four steps of 10 frames (left, right, left, right) with the knee
+    lifted 0.45, 0.75, 1 and 0.65 times the full lift (thigh 0.52 rad forward, knee 0.68 rad
+    bent); the bent arms swing against the legs, the hips and spine turn with the lifted leg."""
+    m = _Motion(FIGURE_JOINTS, frames)
+    length = frames / 4.0
+    step = np.minimum(m.t // length, 3).astype(int)
+    lift = np.sin(np.pi * (m.t - length * step) / length) ** 2 * np.array([0.45, 0.75, 1.0, 0.65])[step]
+    lifts = {"L": np.where(step % 2 == 0, lift, 0.0), "R": np.where(step % 2 == 1, lift, 0.0)}
+    for side, other in (("L", "R"), ("R", "L")):
+        m.add("Hip", -0.52 * lifts[side], 0.0, 0.0, side=side)
+        m.add("Knee", 0.04 + 0.68 * lifts[side], side=side)
+        m.add("Shoulder", 0.1 * lifts[side] - 0.55 * lifts[other], -0.06, 0.0, side=side)
+        m.add("Elbow", -0.6 - 0.2 * lifts[other], side=side)
+    turn = lifts["L"] - lifts["R"]
+    m.add("Hips", 0.0, 0.04 * turn, 0.06 * turn)
+    m.add("Spine", 0.03, 0.0, -0.12 * turn)
+    m.add("Neck", -0.04, 0.0, 0.04 * turn)
+    return m.rot
+
+
+def _figure_swinging_walk(frames: int = 52) -> np.ndarray:
+    """A walk in place that livens up: the stride (thighs +-0.2 rad at first, +-0.42 at the end)
+    quickens from 44 frames, the arms swing against the legs ever wider (back half as far as
+    forward), the left arm more than the right, each hand coming across in front; the spine
+    counter-twists more and more; the walk stops over the last 8 frames."""
+    m = _Motion(FIGURE_JOINTS, frames)
+    u = m.t / frames
+    ph = 2 * np.pi * (m.t / 44.0 + 0.12 * u * u)
+    stop = 1.0 - _smoothstep((m.t - (frames - 9.0)) / 8.0)
+    for side, sign, arm in (("L", 1.0, 0.25 + 0.7 * u), ("R", -1.0, 0.2 + 0.45 * u)):
+        stride = sign * np.sin(ph) * stop  # > 0 while this leg swings forward
+        m.add("Hip", -(0.2 + 0.22 * u) * stride, side=side)
+        m.add("Knee", 0.05 + (0.3 + 0.3 * u) * stop * (0.5 + 0.5 * np.cos(ph - sign * 0.35)) ** 2, side=side)
+        swing = arm * (0.75 * stride - 0.25 * stride * stride)  # < 0 while this arm swings forward
+        m.add("Shoulder", *_lift_across(0.1 - swing, 0.4 * np.maximum(-swing, 0.0)).T, side=side)
+        m.add("Elbow", -0.3 - (0.15 + 0.3 * u) * (0.5 - 0.5 * stride), side=side)
+    m.add("Hips", 0.0, 0.03 * np.sin(ph) * stop, 0.06 * np.sin(ph) * stop)
+    m.add("Spine", 0.05, 0.0, -(0.06 + 0.22 * u) * np.sin(ph) * stop)
+    m.add("Chest", 0.04 + 0.02 * np.cos(2 * ph) * stop, 0.0, 0.0)
+    m.add("Neck", 0.06, 0.0, 0.1 * np.sin(2 * np.pi * m.t / frames))
+    return m.rot
+
+
+def _figure_twist_and_bend(frames: int = 40) -> np.ndarray:
+    """Holding the arms in front (as if carrying a box), the torso twists left and right while
+    the chest bends forward and back twice as fast; the head keeps looking ahead."""
+    m = _Motion(FIGURE_JOINTS, frames)
+    hold = _bump(m.t, 0.0, 8.0, frames - 17.0, 8.0)
+    turn = np.sin(2 * np.pi * m.t / frames)
+    bend = np.sin(4 * np.pi * m.t / frames)
+    for side in "LR":
+        m.add("Shoulder", *_lift_across(0.95 * hold, 0.3 * hold).T, side=side)
+        m.add("Elbow", -0.2 - 0.5 * hold, side=side)
+    m.add("Spine", 0.02, 0.0, 0.35 * turn)
+    m.add("Chest", 0.03 + 0.14 * bend, 0.0, 0.08 * turn)
+    m.add("Hips", 0.0, 0.0, -0.08 * turn)
+    m.add("Neck", -0.1 * bend, 0.0, -0.2 * turn)
+    return m.rot
+
+
+def _figure_head_looks(frames: int = 26) -> np.ndarray:
+    """Looking around while standing: left, up, right, down and back (the spine turning a
+    little with the head), the hands resting on the hips."""
+    m = _Motion(FIGURE_JOINTS, frames)
+    times = [0.0, 7.0, 12.0, 19.0, 25.0, 32.0]
+    turn = m.keys(times, [0.0, 0.42, 0.3, -0.4, -0.15, 0.0])
+    nod = m.keys(times, [0.0, 0.04, -0.22, -0.08, 0.22, 0.0])
+    m.add("Neck", nod, 0.0, turn)
+    m.add("Spine", 0.0, 0.0, 0.3 * turn)
+    m.add("Chest", 0.05 * nod, 0.0, 0.05 * turn)
+    hands = _bump(m.t, 0.0, 7.0, frames - 15.0, 7.0)
+    for side in "LR":  # hands on the hips: upper arm out and back, elbow bent
+        m.add("Shoulder", 0.25 * hands, -0.22 * hands, -0.05 * hands, side=side)
+        m.add("Elbow", -0.2 - 0.7 * hands, 0.0, 0.1 * hands, side=side)
+        m.add("Knee", 0.04, side=side)
+    return m.rot
+
+
+def _figure_step_and_look(frames: int = 34) -> np.ndarray:
+    """A combined action: a slow step in place (one stride over the segment, thighs +-0.25 rad)
+    with the left hand raised to head height in front (shading the eyes) while the head scans
+    the horizon; the right arm swings."""
+    m = _Motion(FIGURE_JOINTS, frames)
+    ph = 2 * np.pi * m.t / frames
+    shade = _bump(m.t, 0.0, 10.0, frames - 21.0, 10.0)
+    for side, sign in (("L", 1.0), ("R", -1.0)):
+        stride = sign * np.sin(ph)
+        m.add("Hip", -0.25 * stride, side=side)
+        m.add("Knee", 0.08 + 0.35 * np.maximum(0.0, np.sin(ph * sign + 0.6)), side=side)
+    m.add("Shoulder", *_lift_across(1.35 * shade, 0.55 * shade).T, side="L")
+    m.add("Elbow", -0.2 - 0.72 * shade, side="L")
+    m.add("Shoulder", -0.2 * np.sin(ph) - 0.05, -0.1, side="R")
+    m.add("Elbow", -0.35, side="R")
+    m.add("Neck", -0.08 * shade, 0.0, 0.35 * np.sin(ph + 0.4) * shade)
+    m.add("Spine", 0.0, 0.0, 0.1 * np.sin(ph))
+    m.add("Hips", 0.0, 0.03 * np.sin(ph), 0.05 * np.sin(ph))
+    return m.rot
+
+
+#: The figure's motion library (after its range of motion in ``figure_train.usda``): segment
+#: name, function, frames (consecutive segments overlap by LIBRARY_BLEND frames, see
+#: :func:`training_clip`).
+FIGURE_LIBRARY = [
+    ("idle sway", _figure_idle, 22),
+    ("arm swings", _figure_arm_swings, 40),
+    ("reaches", _figure_reaches, 88),
+    ("march", _figure_march, 40),
+    ("swinging walk", _figure_swinging_walk, 52),
+    ("twist and bend", _figure_twist_and_bend, 40),
+    ("head looks", _figure_head_looks, 26),
+    ("step and look", _figure_step_and_look, 34),
+]
+#: The figure's training clip: joint-local rotation vectors per frame, (600, 12, 3): the range of
+#: motion (12 joints x SWEEP_FRAMES of sweeps, then 156 frames of all joints at once), then the
+#: motion library (:func:`training_clip`).
+FIGURE_TRAIN_CLIP = training_clip(
+    joint_limits(FIGURE_JOINTS, FIGURE_LIMITS), 156, [make(frames) for _, make, frames in FIGURE_LIBRARY]
+)
 
 
 def _figure_skin_geometry():
@@ -1147,9 +1452,286 @@ WANDERER_LIMITS = {
     "Knee": ((-0.05, 0.8), (-0.05, 0.05), (-0.1, 0.1)),
     "Ankle": ((-0.3, 0.3), (-0.1, 0.1), (-0.15, 0.15)),
 }
-#: The wanderer's training clip: joint-local rotation vectors per frame, (600, 33, 3) (33 joints
-#: x SWEEP_FRAMES of sweeps, then 204 frames of all joints at once).
-WANDERER_TRAIN_CLIP = range_of_motion_clip(joint_limits(WANDERER_JOINTS, WANDERER_LIMITS), 204)
+
+
+#: The fingers of each hand (the thumb apart).
+_WANDERER_FINGERS = ("Index", "Middle", "Ring")
+#: Curl of the wanderer's fingers at rest in the motion library (see :func:`_wanderer_hand`).
+WANDERER_RELAXED_CURL = 0.42
+
+
+def _wanderer_hand(m: _Motion, side: str, curl, thumb=None, spread=0.0) -> None:
+    """One hand's fingers: ``curl`` (scalar or per frame: -0.05 stretched, 0 straight, 1 a fist)
+    for all three fingers, or a dict per finger; the ring finger curls a little more than the
+    middle and the middle than the index; ``thumb`` (default with the fingers) folds the
+    thumb in, ``spread`` fans the fingers apart (about z)."""
+    curls = curl if isinstance(curl, dict) else dict.fromkeys(_WANDERER_FINGERS, curl)
+    for k, digit in enumerate(_WANDERER_FINGERS):
+        c = np.asarray(curls[digit], np.float64) + 0.03 * k * np.clip(curls[digit], 0.0, 1.0)
+        m.add(f"{digit}1", 0.0, 0.9 * c, 0.07 * (k - 1) * np.asarray(spread), side=side)
+        m.add(f"{digit}2", 0.0, c, side=side)
+    t = 0.1 + 0.6 * np.asarray(curls["Middle"]) if thumb is None else np.asarray(thumb, np.float64)
+    m.add("Thumb1", 0.12 - 0.4 * t, 0.45 * t, 0.0, side=side)
+    m.add("Thumb2", 0.0, 0.6 * t, side=side)
+
+
+def _wanderer_walk(frames, period, stride, knee, ankle, arm, elbow, lean, curl, look) -> np.ndarray:
+    """A walk in place from standing and back to standing (starting and stopping over 8 frames):
+    strides of ``period`` frames, thighs +-``stride``, knees bending by up to ``knee`` as each
+    leg swings through, ankles +-``ankle``, arms swinging +-``arm`` against the legs with the
+    elbows at ``elbow`` = (bend, more as the arm comes forward), the spine leaning ``lean``
+    forward, the hands curled ``curl``, the head turning +-``look`` once over the clip."""
+    m = _Motion(WANDERER_JOINTS, frames)
+    ph = 2 * np.pi * m.t / period
+    go = _bump(m.t, 0.0, 8.0, frames - 17.0, 8.0)
+    for side, lateral in (("L", 1.0), ("R", -1.0)):
+        forward = lateral * np.sin(ph) * go  # > 0 while this leg swings forward
+        m.add("Hip", -stride * forward, side=side)
+        m.add("Knee", 0.04 + knee * go * (0.5 + 0.5 * lateral * np.cos(ph - 0.35)) ** 1.5, side=side)
+        m.add("Ankle", ankle * go * np.sin(lateral * ph + 1.6), side=side)
+        m.add("Shoulder", arm * forward - 0.05, -0.05, 0.03, side=side)
+        m.add("Elbow", elbow[0] - elbow[1] * (0.5 - 0.5 * forward), side=side)
+        m.add("Wrist", 0.08, 0.0, 0.0, side=side)
+        _wanderer_hand(m, side, curl + 0.05 * np.sin(2 * np.pi * m.t / 37.0 + lateral))
+    m.add("Hips", 0.0, 0.025 * np.sin(ph) * go, 0.16 * stride * np.sin(ph) * go)
+    m.add("Spine", lean, 0.0, -0.3 * stride * np.sin(ph) * go)
+    m.add("Chest", 0.02 + 0.015 * np.cos(2 * ph) * go)
+    m.add("Neck", 0.1 - lean, 0.0, 0.3 * look * np.sin(2 * np.pi * m.t / frames + 0.5))
+    m.add("Head", 0.0, 0.0, look * np.sin(2 * np.pi * m.t / frames + 0.5))
+    return m.rot
+
+
+def _wanderer_slow_walk(frames: int = 54) -> np.ndarray:
+    """An unhurried walk, 40 frames a stride, short steps, the arms hanging and swinging little,
+    the hands loosely open, looking down at the path and slowly around."""
+    return _wanderer_walk(frames, 40.0, 0.24, 0.4, 0.1, 0.18, (-0.42, 0.12), 0.0, 0.22, 0.25)
+
+
+def _wanderer_fast_walk(frames: int = 48) -> np.ndarray:
+    """A brisk walk, 22 frames a stride, long steps with high knees, bent arms pumping, the body
+    leaning forward, loose fists, eyes ahead."""
+    return _wanderer_walk(frames, 22.0, 0.46, 0.72, 0.22, 0.42, (-0.75, 0.3), 0.12, 0.55, 0.06)
+
+
+def _wanderer_reaches(frames: int = 110) -> np.ndarray:
+    """Five reaches of 22 frames, out and back, without touching the hat: the left hand forward
+    at chest height (leaning after it), the right hand out to the side (turning to look), the
+    left hand straight up (looking up after it, leaning back), the right hand flat to the chest
+    (looking down at it), the right hand up to a high shelf, gripping something there and
+    bringing it down; the reaching hand opens, the free arm balances."""
+    m = _Motion(WANDERER_JOINTS, frames)
+    a, b, c, d, e = (_bump(m.t, frames / 5 * k + 1, 9.0, 2.0, 9.0) for k in range(5))
+    grip = _smoothstep((m.t - (frames * 4 / 5 + 8.0)) / 4.0)  # closes on the thing on the shelf
+    # forward, left
+    m.add("Shoulder", -1.35 * a, 0.12 * a, 0.0, side="L")
+    m.add("Elbow", -0.3 + 0.18 * a - 0.2 * c, side="L")
+    m.add("Wrist", 0.15 * a, side="L")
+    m.add("Shoulder", 0.15 * a, side="R")
+    m.add("Spine", 0.1 * a)
+    m.add("Chest", 0.06 * a)
+    for side in "LR":
+        m.add("Knee", 0.08 * a, side=side)
+    # out to the side, right
+    m.add("Shoulder", -0.6 * b, -0.2 * b, 0.15 * b, side="R")
+    m.add("Elbow", -0.3 + 0.1 * b - 1.0 * d + 0.15 * e, side="R")
+    m.add("Wrist", 0.0, 0.2 * b, side="R")
+    m.add("Shoulder", 0.1 * b, -0.1 * b, side="L")
+    m.add("Head", 0.0, 0.0, -0.4 * b)
+    m.add("Neck", 0.0, 0.0, -0.15 * b)
+    m.add("Spine", 0.0, 0.0, -0.15 * b)
+    # up, left
+    m.add("Shoulder", -1.9 * c, -0.12 * c, 0.1 * c, side="L")
+    m.add("Wrist", -0.3 * c, side="L")
+    m.add("Shoulder", 0.12 * c, side="R")
+    m.add("Elbow", -0.2 * c, side="R")
+    m.add("Neck", -0.2 * c)
+    m.add("Head", -0.16 * c)
+    m.add("Spine", -0.08 * c)
+    m.add("Chest", -0.06 * c)
+    # flat to the chest, right
+    m.add("Shoulder", -0.4 * d, 0.45 * d, 0.0, side="R")
+    m.add("Wrist", -0.2 * d, side="R")
+    m.add("Shoulder", 0.05 * d, side="L")
+    m.add("Neck", 0.12 * d)
+    m.add("Head", 0.0, 0.0, -0.1 * d)
+    # up to the shelf, right
+    m.add("Shoulder", -1.88 * e, 0.02 * e, -0.05 * e, side="R")
+    m.add("Wrist", 0.2 * e, side="R")
+    m.add("Shoulder", 0.1 * e, -0.08 * e, side="L")
+    m.add("Elbow", -0.15 * e, side="L")
+    m.add("Neck", -0.15 * e, 0.0, -0.05 * e)
+    m.add("Head", -0.12 * e)
+    m.add("Spine", -0.05 * e)
+    m.add("Head", 0.0, 0.0, 0.15 * np.sin(2 * np.pi * m.t / frames))
+    loose = 0.25  # the hands hang loosely open between the reaches
+    _wanderer_hand(m, "L", loose - (loose + 0.05) * (a + c), spread=a + c)
+    opened = b + e * (1.0 - grip)  # the right hand opens out to the side and up to the shelf
+    _wanderer_hand(m, "R", loose - (loose + 0.05) * opened - 0.1 * d + 0.6 * grip, spread=b)
+    return m.rot
+
+
+def _wanderer_pick_up(frames: int = 46) -> np.ndarray:
+    """Picking something up from the floor: knees and hips bend, the back bows, the right hand
+    reaches down open, grips, and carries the thing up to the waist, the left hand on the knee;
+    the eyes on the thing."""
+    m = _Motion(WANDERER_JOINTS, frames)
+    b = m.keys([0.0, 15.0, 23.0, 40.0, 50.0], [0.0, 1.0, 1.0, 0.0, 0.0])
+    carry = m.keys([0.0, 22.0, 34.0, 50.0], [0.0, 0.0, 1.0, 1.0])
+    grip = m.keys([0.0, 15.0, 21.0, 50.0], [0.0, 0.0, 1.0, 1.0])
+    m.add("Hips", 0.08 * b)
+    m.add("Spine", 0.28 * b)
+    m.add("Chest", 0.26 * b)
+    m.add("Neck", 0.16 * b)
+    m.add("Head", 0.08 * b, 0.0, -0.25 * b - 0.1 * carry)
+    for side, depth in (("L", 1.0), ("R", 0.9)):
+        m.add("Hip", -0.45 * depth * b, side=side)
+        m.add("Knee", 0.72 * depth * b, side=side)
+        m.add("Ankle", -0.27 * depth * b, side=side)
+    m.add("Shoulder", -0.7 * b * (1.0 - carry) - 0.5 * carry, 0.1, 0.0, side="R")
+    m.add("Elbow", -0.3 + 0.2 * b - 0.75 * carry, side="R")
+    m.add("Wrist", 0.2 * b, side="R")
+    m.add("Shoulder", -0.35 * b, 0.1 * b, side="L")
+    m.add("Elbow", -0.3 - 0.2 * b, side="L")
+    reaching = b * (1.0 - grip)  # the right hand open on the way down, until it grips
+    r = WANDERER_RELAXED_CURL
+    _wanderer_hand(m, "R", r - (r + 0.05) * reaching + 0.55 * grip, spread=reaching)
+    _wanderer_hand(m, "L", WANDERER_RELAXED_CURL)
+    return m.rot
+
+
+def _wanderer_look_around(frames: int = 40) -> np.ndarray:
+    """Standing with the hands clasped behind the back, looking left, up, right, down and back
+    (the neck and a little of the spine turning with the head), then leaning forward to peer at
+    the ground in front and straightening again."""
+    m = _Motion(WANDERER_JOINTS, frames)
+    times = [0.0, 7.0, 12.0, 19.0, 25.0, 31.0, 40.0]
+    turn = m.keys(times, [0.0, 0.42, 0.42, -0.42, -0.2, 0.1, 0.0])
+    m.add("Head", m.keys(times, [0.0, 0.0, -0.16, 0.02, 0.15, 0.1, 0.0]), 0.0, turn)
+    nod = m.keys(times, [0.0, 0.05, -0.22, -0.1, 0.18, 0.15, 0.0])
+    lean = m.keys([0.0, 24.0, 31.0, 34.0, 40.0], [0.0, 0.0, 1.0, 1.0, 0.0])
+    m.add("Neck", nod, 0.0, 0.35 * turn)
+    m.add("Spine", 0.2 * lean, 0.0, 0.25 * turn)
+    m.add("Chest", 0.05 * nod + 0.18 * lean)
+    hands = _bump(m.t, 0.0, 8.0, frames - 17.0, 8.0)
+    for side in "LR":
+        m.add("Shoulder", 0.35 * hands, 0.15 * hands, 0.0, side=side)
+        m.add("Elbow", -0.3 - 0.25 * hands, side=side)
+        m.add("Wrist", 0.2 * hands, side=side)
+        _wanderer_hand(m, side, WANDERER_RELAXED_CURL + 0.1 * hands)
+    return m.rot
+
+
+def _wanderer_wave(frames: int = 36) -> np.ndarray:
+    """Waving with the right hand raised and open: first the forearm and wrist rocking from side
+    to side (10 frames a wave), then the arm higher, the hand above the front of the brim,
+    flapping at the wrist; the head tilts towards whoever is greeted."""
+    m = _Motion(WANDERER_JOINTS, frames)
+    raise_ = m.keys([0.0, 8.0, 28.0, 36.0], [0.0, 1.0, 1.0, 0.0])
+    high = m.keys([0.0, 14.0, 20.0, 36.0], [0.0, 0.0, 1.0, 1.0]) * raise_
+    w = raise_ * np.sin(2 * np.pi * (m.t - 8.0) / 10.0)
+    m.add("Shoulder", -1.45 * raise_ - 0.35 * high, -0.15 * raise_ + 0.35 * high, 0.1 * w * (1.0 - high), side="R")
+    m.add("Elbow", -0.3 - 0.75 * raise_ + 0.05 * high, 0.0, 0.12 * w * (1.0 - high), side="R")
+    m.add("Wrist", -0.15 * raise_ + high * (0.3 + 0.25 * w), 0.0, 0.18 * w * (1.0 - high), side="R")
+    m.add("Shoulder", 0.05, side="L")
+    m.add("Elbow", -0.32, side="L")
+    m.add("Head", 0.0, 0.07 * raise_, -0.18 * raise_)
+    m.add("Neck", -0.05 * raise_)
+    m.add("Spine", 0.0, -0.04 * raise_, 0.0)
+    m.add("Hips", 0.0, 0.03 * raise_, 0.0)
+    _wanderer_hand(m, "R", WANDERER_RELAXED_CURL - (WANDERER_RELAXED_CURL + 0.05) * raise_, spread=raise_)
+    _wanderer_hand(m, "L", 0.25)
+    return m.rot
+
+
+def _wanderer_gestures(frames: int = 50) -> np.ndarray:
+    """Hand gestures in front of the body, watched, leaning over them a little: the left hand
+    opens and closes into a fist three times, the wrist turning; the right hand points with the
+    index finger, then counts (middle and ring finger stretching out in turn, then the thumb)."""
+    m = _Motion(WANDERER_JOINTS, frames)
+    arms = m.keys([0.0, 8.0, 52.0, 60.0], [0.0, 1.0, 1.0, 0.0])
+    m.add("Shoulder", -0.35 * arms, 0.15 * arms, 0.0, side="L")
+    m.add("Elbow", -0.3 - 0.9 * arms, side="L")
+    turn = arms * np.sin(2 * np.pi * m.t / 23.0)
+    m.add("Wrist", 0.1 * np.sin(2 * np.pi * m.t / 30.0) * arms, 0.15 * arms, 0.12 * turn, side="L")
+    m.add("Shoulder", -0.5 * arms, 0.1 * arms, 0.0, side="R")
+    m.add("Elbow", -0.3 - 0.75 * arms, side="R")
+    m.add("Wrist", 0.2 * arms, -0.1 * np.sin(2 * np.pi * m.t / 27.0) * arms, 0.0, side="R")
+    rest = 0.1 + 0.6 * WANDERER_RELAXED_CURL  # the thumb of a relaxed hand
+    fist = 0.5 - 0.5 * np.cos(6 * np.pi * m.t / (frames - 1))  # 0 open ... 1 closed, three times
+    curl = WANDERER_RELAXED_CURL + arms * (1.05 * fist - 0.05 - WANDERER_RELAXED_CURL)
+    _wanderer_hand(m, "L", curl, thumb=rest + arms * (0.7 * fist - rest), spread=arms * (1.0 - fist))
+    r = WANDERER_RELAXED_CURL
+    pointing = {
+        "Index": m.keys([0.0, 6.0, 50.0, 60.0], [r, 0.0, 0.0, r]),
+        "Middle": m.keys([0.0, 6.0, 34.0, 39.0, 54.0, 60.0], [r, 0.95, 0.95, 0.0, 0.0, r]),
+        "Ring": m.keys([0.0, 6.0, 41.0, 46.0, 54.0, 60.0], [r, 0.95, 0.95, 0.0, 0.0, r]),
+    }
+    _wanderer_hand(m, "R", pointing, thumb=m.keys([0.0, 6.0, 48.0, 53.0, 60.0], [rest, 0.7, 0.7, 0.0, rest]))
+    m.add("Spine", 0.16 * arms)
+    m.add("Chest", 0.14 * arms)
+    m.add("Neck", 0.15 * arms)
+    m.add("Head", 0.05 * arms, 0.0, 0.12 * np.sin(2 * np.pi * m.t / frames))
+    return m.rot
+
+
+def _wanderer_shrug(frames: int = 30) -> np.ndarray:
+    """A shrug: elbows bent, forearms out and palms up, hands open, the chest lifting, the head
+    tilting."""
+    m = _Motion(WANDERER_JOINTS, frames)
+    s = m.keys([0.0, 9.0, 17.0, 30.0], [0.0, 1.0, 1.0, 0.0])
+    for side in "LR":
+        m.add("Shoulder", -0.2 * s, -0.18 * s, -0.1 * s, side=side)
+        m.add("Elbow", -0.3 - 0.65 * s, 0.0, 0.2 * s, side=side)
+        m.add("Wrist", -0.35 * s, 0.15 * s, 0.0, side=side)
+        _wanderer_hand(m, side, WANDERER_RELAXED_CURL - (WANDERER_RELAXED_CURL + 0.05) * s, spread=s)
+    m.add("Neck", -0.05 * s)
+    m.add("Head", 0.0, 0.08 * s, 0.25 * np.sin(2 * np.pi * m.t / frames + 2.0))
+    m.add("Chest", -0.08 * s)
+    m.add("Spine", -0.03 * s)
+    return m.rot
+
+
+def _wanderer_crouch(frames: int = 34) -> np.ndarray:
+    """Crouching down and rising: hips and knees deeply bent (the feet kept flat), the back
+    bent forward, the arms forward for balance, the head up and turning."""
+    m = _Motion(WANDERER_JOINTS, frames)
+    c = m.keys([0.0, 14.0, 26.0, 40.0], [0.0, 1.0, 1.0, 0.0])
+    m.add("Hips", 0.06 * c)
+    m.add("Spine", 0.22 * c)
+    m.add("Chest", 0.1 * c)
+    m.add("Neck", -0.15 * c)
+    m.add("Head", -0.05 * c, 0.0, 0.2 * np.sin(2 * np.pi * m.t / frames))
+    for side, depth in (("L", 1.0), ("R", 0.96)):
+        m.add("Hip", -0.48 * depth * c, 0.0, 0.1 * c, side=side)
+        m.add("Knee", 0.78 * depth * c, side=side)
+        m.add("Ankle", -0.28 * c, side=side)
+        m.add("Shoulder", -0.95 * c, 0.15 * c, 0.0, side=side)
+        m.add("Elbow", -0.3 - 0.15 * c, side=side)
+        m.add("Wrist", 0.1 * c, side=side)
+        _wanderer_hand(m, side, WANDERER_RELAXED_CURL)
+    return m.rot
+
+
+#: The wanderer's motion library (after its range of motion in ``wanderer_train.usdc``): segment
+#: name, function, frames (consecutive segments overlap by LIBRARY_BLEND frames, see
+#: :func:`training_clip`).
+WANDERER_LIBRARY = [
+    ("slow walk", _wanderer_slow_walk, 54),
+    ("brisk walk", _wanderer_fast_walk, 48),
+    ("reaches", _wanderer_reaches, 110),
+    ("pick up", _wanderer_pick_up, 46),
+    ("look around", _wanderer_look_around, 40),
+    ("wave", _wanderer_wave, 36),
+    ("hand gestures", _wanderer_gestures, 50),
+    ("shrug", _wanderer_shrug, 30),
+    ("crouch", _wanderer_crouch, 34),
+]
+#: The wanderer's training clip: joint-local rotation vectors per frame, (1000, 33, 3): the range
+#: of motion (33 joints x SWEEP_FRAMES of sweeps, then 204 frames of all joints at once), then the
+#: motion library (:func:`training_clip`).
+WANDERER_TRAIN_CLIP = training_clip(
+    joint_limits(WANDERER_JOINTS, WANDERER_LIMITS), 204, [make(frames) for _, make, frames in WANDERER_LIBRARY]
+)
 
 
 def _dress_wanderer(stage, skel, paths) -> None:
