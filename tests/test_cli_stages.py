@@ -12,7 +12,7 @@ from warpshade.measure import write_usd
 
 STAGES = sorted((Path(__file__).resolve().parent.parent / "stages").glob("*.toml"))
 #: Training frames of the data-driven graphs in this test (their own selection takes minutes).
-TRAINING_SUBSET = "0:300:25"
+TRAINING_SUBSET = "0:600:50"
 
 
 @pytest.fixture(autouse=True)

@@ -157,7 +157,8 @@ def test_size_choice_meets_its_budget_and_validation_is_contiguous(rng):
     cheaper = [k for k, e in choice.error.items() if choice.cost[k] < choice.cost[(choice.ka, choice.kv)]]
     assert all(choice.error[k] > choice.target for k in cheaper)
     # the measured validation error of the chosen candidate is what a direct fit gives
-    red = dd.fit_reduced(A[train], B[train], choice.ka, choice.kv, basis=dd.coefficient_basis(B[train], 120))
+    red = dd.fit_reduced(A[train], B[train], choice.ka, choice.kv, basis=dd.coefficient_basis(B[train], 120),
+                         alpha_grid=dd.SEARCH_ALPHA_GRID)
     direct = np.linalg.norm(red.predict(A[val]) - B[val]) / np.linalg.norm(B[val])
     assert direct == pytest.approx(choice.error[(choice.ka, choice.kv)], rel=1e-6)
 

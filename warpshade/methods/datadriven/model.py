@@ -59,6 +59,9 @@ RCOND = 1e-10
 #: Candidate alphas, as multiples of the largest singular value of the centred, standardised
 #: poses (0 = least squares); the LOO error picks one per coefficient.
 ALPHA_GRID = np.concatenate([[0.0], np.logspace(-4.0, 1.0, 31)])
+#: The coarser grid the size search (:func:`choose_sizes`) picks alpha from for every candidate;
+#: the final fit uses :data:`ALPHA_GRID`.
+SEARCH_ALPHA_GRID = np.concatenate([[0.0], np.logspace(-4.0, 1.0, 11)])
 #: A feature whose training standard deviation is below this (radians, scene units) is constant.
 CONSTANT_STD = 1e-6
 #: Where 1 - H_ii is below this the LOO residual of pose i is undefined (the fit interpolates it).
@@ -380,12 +383,14 @@ def fit_full(poses: np.ndarray, data: np.ndarray, alpha: float | None = None, pr
 
 def fit_reduced(poses: np.ndarray, data: np.ndarray, ka: int, kv: int, alpha: float | None = None,
                 basis: tuple | None = None, seed: int = 0, progress: bool = False,
-                weights: np.ndarray | None = None) -> DataDrivenModel:
+                weights: np.ndarray | None = None, alpha_grid=ALPHA_GRID) -> DataDrivenModel:
     """The reduced model ``b = Pi_v^-1(Pi_a(a) X^c)`` with ``ka`` pose and ``kv`` vertex components.
 
     Args:
         basis: a precomputed :func:`coefficient_basis` result with at least ``kv`` components.
         weights: per-coefficient weights of the basis (:func:`coefficient_basis`).
+        alpha_grid: candidate alphas (multiples of the largest singular value of the poses) the
+            LOO error picks from when ``alpha`` is None.
     """
     t0 = time.perf_counter()
     full_space = pose_space(poses, pca=True)
@@ -398,7 +403,7 @@ def fit_reduced(poses: np.ndarray, data: np.ndarray, ka: int, kv: int, alpha: fl
     kv = pv.shape[1]
     Z = space.project(poses)
     solver = RidgeSolver(Z)
-    grid = solver.alphas(ALPHA_GRID if alpha is None else [alpha])
+    grid = solver.alphas(alpha_grid if alpha is None else [alpha])
     p, v, c = data.shape
     coeffs = np.empty((c, kv, ka + 1))
     alphas = np.empty(c)
@@ -514,7 +519,7 @@ def choose_sizes(poses: np.ndarray, data: np.ndarray, train: np.ndarray, validat
         space = space_all.truncated(ka)
         solver = RidgeSolver(space.project(A_tr))
         zv = space.project(A_val) - solver.mean
-        grid = solver.alphas()
+        grid = solver.alphas(SEARCH_ALPHA_GRID)
         inside = np.zeros(len(kvs))
         for ci in range(c):
             y = proj_tr[:, ci, :]

@@ -9,7 +9,7 @@ __all__ = ["TRAINING_CLIPS", "harness_rows", "stages_for"]
 #: Held-out test scene -> its training clip (the same character in a range-of-motion clip) and
 #: the training frames (as in the graphs in stages/, so that the cached training data is shared).
 TRAINING_CLIPS = {"figure": ("bundled:figure_train", None), "figure_walk": ("bundled:figure_train", None),
-                  "wanderer": ("bundled:wanderer_train", "0:600:2")}
+                  "wanderer": ("bundled:wanderer_train", "0:1000:2")}
 
 
 def stages_for(training: str, model: str = "reduced", order: int = 6, samples: int = 256, fit: dict | None = None,
