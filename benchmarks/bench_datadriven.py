@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import argparse
 import datetime
+import json
 import os
 import platform
 import sys
@@ -123,7 +124,13 @@ def main(argv=None) -> int:
     ap.add_argument("--character", default="figure", choices=sorted(CHARACTERS))
     ap.add_argument("--quick", action="store_true", help="fewer test frames and candidates")
     ap.add_argument("--out", default=str(RESULTS))
+    ap.add_argument("--replot", metavar="JSON", help="redraw the PCA chart of an earlier results JSON (next to it) without measuring")
     args = ap.parse_args(argv)
+    if args.replot:
+        src = Path(args.replot)
+        old = json.loads(src.read_text())
+        _plot_sweep(old["sweep"], old["spectra"], src.with_name(src.stem + "-pca.png"))
+        return 0
     wp.init()
     cfg = CHARACTERS[args.character]
     out_dir = Path(args.out)
@@ -447,7 +454,7 @@ def _plot_regularisation(result, path):
 
 def _plot_sweep(sweep, spectra, path):
     plt = _plt()
-    fig, (a, b, c) = plt.subplots(1, 3, figsize=(14, 4))
+    fig, (a, b, c) = plt.subplots(1, 3, figsize=(15, 4.4), layout="constrained")
     pv = np.cumsum(spectra["pose_variance"])
     ce = np.cumsum(spectra["coefficient_energy"])
     a.plot(np.arange(1, pv.size + 1), pv, "-o", ms=3, label="pose (variance)")
@@ -467,6 +474,7 @@ def _plot_sweep(sweep, spectra, path):
         sel = sorted((r for r in rows if r["ka"] == ka), key=lambda r: r["kv"])
         b.plot([1.0 - r["coefficient_energy"] for r in sel], [shading(r) for r in sel], "-o", ms=3, label=f"ka = {ka}")
     b.set_xscale("log")
+    b.xaxis.set_minor_formatter(plt.NullFormatter())
     b.invert_xaxis()
     b.set_xlabel("coefficient energy (lighting-weighted) left out by kv")
     b.set_ylabel("held-out shading error (relative RMS)")

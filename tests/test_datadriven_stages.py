@@ -59,6 +59,8 @@ def test_held_out_frames_beat_the_rest_pose_bake(bend, model, tmp_path):
         np.testing.assert_allclose(got, want, atol=RTOL_FRAME * np.abs(want).max())
     report = rt.stages[1].report
     assert report["kind"] == model and report["stored_floats"] > 0
+    # the model the frame loop keeps is counted, not the training data only the fit reads
+    assert rt.model_bytes() == 4 * report["stored_floats"]
     if model == "reduced":
         assert "PCA(" in report["choice"]["reason"] and report["choice"]["met"]
     out = rt.output.numpy()

@@ -569,12 +569,20 @@ class Runtime:
 
     # ---- what the run is ------------------------------------------------------------------
     def model_bytes(self) -> int:
-        """Bytes of precomputed model data (artifacts) plus what stages keep on the device."""
+        """Bytes of precomputed model data the frame loop needs: per frame stage, what it keeps
+        on the device (its ``model_bytes()``) or, when it reports nothing, the precompute
+        artifacts it reads. Artifacts only precompute stages read (training data) are not counted."""
         total = 0
-        for arts in self.artifacts.values():
-            for a in arts.values():
-                total += sum(int(np.asarray(v).nbytes) for v in (a.values() if isinstance(a, dict) else (a,)))
-        return total + sum(int(s.model_bytes()) for s in self.stages)
+        for st in self.frame_stages:
+            own = int(st.model_bytes())
+            if own:
+                total += own
+                continue
+            for w in self.wiring[st.name].values():
+                if w.provider in self.artifacts:
+                    a = self.artifacts[w.provider][w.port]
+                    total += sum(int(np.asarray(v).nbytes) for v in (a.values() if isinstance(a, dict) else (a,)))
+        return total
 
     @property
     def program(self):
