@@ -289,7 +289,7 @@ def main(argv=None) -> int:
                   f"{params[f'{k}/{r}']['reduced_shading']}", flush=True)
     result["parameterisations"] = params
     if not args.quick:
-        result["local_frame"] = _local_frame(cfg, tests, test_frames, truth, A, ref_rot, shading_error)
+        result["local_frame"] = _local_frame(train_scene, data, tests, test_frames, truth, A, ref_rot, shading_error)
         result["interreflection"] = _interreflection(cfg, tests[0], lights[tests[0].source], ref_rot, full)
 
     # ---- novelty against error, and the per-vertex transfer error picture -----------------------
@@ -333,16 +333,17 @@ def _runtime(training, scene, sizes, quick) -> dict:
     return out
 
 
-def _local_frame(cfg, tests, test_frames, truth, A_world, ref_rot, shading_error) -> dict:
-    """Fit the transfer in per-vertex tangent frames, rotate predictions back to world per vertex."""
+def _local_frame(train_scene, world_data, tests, test_frames, truth, A_world, ref_rot, shading_error) -> dict:
+    """Fit the transfer in per-vertex tangent frames (the same training frames and seeds as the
+    world-frame data), rotate predictions back to world per vertex."""
     from warpshade.basis import sh
     from warpshade.geometry.frames import TangentFrames, tangent_frames_reference
+    from warpshade.methods.datadriven.training import trace_training
 
-    rt = _graph(cfg["training"], "full", data={"space": "local"}).compile(tests[0], device="cpu", progress=True)
-    data = rt.artifacts["data"]["data"]
-    B = np.asarray(data["transfer"])
-    A = _select(data, "quaternion", "include")
-    m = dd.fit_full(A, B)
+    seed = int(np.asarray(world_data["settings"]).reshape(-1)[4])
+    B = trace_training(train_scene, np.asarray(world_data["frame_indices"]), ORDER, TRAIN_RAYS, seed=seed, space="local",
+                       progress=True)
+    m = dd.fit_full(A_world, B)
     errs = {}
     for s in tests:
         frames = test_frames[s.source]

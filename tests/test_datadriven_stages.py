@@ -124,6 +124,10 @@ def test_bad_training_input_names_the_stage(bend, tmp_path):
         _graph(training="bundled:figure").compile(bend, device="cpu", cache_dir=None, progress=False)
     with pytest.raises(StageError, match="frames '5:5' select none"):
         _graph(data={"frames": "5:5"}).compile(bend, device="cpu", cache_dir=None, progress=False)
+    # local-frame training data would be shaded as world-frame transfer: refused, not shaded wrong
+    with pytest.raises(StageError, match=r"stage 'fit' \(datadriven.fit\): .*space = 'local'"):
+        _graph(data={"space": "local", "frames": "0:60:20"}).compile(bend, device="cpu", cache_dir=None, progress=False,
+                                                                     scheduler="serial")
 
 
 def test_model_order_must_match_the_transfer_stage(bend, tmp_path):

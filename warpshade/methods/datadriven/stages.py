@@ -72,7 +72,8 @@ class DataStage(Stage):
         "order": _ORDER,
         "samples": rays_param(256, "rays per vertex per training frame"),
         "bounces": Param(0, int, "diffuse bounces of the training transfer (0 = direct only)", minimum=0, maximum=8),
-        "space": Param("world", str, "frame of the transfer vectors (the paper: world)", choices=tuple(_SPACES)),
+        "space": Param("world", str, "frame of the transfer vectors (the paper: world; 'local' = per-vertex tangent "
+                       "frames, for measuring: datadriven.fit accepts world only)", choices=tuple(_SPACES)),
         "seed": Param(0, int, "base seed of the per-frame ray rotations"),
     }
 
@@ -254,6 +255,10 @@ class FitStage(Stage):
         transfer = data["transfer"]
         settings = np.asarray(data["settings"]).reshape(-1)
         order, bounces = int(settings[0]), int(settings[2])
+        if int(settings[3]) != _SPACES["world"]:
+            raise StageError(f"{where}: the training data is in per-vertex tangent frames (space = 'local'); the "
+                             f"per-frame stages shade world-frame transfer: train with space = 'world' (the local "
+                             f"frame is measured by benchmarks/bench_datadriven.py)")
         channels = 3 if bounces else 1
         poses = _select_columns(data, p["pose"], p["root"])
         n = poses.shape[0]
