@@ -264,7 +264,7 @@ def main(argv=None) -> int:
             "warp": wp.config.version, "gt_samples": gt_samples, "timing_frames": timing_frames, "quick": args.quick,
             "rotate_degrees_per_frame": ROTATE_DEGREES_PER_FRAME,
             "threads": cpu_workers() if device == "cpu" else None,
-            "command": "python benchmarks/run.py" + (" --quick" if args.quick else ""),
+            "command": " ".join(["python", "benchmarks/run.py", *(argv if argv is not None else sys.argv[1:])]),
             "seconds": time.perf_counter() - t_all,
         }
         stem = f"{date}-{tag}" + ("-quick" if args.quick else "")

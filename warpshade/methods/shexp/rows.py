@@ -7,7 +7,7 @@ from ..harness import HarnessRow
 __all__ = ["HARNESS_SCENES", "graph_stages", "harness_rows"]
 
 #: Scenes the harness runs SHEXP on (closed occluder meshes; the cloth is an open sheet).
-HARNESS_SCENES = ("blockers", "figure", "bunny", "bear", "bend")
+HARNESS_SCENES = ("blockers", "figure", "figure_walk", "wanderer", "bunny", "bear", "bend")
 
 
 def graph_stages(order: int = 4, method: str = "hyb", budget: int = 48, hierarchy: bool = False, accumulate: str = "log",
