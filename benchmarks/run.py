@@ -202,6 +202,8 @@ def main(argv=None) -> int:
     ap.add_argument("--scenes", default=None, help="comma-separated scene keys (default: all)")
     ap.add_argument("--methods", default=None, help="comma-separated method names (default: all)")
     ap.add_argument("--device", action="append", default=None, help="device(s); default: cpu and cuda:0 if present")
+    ap.add_argument("--exclude", default=None,
+                    help="comma-separated row labels to leave out (e.g. \"ldprt-glossy n6 b12 N4\")")
     ap.add_argument("--gt-samples", type=int, default=None, help="ground-truth samples per vertex")
     ap.add_argument("--out", default=str(RESULTS))
     ap.add_argument("--replot", default=None, metavar="JSON",
@@ -219,6 +221,9 @@ def main(argv=None) -> int:
     if args.methods:
         wanted = set(args.methods.split(","))
         rows = [r for r in rows if r.method in wanted]
+    if args.exclude:
+        drop = {x.strip() for x in args.exclude.split(",")}
+        rows = [r for r in rows if r.label not in drop]
     gt_samples = args.gt_samples or (512 if args.quick else 2048)
     timing_frames = 4 if args.quick else 12
     gt_count = 1 if args.quick else 2

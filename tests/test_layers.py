@@ -57,7 +57,7 @@ def test_no_module_imports_a_higher_layer():
 def test_no_import_cycle():
     graph = package_import_graph(PACKAGE)
     cycles = find_cycles(graph)
-    assert not cycles, "import cycles:\n" + "\n".join(format_cycle(c, graph) for c in cycles)
+    assert not cycles, "import cycles:\n" + "\n".join(format_cycle(graph, c) for c in cycles)
 
 
 def test_private_basis_modules_are_imported_only_inside_basis():

@@ -13,7 +13,7 @@ from warpshade.io.usd import bundled_asset_directory, load_usd
 from warpshade.scene.scene import Scene
 
 ASSETS = bundled_asset_directory()
-FILES = ["sky.hdr", "blockers.usda", "figure.usda", "cloth.usda", "bend.usda"]
+FILES = ["sky.hdr", "blockers.usda", "figure.usda", "figure_orbit.usda", "cloth.usda", "bend.usda"]
 MAX_BYTES = 2 * 1024 * 1024  # issue 3: each bundled file < 2 MB
 #: The clips of the data-driven PRT characters: (training clip, held-out clips) per character.
 CLIPS = {

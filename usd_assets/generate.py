@@ -56,6 +56,11 @@ Scenes:
   down), waving, hand gestures (a fist opening and closing, pointing, counting), a shrug and a
   crouch; ``wanderer_test`` (120 frames) is held out: a walk, a reach up to grip the brim while
   looking up, and a bow.
+* ``ripples.usda`` -- an animated water surface as a procedural height field (8 m square, 512 x 512
+  vertices, 48 frames that loop): a swell, three crossing chop waves, two circular ripples and a
+  static seeded terrain term, described by the ``warpshade:heightField:*`` attributes of one Mesh
+  prim (:mod:`warpshade.io.heightfield`, expanded by the loader), under the sky, with a camera
+  looking across the water toward the sun at a glancing angle.
 * ``cloth.usda`` -- a 30 x 30 sheet (faceVarying ``st`` UVs) with time-sampled points:
   travelling waves plus finer wrinkles, sagging at the free edge, over a ground grid.
 * ``bend.usda`` -- a capped cylinder (24-gon caps) skinned to a 4-joint chain that bends and
@@ -92,7 +97,7 @@ SKY_FILE = "sky.hdr"
 SKY_SIZE = (64, 128)
 #: Sun direction (towards the sun), world space, Z-up: in front of the figure (-Y), high.
 SUN_DIRECTION = np.array([0.35, -0.6, 0.72]) / np.linalg.norm([0.35, -0.6, 0.72])
-SCENES = ("blockers", "figure", "figure_train", "figure_walk", "cloth", "bend", "wanderer_train", "wanderer_test")
+SCENES = ("blockers", "figure", "figure_train", "figure_walk", "figure_orbit", "cloth", "bend", "wanderer_train", "wanderer_test")
 
 
 # ---- small helpers --------------------------------------------------------------------------
@@ -1761,8 +1766,78 @@ def make_wanderer_test(out_dir: str) -> str:
     return _write_wanderer(out_dir, "wanderer_test.usdc", wanderer_test_rotations, WANDERER_TEST_FRAMES)
 
 
+def make_figure_orbit(out_dir: str) -> str:
+    """``figure.usda`` seen by a moving camera: a layer over it (sublayer) whose camera circles the
+    figure a third of the way round over the clip, rising and falling (view-dependent shading
+    under a moving view). Stage metadata is authored again: USD reads it from the root layer."""
+    layer = Sdf.Layer.CreateAnonymous(".usda")
+    layer.subLayerPaths.append("./figure.usda")
+    layer.startTimeCode, layer.endTimeCode = 0, FRAME_COUNT - 1
+    layer.timeCodesPerSecond = layer.framesPerSecond = FPS
+    layer.defaultPrim = "World"
+    layer.pseudoRoot.SetInfo("upAxis", "Z")
+    layer.pseudoRoot.SetInfo("metersPerUnit", 1.0)
+    world = Sdf.PrimSpec(layer.pseudoRoot, "World", Sdf.SpecifierOver)
+    cam = Sdf.PrimSpec(world, "Camera", Sdf.SpecifierOver)
+    attr = Sdf.AttributeSpec(cam, "xformOp:transform", Sdf.ValueTypeNames.Matrix4d)
+    target = np.array([0.0, 0.0, 1.0])
+    for f in range(FRAME_COUNT):
+        t = f / (FRAME_COUNT - 1)
+        angle = np.radians(-72.0 + 120.0 * t)
+        eye = target + np.array([3.9 * np.cos(angle), 3.9 * np.sin(angle), 0.6 + 0.5 * np.sin(np.pi * t)])
+        view = Gf.Matrix4d().SetLookAt(Gf.Vec3d(*eye), Gf.Vec3d(*target), Gf.Vec3d(0, 0, 1))
+        layer.SetTimeSample(attr.path, float(f), _round_matrix(view.GetInverse()))
+    path = os.path.join(out_dir, "figure_orbit.usda")
+    tmp = path + ".tmp"
+    with open(tmp, "w", encoding="utf-8", newline="\n") as fh:
+        fh.write(layer.ExportToString())
+    os.replace(tmp, path)
+    return path
+
+
+# ---- (f) ripples ------------------------------------------------------------------------------
+RIPPLES_FRAMES = 48
+RIPPLES_RESOLUTION = 512
+
+
+def make_ripples(out_dir: str, resolution: int = RIPPLES_RESOLUTION, frame_count: int = RIPPLES_FRAMES,
+                 file_name: str = "ripples.usda") -> str:
+    """The water height field (warpshade.io.heightfield): every wave advances a whole number of
+    periods over the clip, so frame ``frame_count`` would equal frame 0."""
+    from warpshade.io.heightfield import HeightFieldSpec, author
+
+    duration = frame_count / FPS
+
+    def speed(wavelength, cycles):
+        return wavelength * cycles / duration
+
+    planar = [  # amplitude, wavelength, direction, phase speed, phase
+        (0.050, 2.6, 0.30, 1.00, speed(2.6, 1), 0.0),
+        (0.020, 0.95, 1.00, 0.35, speed(0.95, 2), 1.3),
+        (0.014, 0.62, -0.55, 1.00, speed(0.62, 3), 2.1),
+        (0.008, 0.37, 0.85, -0.40, speed(0.37, 4), 0.4),
+    ]
+    circular = [  # amplitude, wavelength, centre, phase speed, phase, decay
+        (0.012, 0.30, -1.4, 1.1, speed(0.30, 5), 0.0, 0.35),
+        (0.009, 0.22, 1.7, -0.9, speed(0.22, 6), 1.0, 0.45),
+    ]
+    spec = HeightFieldSpec(resolution, (8.0, 8.0), planar, circular, terrain=(0.012, 1.4, 3, 7))
+    stage = _new_stage(animated=True, frame_count=frame_count)
+    _sky(stage)
+    mesh = UsdGeom.Mesh.Define(stage, "/World/Water")
+    mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+    mesh.CreateDisplayColorPrimvar(UsdGeom.Tokens.constant).Set(Vt.Vec3fArray([Gf.Vec3f(0.1, 0.25, 0.3)]))
+    author(mesh, spec)
+    _camera(stage, eye=(-3.0, 5.2, 1.3), target=(0.6, -1.0, 0.0))
+    path = os.path.join(out_dir, file_name)
+    _save(stage, path)
+    return path
+
+
 MAKERS = {
+    "ripples": make_ripples,
     "blockers": make_blockers,
+    "figure_orbit": make_figure_orbit,
     "figure": make_figure,
     "figure_train": make_figure_train,
     "figure_walk": make_figure_walk,

@@ -233,6 +233,8 @@ class Runtime:
         self.ctx.state = self.state
         self._uploaded: dict = {}
         self.frame_outputs: dict = {}
+        self._track = self._resolve_material_track()
+        self._track_key = None
         self._setup(0)
 
     # ---- precompute ---------------------------------------------------------------------
@@ -421,6 +423,70 @@ class Runtime:
         self.evaluator.set_albedo(albedo, prims)
         self.notify_changed(Change.MATERIAL)
 
+    def set_material(self, brdf, prims=None) -> None:
+        """Change the BRDF of every mesh, or of the meshes ``prims`` (prim paths), at run time:
+        a :class:`~warpshade.scene.materials.BRDF`, or None to go back to the stages' own. No
+        precompute runs; stages that shade BRDFs rebuild their operators (cached per BRDF) into
+        their fixed buffers through :data:`~warpshade.scene.state.Change.MATERIAL`, so the next
+        frame, recorded or not, already uses it."""
+        self.evaluator.set_material(brdf, prims)
+        self.notify_changed(Change.MATERIAL)
+
+    def _resolve_material_track(self) -> list:
+        """The graph's ``[[material]]`` tables with their frame ranges resolved to time codes."""
+        out = []
+        for entry in getattr(self.spec, "materials", None) or ():
+            try:
+                frames = parse_frames(entry["frames"], self.scene) if entry["frames"] is not None else self.scene.frames
+            except ValueError as exc:
+                raise GraphError(f"{entry['where']} frames: {exc}") from None
+            if entry["prims"] is not None:
+                known = {m.path for m in self.scene.meshes}
+                unknown = sorted(set(entry["prims"]) - known)
+                if unknown:
+                    raise GraphError(f"{entry['where']}: no mesh prim {unknown} in {self.scene.source} (meshes: {sorted(known)})")
+            out.append({**entry, "times": {float(f) for f in np.asarray(frames, np.float64).reshape(-1)}})
+        return out
+
+    def materials_at(self, frame):
+        """The :class:`~warpshade.scene.state.MaterialAssignment` of time code ``frame``: the
+        material track's entries covering it (later ones win), else the current assignment."""
+        from ..scene.state import MaterialAssignment
+
+        if not self._track:
+            return self.state.materials
+        out = MaterialAssignment()
+        for entry in self._track:
+            if float(frame) in entry["times"]:
+                if entry["prims"] is None:
+                    out.default = entry["brdf"]
+                    out.prims.clear()
+                else:
+                    for p in entry["prims"]:
+                        out.prims[p] = entry["brdf"]
+        return out
+
+    def _apply_material_track(self, frame) -> None:
+        if not self._track:
+            return
+        want = self.materials_at(frame)
+        key = (None if want.default is None else id(want.default), tuple(sorted((p, id(b)) for p, b in want.prims.items())))
+        if key == self._track_key:
+            return
+        mats = self.state.materials
+        mats.default, mats.prims = want.default, dict(want.prims)
+        mats.version += 1
+        self._track_key = key
+        self.notify_changed(Change.MATERIAL)
+
+    def reference_model(self, frame=None) -> dict | None:
+        """What the output at time code ``frame`` is measured against (the output stage's
+        ``reference_model``, with the materials and eye of that frame)."""
+        st = self.output_stage()
+        if frame is None:
+            return st.reference_model()
+        return st.reference_model_at(float(frame), self.materials_at(frame), self.evaluator.eye_at(frame))
+
     def set_eye(self, position) -> None:
         """Move the viewer of view-dependent stages (world position); the next frame uses it."""
         self.evaluator.set_eye(position)
@@ -491,6 +557,7 @@ class Runtime:
         """
         t_start = time.perf_counter()
         self.evaluator.set_frame(frame)
+        self._apply_material_track(self.state.frame)
         if lighting is not None:
             self._set_override(lighting)
             self._override_on = True

@@ -37,6 +37,12 @@ TOML layout (paths are relative to the TOML file)::
     frames = [0, 30]
     samples = 1024
 
+    [[material]]                              # optional material track (stages that shade BRDFs)
+    frames = "30:60"                          # default: every frame; later tables win
+    prims = ["/World/Bend/Tube"]              # default: every mesh
+    brdf = "ggx"                              # warpshade.scene.materials.make_brdf kinds
+    roughness = 0.3
+
     [[stage]]
     name = "bake"
     type = "prt.transfer"
@@ -114,6 +120,9 @@ class GraphSpec:
     lighting: dict = field(default_factory=dict)
     validate_spec: dict = field(default_factory=dict)
     source_path: Path | None = None
+    #: the material track: ``[[material]]`` tables, each ``{"frames": spec, "prims": [...] or None,
+    #: "brdf": BRDF, "where": str}`` (later entries win where they overlap).
+    materials: list = field(default_factory=list)
 
     # ---- validation ---------------------------------------------------------------------
     def build(self, dims: dict | None = None):
@@ -435,7 +444,7 @@ _GRAPH_KEYS = {"name", "description", "scene", "frames", "output"}
 #: Scene options a ``[graph]`` table may carry (passed to :func:`warpshade.io.load_scene`, except
 #: ``frame_count``) and their types.
 SCENE_OPTIONS = {"ground_plane": bool, "sky": bool, "ground_resolution": int, "frame_count": int}
-_TABLES = ("graph", "lighting", "validate", "stage")
+_TABLES = ("graph", "lighting", "validate", "stage", "material")
 _LIGHTING_KEYS = ("source", "rotate_degrees_per_frame", "intensity", "color")
 _VALIDATE_KEYS = ("frames", "samples")
 #: Graph and stage names: they become file and cache-key names, so no separators, no "..".
@@ -535,6 +544,30 @@ def _check_validate_table(t, where: str) -> dict:
     return t
 
 
+def _check_material_tables(tables, where: str, base_dir) -> list:
+    """The ``[[material]]`` track: a BRDF (the keys of :func:`warpshade.scene.materials.brdf_from_spec`)
+    per frame range (``frames``, default every frame) for every mesh or the meshes ``prims``."""
+    from ..scene.brdfs import brdf_from_spec
+
+    if not isinstance(tables, list):
+        raise GraphError(f"{where}: [[material]] must be an array of tables")
+    out = []
+    for i, t in enumerate(tables):
+        at = f"{where}: [[material]] #{i + 1}"
+        if not isinstance(t, dict):
+            raise GraphError(f"{at} must be a table")
+        frames = check_frames_spec(t.get("frames"), f"{at} frames")
+        prims = t.get("prims")
+        if prims is not None and (not isinstance(prims, list) or not all(isinstance(p, str) for p in prims) or not prims):
+            raise GraphError(f"{at}: prims must be a non-empty list of mesh prim paths, got {prims!r}")
+        try:
+            brdf = brdf_from_spec({k: v for k, v in t.items() if k not in ("frames", "prims")}, at, base_dir)
+        except ValueError as exc:
+            raise GraphError(str(exc)) from None
+        out.append({"frames": frames, "prims": prims, "brdf": brdf, "where": at})
+    return out
+
+
 def _check_scene_options(options: dict, where: str) -> dict:
     from .._limits import MAX_TIME_CODES
 
@@ -612,6 +645,7 @@ def load(path) -> GraphSpec:
         stages.append(StageSpec(st["name"], st["type"], params, inputs))
     lighting = _check_lighting_table(doc.get("lighting", {}), where)
     validate = _check_validate_table(doc.get("validate", {}), where)
+    material_track = _check_material_tables(doc.get("material", []), where, path.resolve().parent)
     spec = GraphSpec(
         stages=stages,
         output=g["output"],
@@ -623,6 +657,7 @@ def load(path) -> GraphSpec:
         lighting=lighting,
         validate_spec=validate,
         source_path=path.resolve(),
+        materials=material_track,
     )
     spec.build()  # stage types, parameters, wiring: before any scene is loaded
     return spec

@@ -336,6 +336,12 @@ class _StageReader:
 
         mesh = UsdGeom.Mesh(prim)
         path = name or str(prim.GetPath())
+        # -- height fields: procedural grids expanded by warpshade.io.heightfield ---------------
+        from . import heightfield
+
+        if skin_info is None and transforms is None and heightfield.is_height_field(prim):
+            return heightfield.read_mesh(self, prim, path)
+        # ----------------------------------------------------------------------------------------
         t0 = self.times[0]
         counts_attr = mesh.GetFaceVertexCountsAttr()
         indices_attr = mesh.GetFaceVertexIndicesAttr()
@@ -884,12 +890,20 @@ class _StageReader:
         forward = np.array(frustum.ComputeViewDirection(), dtype=np.float64)
         up = np.array(frustum.ComputeUpVector(), dtype=np.float64)
         distance = float(cam.focusDistance) if cam.focusDistance > 0 else 1.0
+        positions = None
+        if len(self.times) > 1:  # an animated camera: its eye at every time code
+            samples = np.array([UsdGeom.Camera(prim).GetCamera(t).frustum.GetPosition() for t in self.times], np.float64)
+            if not np.all(np.isfinite(samples)):
+                raise ValueError(f"camera {prim.GetPath()} in {self.path}: non-finite position")
+            if np.max(np.abs(samples - samples[0])) > 1e-9 * max(1.0, float(np.max(np.abs(samples)))):
+                positions = samples
         return Camera(
             position=position,
             target=position + distance * forward / np.linalg.norm(forward),
             up=up / np.linalg.norm(up),
             vertical_fov=float(cam.GetFieldOfView(Gf.Camera.FOVVertical)),
             path=str(prim.GetPath()),
+            positions=positions,
         )
 
 

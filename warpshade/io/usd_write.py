@@ -116,6 +116,7 @@ def _author(tmp, path, source, scene, frames, colors, extra_primvars):
             target = stage.OverridePrim(prim.GetPath())
         else:
             target = _define_full_mesh(stage, scene, mesh, frames)
+            _hide_source_prim(src_stage, stage, mesh)
         pv_api = UsdGeom.PrimvarsAPI(target)
         pv = pv_api.CreatePrimvar("displayColor", Sdf.ValueTypeNames.Color3fArray, UsdGeom.Tokens.vertex)
         for t, f in enumerate(frames):
@@ -151,6 +152,19 @@ def _editable_source_mesh(src_stage, mesh):
     if pts is None or len(pts) != mesh.vertex_count:
         return None
     return prim
+
+
+def _hide_source_prim(src_stage, stage, mesh) -> None:
+    """A source Mesh the loader expanded into other geometry (a procedural height field's
+    preview grid) is made invisible in the written layer: the full mesh under /Shaded replaces it."""
+    if src_stage is None or not mesh.path.startswith("/"):
+        return
+    try:
+        prim = src_stage.GetPrimAtPath(mesh.path)
+    except Exception:  # not a valid path
+        return
+    if prim and prim.IsA(UsdGeom.Mesh) and not prim.IsInstanceProxy():
+        UsdGeom.Imageable(stage.OverridePrim(prim.GetPath())).MakeInvisible()
 
 
 def _define_full_mesh(stage, scene, mesh, frames):

@@ -109,7 +109,9 @@ def choose(scene, candidates, target_error: float, *, lighting=None, method: str
     Args:
         scene: a :class:`~warpshade.scene.Scene`.
         candidates: ``{"label", "stages", "facts", "timed_stage"}`` dicts (a method's
-            ``budget.candidates``, or :func:`method_candidates`).
+            ``budget.candidates``, or :func:`method_candidates`); ``timed_stage`` None charges
+            the whole frame. A candidate whose output stage names a glossy reference is measured
+            against it.
         target_error: relative RMS error against ray-traced ground truth to meet (> 0).
         lighting: a :class:`~warpshade.scene.LightingSource` (default: the scene's lights, fixed).
         frames: frames to measure on (default: ``frame_count`` spread inside the scene's range).
@@ -120,7 +122,7 @@ def choose(scene, candidates, target_error: float, *, lighting=None, method: str
     from ..scene import LightingSource
     from .harness import run_setting, setting_error
     from .scenes import error_frames
-    from .truth import ground_truth
+    from .truth import ground_truth, reference_model
 
     if isinstance(target_error, bool) or not isinstance(target_error, (int, float)) or not target_error > 0:
         raise ValueError(f"budget: target_error must be a number > 0, got {target_error!r}")
@@ -136,12 +138,15 @@ def choose(scene, candidates, target_error: float, *, lighting=None, method: str
         timed = cand.get("timed_stage", "shade")
         res = run_setting(scene, lighting, cand["stages"], frames, timing_frames=list(frames) * 2, device=device,
                           cache_dir=cache_dir, name=f"budget-{cand['label']}".replace(" ", "-"))
-        err = setting_error(res["radiance"], truth)
+        model = reference_model(res["runtime"])  # a glossy method is measured against the glossy reference
+        err = setting_error(res["radiance"], truth if model is None else
+                            ground_truth(scene, lighting, frames, gt_samples, device, cache_dir, model=model))
         facts = dict(cand.get("facts", {}))
         for report in res["reports"].values():
             if "leaf_spheres" in report:
                 facts["leaf_spheres"] = int(report["leaf_spheres"])
-        c = Candidate(cand["label"], facts, float(err["rel_rms"]), float(res["stage_ms"].get(timed, np.nan)),
+        stage_ms = float(res["frame_ms"]) if timed is None else float(res["stage_ms"].get(timed, np.nan))
+        c = Candidate(cand["label"], facts, float(err["rel_rms"]), stage_ms,
                       float(res["frame_ms"]), bool(err["rel_rms"] <= target_error), res["diagnostics"])
         measured.append(c)
         if progress:
@@ -168,7 +173,7 @@ def _grid_value(text: str):
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m warpshade.measure.budget", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--method", required=True, help="method package with a budget module (prt, shexp, ldprt)")
+    ap.add_argument("--method", required=True, help="method package with a budget module (prt, shexp, ldprt, rpo, ...)")
     ap.add_argument("--scene", required=True, help="bundled key (bunny, bear, blockers, figure, cloth, bend) or a scene spec")
     ap.add_argument("--target", type=float, required=True, help="relative RMS error target")
     ap.add_argument("--grid", nargs="*", default=[], metavar="KEY=A,B", help="override grid axes, e.g. orders=3,4 spheres=8,16")

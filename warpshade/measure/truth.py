@@ -51,8 +51,14 @@ def _model_description(model) -> dict:
         return {"reference": "diffuse"}
     if _is_diffuse(model):
         return {"reference": "diffuse", "bounces": int(model["bounces"])}
-    return {"brdf": model["brdf"].describe(), "eye": np.asarray(model["eye"], np.float64).tolist(),
-            "color": np.asarray(model["color"], np.float64).tolist()}
+    out = {"brdf": model["brdf"].describe(), "eye": np.asarray(model["eye"], np.float64).tolist(),
+           "color": np.asarray(model["color"], np.float64).tolist()}
+    if model.get("groups"):
+        from .._hashing import hash_arrays
+
+        out["groups"] = [{"brdf": g["brdf"].describe(), "vertices": hash_arrays({"v": np.asarray(g["vertices"], np.int64)})}
+                         for g in model["groups"]]
+    return out
 
 
 def _truth_task(task: dict) -> dict:
@@ -63,6 +69,19 @@ def _truth_task(task: dict) -> dict:
     if _is_diffuse(model):
         res = shade(task["scene"], task["frame"], task["lights"], task["samples"], device=task["device"], seed=task["seed"],
                     bounces=int(model["bounces"]) if model else 0)
+    elif model.get("groups"):
+        # meshes with BRDFs of their own: each group of vertices against its BRDF
+        v = task["scene"].vertex_count
+        radiance, stderr = np.zeros((v, 3), np.float32), np.zeros((v, 3), np.float32)
+        base = {k: x for k, x in model.items() if k != "groups"}
+        for g in model["groups"]:
+            idx = np.asarray(g["vertices"], np.int64)
+            if idx.size == 0:
+                continue
+            res = shade_glossy(task["scene"], task["frame"], lighting=task["lights"], samples=task["samples"],
+                               device=task["device"], seed=task["seed"], vertices=idx, **{**base, "brdf": g["brdf"]})
+            radiance[idx], stderr[idx] = np.asarray(res.radiance), np.asarray(res.stderr)
+        return {"radiance": radiance, "stderr": stderr}
     else:
         res = shade_glossy(task["scene"], task["frame"], lighting=task["lights"], samples=task["samples"],
                            device=task["device"], seed=task["seed"], **task["model"])
@@ -166,10 +185,16 @@ def measure_error(runtime, frames=None, samples: int | None = None, seed: int = 
     if frames is None:
         frames = spec.get("frames", [float(runtime.scene.frames[0])])
     samples = int(spec.get("samples", 1024) if samples is None else samples)
-    model = reference_model(runtime)
     sel = parse_frames(list(frames), runtime.scene)
-    truth = ground_truth(runtime.scene, runtime.lighting, sel, samples, runtime.device, cache_dir, model, seed,
-                         executor=executor)
+    # the reference of each frame (a material track or a moving eye make it differ between frames)
+    models = {float(f): runtime.reference_model(f) if hasattr(runtime, "materials_at") else reference_model(runtime)
+              for f in sel}
+    truth = {}
+    for desc in {hash_json(_model_description(m)) for m in models.values()}:
+        fs = [f for f in sel if hash_json(_model_description(models[float(f)])) == desc]
+        truth.update(ground_truth(runtime.scene, runtime.lighting, fs, samples, runtime.device, cache_dir,
+                                  models[float(fs[0])], seed, executor=executor))
+    model = models[float(sel[0])]
     per_frame, refs, ests = [], {}, {}
     for f in sel:
         est = runtime.results.get(float(f))

@@ -13,7 +13,7 @@ from .lighting import (
     usd_dome_texel_directions,
 )
 from .scene import ANIMATION_KINDS, Camera, Mesh, Scene, Skeleton, SkinBinding, ground_plane
-from .state import Change, FrameEvaluator, FrameState
+from .state import Change, FrameEvaluator, FrameState, MaterialAssignment
 
 __all__ = [
     "ANIMATION_KINDS",
@@ -25,6 +25,7 @@ __all__ = [
     "FrameState",
     "LightTrack",
     "LightingSource",
+    "MaterialAssignment",
     "Mesh",
     "Scene",
     "Skeleton",

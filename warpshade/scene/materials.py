@@ -258,18 +258,20 @@ def view_grid(resolution: int) -> np.ndarray:
     return concentric_to_hemisphere(np.stack([a.ravel(), b.ravel()], -1))
 
 
-def brdf_matrix(brdf: BRDF, order: int, views, z_nodes: int = 48, phi_nodes: int = 96) -> np.ndarray:
+def brdf_matrix(brdf: BRDF, order: int, views, z_nodes: int = 48, phi_nodes: int = 96, cosine: bool = True) -> np.ndarray:
     """The sampled B matrix of eq. 14, ``B_ij = integral_H b(v_i, s) y_j(s) s_z ds`` (float64).
 
     Args:
         brdf: a :class:`BRDF`. order: SH order n. views: (nv, 3) unit view directions.
         z_nodes, phi_nodes: the hemisphere quadrature (:func:`hemisphere_quadrature`).
+        cosine: weight by ``s_z`` (default); False tabulates the BRDF alone (the cosine is then
+            applied elsewhere, e.g. as a product matrix).
 
     Returns:
         shape (nv, n*n).
     """
     dirs, w = hemisphere_quadrature(z_nodes, phi_nodes)
-    y = sh.basis(dirs, order) * (w * dirs[:, 2])[:, None]
+    y = sh.basis(dirs, order) * (w * (dirs[:, 2] if cosine else 1.0))[:, None]
     v = _unit(views, "brdf_matrix: views")
     out = np.empty((v.shape[0], order * order))
     step = max(1, 4_000_000 // max(1, dirs.shape[0]))
@@ -331,7 +333,7 @@ class BRDFFactorization:
 
 
 def factorize(brdf: BRDF, order: int, rank: int, resolution: int = 32, z_nodes: int = 48,
-              phi_nodes: int = 96, matrix=None) -> BRDFFactorization:
+              phi_nodes: int = 96, matrix=None, cosine: bool = True) -> BRDFFactorization:
     """SVD of the sampled B matrix keeping ``rank`` (n_b) singular values (eq. 14-15).
 
     Args:
@@ -340,12 +342,13 @@ def factorize(brdf: BRDF, order: int, rank: int, resolution: int = 32, z_nodes: 
         z_nodes, phi_nodes: hemisphere quadrature of the light integral.
         matrix: a B matrix already computed by :func:`brdf_matrix` on ``view_grid(resolution)``
             (to factorise one BRDF at several ranks without re-sampling it).
+        cosine: factorise the cosine-weighted BRDF (default) or the BRDF alone (:func:`brdf_matrix`).
     """
     n2 = order * order
     if not 1 <= rank <= n2:
         raise ValueError(f"factorize: rank n_b must be in 1..{n2}, got {rank}")
     if matrix is None:
-        b = brdf_matrix(brdf, order, view_grid(resolution), z_nodes, phi_nodes)
+        b = brdf_matrix(brdf, order, view_grid(resolution), z_nodes, phi_nodes, cosine)
     else:
         b = np.asarray(matrix, dtype=np.float64)
         if b.shape != (resolution * resolution, n2):
@@ -372,3 +375,4 @@ def shade_unshadowed(brdf: BRDF, views, radiance_fn, z_nodes: int = 96, phi_node
     radiance = np.asarray(radiance_fn(dirs), dtype=np.float64)
     vals = brdf.evaluate(_unit(views, "shade_unshadowed: views")[:, None, :], dirs[None, :, :])
     return (vals * (w * dirs[:, 2])) @ radiance
+

@@ -172,6 +172,8 @@ class Camera:
         up: up vector (3,).
         vertical_fov: vertical field of view in degrees.
         path: USD prim path, or None for a camera framed automatically.
+        positions: eye position per time code of the scene, (T, 3), when the camera moves (an
+            animated USD camera), else None; ``position``/``target``/``up`` are the first frame's.
     """
 
     position: np.ndarray
@@ -179,6 +181,17 @@ class Camera:
     up: np.ndarray
     vertical_fov: float = 40.0
     path: str | None = None
+    positions: np.ndarray | None = None
+
+    @property
+    def moving(self) -> bool:
+        return self.positions is not None
+
+    def position_at(self, frame_index: int) -> np.ndarray:
+        """The eye at the scene's time code number ``frame_index`` (clamped to the samples)."""
+        if self.positions is None:
+            return np.asarray(self.position, np.float64)
+        return np.asarray(self.positions[min(max(int(frame_index), 0), len(self.positions) - 1)], np.float64)
 
 
 class Scene:

@@ -33,7 +33,7 @@ import numpy as np
 
 from .._wp import HostInput, resolve_device, wp
 
-__all__ = ["Change", "FrameState", "FrameEvaluator", "DEVICE_SAMPLE_BYTES", "CPU_REFIT_NOTE"]
+__all__ = ["Change", "FrameState", "FrameEvaluator", "MaterialAssignment", "DEVICE_SAMPLE_BYTES", "CPU_REFIT_NOTE"]
 
 wp.set_module_options({"enable_backward": False})
 
@@ -58,6 +58,32 @@ class Change(enum.IntFlag):
     PARAMETERS = 4
     VIEW = 8
     ALL = 15
+
+
+@dataclass
+class MaterialAssignment:
+    """BRDFs chosen at run time (``Runtime.set_material``): one for every mesh and per-prim ones.
+
+    Attributes:
+        default: a :class:`~warpshade.scene.materials.BRDF` for every mesh without a prim entry,
+            or None (each stage's own BRDF parameters).
+        prims: mesh prim path -> BRDF.
+        version: incremented by every change (stages compare it to what they built).
+    """
+
+    default: Any = None
+    prims: dict = field(default_factory=dict)
+    version: int = 0
+
+    def brdf_of(self, path: str, fallback=None):
+        """The BRDF of the mesh ``path`` (its own, else the default, else ``fallback``)."""
+        if path in self.prims:
+            return self.prims[path]
+        return self.default if self.default is not None else fallback
+
+    def describe(self) -> dict:
+        return {"default": None if self.default is None else self.default.describe(),
+                "prims": {k: v.describe() for k, v in sorted(self.prims.items())}}
 
 
 @dataclass
@@ -87,6 +113,8 @@ class FrameState:
         has_eye: whether ``eye`` is a real viewer (a camera or set explicitly).
         bvh: :class:`~warpshade.geometry.bvh.Visibility` over ``points``, refit every frame,
             or None when not asked for.
+        materials: the :class:`MaterialAssignment` (BRDFs set at run time; host data read by
+            stages when notified of :data:`Change.MATERIAL`).
         device: the Warp device.
     """
 
@@ -105,6 +133,7 @@ class FrameState:
     has_eye: bool = False
     bvh: Any = None
     device: Any = None
+    materials: MaterialAssignment = field(default_factory=MaterialAssignment)
 
     @property
     def vertex_count(self) -> int:
@@ -120,6 +149,13 @@ class FrameState:
             joint_transforms=wp.clone(self.joint_transforms), skin_matrices=wp.clone(self.skin_matrices),
             joint_offsets=list(self.joint_offsets), eye=wp.clone(self.eye), has_eye=self.has_eye, device=self.device,
         )
+
+
+@wp.kernel
+def _eye_kernel(frame: wp.array(dtype=wp.int32), table: wp.array(dtype=wp.vec3), eye: wp.array(dtype=wp.vec3)):
+    # frame[2] = 1 once the host has set the eye itself (set_eye): the camera path no longer drives it
+    if frame[2] == 0:
+        eye[0] = table[wp.min(frame[0], table.shape[0] - 1)]
 
 
 @wp.kernel
@@ -212,7 +248,7 @@ class FrameEvaluator:
         self.device = dev
         data = _static_data(scene, dev)
         self._data = data
-        self.input = HostInput((4,), wp.int32, dev)  # [frame index, SH override on, -, -]
+        self.input = HostInput((4,), wp.int32, dev)  # [frame index, SH override on, eye set by the host, -]
         self.uncaptured: list[str] = []
 
         # per-mesh transform tables (skeleton-to-world for skinned meshes), row t = frame index t
@@ -270,6 +306,10 @@ class FrameEvaluator:
             joint_offsets=offsets, eye=wp.array([eye_pos.reshape(3)], dtype=wp.vec3, device=dev), has_eye=has_eye,
             device=dev,
         )
+        # an animated camera drives the eye per frame (until set_eye)
+        self._eye_table = None
+        if eye is None and camera is not None and camera.moving:
+            self._eye_table = wp.array(np.asarray(camera.positions, np.float32), dtype=wp.vec3, device=dev)
         self.albedo = wp.array(np.asarray(scene.albedo, np.float32).reshape(-1, 3), dtype=wp.float32, device=dev)
         self.state.lighting = FrameLighting(lighting, scene.frames, self.input, dev) if lighting is not None else None
         self.lighting_source = lighting
@@ -320,6 +360,46 @@ class FrameEvaluator:
             raise ValueError(f"eye: expected three finite numbers, got {position!r}")
         self.state.eye.assign(np.asarray([p], np.float32))
         self.state.has_eye = True
+        self.input.host[2] = 1  # the camera path (if any) stops driving the eye
+        self._eye_set = p.copy()
+
+    def eye_at(self, frame) -> np.ndarray:
+        """The eye at time code ``frame``: the position set by :meth:`set_eye`, else the
+        animated camera's at that frame, else the fixed eye (3,) float64."""
+        if getattr(self, "_eye_set", None) is not None or self._eye_table is None:
+            return self.state.eye.numpy()[0].astype(np.float64)
+        return self.scene.camera.position_at(self.scene.frame_index(frame))
+
+    def set_material(self, brdf, prims=None) -> None:
+        """Choose the BRDF of every mesh, or of the meshes ``prims`` (prim paths); ``brdf=None``
+        removes the choice (the stages' own BRDFs again). A host write: notify
+        :data:`Change.MATERIAL`.
+
+        Raises:
+            ValueError: ``brdf`` is not a :class:`~warpshade.scene.materials.BRDF`, or a prim
+                path names no mesh of the scene (the known ones are listed).
+        """
+        from .materials import BRDF
+
+        if brdf is not None and not isinstance(brdf, BRDF):
+            raise ValueError(f"set_material: expected a warpshade.scene.materials BRDF or None, got {type(brdf).__name__}")
+        mats = self.state.materials
+        if prims is None:
+            mats.default = brdf
+            mats.prims.clear()
+        else:
+            paths = [prims] if isinstance(prims, str) else list(prims)
+            known = {m.path for m in self.scene.meshes}
+            unknown = sorted(set(paths) - known)
+            if unknown:
+                raise ValueError(f"set_material: no mesh prim {unknown} in {self.scene.source or 'the scene'} "
+                                 f"(meshes: {sorted(known)})")
+            for p in paths:
+                if brdf is None:
+                    mats.prims.pop(p, None)
+                else:
+                    mats.prims[p] = brdf
+        mats.version += 1
 
     def set_albedo(self, albedo, prims=None) -> None:
         """Replace the diffuse albedo of every vertex, or of the meshes whose prim paths are in
@@ -369,6 +449,8 @@ class FrameEvaluator:
         dev, st, data, scene = self.device, self.state, self._data, self.scene
         self.input.launch()
         frame = self.input.array
+        if self._eye_table is not None:
+            wp.launch(_eye_kernel, dim=1, inputs=[frame, self._eye_table, st.eye], device=dev)
         if not moving_only or self.moving:
             wp.launch(_mesh_transforms_kernel, dim=len(scene.meshes), device=dev, inputs=[
                 frame, self._transform_table, self._scale_table, self._transform_start, self._transform_count,

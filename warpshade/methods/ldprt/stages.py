@@ -360,6 +360,7 @@ class GlossyShadeStage(Stage):
             self._eye = ctx.state.eye  # the scene camera, or the run's set_eye()
         else:
             raise StageError(f"stage {self.name!r}: the scene has no camera; set the 'eye' parameter")
+        self.follows_state_eye = p["eye"] is None
         if len(p["specular"]) != 3:
             raise StageError(f"stage {self.name!r}: parameter 'specular' needs three numbers, got {p['specular']!r}")
         self._specular = wp.vec3(*[float(x) for x in p["specular"]])

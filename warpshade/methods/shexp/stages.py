@@ -34,7 +34,7 @@ from . import kernels
 from .blockers import BlockerFrames, BlockerModel, build_blocker_model, static_mesh_mask
 from .pipeline import ShexpShader, SphereTracer
 
-__all__ = ["TablesStage", "BlockersStage", "StaticBakeStage", "ShadeStage", "SphereTraceStage"]
+__all__ = ["TablesStage", "BlockersStage", "StaticBakeStage", "ShadeStage", "SphereTraceStage", "VisibilityStage"]
 
 _ORDER = order_param(4, minimum=2, maximum=8)
 
@@ -161,6 +161,8 @@ class StaticBakeStage(Stage):
 class ShadeStage(Stage):
     type_name = "shexp.shade"
     kind = "frame"
+    #: also write the (windowed) per-vertex SH visibility (``shexp.visibility``)
+    store_visibility = False
     description = "SHEXP per frame: spheres, cuts, log accumulation, SH exp, diffuse shading"
     parameters = {
         "order": _ORDER,
@@ -217,7 +219,7 @@ class ShadeStage(Stage):
             cut_capacity=max(model.leaf_count, 1), method=p["method"], degree=p["degree"], shade=p["shade"],
             accumulate=p["accumulate"], rule=p["rule"], window=p["window"], window_size=p["window_size"],
             table_shape=(p["table_rows"], p["table_cols"]), sphere_light_count=lighting.sphere_light_count,
-            shade_order=p["shade_order"], device=ctx.device,
+            shade_order=p["shade_order"], store_visibility=self.store_visibility, device=ctx.device,
         )
         self.shader.set_exp_tables(inputs["log_cap"], inputs["ol_a"], inputs["ol_b"], float(inputs["ol_norm_max"].numpy()[0]))
         self.frames = BlockerFrames(ctx.scene, model, p["order"], p["theta_max"], p["theta_min"], p["ratio"], ctx.device,
@@ -231,6 +233,8 @@ class ShadeStage(Stage):
         self._lighting = ShLighting(lighting, p["order"], keep)
         self.shader.bind_lighting(self._lighting.light)
         self.shader.bind_sphere_lights(lighting.sphere_position, lighting.sphere_radius, lighting.sphere_radiance)
+        if self.store_visibility:
+            return {"radiance": self.shader.radiance, "visibility": self.shader.visibility}
         return {"radiance": self.shader.radiance}
 
     def launch(self, state):
@@ -285,3 +289,19 @@ class SphereTraceStage(Stage):
         self.tracer.launch()
         wp.launch(kernels.vec3_to_rows_kernel, dim=self._radiance.shape[0], inputs=[self.tracer.radiance, self._radiance],
                   device=self._radiance.device)
+
+
+@register_stage
+class VisibilityStage(ShadeStage):
+    """SHEXP as a visibility generator: the same per-frame accumulation as ``shexp.shade``, with
+    each receiver's accumulated (windowed) SH visibility as an output, world frame (for the
+    reflectance product operators, ``rpo.shade`` with ``visibility_space = "world"``)."""
+
+    type_name = "shexp.visibility"
+    description = "SHEXP per frame: blocker-sphere SH visibility per vertex (world frame), and diffuse radiance"
+    store_visibility = True
+
+    def output_ports(self):
+        return {"radiance": Port("float32", ("V", 3), "outgoing radiance, linear RGB"),
+                "visibility": Port("float32", ("V", "C"), "accumulated SH visibility, world frame")}
+

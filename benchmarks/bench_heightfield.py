@@ -1,0 +1,164 @@
+"""Dynamic height fields with RPO shading (Nowrouzezahrai et al. 2009, Fig. 11): cost and error.
+
+On the bundled water (``usd_assets/ripples.usda``: 512 x 512 vertices, 48 frames), through the
+stage-graph runtime on the CPU:
+
+* time per frame (the recorded frame replayed, median over the clip) and per stage (a profile:
+  scene evaluation, ``rpo.heightfield_visibility``, the shading) of the graph
+  ``stages/ripples_height_rpo.toml`` (128^2 visibility texels, 512^2 shading) and of variants:
+  other visibility resolutions (64^2, 256^2), n = 3, the horizon march settings, the generic
+  path (per-vertex visibility + ``ldprt.frames`` + ``rpo.shade``);
+* error against the glossy ray-traced reference (same BRDF, eye and colour; MIS, ``--spp``
+  samples) on ``--vertices`` random vertices of frames 0 and 24, for n = 3, 4 and k = 4, 8, 16
+  (k <= n^2), the exact-BRDF table, and the variants above;
+* a picture of frame 24 from the scene camera.
+
+Writes ``heightfield-<date>-cpu.json`` and ``heightfield-<date>-cpu.png`` into ``--out``
+(default ``benchmarks/results``).
+
+Usage::
+
+    python benchmarks/bench_heightfield.py [--spp 512] [--vertices 4096] [--frames 24] [--out DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import json
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+DATE = "2026-12-01"
+
+
+def _graph(vis=None, shade=None, generic=False):
+    from warpshade.graph import StageSpec, load
+
+    spec = load(ROOT / "stages" / "ripples_height_rpo.toml")
+    spec = copy.deepcopy(spec)
+    v, s = spec.stages
+    v.params.update(vis or {})
+    s.params.update(shade or {})
+    if generic:
+        v.params["per_vertex"] = True
+        p = {k: s.params[k] for k in ("order", "rank", "brdf", "roughness", "specular") if k in s.params}
+        spec.stages = [v, StageSpec("frames", "ldprt.frames"),
+                       StageSpec("shade", "rpo.shade", {**p, "visibility_space": "world"}, {"visibility": "vis.visibility"})]
+    return spec
+
+
+def _measure(name, spec, scene, truth, idx, frames, timing_frames):
+    from warpshade.measure.metrics import error_metrics
+
+    t0 = time.perf_counter()
+    rt = spec.compile(scene, device="cpu", progress=False)
+    setup_s = time.perf_counter() - t0
+    rt.run(timing_frames, record=False)
+    frame_ms = float(np.median(rt.frame_s) * 1e3)
+    prof = rt.profile(timing_frames[:8])
+    errs = {}
+    for f in frames:
+        est = rt.step(f).numpy()[idx]
+        m = error_metrics(est, truth[f]["radiance"], truth[f]["stderr"])
+        errs[str(f)] = {k: float(m[k]) for k in ("rel_rms", "rel_rms_debiased") if k in m}
+    row = {"name": name, "frame_ms": round(frame_ms, 2), "hz": round(1e3 / frame_ms, 1),
+           "stage_ms": {k: round(v * 1e3, 2) for k, v in prof.items()}, "setup_s": round(setup_s, 2),
+           "error": errs, "rel_rms_mean": float(np.mean([e["rel_rms"] for e in errs.values()])),
+           "params": {st.name: dict(st.params) for st in spec.stages},
+           "diagnostics": {st.name: st.diagnostics() for st in rt.stages if hasattr(st, "diagnostics")}}
+    print(f"  {name:<34s} {frame_ms:7.1f} ms/frame ({row['hz']:5.1f} Hz)  stages {row['stage_ms']}  "
+          f"rel RMS {row['rel_rms_mean']:.4f}", flush=True)
+    return row, rt
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--spp", type=int, default=512, help="glossy reference samples per vertex")
+    ap.add_argument("--vertices", type=int, default=4096, help="random vertices measured against the reference")
+    ap.add_argument("--frames", type=int, default=24, help="frames timed (the clip from 0)")
+    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results"))
+    args = ap.parse_args(argv)
+
+    import warpshade.methods.ldprt.stages  # noqa: F401  (ldprt.frames)
+    import warpshade.methods.rpo.heightfield  # noqa: F401  (the height-field stages)
+    import warpshade.methods.rpo.stages  # noqa: F401  (rpo.shade)
+    from warpshade.reference import shade_glossy
+    from warpshade.render.raycast import render
+
+    base = _graph()
+    scene = base.load_scene()
+    lighting = base.lighting_source(scene)
+    shade_p = base.stages[1].params
+    model = base.compile(scene, device="cpu", progress=False).output_stage().reference_model()
+    brdf = model["brdf"]
+    idx = np.sort(np.random.default_rng(0).choice(scene.vertex_count, args.vertices, replace=False))
+    frames = [0.0, 24.0]
+    timing_frames = [float(f) for f in range(args.frames)]
+    print(f"ripples: {scene.vertex_count} vertices, {len(scene.frames)} frames; glossy reference {args.spp} spp on "
+          f"{idx.size} vertices", flush=True)
+    truth = {}
+    t0 = time.perf_counter()
+    for f in frames:
+        res = shade_glossy(scene, f, brdf, eye=model["eye"], lighting=lighting.lights_at(f), samples=args.spp,
+                           color=model["color"], device="cpu", vertices=idx)
+        truth[f] = {"radiance": np.asarray(res.radiance), "stderr": np.asarray(res.stderr)}
+    ref_s = time.perf_counter() - t0
+    print(f"  reference: {ref_s:.1f} s", flush=True)
+
+    configs = [("default (n=4, k=8, 128^2 vis)", {}, {}, False)]
+    for n, ks in ((3, (4, 8, 9)), (4, (4, 16))):
+        for k in ks:
+            configs.append((f"n={n}, k={k}", {"order": n}, {"order": n, "rank": k}, False))
+    configs += [
+        ("n=4, exact BRDF table", {}, {"factors": "exact"}, False),
+        ("n=3, exact BRDF table", {"order": 3}, {"order": 3, "factors": "exact"}, False),
+        ("vis 64^2", {"resolution": 64}, {}, False),
+        ("vis 256^2", {"resolution": 256}, {}, False),
+        ("vis 512^2 (full)", {"resolution": 512}, {}, False),
+        ("below = blocked", {"below": "blocked"}, {}, False),
+        ("march q=2", {"samples_per_octave": 2}, {}, False),
+        ("march q=1, footprint 0.25", {"footprint": 0.25}, {}, False),
+        ("march conservative (footprint 1)", {"footprint": 1.0}, {}, False),
+        ("azimuths 8", {"azimuths": 8}, {}, False),
+        ("azimuths 32", {"azimuths": 32}, {}, False),
+        ("generic: per-vertex vis + rpo.shade", {}, {}, True),
+    ]
+    rows = []
+    keep_rt = None
+    for name, vis, shade, generic in configs:
+        row, rt = _measure(name, _graph(vis, shade, generic), scene, truth, idx, frames, timing_frames)
+        rows.append(row)
+        if keep_rt is None:
+            keep_rt = rt
+    os.makedirs(args.out, exist_ok=True)
+    out = Path(args.out)
+    png = out / f"heightfield-{DATE}-cpu.png"
+    radiance = keep_rt.step(24.0).numpy().copy()
+    render(scene, frame=24.0, colors=radiance, width=800, height=450, environment=scene.lights[0], exposure=0.5,
+           path=str(png), device="cpu", supersample=2)
+    report = {
+        "benchmark": "bench_heightfield", "date": DATE, "device": "cpu", "cpu_count": os.cpu_count(),
+        "platform": platform.platform(), "processor": platform.processor(),
+        "scene": {"file": "usd_assets/ripples.usda", "vertices": scene.vertex_count, "triangles": scene.triangle_count,
+                  "frames": len(scene.frames)},
+        "reference": {"spp": args.spp, "vertices": int(idx.size), "frames": frames, "seconds": round(ref_s, 1),
+                      "brdf": brdf.describe(), "method": "mis"},
+        "timing_frames": len(timing_frames), "goal": "30 Hz at 128^2 visibility / 512^2 shading (paper: 32 Hz, 8800 GTX)",
+        "rows": rows, "picture": png.name,
+    }
+    (out / f"heightfield-{DATE}-cpu.json").write_text(json.dumps(report, indent=1, default=str))
+    print(f"wrote {out / f'heightfield-{DATE}-cpu.json'} and {png}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
