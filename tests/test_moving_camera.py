@@ -2,6 +2,7 @@
 glossy reference of each frame taken from that frame's eye."""
 
 import numpy as np
+from grids import ground_grid
 
 from warpshade.graph import GraphSpec, StageSpec
 from warpshade.io import load_scene
@@ -9,12 +10,7 @@ from warpshade.scene import Camera, Environment, LightingSource, Mesh, Scene
 
 
 def _sheet_with_camera(frames=4):
-    u = np.linspace(-1.0, 1.0, 5)
-    gx, gy = np.meshgrid(u, u, indexing="ij")
-    pts = np.stack([gx.ravel(), gy.ravel(), np.zeros(25)], 1)
-    idx = np.arange(25).reshape(5, 5)
-    a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
-    faces = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+    pts, faces = ground_grid(np.linspace(-1.0, 1.0, 5))
     path = np.array([[3.0 * np.cos(t), 3.0 * np.sin(t), 2.0] for t in np.linspace(0.0, 1.5, frames)])
     cam = Camera(position=path[0], target=np.zeros(3), up=np.array([0.0, 0.0, 1.0]), positions=path)
     scene = Scene.from_meshes([Mesh("/sheet", pts, faces)], frames=np.arange(float(frames)))

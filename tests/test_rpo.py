@@ -5,6 +5,7 @@ cases (very specular lobes, grazing views, negative radiance, bad BRDF files).""
 import time
 
 import numpy as np
+from grids import ground_grid
 import pytest
 
 from warpshade._wp import wp
@@ -197,12 +198,8 @@ def test_operator_cache_swaps_back_to_the_same_floats():
 @pytest.fixture(scope="module")
 def two_sheets():
     """Two meshes: a curved sheet and a tilted plate above part of it (casting a shadow)."""
-    u = np.linspace(-1.0, 1.0, 9)
-    gx, gy = np.meshgrid(u, u, indexing="ij")
-    pts = np.stack([gx.ravel(), gy.ravel(), 0.1 * gx.ravel() ** 2 - 0.05 * gy.ravel() ** 2], 1)
-    idx = np.arange(81).reshape(9, 9)
-    a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
-    faces = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+    pts, faces = ground_grid(np.linspace(-1.0, 1.0, 9))
+    pts[:, 2] = 0.1 * pts[:, 0] ** 2 - 0.05 * pts[:, 1] ** 2
     plate = np.array([[-0.3, -0.3, 0.5], [0.3, -0.3, 0.6], [0.3, 0.3, 0.6], [-0.3, 0.3, 0.5]])
     return Scene.from_meshes([Mesh("/sheet", pts, faces), Mesh("/plate", plate, np.array([[0, 1, 2], [0, 2, 3]]))])
 

@@ -473,9 +473,7 @@ class Runtime:
         key = (None if want.default is None else id(want.default), tuple(sorted((p, id(b)) for p, b in want.prims.items())))
         if key == self._track_key:
             return
-        mats = self.state.materials
-        mats.default, mats.prims = want.default, dict(want.prims)
-        mats.version += 1
+        self.evaluator.assign_materials(want.default, want.prims)
         self._track_key = key
         self.notify_changed(Change.MATERIAL)
 

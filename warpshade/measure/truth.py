@@ -147,7 +147,7 @@ def ground_truth(scene, lighting, frames, samples: int = 1024, device="cpu", cac
 
 def reference_model(runtime) -> dict | None:
     """What the run's output is measured against: None (diffuse) or glossy reference arguments."""
-    return runtime.output_stage().reference_model()
+    return runtime.reference_model()
 
 
 @dataclass
@@ -187,8 +187,7 @@ def measure_error(runtime, frames=None, samples: int | None = None, seed: int = 
     samples = int(spec.get("samples", 1024) if samples is None else samples)
     sel = parse_frames(list(frames), runtime.scene)
     # the reference of each frame (a material track or a moving eye make it differ between frames)
-    models = {float(f): runtime.reference_model(f) if hasattr(runtime, "materials_at") else reference_model(runtime)
-              for f in sel}
+    models = {float(f): runtime.reference_model(f) for f in sel}
     truth = {}
     for desc in {hash_json(_model_description(m)) for m in models.values()}:
         fs = [f for f in sel if hash_json(_model_description(models[float(f)])) == desc]

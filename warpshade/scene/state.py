@@ -401,6 +401,13 @@ class FrameEvaluator:
                     mats.prims[p] = brdf
         mats.version += 1
 
+    def assign_materials(self, default, prims: dict) -> None:
+        """Replace the whole assignment (a material track's frame): ``default`` BRDF or None and
+        prim path -> BRDF (paths already checked). A host write: notify :data:`Change.MATERIAL`."""
+        mats = self.state.materials
+        mats.default, mats.prims = default, dict(prims)
+        mats.version += 1
+
     def set_albedo(self, albedo, prims=None) -> None:
         """Replace the diffuse albedo of every vertex, or of the meshes whose prim paths are in
         ``prims`` (RGB, (3,) or per vertex); a direct write (notify :data:`Change.MATERIAL`)."""
