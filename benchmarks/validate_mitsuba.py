@@ -33,11 +33,42 @@ Two comparisons on the same scene, frame and lighting:
    ours reflects only front faces: on closed meshes over a ground plane (the bundled scenes) no
    path from a front face reaches a back face, so the two agree there.
 
+4. With ``--glossy beckmann ggx`` (instead of parts 1-3): the GLOSSY per-pixel reference
+   (:func:`warpshade.reference.reference_image`, specular part only, ``--supersample`` rays per
+   pixel) against Mitsuba's ``direct`` integrator with a ``twosided`` ``roughconductor`` of the
+   same distribution. The material varies over the surfaces: a per-vertex roughness (alpha in
+   [0.12, 0.45], a smooth function of the rest position) and a per-vertex specular colour (the
+   albedo) are Mitsuba ``mesh_attribute`` textures (``alpha``, ``specular_reflectance``),
+   interpolated at the hit by barycentrics; ours gets the same vertex values interpolated at each
+   ray's hit (:func:`warpshade.reference.pixel_hits`) as per-ray ``roughness`` / ``specular``.
+   Parameter mapping: our ``Microfacet.roughness`` IS Mitsuba's ``alpha`` (both are the slope
+   parameter of D: Beckmann ``exp(-tan^2/alpha^2) / (pi alpha^2 cos^4)``, GGX
+   ``alpha^2 / (pi cos^4 (alpha^2 + tan^2)^2)``), and both use the separable Smith masking with
+   the same Lambda (GGX exact, Beckmann the same rational fit). Fresnel is factored out: ours has
+   ``f0 = 1`` (Schlick gives exactly 1) and Mitsuba's conductor ``material = "none"`` (a 100 %
+   reflector), so the two BSDFs are the same function; the report measures it in isolation
+   (``bsdf_isolation``: Mitsuba's ``bsdf.eval`` against our float64 ``Microfacet.evaluate`` times
+   the cosine on random direction pairs) and, for information, what keeping a Fresnel term
+   would cost (``fresnel_if_kept``: Schlick with ``f0 = ((eta - 1) / (eta + 1))^2`` against the
+   exact unpolarised Fresnel factor of a conductor with ``eta = 1.5, k = 0``, which is what
+   Mitsuba would evaluate). Lighting: the scene's environment built as in part 2 (plus its delta
+   distant lights); with ``--point-light`` also a second image lit only by a point light, ours a
+   :class:`~warpshade.scene.SphereLight` of radius ``POINT_LIGHT_RELATIVE_RADIUS`` (1 %) times
+   its distance to the scene centre and radiance ``L_e``, Mitsuba a ``point`` emitter of intensity
+   ``I = L_e pi r^2`` (a uniform sphere's irradiance is exactly ``pi L_e (r/d)^2 cos``, so the
+   two differ only by the lobe's average over the sphere's small cone). The light sits opposite
+   the camera (mirrored in the ground) so its highlight is in view. Reported per scene,
+   distribution and light as in part 2: relative RMS over eroded covered pixels, the part of it
+   the two estimators' noise explains, and the mean difference. Scenes: ``--scene`` or the
+   bundled ``blockers.usda``, plus ``sunlit.usda`` when it exists. Writes
+   ``mitsuba-glossy-<date>-<device>.json`` and one PNG per case (ours | Mitsuba | 4x |difference|).
+
 Usage::
 
     python benchmarks/validate_mitsuba.py            # bundled blockers scene (array scene if absent)
     python benchmarks/validate_mitsuba.py --quick    # small and fast (used by the tests)
     python benchmarks/validate_mitsuba.py --bounces 1  # one diffuse bounce vs Mitsuba's path (depth 3)
+    python benchmarks/validate_mitsuba.py --glossy beckmann ggx --point-light  # glossy per-pixel reference
 
 Writes ``mitsuba-<date>-<scene>.json`` (``-bounces<K>`` appended with ``--bounces``) and a
 side-by-side PNG (ours | Mitsuba | 4x |difference|) into ``--out`` (default benchmarks/results).
@@ -59,10 +90,10 @@ sys.path.insert(0, str(ROOT))
 from warpshade._fileio import write_json_atomic  # noqa: E402
 from warpshade._wp import resolve_device, wp  # noqa: E402
 from warpshade.geometry.bvh import RAY_MAX_DISTANCE, Visibility  # noqa: E402
-from warpshade.reference import ReferenceShader  # noqa: E402
+from warpshade.reference import ReferenceShader, pixel_hits, reference_image  # noqa: E402
 from warpshade.render import camera_for, interpolate_vertex_values, render, write_png  # noqa: E402
 from warpshade.render.image import tonemap_reference  # noqa: E402
-from warpshade.scene import DistantLight, Environment, SphereLight  # noqa: E402
+from warpshade.scene import DistantLight, Environment, SphereLight, materials  # noqa: E402
 from warpshade.transfer import sample_rays  # noqa: E402
 
 DEFAULT_SCENE = ROOT / "usd_assets" / "blockers.usda"
@@ -72,6 +103,25 @@ EDGE_BARYCENTRIC = 1e-4
 GRAZING_COSINE = 1e-3
 # Maps Mitsuba's envmap frame (y up, azimuth atan2(x, -z), mirrored image) to our map frame.
 _MITSUBA_TO_MAP = np.array([[0.0, 0.0, -1.0], [-1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+SUNLIT_SCENE = ROOT / "usd_assets" / "sunlit.usda"
+# Glossy part: the per-vertex roughness spans this range (smooth in the rest position).
+GLOSSY_ALPHA_RANGE = (0.12, 0.45)
+# The sphere light standing in for Mitsuba's point light: radius / distance to the scene centre.
+# Two errors pull opposite ways: the lobe's average over the light's cone (grows as r^2) and
+# float32 rounding of its solid angle 2 pi (1 - cos a) in our estimator (grows as 1 / r^2; 1 - cos a
+# rounds to 0 below r/d ~ 3e-4). Measured on blockers (ggx, 80 x 60, away from edges, relative
+# RMS): r/d = 0.005: 0.0012 (mean +0.18 %: rounding), 0.01: 0.00055 (noise 0.00035), 0.02:
+# 0.0012, 0.04: 0.0041.
+POINT_LIGHT_RELATIVE_RADIUS = 0.01
+# The point light's irradiance on a surface at the scene centre facing it.
+POINT_LIGHT_IRRADIANCE = 4.0
+# Schlick and the exact Fresnel factor of this real index (the informational comparison).
+FRESNEL_ETA = 1.5
+# Glossy part: a pixel is "on an edge" (silhouette, hard shadow, sharp highlight) when the range
+# of our luminance over its 3x3 neighbourhood exceeds this fraction of the image's RMS; there the
+# fixed sub-pixel grid of ours and Mitsuba's random box-filter positions integrate the pixel
+# differently (an error that shrinks with --supersample, not Monte Carlo noise).
+EDGE_RELATIVE_RANGE = 0.25
 
 
 def array_scene():
@@ -330,6 +380,237 @@ def compare_images(ours, our_var, theirs, coverage):
     }, mi_mean, mask
 
 
+# ---- part 4: the glossy per-pixel reference -------------------------------------------------------
+
+
+def glossy_vertex_material(scene):
+    """Per-vertex roughness (V,) in GLOSSY_ALPHA_RANGE and specular colour (V, 3) of the glossy check."""
+    rest = scene.points_at(scene.frames[0])
+    lo, hi = scene.bounds(scene.frames[0])
+    u = (rest - lo) / np.maximum(hi - lo, 1e-9)
+    wave = 0.5 + 0.5 * np.sin(2.0 * np.pi * u[:, 0]) * np.cos(2.0 * np.pi * u[:, 1] + 1.3 * u[:, 2])
+    alpha = GLOSSY_ALPHA_RANGE[0] + (GLOSSY_ALPHA_RANGE[1] - GLOSSY_ALPHA_RANGE[0]) * wave
+    return alpha.astype(np.float32), scene.albedo.astype(np.float32)
+
+
+def bsdf_isolation(distribution, alphas=(0.12, 0.3, 0.45), count=1500, seed=0):
+    """Mitsuba's roughconductor (material none) against our Microfacet(f0=1) times the cosine,
+    on random direction pairs above the horizon: max |difference| relative to the largest value,
+    and relative where the value exceeds 1e-3 of it."""
+    import mitsuba as mi
+
+    mi.set_variant("scalar_rgb")
+    rng = np.random.default_rng(seed)
+    out = {}
+    for alpha in alphas:
+        bsdf = mi.load_dict({"type": "roughconductor", "distribution": distribution, "alpha": float(alpha), "material": "none"})
+        wi = rng.normal(size=(count, 3))
+        wo = rng.normal(size=(count, 3))
+        wi /= np.linalg.norm(wi, axis=1, keepdims=True)
+        wo /= np.linalg.norm(wo, axis=1, keepdims=True)
+        wi[:, 2], wo[:, 2] = np.abs(wi[:, 2]), np.abs(wo[:, 2])
+        ours = materials.Microfacet(float(alpha), distribution, f0=1.0).evaluate(wi, wo) * wo[:, 2]
+        ctx = mi.BSDFContext()
+        theirs = np.empty(count)
+        for k in range(count):
+            si = mi.SurfaceInteraction3f()
+            si.wi = mi.Vector3f(*wi[k])
+            si.sh_frame = mi.Frame3f(mi.Vector3f(0.0, 0.0, 1.0))
+            theirs[k] = np.array(bsdf.eval(ctx, si, mi.Vector3f(*wo[k])))[0]
+        big = ours > 1e-3 * ours.max()
+        out[f"alpha={alpha:g}"] = {
+            "max_abs_difference_relative_to_max": float(np.abs(theirs - ours).max() / ours.max()),
+            "max_relative_difference_where_significant": float((np.abs(theirs - ours)[big] / ours[big]).max()),
+        }
+    return out
+
+
+def fresnel_if_kept(eta=FRESNEL_ETA):
+    """Schlick's approximation against the exact unpolarised Fresnel factor of a conductor with
+    index eta + 0i (Mitsuba's ``fresnel_conductor``), over the incidence cosine."""
+    import drjit as dr
+    import mitsuba as mi
+
+    mi.set_variant("scalar_rgb")
+    f0 = ((eta - 1.0) / (eta + 1.0)) ** 2
+    cos = np.linspace(1e-3, 1.0, 1000)
+    exact = np.array([float(mi.fresnel_conductor(mi.Float(c), dr.scalar.Complex2f(eta, 0.0))) for c in cos])
+    schlick = f0 + (1.0 - f0) * (1.0 - cos) ** 5
+    rel = np.abs(schlick - exact) / exact
+    return {"eta": eta, "f0": f0, "max_relative_difference": float(rel.max()),
+            "max_relative_difference_cos_above_0.2": float(rel[cos > 0.2].max()),
+            "cos_at_max": float(cos[np.argmax(rel)])}
+
+
+def point_light_for(scene, frame, camera):
+    """A point above the scene opposite the camera (mirrored in the ground) and its intensity:
+    (position (3,), intensity I (scalar, W/sr per channel), sphere radius r, sphere radiance L_e)."""
+    lo, hi = scene.bounds(frame)
+    centre = 0.5 * (lo + hi)
+    up = np.array([0.0, 0.0, 1.0]) if scene.up_axis == "Z" else np.array([0.0, 1.0, 0.0])
+    offset = np.asarray(camera.position, np.float64) - centre
+    height = float(offset @ up)
+    position = centre - (offset - height * up) * 0.8 + up * max(height, 0.5 * float(np.linalg.norm(hi - lo)))
+    distance = float(np.linalg.norm(position - centre))
+    intensity = POINT_LIGHT_IRRADIANCE * distance**2
+    radius = POINT_LIGHT_RELATIVE_RADIUS * distance
+    return position, intensity, radius, intensity / (np.pi * radius**2)
+
+
+def our_glossy_image(scene, frame, distribution, lighting, camera, width, height, supersample, samples, device, seed):
+    alpha_v, spec_v = glossy_vertex_material(scene)
+    hits = pixel_hits(scene, frame, camera, width, height, supersample, device)
+    h = hits.hit
+    corners = scene.faces[hits.triangles[h]]
+    rough = np.full(hits.ray_count, float(np.mean(alpha_v)), np.float32)
+    rough[h] = np.einsum("ik,ik->i", hits.barycentrics[h], alpha_v[corners])
+    spec = np.zeros((hits.ray_count, 3), np.float32)
+    spec[h] = np.einsum("ik,ikj->ij", hits.barycentrics[h], spec_v[corners])
+    brdf = materials.Microfacet(float(np.mean(alpha_v)), distribution, f0=1.0)
+    t0 = time.perf_counter()
+    ref = reference_image(scene, frame, brdf, camera=camera, width=width, height=height, samples=samples,
+                          supersample=supersample, lighting=lighting, roughness=rough, specular=spec,
+                          include=("specular",), seed=seed, device=device)
+    return ref, time.perf_counter() - t0
+
+
+def mitsuba_glossy_image(scene, frame, distribution, env, delta_lights, point, camera, width, height, spp, seed):
+    """Two Mitsuba renders of the glossy scene; ``point`` = (position, intensity) or None."""
+    import mitsuba as mi
+
+    mi.set_variant("scalar_rgb")
+    alpha_v, spec_v = glossy_vertex_material(scene)
+    points = scene.points_at(frame).astype(np.float32)
+    normals = scene.evaluate(frame, device="cpu").normals.numpy()
+    mesh = mi.Mesh("scene", len(points), len(scene.faces), has_vertex_normals=True)
+    mesh.add_attribute("vertex_roughness", 1, alpha_v.astype(np.float32).ravel().tolist())
+    mesh.add_attribute("vertex_specular", 3, spec_v.astype(np.float32).ravel().tolist())
+    params = mi.traverse(mesh)
+    params["vertex_positions"] = points.ravel()
+    params["faces"] = scene.faces.astype(np.uint32).ravel()
+    params["vertex_normals"] = normals.astype(np.float32).ravel()
+    params.update()
+    mesh.set_bsdf(mi.load_dict({"type": "twosided", "bsdf": {
+        "type": "roughconductor", "distribution": distribution, "material": "none",
+        "alpha": {"type": "mesh_attribute", "name": "vertex_roughness"},
+        "specular_reflectance": {"type": "mesh_attribute", "name": "vertex_specular"},
+    }}))
+    desc = {
+        "type": "scene",
+        "mesh": mesh,
+        "integrator": mitsuba_integrator(None),
+        "sensor": {
+            "type": "perspective",
+            "fov": float(camera.vertical_fov),
+            "fov_axis": "y",
+            "to_world": mi.ScalarTransform4f().look_at(origin=[float(x) for x in camera.position], target=[float(x) for x in camera.target], up=[float(x) for x in camera.up]),
+            "film": {"type": "hdrfilm", "width": width, "height": height, "rfilter": {"type": "box"}, "pixel_format": "rgb"},
+            "sampler": {"type": "independent", "sample_count": spp},
+        },
+    }
+    if env:
+        bitmap, to_world = mitsuba_envmap_bitmap(env[0])
+        desc["env"] = {"type": "envmap", "bitmap": mi.Bitmap(bitmap), "to_world": mi.ScalarTransform4f(to_world.tolist())}
+    for k, light in enumerate(delta_lights):
+        desc[f"sun{k}"] = {"type": "directional", "direction": [float(-x) for x in light.direction], "irradiance": {"type": "rgb", "value": [float(x) for x in light.irradiance]}}
+    if point is not None:
+        desc["point"] = {"type": "point", "position": [float(x) for x in point[0]], "intensity": {"type": "rgb", "value": [float(point[1])] * 3}}
+    mscene = mi.load_dict(desc)
+    t0 = time.perf_counter()
+    images = [np.array(mi.render(mscene, seed=seed + s)) for s in range(2)]
+    return images, time.perf_counter() - t0
+
+
+def edge_free_stats(ours, our_var, theirs, mask):
+    """Relative RMS and its noise expectation over the covered pixels away from edges
+    (:data:`EDGE_RELATIVE_RANGE`), normalised like :func:`compare_images`."""
+    from scipy.ndimage import maximum_filter, minimum_filter
+
+    lum = ours.sum(axis=-1)
+    scale_lum = np.sqrt(np.mean(lum[mask] ** 2))
+    edge = (maximum_filter(lum, size=3) - minimum_filter(lum, size=3)) > EDGE_RELATIVE_RANGE * scale_lum
+    keep = mask & ~edge
+    mi_mean = 0.5 * (theirs[0] + theirs[1])
+    scale = np.sqrt(np.mean(mi_mean[mask] ** 2))
+    diff = ours[keep] - mi_mean[keep]
+    noise = 0.25 * np.mean((theirs[0][keep] - theirs[1][keep]) ** 2) + np.mean(our_var[keep])
+    return {"pixels": int(keep.sum()), "relative_rms": float(np.sqrt(np.mean(diff**2)) / scale),
+            "relative_rms_expected_from_noise": float(np.sqrt(noise) / scale),
+            "relative_mean_difference": float(np.mean(diff) / np.mean(mi_mean[keep]))}
+
+
+def glossy_scenes(path):
+    if path is not None:
+        return [load_scene(path)]
+    scenes = [load_scene(None)]
+    if SUNLIT_SCENE.exists():
+        scenes.append(load_scene(str(SUNLIT_SCENE)))
+    return scenes
+
+
+def run_glossy(args, mi, dev):
+    """Part 4 (module docstring): every scene x distribution x light; returns the report."""
+    from warpshade.render.image import tonemap_reference as tonemap_np
+
+    out_dir = Path(args.out)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    date = datetime.date.today().isoformat()
+    device_name = "cpu" if dev.is_cpu else "cuda"
+    stem = f"mitsuba-glossy-{date}-{device_name}" + ("-quick" if args.quick else "")
+    report = {
+        "date": date, "device": str(dev), "mitsuba_version": mi.__version__, "quick": args.quick,
+        "settings": {"width": args.width, "height": args.height, "supersample": args.supersample,
+                     "shade_samples": args.shade_samples, "mitsuba_spp_per_render": args.spp, "mitsuba_renders": 2,
+                     "alpha_range": list(GLOSSY_ALPHA_RANGE), "fresnel": "factored out (f0 = 1 / material none)",
+                     "point_light_relative_radius": POINT_LIGHT_RELATIVE_RADIUS},
+        "bsdf_isolation": {d: bsdf_isolation(d, count=300 if args.quick else 1500) for d in args.glossy},
+        "fresnel_if_kept": fresnel_if_kept(),
+        "cases": [],
+    }
+    for scene, scene_name in glossy_scenes(args.scene):
+        frame = float(scene.frames[0] if args.frame is None else scene.frames[scene.frame_index(args.frame)])
+        env, delta, excluded = split_lighting(scene.lights)
+        if not env and not delta:
+            env = [Environment.sky(64, 128)]
+        camera = camera_for(scene, frame, aspect=args.width / args.height)
+        lights = [("environment", env + delta, None)]
+        if args.point_light:
+            position, intensity, radius, radiance = point_light_for(scene, frame, camera)
+            lights.append(("point", [SphereLight(position, radius, np.full(3, radiance))], (position, intensity)))
+        for distribution in args.glossy:
+            for light_name, lighting, point in lights:
+                ours, our_seconds = our_glossy_image(scene, frame, distribution, lighting, camera, args.width, args.height,
+                                                     args.supersample, args.shade_samples, dev, args.seed)
+                use_env = env if point is None else []
+                use_delta = delta if point is None else []
+                theirs, mi_seconds = mitsuba_glossy_image(scene, frame, distribution, use_env, use_delta, point, camera,
+                                                          args.width, args.height, args.spp, args.seed)
+                our_var = ours.stderr.astype(np.float64) ** 2
+                stats, mi_mean, mask = compare_images(ours.radiance, our_var, theirs, ours.coverage)
+                stats["away_from_edges"] = edge_free_stats(ours.radiance, our_var, theirs, mask)
+                name = f"{stem}-{scene_name}-{distribution}-{light_name}"
+                diff = np.abs(ours.radiance - mi_mean) * 4.0
+                grey = 1.0 - ours.coverage
+                panels = [tonemap_np(ours.radiance, grey), tonemap_np(mi_mean, None), tonemap_np(diff, grey)]
+                png = write_png(out_dir / f"{name}.png", np.concatenate(panels, axis=1))
+                stats.update({"scene": scene_name, "frame": frame, "distribution": distribution, "light": light_name,
+                              "our_seconds": our_seconds, "mitsuba_seconds": mi_seconds, "png": png.name,
+                              "excluded_lights": excluded if point is None else []})
+                if point is not None:
+                    stats["point_light"] = {"position": [float(x) for x in point[0]], "intensity": float(point[1]),
+                                            "sphere_radius": float(lighting[0].radius), "sphere_radiance": float(lighting[0].radiance[0])}
+                report["cases"].append(stats)
+                print(f"[{scene_name} {distribution} {light_name}] relative RMS {stats['relative_rms']:.4f} over "
+                      f"{stats['pixels_compared']} pixels (noise alone {stats['relative_rms_expected_from_noise']:.4f}; "
+                      f"mean difference {stats['relative_mean_difference']:+.4f}); away from edges {stats['away_from_edges']['relative_rms']:.4f} "
+                      f"(noise {stats['away_from_edges']['relative_rms_expected_from_noise']:.4f}); ours {our_seconds:.1f} s, "
+                      f"Mitsuba {mi_seconds:.1f} s")
+    report["command"] = "python benchmarks/validate_mitsuba.py " + " ".join(args.argv)
+    path = write_json_atomic(out_dir / f"{stem}.json", report)
+    print(f"wrote {path}")
+    return report
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--scene", default=None)
@@ -347,8 +628,15 @@ def main(argv=None):
     parser.add_argument("--bounces", type=int, default=None, metavar="K",
                         help="compare K diffuse bounces with Mitsuba's path integrator (max_depth K + 2); "
                              "default: direct light against Mitsuba's direct integrator")
+    parser.add_argument("--glossy", nargs="+", choices=("beckmann", "ggx"), default=None, metavar="DISTRIBUTION",
+                        help="cross-check the glossy per-pixel reference (part 4) with these microfacet distributions "
+                             "instead of parts 1-3")
+    parser.add_argument("--point-light", action="store_true", help="with --glossy: also an image lit by a point light")
     parser.add_argument("--out", default=str(ROOT / "benchmarks" / "results"))
     args = parser.parse_args(argv)
+    args.argv = list(argv if argv is not None else sys.argv[1:])
+    if args.point_light and not args.glossy:
+        parser.error("--point-light needs --glossy")
     if args.bounces is not None and args.bounces < 0:
         parser.error(f"--bounces must be >= 0, got {args.bounces}")
     bounces = args.bounces or 0
@@ -363,6 +651,9 @@ def main(argv=None):
         return 2
 
     dev = resolve_device(args.device)
+    if args.glossy:
+        run_glossy(args, mi, dev)
+        return 0
     scene, scene_name = load_scene(args.scene)
     frame = float(scene.frames[0] if args.frame is None else scene.frames[scene.frame_index(args.frame)])
     rng = np.random.default_rng(args.seed)

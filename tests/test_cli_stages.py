@@ -33,7 +33,25 @@ def test_stage_graph_runs(graph_file, tmp_path):
             # the graph as written traces hundreds of training poses (minutes): a few poses with
             # few rays run the same stages here
             st.params.update(samples=16, frames=TRAINING_SUBSET)
-    rt = spec.compile(device="cpu", progress=False, scheduler="serial")
+    lighting = None
+    if any(st.type.startswith("sg.") for st in spec.stages) or "sunlit" in spec.name:
+        # the sunlit graphs as written bake 512^2 visibility per vertex and prefilter a 256 x 512
+        # sky (minutes each): small SSDFs and a small procedural sky (plus the scene's lamp) run
+        # the same stages here
+        from warpshade.scene import Environment, LightingSource, SphereLight
+        from warpshade.scene.lighting import up_rotation
+
+        for st in spec.stages:
+            if st.type == "sg.ssdf":
+                st.params.update(resolution=16, supersample=2)
+        scene = spec.load_scene()
+        lamps = [light for light in scene.lights if isinstance(light, SphereLight)]
+        if (spec.lighting or {}).get("source") == "distant":
+            lamps = []
+        lighting = LightingSource.fixed([Environment.sky(height=16, width=32, to_world=up_rotation(scene.up_axis)), *lamps],
+                                        scene.up_axis)
+    rt = spec.compile(scene, device="cpu", progress=False, scheduler="serial", lighting=lighting) if lighting else \
+        spec.compile(device="cpu", progress=False, scheduler="serial")
     frames = rt.scene.frames[:2]
     rt.run(list(frames), warmup=False)
     for f in frames:

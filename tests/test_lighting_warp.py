@@ -107,8 +107,13 @@ def test_floor_keeps_every_texel_reachable():
     img[2, 5] = 100.0
     prob, pdf = env_texel_pdf_reference(Environment(img))
     assert prob.min() > 0.0
-    # density = luminance + LUMINANCE_FLOOR * (mean luminance over the sphere)
+    # density = luminance (or 1/2 an edge neighbour's, 1/4 a corner's) + LUMINANCE_FLOOR * (its mean)
     lum = 100.0  # Rec. 709 weights sum to 1
-    mean = lum * quadrature.latlong(8, 16).weights.reshape(8, 16)[2, 5] / (4 * np.pi)
+    solid = quadrature.latlong(8, 16).weights.reshape(8, 16)
+    spread = np.array([[0.25, 0.5, 0.25], [0.5, 1.0, 0.5], [0.25, 0.5, 0.25]])
+    mean = lum * (spread * solid[1:4, 4:7]).sum() / (4 * np.pi)
     floor = LUMINANCE_FLOOR * mean
     assert pdf[2, 5] / pdf[0, 0] == pytest.approx((lum + floor) / floor, rel=1e-9)
+    # the bilinear skirt of the bright texel is sampled with its largest bilinear weight
+    np.testing.assert_allclose(pdf[1:4, 4:7], (lum * spread + floor) / floor * pdf[0, 0], rtol=1e-9)
+    assert pdf[2, 7] == pytest.approx(pdf[0, 0], rel=1e-12)

@@ -4,7 +4,7 @@ The package is layered; a module imports only modules of its own layer or of lay
 left, at module level and inside functions alike (``tests/test_layers.py`` checks it, and that
 there is no import cycle)::
 
-    _wp, _fileio, _hashing, _limits, _tasks -> basis -> geometry -> scene -> io -> transfer -> methods -> reference -> graph -> render -> measure -> cli
+    _wp, _fileio, _hashing, _limits, _tasks -> basis -> geometry -> scene -> io -> render -> transfer -> methods -> reference -> graph -> measure -> cli
 
 * ``_wp``, ``_fileio``, ``_hashing``, ``_limits``, ``_tasks``: Warp set-up and launch helpers,
   atomic files, content hashes, the sizes refused before allocating, the executor that runs
@@ -14,12 +14,13 @@ there is no import cycle)::
 * ``scene``: the static ``Scene``, the per-frame ``FrameState`` and the kernels that fill it,
   lights and their per-frame device form, materials;
 * ``io``: USD and images in and out (the only place that imports ``pxr``);
-* ``transfer``: ray-traced visibility and transfer;
+* ``render``: the ray-cast camera (G-buffers of primary hits), tone mapping, PNG previews: below
+  the methods and the reference, which shade its G-buffers per pixel;
+* ``transfer``: ray-traced visibility and transfer, SSDFs;
 * ``methods``: one package per technique, each ``stages``/``kernels``/``model``/``reference``/
   ``rows``/``budget``;
 * ``reference``: brute-force ray-traced ground truth;
 * ``graph``: the stage-graph runtime (TOML specs, cache, precompute, the recorded frame);
-* ``render``: preview images;
 * ``measure``: ground-truth caches, errors, pictures, outputs, error budgets, harness settings;
 * ``cli``: the ``warpshade`` command.
 

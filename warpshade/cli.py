@@ -230,6 +230,7 @@ def _finish_run(spec, rt, out, measured, left_out, validate, previews, usd_forma
 
     from .io.usd_write import usd_output_name
     from .measure import measure_error, render_comparisons, render_previews, write_report, write_usd
+    from .measure.pixels import measure_pixels, pixel_stage, write_pixel_images
 
     out = Path(out)
     outputs = {"left_out": left_out}
@@ -249,6 +250,16 @@ def _finish_run(spec, rt, out, measured, left_out, validate, previews, usd_forma
         error["frames_left_out"] = left_out
     if validate and previews:
         outputs["png"] = [*outputs.get("png", []), *render_comparisons(rt, measurement, out)]
+    if pixel_stage(rt) is not None:
+        # stages that shade pixels: per-pixel PNG + linear EXR previews, and per-pixel error
+        if previews:
+            outputs["png"] = [*outputs.get("png", []), *write_pixel_images(rt, out, width=480, height=360)]
+        if validate and measured:
+            samples = int(spec.validate_spec.get("samples", 256))
+            pixels = measure_pixels(rt, out, measured, width=160, height=120, samples=samples)
+            if error is not None:
+                error["pixels"] = pixels
+            outputs["png"] = [*outputs.get("png", []), *[Path(v["image"]) for v in pixels["frames"].values()]]
     outputs["report"] = write_report(rt, inside(f"{spec.name}.json"), error=error)
     outputs["error"] = error
     return outputs
@@ -268,11 +279,15 @@ def _print_run(rt, outputs) -> None:
         m = err["mean"]
         print(f"  error vs ray-traced ground truth ({err['samples']} spp): relative RMS {m['rel_rms']:.4f}, "
               f"p99 {m['rel_p99']:.4f} (ground-truth noise {m.get('noise_rel_rms', float('nan')):.4f})")
+        for f, v in (err.get("pixels") or {}).get("frames", {}).items():
+            px = err["pixels"]
+            print(f"  per pixel, frame {f:g} ({px['width']}x{px['height']}, {px['samples']} spp): relative RMS "
+                  f"{v['rel_rms']:.4f} (ground-truth noise {v['noise']:.4f})")
     if outputs.get("left_out"):
         print(f"  [validate] frame(s) {outputs['left_out']} are outside the frames run and were not measured")
     print(f"  USD     {outputs['usd']}")
     for p in outputs.get("png", []):
-        print(f"  PNG     {p}")
+        print(f"  {'EXR' if str(p).endswith('.exr') else 'PNG'}     {p}")
     print(f"  report  {outputs['report']}  ({outputs['seconds']:.1f} s in all)")
 
 

@@ -2,8 +2,9 @@
 
 Submodules: :mod:`~warpshade.basis.sh` (real spherical harmonics), :mod:`~warpshade.basis.sh_warp`
 (the same operations as Warp functions), :mod:`~warpshade.basis.zh` (zonal-harmonic lobes: rotation
-and fitting), :mod:`~warpshade.basis.quadrature` (sample sets). Import public names from these
-four; the ``_``-prefixed modules are private, and what callers need from them is re-exported by
+and fitting), :mod:`~warpshade.basis.sg` and :mod:`~warpshade.basis.sg_warp` (spherical Gaussians,
+float64 and Warp), :mod:`~warpshade.basis.quadrature` (sample sets). Import public names from these
+six; the ``_``-prefixed modules are private, and what callers need from them is re-exported by
 ``sh``, ``sh_warp`` or ``zh``.
 
 Module order, bottom to top: each module imports only modules listed above it (imports inside
@@ -23,11 +24,13 @@ functions included), so the import graph is acyclic (``tests/test_basis_imports.
     _zh_fit         batched ZH lobe fitting                          <- _core, _zh_grad
     _zh_warp        per-order Warp ZH bundle, zh_kernels             <- sh_warp
     zh              public ZH facade                                 <- _core, _zh_grad, _zh_fit, _zh_warp
+    sg              float64 spherical Gaussians, f_h                 <- (none)
+    sg_warp         spherical Gaussians as Warp functions            <- sg
 
-``_shexp_warp``, ``sh_warp``, ``_shexp_kernels``, ``sh`` and ``_zh_warp`` also import
+``_shexp_warp``, ``sh_warp``, ``_shexp_kernels``, ``sh``, ``_zh_warp`` and ``sg_warp`` also import
 :mod:`warpshade._wp` (Warp set-up), which is outside this package.
 """
 
-from . import quadrature, sh, zh
+from . import quadrature, sg, sh, zh
 
-__all__ = ["quadrature", "sh", "zh"]
+__all__ = ["quadrature", "sg", "sh", "zh"]

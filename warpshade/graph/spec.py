@@ -29,7 +29,7 @@ TOML layout (paths are relative to the TOML file)::
     output = "shade.radiance"
 
     [lighting]                                # optional; default: the scene's lights
-    source = "scene"                          # "scene" | "sky" | "constant" | path to .hdr/.exr
+    source = "scene"                          # "scene" | "distant" | "sky" | "constant" | path to .hdr/.exr
     rotate_degrees_per_frame = 3.0
     intensity = 1.0
 
@@ -63,7 +63,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..methods.stage import Port, Stage, StageError, get_stage_type
-from ..scene.lighting import Environment, LightingSource, scaled_light, up_rotation
+from ..scene.lighting import Environment, LightingSource, SphereLight, scaled_light, up_rotation
 from .errors import GraphError
 from .runtime import Runtime
 
@@ -389,8 +389,8 @@ class GraphSpec:
 def lighting_from_spec(spec: dict, scene, base_dir: Path | None = None) -> LightingSource:
     """A graph's ``[lighting]`` table as a :class:`~warpshade.scene.LightingSource`.
 
-    Keys: ``source`` ("scene" default, "sky", "constant", or an .hdr/.exr path relative to the
-    graph file), ``rotate_degrees_per_frame`` (0), ``intensity`` (1.0, scales every light),
+    Keys: ``source`` ("scene" default; "distant": the scene's environments and distant lights
+    without its sphere lights; "sky", "constant", or an .hdr/.exr path relative to the graph file), ``rotate_degrees_per_frame`` (0), ``intensity`` (1.0, scales every light),
     ``color`` (for "constant").
 
     Raises:
@@ -406,6 +406,8 @@ def lighting_from_spec(spec: dict, scene, base_dir: Path | None = None) -> Light
     to_world = up_rotation(scene.up_axis)
     if source == "scene":
         lights = list(scene.lights) or [Environment.sky(to_world=to_world)]
+    elif source == "distant":
+        lights = [light for light in scene.lights if not isinstance(light, SphereLight)] or [Environment.sky(to_world=to_world)]
     elif source == "sky":
         lights = [Environment.sky(to_world=to_world)]
     elif source == "constant":

@@ -7,7 +7,9 @@ Public names:
   ``bundled:NAME``) with an optional ground plane and sky;
 * :func:`resolve_scene_path` -- a scene spec to a file path;
 * :func:`read_image`, :func:`read_exr`, :func:`read_hdr`, :func:`write_hdr`,
-  :func:`write_exr` -- linear HDR images.
+  :func:`write_exr` -- linear HDR images;
+* :func:`read_texture_file` -- a material texture image (PNG, JPEG, ... or EXR/HDR) as stored
+  (UsdPreviewSurface networks are read by :mod:`warpshade.io.textures` during :func:`load_usd`).
 """
 
 from __future__ import annotations
@@ -23,9 +25,11 @@ __all__ = [
     "read_hdr",
     "write_hdr",
     "write_exr",
+    "read_texture_file",
 ]
 
 _USD_NAMES = ("load_usd", "load_scene", "resolve_scene_path")
+_TEXTURE_NAMES = ("read_texture_file",)
 
 
 def __getattr__(name):
@@ -34,4 +38,8 @@ def __getattr__(name):
         from . import usd
 
         return getattr(usd, name)
+    if name in _TEXTURE_NAMES:
+        from . import textures
+
+        return getattr(textures, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

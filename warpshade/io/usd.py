@@ -32,10 +32,20 @@ UVs
     ``faceVarying`` averaged over each vertex's corners (best effort: UV seams are averaged),
     others ignored.
 
+Materials
+    A bound ``UsdPreviewSurface`` becomes ``Mesh.surface``, a
+    :class:`~warpshade.scene.textures.SurfaceMaps` (diffuse colour, roughness, specular colour
+    or metallic, each a constant or a ``UsdUVTexture``; read by :mod:`warpshade.io.textures`,
+    which documents the rules and errors). Textures whose ``st`` names another primvar than the
+    default UVs make that primvar ``Mesh.uvs``.
+
 Albedo
-    A bound ``UsdPreviewSurface`` with a constant ``diffuseColor`` (its spec default 0.18 when
-    unauthored), else ``primvars:displayColor`` (constant, vertex, or averaged from uniform /
-    faceVarying), else 0.8 grey. Textured diffuse colours are not sampled (a warning says so).
+    A bound ``UsdPreviewSurface`` with a textured ``diffuseColor`` or a non-zero ``metallic``:
+    the surface's effective diffuse albedo (``diffuseColor * (1 - metallic)``) sampled at the
+    vertices' UVs; with a constant ``diffuseColor`` (its spec default 0.18 when unauthored) that
+    colour; else ``primvars:displayColor`` (constant, vertex, or averaged from uniform /
+    faceVarying), else 0.8 grey. Diffuse colours driven by other nodes are not evaluated (a
+    warning says so).
 
 Animation
     Frames are every integer time code from the stage's start to end time code (a stage
@@ -63,7 +73,8 @@ Camera
 
 Errors name the file or prim: missing file (FileNotFoundError), unreadable stage, no meshes,
 NaN/inf points, face indices out of range, inconsistent face counts, a skin that does not match
-its skeleton, a missing or unreadable dome texture (ValueError). Zero-area triangles are
+its skeleton, a missing or unreadable dome texture, a missing, unreadable or unusable material
+texture or the UVs it needs (ValueError; see :mod:`warpshade.io.textures`). Zero-area triangles are
 dropped with a ``warnings.warn`` naming the prim and the count, which is also kept in
 ``Mesh.dropped_face_count``. The stage is opened read-only; nothing is ever written.
 """
@@ -82,6 +93,8 @@ from .._fileio import captured_stderr
 from .._limits import MAX_TIME_CODES
 from ..scene import lighting
 from ..scene.scene import Camera, Mesh, Scene, Skeleton, SkinBinding
+from ..scene.textures import Texture
+from .textures import SurfaceReader
 
 __all__ = [
     "load_usd",
@@ -236,6 +249,7 @@ class _StageReader:
         self.predicate = Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate)
         self.skipped: list[tuple[str, str]] = []
         self._warned_unranged = False
+        self._surfaces = SurfaceReader()
 
     # -- time ------------------------------------------------------------------------------
     def _frames(self):
@@ -430,7 +444,12 @@ class _StageReader:
         if animation in ("static", "rigid"):
             normals = self._read_normals(mesh, path, vertex_count, indices, counts, poly_area)
         uvs = self._read_uvs(mesh, path, vertex_count, indices, counts)
+        surface, uvs = self._surfaces.read(self, prim, path, vertex_count, indices, counts, uvs)
         albedo = self._read_albedo(prim, mesh, path, vertex_count, indices, counts, poly_area)
+        if surface is not None and (isinstance(surface.diffuse, Texture) or isinstance(surface.metallic, Texture)
+                                    or (not surface.use_specular_workflow and surface.metallic > 0.0)):
+            # textured (or metallic-darkened) diffuse: the effective albedo at the vertices' UVs
+            albedo = surface.at_vertices(uvs, vertex_count)["diffuse"].astype(np.float32)
         skin = None
         if skin_info is not None:
             skin = self._read_skin_binding(skin_info, path, vertex_count)
@@ -446,6 +465,7 @@ class _StageReader:
             albedo=albedo,
             skin=skin,
             dropped_face_count=dropped,
+            surface=surface,
         )
 
     def _points_at(self, attr, time, vertex_count, path) -> np.ndarray:
@@ -585,6 +605,9 @@ class _StageReader:
             return _PREVIEW_SURFACE_DEFAULT_DIFFUSE
         for attr in inp.GetValueProducingAttributes():
             if UsdShade.Utils.GetBaseNameAndType(attr.GetName())[1] == UsdShade.AttributeType.Output:
+                source = UsdShade.Shader(attr.GetPrim())
+                if source and source.GetIdAttr().Get() == "UsdUVTexture":
+                    return None  # sampled at the vertices from Mesh.surface (warpshade.io.textures)
                 warnings.warn(
                     f"mesh {path} in {self.path}: material {material.GetPath()} has a connected (textured) "
                     "diffuseColor, which is not sampled; using displayColor or the default albedo",

@@ -51,8 +51,18 @@ def _model_description(model) -> dict:
         return {"reference": "diffuse"}
     if _is_diffuse(model):
         return {"reference": "diffuse", "bounces": int(model["bounces"])}
-    out = {"brdf": model["brdf"].describe(), "eye": np.asarray(model["eye"], np.float64).tolist(),
-           "color": np.asarray(model["color"], np.float64).tolist()}
+    color = np.asarray(model["color"], np.float64)
+    out = {"brdf": model["brdf"].describe(), "eye": np.asarray(model["eye"], np.float64).tolist()}
+    if color.ndim == 1:
+        out["color"] = color.tolist()
+    else:  # per vertex (textured materials)
+        from .._hashing import hash_arrays
+
+        out["color"] = hash_arrays({"color": color})
+    if model.get("roughness") is not None:
+        from .._hashing import hash_arrays
+
+        out["roughness"] = hash_arrays({"roughness": np.asarray(model["roughness"], np.float64)})
     if model.get("groups"):
         from .._hashing import hash_arrays
 

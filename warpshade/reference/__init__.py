@@ -8,17 +8,25 @@ error (:class:`ShadingResult`, NumPy float32, shape (receiver_count, 3)); see
 :mod:`warpshade.scene.materials` seen from a viewer (:mod:`warpshade.reference.glossy`). Both are
 one Monte Carlo estimator with the BRDF as a parameter (:mod:`warpshade.reference.estimator`;
 the diffuse reference is its Lambert case).
+``reference_image(scene, frame, brdf, camera, ...)`` evaluates both at a camera's primary hits,
+with per-pixel roughness, specular colour and albedo for textured materials
+(:class:`PixelReference`, (height, width, 3) images; :mod:`warpshade.reference.pixels`).
 """
 
 from .glossy import GLOSSY_METHODS, GlossyReferenceShader, shade_glossy
+from .pixels import PixelHits, PixelReference, pixel_hits, reference_image
 from .shading import METHODS, ReferenceShader, ShadingResult, shade, upload_lighting
 
 __all__ = [
     "GLOSSY_METHODS",
     "METHODS",
     "GlossyReferenceShader",
+    "PixelHits",
+    "PixelReference",
     "ReferenceShader",
     "ShadingResult",
+    "pixel_hits",
+    "reference_image",
     "shade",
     "shade_glossy",
     "upload_lighting",

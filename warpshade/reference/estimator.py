@@ -1,9 +1,10 @@
 """The Monte Carlo estimator behind both references: outgoing radiance of a receiver with a BRDF.
 
 For a receiver at ``p`` with unit normal ``n``, an RGB tint ``t`` (per receiver) and a BRDF ``b``
-of :mod:`warpshade.scene.materials` (the same for every receiver; evaluated by
-:mod:`warpshade.scene.materials_warp`), the outgoing radiance towards the unit view direction
-``v`` is::
+of :mod:`warpshade.scene.materials` (the same model for every receiver; evaluated by
+:mod:`warpshade.scene.materials_warp`; a microfacet model's roughness may be given per receiver,
+which shades a spatially varying material exactly), the outgoing radiance towards the unit view
+direction ``v`` is::
 
     L_o(p, v) = t * integral b(v, s) L_i(s) V(s) max(0, n . s) ds
 
@@ -75,7 +76,7 @@ from ..geometry.frames import onb_tangent
 from ..scene.lighting import DistantLight, Environment, SphereLight
 from ..scene.lighting_warp import EnvironmentMap, disabled_environment, env_pdf, env_radiance, env_sample, upload_environment
 from ..scene.materials import Lambert
-from ..scene.materials_warp import BRDFParams, brdf_eval, brdf_pdf, brdf_sample, upload_brdf
+from ..scene.materials_warp import BRDFParams, brdf_eval, brdf_pdf, brdf_sample, brdf_with_roughness, check_roughness, upload_brdf
 from ..transfer.interreflection import check_albedo, check_bounces, hit_corners, hit_weights, interpolate_vec3
 from ..transfer.raytrace import CHUNK_MIN_RAYS, receiver_indices
 
@@ -401,7 +402,8 @@ def _estimator_kernel(
     tint: wp.array(dtype=wp.vec3),
     receivers: wp.array(dtype=wp.int32),
     receiver_start: int,
-    brdf: BRDFParams,
+    brdf_uniform: BRDFParams,
+    roughness: wp.array(dtype=float),
     has_eye: int,
     eye: wp.vec3,
     env: EnvironmentMap,
@@ -418,7 +420,9 @@ def _estimator_kernel(
 ):
     """Radiance and standard error of receivers ``receiver_start + tid`` (module docstring).
 
-    ``points``, ``normals`` (unit) and ``tint`` are indexed by ``receivers[r]``; ``has_eye`` 0
+    ``points``, ``normals`` (unit), ``tint`` and -- when it is not empty -- ``roughness`` (the
+    microfacet alpha replacing ``brdf_uniform.roughness``) are indexed by ``receivers[r]``; with
+    an empty ``roughness`` every receiver has ``brdf_uniform`` unchanged; ``has_eye`` 0
     evaluates the BRDF with ``v = n`` (``eye`` unused); ``method`` 0 / 1 / 2 = BRDF / light / MIS
     sampling; ``bounces`` > 0 adds one path of that many diffuse bounces per sample point over
     ``surfaces``; ``offset`` (world units) lifts shadow-ray origins along ``n``. Writes
@@ -438,6 +442,10 @@ def _estimator_kernel(
             return
         v = to_eye / dist_eye
     t = tint[vi]
+    alpha = brdf_uniform.roughness
+    if roughness.shape[0] > 0:
+        alpha = roughness[vi]
+    brdf = brdf_with_roughness(brdf_uniform, alpha)
     origin = p + offset * n
     base = int(wp.rand_init(seed, vi))
 
@@ -565,6 +573,9 @@ class MonteCarloShader:
         offset: shadow-ray origin offset along the normal, world units (default: the BVH's).
         bounces: diffuse bounces of the indirect light, 0..MAX_BOUNCES (0 = direct light only);
             the surfaces reflect with the Lambert BRDF of ``scene.albedo`` (front faces only).
+        roughness: per-vertex microfacet alpha overriding ``brdf.roughness`` (GGX / Beckmann only),
+            shape (vertex_count,), values in (0, 2]; None (default) shades every vertex with
+            ``brdf`` unchanged. Used by :meth:`shade_state`; :meth:`shade_points` takes its own.
 
     Attributes:
         bvh: :class:`~warpshade.geometry.bvh.Visibility` of the scene (refit per frame).
@@ -573,12 +584,14 @@ class MonteCarloShader:
             last given to :meth:`update`, ``scene.albedo``).
         brdf: the uploaded :class:`~warpshade.scene.materials_warp.BRDFParams`.
         tint: per-vertex tint, wp.array(vec3), shape (vertex_count,).
+        roughness: per-vertex alpha, wp.array(float), shape (vertex_count,), or empty (uniform).
         radiance, stderr: per-receiver outputs, wp.array(vec3), shape (receiver_count,).
     """
 
     def __init__(self, scene, brdf, tint, method: str, methods: tuple[str, ...], caller: str, eye=None, lighting=None,
                  samples: int = 256, device=None, seed: int = 0, vertices=None, workers=None, offset=None,
-                 bounces: int = 0):
+                 bounces: int = 0, roughness=None):
+        self.caller = caller
         self.strategy = strategy_index(method, methods, caller)
         self.bounces = check_bounces(bounces, caller)
         self.method = method
@@ -599,6 +612,8 @@ class MonteCarloShader:
         self.receivers = wp.array(self.vertices.astype(np.int32), dtype=wp.int32, device=self.device)
         tint = np.broadcast_to(np.asarray(tint, np.float32).reshape(-1, 3), (scene.vertex_count, 3))
         self.tint = wp.array(np.ascontiguousarray(tint), dtype=wp.vec3, device=self.device)
+        self._no_roughness = wp.zeros(0, dtype=float, device=self.device)
+        self.roughness = self._no_roughness if roughness is None else self.upload_roughness(roughness, scene.vertex_count, "roughness")
         self.radiance = wp.zeros(self.vertices.shape[0], dtype=wp.vec3, device=self.device)
         self.stderr = wp.zeros(self.vertices.shape[0], dtype=wp.vec3, device=self.device)
         self.surfaces = DiffuseSurfaces()
@@ -622,7 +637,20 @@ class MonteCarloShader:
             wp.copy(self.surfaces.normals, normals)
             self._has_surface_normals = True
 
-    def shade_points(self, points, normals, tint, receivers, radiance, stderr, seed=None) -> None:
+    def upload_roughness(self, values, count: int, name: str = "roughness"):
+        """Validate per-point microfacet alpha (:func:`~warpshade.scene.materials_warp.check_roughness`)
+        and return it as wp.array(float) of shape (count,) on the shader's device.
+
+        Raises:
+            ValueError: naming ``name``: the BRDF has no roughness, the shape is not (count,), or
+                a value is not finite or outside (0, 2].
+        """
+        arr = check_roughness(values, count, self.brdf, name, self.caller)
+        if isinstance(values, wp.array) and values.dtype == wp.float32 and values.device == self.device:
+            return values
+        return wp.array(arr, dtype=float, device=self.device)
+
+    def shade_points(self, points, normals, tint, receivers, radiance, stderr, seed=None, roughness=None) -> None:
         """Shade arbitrary receivers (e.g. camera hit points) against the current BVH.
 
         With ``bounces > 0`` the paths bounce off the scene as last set by :meth:`update` (or
@@ -630,19 +658,33 @@ class MonteCarloShader:
 
         Args:
             points, normals: receiver positions and unit normals, wp.array(vec3), world space.
-            tint: per-point RGB factor (the albedo of a diffuse receiver), wp.array(vec3), same length.
+            tint: per-point RGB factor (the albedo of a diffuse receiver, the specular colour of
+                a glossy one), wp.array(vec3), same length.
             receivers: wp.array(int32) of indices into the three arrays above.
             radiance, stderr: outputs, wp.array(vec3), shape (len(receivers),).
             seed: random seed (default: the shader's seed).
+            roughness: per-point microfacet alpha overriding the BRDF's (GGX / Beckmann only),
+                wp.array(float) or array-like indexed like ``points``, values in (0, 2]
+                (validated on the host); None (default): the BRDF's own for every point, with
+                results bit-identical to a shader without per-point parameters.
+
+        Raises:
+            ValueError: a bad ``roughness`` (named), or ``bounces > 0`` before :meth:`update`.
         """
         lit = self.lighting
         seed = self.seed if seed is None else int(seed)
         if self.bounces > 0 and not self._has_surface_normals:
             raise ValueError("shade_points with bounces > 0 needs the frame's vertex normals: call update(points, normals) first")
+        if roughness is None:
+            rough = self._no_roughness
+        elif roughness is self.roughness and roughness.shape[0] == points.shape[0]:
+            rough = roughness  # the per-vertex array, validated when the shader was built
+        else:
+            rough = self.upload_roughness(roughness, points.shape[0], "roughness")
 
         def inputs(start, stop):
             return [
-                self.bvh.id, points, normals, tint, receivers, start, self.brdf, self.has_eye, self.eye,
+                self.bvh.id, points, normals, tint, receivers, start, self.brdf, rough, self.has_eye, self.eye,
                 lit.environment, lit.lights, self.strategy, self.replicates, self.points_per_replicate, self.bounces,
                 self.surfaces, seed, self.bvh.offset, radiance, stderr,
             ]
@@ -660,7 +702,8 @@ class MonteCarloShader:
                 shape (vertex_count,), world space.
         """
         self.update(points, normals)
-        self.shade_points(points, normals, self.tint, self.receivers, self.radiance, self.stderr)
+        roughness = self.roughness if self.roughness.shape[0] > 0 else None
+        self.shade_points(points, normals, self.tint, self.receivers, self.radiance, self.stderr, roughness=roughness)
 
     def shade(self, frame) -> ShadingResult:
         """Evaluate the scene at ``frame`` (a time code), shade and return host copies."""

@@ -8,7 +8,9 @@ reference is::
 
 with ``c`` an RGB colour (the ``specular`` colour of the glossy stages), ``L_i`` the environment
 plus analytic lights and ``V`` ray-traced visibility: the estimator of :mod:`.estimator` with
-the uniform tint ``t = c``. ``L_o = 0`` where the viewer is below the receiver's horizon (also
+the tint ``t = c``. A spatially varying material gives ``c`` per vertex (``color`` of shape
+(vertex_count, 3)) and a microfacet BRDF's roughness per vertex (``roughness``, shape
+(vertex_count,)); per-pixel receivers (camera hits) are :mod:`.pixels`'. ``L_o = 0`` where the viewer is below the receiver's horizon (also
 for a Lambert BRDF, whose radiance is otherwise that of :func:`warpshade.reference.shade`).
 
 Environment estimators: ``"brdf"`` samples the BRDF lobe (:func:`~warpshade.scene.materials_warp.brdf_sample`),
@@ -24,6 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._wp import wp
 from .estimator import MonteCarloShader, ShadingResult, _vec3, strategy_index
 
 __all__ = ["GLOSSY_METHODS", "GlossyReferenceShader", "shade_glossy"]
@@ -43,32 +46,55 @@ class GlossyReferenceShader(MonteCarloShader):
         eye: viewer position, 3 floats, world (default: the scene camera's position).
         lighting: lights (default ``scene.lights``); samples, method, seed, vertices, workers:
             as :class:`~warpshade.reference.ReferenceShader` (method: "brdf", "light", "mis").
-        color: RGB factor of the result, 3 floats.
+        color: RGB factor of the result: 3 floats, or one RGB row per vertex, shape
+            (vertex_count, 3), finite and >= 0 (a specular colour texture sampled at the vertices).
+        roughness: per-vertex microfacet alpha overriding ``brdf.roughness`` (GGX / Beckmann),
+            shape (vertex_count,), in (0, 2]; None (default): ``brdf``'s own everywhere.
 
     Attributes:
-        color: the RGB factor, wp.vec3; eye: the viewer, wp.vec3; and those of
-            :class:`~warpshade.reference.estimator.MonteCarloShader`.
+        color: the RGB factor, wp.vec3 (None when it is given per vertex: see ``tint``); eye:
+            the viewer, wp.vec3; and those of :class:`~warpshade.reference.estimator.MonteCarloShader`.
+
+    Raises:
+        ValueError: naming the parameter: a bad ``color`` or ``roughness`` shape or value, a
+            roughness for a BRDF without one, a bad method, or no ``eye`` and no scene camera.
     """
 
     def __init__(self, scene, brdf, eye=None, lighting=None, samples: int = 256, method: str = "mis", color=(1.0, 1.0, 1.0),
-                 device=None, seed: int = 0, vertices=None, workers=None):
+                 device=None, seed: int = 0, vertices=None, workers=None, roughness=None):
         strategy_index(method, GLOSSY_METHODS, _CALLER)  # a bad method is reported before a missing camera
         if eye is None:
             if scene.camera is None:
                 raise ValueError(f"{_CALLER}: scene {scene.source or '<arrays>'} has no camera; pass eye=")
             eye = scene.camera.position
-        self.color = _vec3(color, "color", _CALLER)
-        super().__init__(scene, brdf, np.asarray(self.color, np.float32), method, GLOSSY_METHODS, _CALLER, eye=eye,
-                         lighting=lighting, samples=samples, device=device, seed=seed, vertices=vertices, workers=workers)
+        rows = _color_rows(color, scene.vertex_count)
+        self.color = rows if isinstance(rows, wp.vec3) else None
+        tint = np.asarray(rows, np.float32)
+        super().__init__(scene, brdf, tint, method, GLOSSY_METHODS, _CALLER, eye=eye, lighting=lighting, samples=samples,
+                         device=device, seed=seed, vertices=vertices, workers=workers, roughness=roughness)
+
+
+def _color_rows(color, vertex_count: int):
+    """``color`` as a uniform wp.vec3 (3 numbers) or per-vertex rows (vertex_count, 3) float32,
+    finite and >= 0; ValueError naming ``color`` otherwise."""
+    arr = np.asarray(color, dtype=np.float64)
+    if arr.ndim < 2 or arr.shape[0] == 1:
+        return _vec3(color, "color", _CALLER)
+    if arr.shape != (vertex_count, 3):
+        raise ValueError(f"{_CALLER}: color must be 3 floats or have shape ({vertex_count}, 3), got shape {arr.shape}")
+    if not np.all(np.isfinite(arr) & (arr >= 0.0)):
+        raise ValueError(f"{_CALLER}: per-vertex color must be finite and >= 0")
+    return arr.astype(np.float32)
 
 
 def shade_glossy(scene, frame, brdf, eye=None, lighting=None, samples: int = 256, color=(1.0, 1.0, 1.0), device=None,
-                 method: str = "mis", seed: int = 0, vertices=None, workers=None) -> ShadingResult:
+                 method: str = "mis", seed: int = 0, vertices=None, workers=None, roughness=None) -> ShadingResult:
     """Ray-traced glossy radiance towards ``eye`` of every (or the selected) vertex at one frame.
 
     See the module docstring for the integral and the estimators; arguments as
-    :class:`GlossyReferenceShader`. Returns a :class:`~warpshade.reference.ShadingResult`
-    (``radiance`` and ``stderr``, shape (receiver_count, 3), float32, linear RGB).
+    :class:`GlossyReferenceShader` (``color`` and ``roughness`` may be per vertex). Returns a
+    :class:`~warpshade.reference.ShadingResult` (``radiance`` and ``stderr``, shape
+    (receiver_count, 3), float32, linear RGB).
     """
     return GlossyReferenceShader(scene, brdf, eye, lighting, samples, method, color, device, seed, vertices,
-                                 workers).shade(frame)
+                                 workers, roughness).shade(frame)

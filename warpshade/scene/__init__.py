@@ -14,6 +14,7 @@ from .lighting import (
 )
 from .scene import ANIMATION_KINDS, Camera, Mesh, Scene, Skeleton, SkinBinding, ground_plane
 from .state import Change, FrameEvaluator, FrameState, MaterialAssignment
+from .textures import SurfaceMaps, Texture
 
 __all__ = [
     "ANIMATION_KINDS",
@@ -31,6 +32,8 @@ __all__ = [
     "Skeleton",
     "SkinBinding",
     "SphereLight",
+    "SurfaceMaps",
+    "Texture",
     "USD_DOME_FROM_MAP",
     "ground_plane",
     "lights_to_sh",

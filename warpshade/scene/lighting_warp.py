@@ -13,7 +13,10 @@ helpers below read it:
   constant per texel: texel ``(i, j)`` is chosen with probability proportional to
   ``(luminance(i, j) + LUMINANCE_FLOOR * mean_luminance) * solid_angle(i)`` (the exact texel
   solid angle ``(cos theta_i0 - cos theta_i1) 2 pi / W``, i.e. luminance times sin(theta) to
-  first order) through a marginal CDF over rows and a conditional CDF per row, and the
+  first order), where ``luminance(i, j)`` is the texel's own, or half that of an edge neighbour,
+  or a quarter of a corner neighbour's, whichever is largest (wrapping in azimuth): the bilinear
+  look-up spreads every texel into its neighbours with those largest weights, and a small, very
+  bright sun must be sampled there too through a marginal CDF over rows and a conditional CDF per row, and the
   direction is then uniform in solid angle inside the texel (``z`` uniform between the row's
   edge cosines, ``phi`` uniform in the column). Hence the pdf of a direction in texel
   ``(i, j)`` is ``(luminance(i, j) + floor) / sum(weights)`` per steradian.
@@ -96,8 +99,17 @@ def env_texel_pdf_reference(env) -> tuple[np.ndarray, np.ndarray]:
         ``(texel_probability, texel_pdf)``, both shape (H, W), float64: the probability of
         choosing each texel (sums to 1) and the solid-angle pdf inside it (1/sr).
     """
+    from scipy.ndimage import maximum_filter
+
     h, w = env.height, env.width
-    lum = np.maximum(env.image.astype(np.float64) @ _REC709, 0.0)
+    # the bilinear look-up spreads a texel half a texel into its neighbours (weight up to 1/2 across
+    # an edge, 1/4 at a corner), so a tiny bright source (a sun of a few texels) must be sampled
+    # there too, or its bilinear skirt is reached only by rare, huge-weight samples
+    raw = np.maximum(env.image.astype(np.float64) @ _REC709, 0.0)
+    mode = ("nearest", "wrap")
+    edges = np.maximum(maximum_filter(raw, size=(3, 1), mode=mode), maximum_filter(raw, size=(1, 3), mode=mode))
+    lum = np.maximum(0.5 * edges, 0.25 * maximum_filter(raw, size=3, mode=mode))
+    lum = np.maximum(raw, lum)
     solid = quadrature.latlong(h, w).weights.reshape(h, w)  # exact texel solid angles
     mean = float((lum * solid).sum() / (4.0 * np.pi))
     density = lum + LUMINANCE_FLOOR * mean if mean > 0.0 else np.ones_like(lum)

@@ -15,6 +15,11 @@ isotropic, so only dot products with ``n`` matter):
   ``tan^2 theta_h = -alpha^2 ln(1 - u)``) reflected about ``h``, with the solid-angle pdf
   ``pdf_h / (4 |v.h|)``. Samples may fall below the horizon (their ``b`` is 0).
 * :func:`brdf_pdf` -- that pdf for any ``s``.
+
+Spatially varying microfacet roughness: :func:`brdf_with_roughness` is a copy of a
+:class:`BRDFParams` with its ``roughness`` replaced (a per-receiver value read from an array),
+and :func:`check_roughness` validates such an array on the host (only the GGX and Beckmann
+models have a roughness, :data:`ROUGH_MODELS`).
 """
 
 from __future__ import annotations
@@ -24,12 +29,28 @@ import numpy as np
 from .._wp import wp
 from . import materials
 
-__all__ = ["BRDF_MODELS", "BRDFParams", "brdf_eval", "brdf_pdf", "brdf_sample", "upload_brdf"]
+__all__ = [
+    "BRDF_MODELS",
+    "BRDFParams",
+    "ROUGHNESS_MAX",
+    "ROUGH_MODELS",
+    "brdf_eval",
+    "brdf_pdf",
+    "brdf_sample",
+    "brdf_with_roughness",
+    "check_roughness",
+    "hemisphere_to_concentric",
+    "upload_brdf",
+]
 
 wp.set_module_options({"enable_backward": False})
 
 #: Model codes of :class:`BRDFParams` (``model`` field), in this order.
 BRDF_MODELS = ("lambert", "phong", "blinn-phong", "ggx", "beckmann")
+#: Model codes whose ``roughness`` (microfacet alpha) a per-receiver array may override.
+ROUGH_MODELS = (3, 4)
+#: Valid microfacet alpha, as :class:`~warpshade.scene.materials.Microfacet` accepts it: (0, 2].
+ROUGHNESS_MAX = 2.0
 
 
 @wp.struct
@@ -68,6 +89,49 @@ def upload_brdf(brdf: materials.BRDF) -> BRDFParams:
     if not all(np.isfinite([p.scale, p.exponent, p.roughness, p.f0])):
         raise ValueError(f"upload_brdf: non-finite parameters in {brdf!r}")
     return p
+
+
+def check_roughness(values, count: int, brdf: BRDFParams, name: str, caller: str) -> np.ndarray:
+    """Validate per-receiver microfacet roughness on the host.
+
+    Args:
+        values: alpha per receiver, array-like or wp.array(float) of shape (count,).
+        count: the number of receivers (points) the array is indexed like.
+        brdf: the uploaded BRDF whose roughness the values override (GGX or Beckmann).
+        name, caller: the parameter and function named in error messages.
+
+    Returns:
+        The values as a contiguous float32 array of shape (count,).
+
+    Raises:
+        ValueError: the BRDF has no roughness, the shape is not (count,), or a value is not
+            finite or outside (0, 2].
+    """
+    if brdf.model not in ROUGH_MODELS:
+        raise ValueError(f"{caller}: {name} overrides a microfacet roughness, but the BRDF is "
+                         f"{BRDF_MODELS[brdf.model]!r} (models with a roughness: ggx, beckmann)")
+    arr = values.numpy() if isinstance(values, wp.array) else np.asarray(values)
+    if arr.shape != (count,):
+        raise ValueError(f"{caller}: {name} must have shape ({count},), got {arr.shape}")
+    arr = np.ascontiguousarray(arr, dtype=np.float32)
+    bad = ~(np.isfinite(arr) & (arr > 0.0) & (arr <= ROUGHNESS_MAX))
+    if np.any(bad):
+        first = int(np.argmax(bad))
+        raise ValueError(f"{caller}: {name} must be finite and in (0, {ROUGHNESS_MAX:g}]; "
+                         f"{int(bad.sum())} values are not (first: [{first}] = {arr[first]!r})")
+    return arr
+
+
+@wp.func
+def brdf_with_roughness(b: BRDFParams, roughness: float) -> BRDFParams:
+    """A copy of ``b`` with its microfacet alpha replaced by ``roughness`` (every other field kept)."""
+    out = BRDFParams()
+    out.model = b.model
+    out.scale = b.scale
+    out.exponent = b.exponent
+    out.roughness = roughness
+    out.f0 = b.f0
+    return out
 
 
 @wp.func
@@ -189,3 +253,31 @@ def brdf_pdf(b: BRDFParams, n: wp.vec3, v: wp.vec3, s: wp.vec3) -> float:
     if vh <= 1.0e-12:
         return 0.0
     return _half_pdf(b, wp.dot(n, h)) / (4.0 * vh)
+
+
+@wp.func
+def hemisphere_to_concentric(d: wp.vec3) -> wp.vec2:
+    """A unit local direction -> the concentric square ``[-1, 1]^2``: the Warp mirror of
+    :func:`warpshade.scene.materials.hemisphere_to_concentric` (the lower hemisphere is clamped to
+    the horizon)."""
+    z = wp.clamp(d[2], 0.0, 1.0)
+    r = wp.sqrt(1.0 - z)
+    phi = wp.atan2(d[1], d[0])
+    quarter = 0.25 * wp.pi
+    if phi < -quarter:
+        phi += 2.0 * wp.pi
+    a = float(0.0)
+    b = float(0.0)
+    if phi < quarter:
+        a = r
+        b = r * phi / quarter
+    elif phi < 3.0 * quarter:
+        b = r
+        a = r * (0.5 * wp.pi - phi) / quarter
+    elif phi < 5.0 * quarter:
+        a = -r
+        b = -r * (phi - wp.pi) / quarter
+    else:
+        b = -r
+        a = -r * (1.5 * wp.pi - phi) / quarter
+    return wp.vec2(a, b)

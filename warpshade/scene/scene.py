@@ -126,6 +126,10 @@ class Mesh:
         skin: the :class:`SkinBinding` of a ``"skinned"`` mesh.
         vertex_offset: index of this mesh's first vertex in the scene's concatenated arrays.
         dropped_face_count: zero-area triangles removed when the mesh was loaded.
+        surface: the spatially varying material parameters
+            (:class:`~warpshade.scene.textures.SurfaceMaps`: diffuse colour, roughness, specular
+            colour or metallic, textures looked up with ``uvs``) from a bound UsdPreviewSurface,
+            or None (no such material; ``albedo`` alone describes the surface).
     """
 
     path: str
@@ -140,6 +144,7 @@ class Mesh:
     skin: SkinBinding | None = None
     vertex_offset: int = 0
     dropped_face_count: int = 0
+    surface: Any = None
 
     def __post_init__(self):
         self.points = np.asarray(self.points, dtype=np.float64).reshape(-1, 3)
@@ -147,6 +152,11 @@ class Mesh:
         self.transforms = np.asarray(self.transforms, dtype=np.float64).reshape(-1, 4, 4)
         if self.animation not in ANIMATION_KINDS:
             raise ValueError(f"mesh {self.path}: unknown animation kind {self.animation!r}")
+        if self.surface is not None and getattr(self.surface, "is_textured", False):
+            if self.uvs is None or np.asarray(self.uvs).shape != (self.vertex_count, 2):
+                raise ValueError(f"mesh {self.path}: textured surface maps ({', '.join(self.surface.textures)}) need "
+                                 f"uvs of shape ({self.vertex_count}, 2), got "
+                                 f"{None if self.uvs is None else np.asarray(self.uvs).shape}")
         if self.albedo is None:
             self.albedo = np.full((self.vertex_count, 3), 0.8, dtype=np.float32)
         else:

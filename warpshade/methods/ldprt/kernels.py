@@ -19,6 +19,7 @@ import functools
 from ..._wp import wp
 from ...basis.sh_warp import SHTables, sh_kernels
 from ...basis.zh import zh_kernels
+from ...scene.materials_warp import hemisphere_to_concentric
 
 wp.set_module_options({"enable_backward": False})
 
@@ -150,33 +151,6 @@ def shade_kernels(order: int):
 
 
 @wp.func
-def hemisphere_to_concentric(d: wp.vec3) -> wp.vec2:
-    """Inverse of the concentric square -> disk -> hemisphere map (see scene.materials); the
-    lower hemisphere is clamped to the horizon."""
-    z = wp.clamp(d[2], 0.0, 1.0)
-    r = wp.sqrt(1.0 - z)
-    phi = wp.atan2(d[1], d[0])
-    if phi < -0.25 * wp.pi:
-        phi += 2.0 * wp.pi
-    quarter = 0.25 * wp.pi
-    a = float(0.0)
-    b = float(0.0)
-    if phi < quarter:
-        a = r
-        b = r * phi / quarter
-    elif phi < 3.0 * quarter:
-        b = r
-        a = r * (0.5 * wp.pi - phi) / quarter
-    elif phi < 5.0 * quarter:
-        a = -r
-        b = -r * (phi - wp.pi) / quarter
-    else:
-        b = -r
-        a = -r * (1.5 * wp.pi - phi) / quarter
-    return wp.vec2(a, b)
-
-
-@wp.func
 def view_factor(factors: wp.array3d(dtype=wp.float32), ab: wp.vec2, j: int) -> float:
     """Bilinear interpolation of view factor j between texel centres of a (res, res, n_b) texture."""
     res = factors.shape[0]
@@ -250,7 +224,8 @@ def glossy_kernel(order: int):
                 s += table_lookup(table, rot * axes[v, slot]) * load_bands(coeffs, v, slot)
             acc += view_factor(factors, ab, j) * s
         for c in range(3):
-            radiance[v, c] = specular[c] * acc[c]
+            # SH truncation rings below zero around a sharp light: clamped, as every SH shading stage does
+            radiance[v, c] = specular[c] * wp.max(acc[c], 0.0)
 
     return shade_glossy
 

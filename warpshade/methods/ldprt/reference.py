@@ -66,4 +66,5 @@ def shade_glossy_reference(model: GlossyModel, frames, view_world, light) -> np.
     rows = zh.to_sh(axes, model.coeffs.astype(np.float64))  # (V, n_b, n^2)
     stored = np.stack([rotate_stored(model.stored[:, j], rot, model.order) for j in range(model.rank)], axis=1)
     rows_world = rows + stored
-    return np.einsum("vj,vjk,ck->vc", u, rows_world, np.asarray(light, np.float64))
+    # negative radiance (SH truncation) is clamped to zero, as the kernel does
+    return np.maximum(np.einsum("vj,vjk,ck->vc", u, rows_world, np.asarray(light, np.float64)), 0.0)

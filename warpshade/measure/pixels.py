@@ -1,0 +1,219 @@
+"""Per-pixel images of a run: stages that shade G-buffers (``render_pixels``), their materials
+from the meshes' textures at every pixel, linear EXR + PNG per frame, and the error of each image
+against the per-pixel ray-traced reference (:func:`warpshade.reference.pixels.reference_image`).
+
+* :func:`pixel_stage` -- the run's stage that shades pixels (``sg.shade``), or None;
+* :func:`pixel_materials` -- albedo, specular colour and roughness at every hit: the meshes'
+  UsdPreviewSurface textures sampled at the interpolated UVs (Warp), the stage's per-vertex
+  materials interpolated elsewhere, the same rule the stage applies at the vertices;
+* :func:`render_frame` -- one frame: step the run to it, cast the G-buffer, shade, box-filter;
+  returns a :class:`PixelImage` with the time of each step;
+* :func:`write_pixel_images` -- ``<graph>_px_<frame>.png`` and ``.exr`` per frame;
+* :func:`measure_pixels` -- relative RMS over covered pixels against the per-pixel reference (the
+  stage's own reference BRDF, eye and colour, the per-pixel roughness and colours), its noise, and
+  ``<graph>_px_<frame>_vs_reference.png``.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .._wp import wp
+
+__all__ = ["PixelImage", "measure_pixels", "pixel_materials", "pixel_stage", "render_frame", "write_pixel_images"]
+
+
+def pixel_stage(runtime):
+    """The stage of the run that shades pixels (has ``render_pixels``): the output's, else the
+    first such stage; None when there is none."""
+    out_name = runtime.spec.output.split(".")[0] if getattr(runtime, "spec", None) is not None else None
+    stages = list(runtime.stages)
+    for st in ([s for s in stages if s.name == out_name] + stages):
+        if hasattr(st, "render_pixels"):
+            return st
+    return None
+
+
+@dataclass
+class PixelImage:
+    """A per-pixel rendering of one frame.
+
+    Attributes:
+        linear: radiance (H, W, 3) float32, linear RGB (0 where no geometry).
+        coverage: fraction of each pixel's rays that hit geometry (H, W) float32.
+        frame: the time code; camera: the camera used.
+        seconds: time of each step of the frame: ``gbuffer``, ``materials``, ``shade``, ``total``.
+        materials: the per-ray material arrays used (albedo, specular, roughness) or None.
+    """
+
+    linear: np.ndarray
+    coverage: np.ndarray
+    frame: float
+    camera: object
+    seconds: dict = field(default_factory=dict)
+    materials: dict | None = None
+
+
+def _mesh_of_triangle(scene) -> np.ndarray:
+    starts = []
+    for k, m in enumerate(scene.meshes):
+        starts.append(np.full(m.triangle_count, k, np.int32))
+    return np.concatenate(starts) if starts else np.zeros(0, np.int32)
+
+
+def pixel_materials(stage, scene, gbuffer, textures: bool = True) -> dict:
+    """Materials at every ray of a G-buffer: ``albedo`` (N, 3), ``specular`` (N, 3) (the stage's
+    specular colour times the texture's), ``roughness`` (N,), float32 host arrays. Meshes without
+    textures (or ``textures`` false) take the stage's per-vertex materials interpolated."""
+    from ..scene.textures import sample_surface_warp
+
+    dev = gbuffer.device
+    out = stage.pixel_materials(gbuffer)
+    if not textures:
+        return out
+    textured = [(k, m) for k, m in enumerate(scene.meshes) if getattr(m, "surface", None) is not None and m.uvs is not None]
+    if not textured:
+        return out
+    hit = gbuffer.hit.numpy().astype(bool)
+    face = gbuffer.face.numpy()
+    bary = gbuffer.bary.numpy().astype(np.float64)
+    faces = scene.faces
+    mesh_of = _mesh_of_triangle(scene)
+    specular_rgb = np.asarray(stage.params["specular"], np.float64).reshape(3)
+    for k, m in textured:
+        rows = np.nonzero(hit & (mesh_of[np.maximum(face, 0)] == k))[0]
+        if rows.size == 0:
+            continue
+        tri = faces[face[rows]] - m.vertex_offset
+        w = np.stack([bary[rows, 0], bary[rows, 1], 1.0 - bary[rows, 0] - bary[rows, 1]], -1)
+        uv = np.einsum("pk,pkc->pc", w, m.uvs[tri])
+        vals = sample_surface_warp(m.surface, uv, dev)
+        out["albedo"][rows] = vals["diffuse"]
+        out["roughness"][rows] = vals["roughness"]
+        out["specular"][rows] = vals["specular"] * specular_rgb[None]
+    return out
+
+
+def render_frame(runtime, frame, width: int = 640, height: int = 480, supersample: int = 1, textures: bool | None = None,
+                 stage=None, camera=None) -> PixelImage:
+    """Step the run to ``frame`` and shade every pixel with its pixel stage (module docstring);
+    ``textures`` (default: the stage's ``textures`` parameter) samples the meshes' textures per pixel."""
+    from ..geometry.bvh import Visibility
+    from ..render import camera_for, render_gbuffer
+
+    st = stage if stage is not None else pixel_stage(runtime)
+    if st is None:
+        raise ValueError(f"graph {runtime.spec.name!r}: no stage of this run shades pixels")
+    if width < 1 or height < 1 or supersample < 1:
+        raise ValueError(f"pixels: image size and supersample must be positive, got {width}x{height} x{supersample}")
+    if textures is None:
+        textures = bool(st.params.get("textures", False))
+    t0 = time.perf_counter()
+    runtime.step(float(frame))
+    state = runtime.state
+    cam = camera if camera is not None else camera_for(runtime.scene, float(frame), aspect=width / height)
+    bvh = getattr(runtime, "_pixel_bvh", None)
+    if bvh is None:
+        bvh = Visibility.from_scene(runtime.scene, device=runtime.device)
+        runtime._pixel_bvh = bvh
+    bvh.update(state.points)
+    ss = int(supersample)
+    t1 = time.perf_counter()
+    gb = render_gbuffer(bvh, state.normals, cam, width * ss, height * ss)
+    wp.synchronize_device(runtime.device)
+    t2 = time.perf_counter()
+    mats = pixel_materials(st, runtime.scene, gb, textures) if textures else None
+    t3 = time.perf_counter()
+    colour = st.render_pixels(gb, **(mats or {}))
+    if mats is None:  # what was shaded: the per-vertex materials interpolated
+        mats = st.pixel_materials(gb)
+    wp.synchronize_device(runtime.device)
+    t4 = time.perf_counter()
+    rgb = colour.numpy().reshape(height * ss, width * ss, 3)
+    hit = gb.hit.numpy().reshape(height * ss, width * ss).astype(np.float32)
+    linear = rgb.reshape(height, ss, width, ss, 3).mean(axis=(1, 3)).astype(np.float32)
+    coverage = hit.reshape(height, ss, width, ss).mean(axis=(1, 3)).astype(np.float32)
+    seconds = {"step": t1 - t0, "gbuffer": t2 - t1, "materials": t3 - t2, "shade": t4 - t3, "total": t4 - t1}
+    return PixelImage(linear, coverage, float(frame), cam, seconds, mats)
+
+
+def _exposure(linear: np.ndarray) -> float:
+    lum = linear @ np.array([0.2126, 0.7152, 0.0722])
+    lum = lum[lum > 0]
+    p99 = float(np.percentile(lum, 99)) if lum.size else 1.0
+    return float(np.log2(0.9 / p99)) if p99 > 0 else 0.0
+
+
+def write_pixel_images(runtime, out_dir, frames=None, width: int = 640, height: int = 480, supersample: int = 1,
+                       textures: bool | None = None, exposure: float | None = None) -> list:
+    """``<graph>_px_<frame>.png`` (tone-mapped, one exposure for every frame) and ``.exr``
+    (linear) for the pixel stage of the run; returns the paths (empty without such a stage)."""
+    from ..io.images import write_exr
+    from ..render import write_png
+    from ..render.image import tonemap_reference
+
+    if pixel_stage(runtime) is None:
+        return []
+    rec = sorted(runtime.results)
+    if frames is None:
+        frames = sorted({rec[0], rec[len(rec) // 2], rec[-1]}) if rec else [float(runtime.scene.frames[0])]
+    images = [render_frame(runtime, f, width, height, supersample, textures) for f in frames]
+    if exposure is None:
+        exposure = _exposure(np.concatenate([im.linear.reshape(-1, 3) for im in images]))
+    paths = []
+    for im in images:
+        stem = Path(out_dir) / f"{runtime.spec.name}_px_{int(round(im.frame)):04d}"
+        write_png(stem.with_suffix(".png"), tonemap_reference(im.linear, exposure=exposure))
+        write_exr(stem.with_suffix(".exr"), im.linear)
+        paths += [stem.with_suffix(".png"), stem.with_suffix(".exr")]
+    return paths
+
+
+def measure_pixels(runtime, out_dir, frames, width: int = 160, height: int = 120, samples: int = 256, supersample: int = 1,
+                   textures: bool | None = None, seed: int = 0) -> dict:
+    """Per-pixel error of the pixel stage against the per-pixel glossy reference, per frame.
+
+    The reference has the stage's reference BRDF (:meth:`reference_model_at`), eye and colour, the
+    frame's lights, and the per-pixel roughness and specular colour the method shaded with; the
+    error is the relative RMS over fully covered pixels (``sqrt(mean |d|^2) / sqrt(mean |ref|^2)``
+    over RGB), with the part explained by the reference's own noise.
+
+    Returns:
+        ``{"frames": {frame: {"rel_rms", "noise", "pixels", "image"}}, "width", "height", "samples"}``.
+    """
+    from ..reference.pixels import reference_image
+    from ..render import write_png
+    from ..render.image import tonemap_reference
+
+    st = pixel_stage(runtime)
+    if st is None:
+        raise ValueError(f"graph {runtime.spec.name!r}: no stage of this run shades pixels")
+    report = {"width": width, "height": height, "samples": samples, "supersample": supersample, "frames": {}}
+    for f in frames:
+        im = render_frame(runtime, f, width, height, supersample, textures)
+        model = st.reference_model_at(float(f), runtime.state.materials, runtime.state.eye.numpy()[0], per_pixel=True)
+        brdf = model["brdf"]
+        mats = im.materials
+        uses_roughness = hasattr(brdf, "roughness")
+        ref = reference_image(runtime.scene, float(f), brdf, camera=im.camera, width=width, height=height, samples=samples,
+                              supersample=supersample, eye=model["eye"], lighting=runtime.lighting.lights_at(float(f)),
+                              roughness=mats["roughness"] if uses_roughness else None, specular=mats["specular"],
+                              include=("specular",), seed=seed, device=runtime.device)
+        mask = ref.mask & (im.coverage >= 1.0)
+        d = (im.linear - ref.radiance)[mask]
+        r = ref.radiance[mask]
+        denom = float(np.sqrt(np.mean(r * r))) if r.size else 0.0
+        rel = float(np.sqrt(np.mean(d * d)) / denom) if denom > 0 else float("nan")
+        noise = float(np.sqrt(np.mean(ref.stderr[mask] ** 2)) / denom) if denom > 0 else float("nan")
+        path = Path(out_dir) / f"{runtime.spec.name}_px_{int(round(float(f))):04d}_vs_reference.png"
+        exposure = _exposure(ref.radiance.reshape(-1, 3))
+        err = np.abs(im.linear - ref.radiance)
+        strip = np.concatenate([tonemap_reference(im.linear, exposure=exposure), tonemap_reference(ref.radiance, exposure=exposure),
+                                tonemap_reference(err, exposure=exposure + 2.0)], axis=1)
+        write_png(path, strip)
+        report["frames"][float(f)] = {"rel_rms": rel, "noise": noise, "pixels": int(mask.sum()), "image": str(path)}
+    return report

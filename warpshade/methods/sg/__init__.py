@@ -1,0 +1,40 @@
+"""All-frequency shading with spherical Gaussians and SSDF visibility (Wang, Ng, Liu, Snyder 2009).
+
+Reflectance is a microfacet model whose NDF is a few spherical Gaussians (:mod:`.brdf`; closed
+forms for Beckmann, Cook-Torrance, Blinn-Phong and Ward, fits for anisotropic and tabulated NDFs),
+warped to each view (eq. 17-22) per vertex or per pixel (:mod:`.brdf_warp`), so materials are
+per-pixel textures edited at run time with no precompute. Visibility is a per-vertex spherical
+signed distance function (:mod:`warpshade.transfer.ssdf`, PCA to an error budget), integrated
+against SG lobes by the hemisphere integral ``f_h`` (:func:`warpshade.basis.sg.hemisphere_integral`).
+The environment is an SG mixture for the diffuse term and a prefiltered table for the specular
+term; sphere and distant lights are SG lobes (:mod:`.lighting`, :mod:`.lighting_warp`).
+
+Modules, in the shape of :mod:`warpshade.methods.prt`: :mod:`.stages` (``sg.ssdf``, ``sg.shade``),
+:mod:`.kernels`, :mod:`.model`, :mod:`.reference` (float64 mirror of the kernels), :mod:`.rows`,
+:mod:`.budget`, plus :mod:`.brdf`, :mod:`.brdf_warp`, :mod:`.lighting`, :mod:`.lighting_warp`.
+"""
+
+from .brdf import make_brdf, ndf_lobes, view_slice
+from .lighting import EnvironmentSG, PrefilteredEnvironment, fit_environment, point_light_lobe
+from .model import EnvironmentLighting, bake_ssdf_model, decode_maps, environment_lighting
+from .reference import shade_reference
+from .rows import harness_rows
+from .stages import SSDFStage, ShadeStage
+
+__all__ = [
+    "EnvironmentLighting",
+    "EnvironmentSG",
+    "PrefilteredEnvironment",
+    "SSDFStage",
+    "ShadeStage",
+    "bake_ssdf_model",
+    "decode_maps",
+    "environment_lighting",
+    "fit_environment",
+    "harness_rows",
+    "make_brdf",
+    "ndf_lobes",
+    "point_light_lobe",
+    "shade_reference",
+    "view_slice",
+]

@@ -1,0 +1,322 @@
+"""Warp kernels of the SG/SSDF method: the shading of eq. 39/41 (environment) and 42/43 (local
+lights) at a point, per vertex and per pixel.
+
+At a shading point with normal ``n``, view ``o`` (toward the eye) and SSDF visibility ``V^d``:
+
+* diffuse, eq. 39 and 42: ``R_d = sum_k (C*(n) (x) L*_k) . V^d`` over the environment's SG lobes
+  ``L*_k`` and the local lights' lobes (eq. 32-33); each product lobe ``(p, lambda, mu)`` against
+  the visibility is ``mu f_h(V^d(p), lambda)`` (eq. 30);
+* specular, eq. 41: the BRDF slice ``rho*_s(i; o)`` (the NDF lobe warped to the view, eq. 17-22),
+  times the clamped cosine, times the visibility by eq. 31 (amplitude scaled by
+  ``f_h / f_h(pi/2)`` at the lobe axis), then integrated with the environment through the
+  prefiltered table: ``mu Gamma_L(p, lambda)`` (eq. 35); eq. 43 for local lights: the lobe product
+  with the light lobe, integrated against the visibility by eq. 30;
+* a light lobe much narrower than the BRDF slice (a sun taken out of the sky, a small lamp):
+  with ``st.exact_model`` set, its specular term is the BRDF itself at the light's direction times
+  the light's irradiance and cosine, with the light lobe's visible fraction (eq. 31 for the light
+  lobe), instead of the product with the warped slice (eq. 43), whose isotropic shape is least
+  accurate at oblique views;
+* radiance ``kd / pi R_d + ks R_s`` (``component`` selects either or both).
+
+Visibility at a point between vertices. The SSDF of each of the triangle's three vertices is
+evaluated in that vertex's own tangent frame at the world direction asked for, and the three
+values are blended with the barycentric weights: the SSDFs are interpolated as spherical
+functions in world space, which is the paper's per-pixel interpolation of PCA coefficients
+(linear in the coefficients) without requiring the three tangent frames to agree about the
+rotation around the normal. The per-vertex SSDFs are decoded from their PCA coefficients once
+(:mod:`.model`) into ``(V, R, R)`` maps, so a look-up is a bilinear fetch; ``ssdf = "pca"``
+reconstructs from the coefficients at every look-up (the paper's GPU path; ``terms`` fetches).
+"""
+
+from __future__ import annotations
+
+from ..._wp import wp
+from ...basis.sg_warp import SG, sg_hemisphere_integral, sg_integral, sg_make, sg_product, sg_rotate, sg_visible_fraction
+from ...scene.materials_warp import BRDFParams, brdf_eval
+from ...transfer.ssdf_warp import local_to_concentric
+from .brdf_warp import specular_slice
+from .lighting_warp import PrefilteredTable, gamma_lookup, point_light_sg
+
+wp.set_module_options({"enable_backward": False})
+
+__all__ = ["COMPONENTS", "interpolate_materials_kernel", "shade_pixels_kernel", "shade_vertices_kernel", "turn_lobes_kernel"]
+
+#: What the shading returns: the specular term, the diffuse term, or their sum.
+COMPONENTS = ("specular", "diffuse", "both")
+_INV_PI = wp.constant(0.3183098861837907)
+
+
+@wp.struct
+class Material:
+    """Per-point material: diffuse albedo, specular colour, microfacet roughness (exponent for Blinn-Phong)."""
+
+    albedo: wp.vec3
+    specular: wp.vec3
+    roughness: float
+
+
+@wp.struct
+class Lights:
+    """The frame's lights as the kernels see them (world frame).
+
+    env_axes / env_sharpness / env_amplitude: the environment's SG mixture, turned to the frame
+    (K lobes); table: the prefiltered environment (eq. 35) in the map frame, ``env_to_world[0]`` the
+    frame's map-to-world rotation; sphere_*: sphere (point) lights of the frame; distant_*: distant lights as lobes.
+    """
+
+    env_axes: wp.array(dtype=wp.vec3)
+    env_sharpness: wp.array(dtype=float)
+    env_amplitude: wp.array(dtype=wp.vec3)
+    env_count: int
+    table: PrefilteredTable
+    has_table: int
+    env_to_world: wp.array(dtype=wp.mat33)
+    sphere_position: wp.array(dtype=wp.vec3)
+    sphere_radius: wp.array(dtype=float)
+    sphere_radiance: wp.array(dtype=wp.vec3)
+    sphere_count: int
+    distant_axes: wp.array(dtype=wp.vec3)
+    distant_sharpness: wp.array(dtype=float)
+    distant_amplitude: wp.array(dtype=wp.vec3)
+    distant_count: int
+
+
+@wp.struct
+class Settings:
+    model: int
+    f0: float
+    cos_sharpness: float
+    cos_amplitude: float
+    component: int
+    pca: int
+    terms: int
+    resolution: int
+    horizon: int
+    exact_model: int
+    exact_ratio: float
+
+
+@wp.struct
+class Visibility:
+    """Per-vertex SSDFs: decoded maps (V, R, R) or the PCA (mean (R*R,), basis (N, R*R), coeffs (V, N)),
+    and the vertices' tangent frames (rows t, b, n: world -> local)."""
+
+    maps: wp.array3d(dtype=float)
+    mean: wp.array(dtype=float)
+    basis: wp.array2d(dtype=float)
+    coeffs: wp.array2d(dtype=float)
+    frames: wp.array(dtype=wp.mat33)
+
+
+@wp.func
+def ssdf_bilinear(maps: wp.array3d(dtype=float), v: int, uv: wp.vec2, r: int):
+    """Bilinear fetch of vertex ``v``'s map at ``uv`` (texel centres at ``(i + 0.5) / r``, clamped)."""
+    x = wp.clamp(uv[0] * float(r) - 0.5, 0.0, float(r - 1))
+    y = wp.clamp(uv[1] * float(r) - 0.5, 0.0, float(r - 1))
+    i0 = int(wp.floor(x))
+    j0 = int(wp.floor(y))
+    i1 = wp.min(i0 + 1, r - 1)
+    j1 = wp.min(j0 + 1, r - 1)
+    fx = x - float(i0)
+    fy = y - float(j0)
+    top = (1.0 - fy) * maps[v, i0, j0] + fy * maps[v, i0, j1]
+    bottom = (1.0 - fy) * maps[v, i1, j0] + fy * maps[v, i1, j1]
+    return (1.0 - fx) * top + fx * bottom
+
+
+@wp.func
+def _ssdf_vertex(vis: Visibility, st: Settings, v: int, d_world: wp.vec3):
+    ab = local_to_concentric(vis.frames[v] * d_world)
+    uv = wp.vec2(0.5 * (ab[0] + 1.0), 0.5 * (ab[1] + 1.0))
+    if st.pca == 0:
+        return ssdf_bilinear(vis.maps, v, uv, st.resolution)
+    # reconstruct from the PCA at the four texels of the bilinear footprint
+    r = st.resolution
+    x = wp.clamp(uv[0] * float(r) - 0.5, 0.0, float(r - 1))
+    y = wp.clamp(uv[1] * float(r) - 0.5, 0.0, float(r - 1))
+    i0 = int(wp.floor(x))
+    j0 = int(wp.floor(y))
+    i1 = wp.min(i0 + 1, r - 1)
+    j1 = wp.min(j0 + 1, r - 1)
+    fx = x - float(i0)
+    fy = y - float(j0)
+    t00 = i0 * r + j0
+    t01 = i0 * r + j1
+    t10 = i1 * r + j0
+    t11 = i1 * r + j1
+    w00 = (1.0 - fx) * (1.0 - fy)
+    w01 = (1.0 - fx) * fy
+    w10 = fx * (1.0 - fy)
+    w11 = fx * fy
+    acc = w00 * vis.mean[t00] + w01 * vis.mean[t01] + w10 * vis.mean[t10] + w11 * vis.mean[t11]
+    for k in range(st.terms):
+        c = vis.coeffs[v, k]
+        acc += c * (w00 * vis.basis[k, t00] + w01 * vis.basis[k, t01] + w10 * vis.basis[k, t10] + w11 * vis.basis[k, t11])
+    return acc
+
+
+@wp.func
+def ssdf_at(vis: Visibility, st: Settings, i0: int, i1: int, i2: int, w: wp.vec3, d_world: wp.vec3, n: wp.vec3):
+    """The signed angular distance (radians) at a world direction, blended over three vertices;
+    with ``st.horizon`` the tangent plane of ``n`` is a boundary too (``min(V^d, elevation)``)."""
+    s = w[0] * _ssdf_vertex(vis, st, i0, d_world)
+    if w[1] > 0.0:
+        s += w[1] * _ssdf_vertex(vis, st, i1, d_world)
+    if w[2] > 0.0:
+        s += w[2] * _ssdf_vertex(vis, st, i2, d_world)
+    if st.horizon != 0:
+        s = wp.min(s, wp.asin(wp.clamp(wp.dot(d_world, n), -1.0, 1.0)))
+    return s
+
+
+@wp.func
+def _basis_of(n: wp.vec3):
+    # Duff et al.'s branchless orthonormal basis; rows (t, b, n): world -> local
+    sign = 1.0
+    if n[2] < 0.0:
+        sign = -1.0
+    a = -1.0 / (sign + n[2])
+    b = n[0] * n[1] * a
+    t = wp.vec3(1.0 + sign * n[0] * n[0] * a, sign * b, -sign * n[0])
+    bt = wp.vec3(b, sign + n[1] * n[1] * a, -n[1])
+    return wp.mat33(t[0], t[1], t[2], bt[0], bt[1], bt[2], n[0], n[1], n[2])
+
+
+@wp.func
+def shade_point(x: wp.vec3, n: wp.vec3, o: wp.vec3, mat: Material, lights: Lights, vis: Visibility, st: Settings,
+                i0: int, i1: int, i2: int, w: wp.vec3):
+    """Outgoing radiance toward ``o`` at ``x`` (eq. 39, 41, 42, 43), linear RGB."""
+    cosine = sg_make(n, st.cos_sharpness, wp.vec3(st.cos_amplitude))
+    rd = wp.vec3(0.0)
+    rs = wp.vec3(0.0)
+    want_d = st.component != 0
+    want_s = st.component != 1
+    slice_w = sg_make(n, 0.0, wp.vec3(0.0))
+    facing = wp.dot(o, n) > 0.0
+    if want_s and facing:
+        frame = _basis_of(n)
+        local = sg_rotate(specular_slice(frame * o, st.model, mat.roughness, st.f0), wp.transpose(frame))
+        slice_w = sg_product(cosine, local)
+        if lights.has_table != 0:
+            theta = ssdf_at(vis, st, i0, i1, i2, w, slice_w.axis, n)
+            fraction = sg_visible_fraction(theta, slice_w.sharpness)
+            rs += fraction * wp.cw_mul(slice_w.amplitude, gamma_lookup(lights.table, wp.transpose(lights.env_to_world[0]), slice_w.axis,
+                                                                                slice_w.sharpness))
+    if want_d:
+        for k in range(lights.env_count):
+            g = sg_product(cosine, sg_make(lights.env_axes[k], lights.env_sharpness[k], lights.env_amplitude[k]))
+            theta = ssdf_at(vis, st, i0, i1, i2, w, g.axis, n)
+            rd += g.amplitude * sg_hemisphere_integral(theta, g.sharpness)
+    # local and distant lights: eq. 42-43 (the light lobe times the cosine, then the visibility)
+    for k in range(lights.sphere_count + lights.distant_count):
+        light = SG()
+        if k < lights.sphere_count:
+            light = point_light_sg(lights.sphere_position[k], lights.sphere_radius[k], lights.sphere_radiance[k], x)
+        else:
+            j = k - lights.sphere_count
+            light = sg_make(lights.distant_axes[j], lights.distant_sharpness[j], lights.distant_amplitude[j])
+        lc = sg_product(light, cosine)
+        if want_d:
+            theta = ssdf_at(vis, st, i0, i1, i2, w, lc.axis, n)
+            rd += lc.amplitude * sg_hemisphere_integral(theta, lc.sharpness)
+        if want_s and facing:
+            if st.exact_model >= 0 and light.sharpness > st.exact_ratio * slice_w.sharpness:
+                # a light much narrower than the BRDF slice: the BRDF itself at the light's
+                # direction times its irradiance, visibility as the light lobe's visible fraction
+                b = BRDFParams()
+                b.model = st.exact_model
+                b.scale = 1.0
+                b.exponent = mat.roughness
+                b.roughness = mat.roughness
+                b.f0 = st.f0
+                theta = ssdf_at(vis, st, i0, i1, i2, w, light.axis, n)
+                cos_l = wp.max(wp.dot(n, light.axis), 0.0)
+                rs += sg_integral(light) * (brdf_eval(b, n, o, light.axis) * cos_l * sg_visible_fraction(theta, light.sharpness))
+            else:
+                # eq. 43: the slice already holds the cosine, so the light multiplies it once
+                g = sg_product(light, slice_w)
+                theta = ssdf_at(vis, st, i0, i1, i2, w, g.axis, n)
+                rs += g.amplitude * sg_hemisphere_integral(theta, g.sharpness)
+    return wp.cw_mul(mat.albedo, rd) * _INV_PI + wp.cw_mul(mat.specular, rs)
+
+
+@wp.kernel
+def turn_lobes_kernel(axes0: wp.array(dtype=wp.vec3), rotation: wp.array(dtype=wp.mat33), slot: int,
+                      axes: wp.array(dtype=wp.vec3)):
+    """Environment lobes into the frame: ``axes = R axes0`` with the frame's environment rotation."""
+    k = wp.tid()
+    axes[k] = rotation[slot] * axes0[k]
+
+
+@wp.kernel
+def shade_vertices_kernel(points: wp.array(dtype=wp.vec3), normals: wp.array(dtype=wp.vec3), eye: wp.array(dtype=wp.vec3),
+                          albedo: wp.array(dtype=wp.vec3), specular: wp.array(dtype=wp.vec3), roughness: wp.array(dtype=float),
+                          lights: Lights, vis: Visibility, st: Settings, start: int, radiance: wp.array2d(dtype=float)):
+    v = wp.tid() + start
+    x = points[v]
+    o = wp.normalize(eye[0] - x)
+    mat = Material()
+    mat.albedo = albedo[v]
+    mat.specular = specular[v]
+    mat.roughness = roughness[v]
+    c = shade_point(x, normals[v], o, mat, lights, vis, st, v, v, v, wp.vec3(1.0, 0.0, 0.0))
+    radiance[v, 0] = c[0]
+    radiance[v, 1] = c[1]
+    radiance[v, 2] = c[2]
+
+
+@wp.kernel
+def shade_pixels_kernel(hit: wp.array(dtype=wp.int32), position: wp.array(dtype=wp.vec3), normal: wp.array(dtype=wp.vec3),
+                        face: wp.array(dtype=wp.int32), bary: wp.array(dtype=wp.vec2), faces: wp.array2d(dtype=wp.int32),
+                        eye: wp.array(dtype=wp.vec3), albedo: wp.array(dtype=wp.vec3), specular: wp.array(dtype=wp.vec3),
+                        roughness: wp.array(dtype=float), lights: Lights, vis: Visibility, st: Settings, start: int,
+                        out: wp.array(dtype=wp.vec3)):
+    """One pixel of a G-buffer (:mod:`warpshade.render.raycast`): per-pixel normal, material from
+    the per-pixel arrays (textures sampled by the caller), visibility blended over the hit triangle."""
+    p = wp.tid() + start
+    if hit[p] == 0:
+        out[p] = wp.vec3(0.0)
+        return
+    f = face[p]
+    b = bary[p]
+    w = wp.vec3(b[0], b[1], 1.0 - b[0] - b[1])
+    x = position[p]
+    o = wp.normalize(eye[0] - x)
+    mat = Material()
+    mat.albedo = albedo[p]
+    mat.specular = specular[p]
+    mat.roughness = roughness[p]
+    out[p] = shade_point(x, normal[p], o, mat, lights, vis, st, faces[f, 0], faces[f, 1], faces[f, 2], w)
+
+
+@wp.kernel
+def interpolate_materials_kernel(hit: wp.array(dtype=wp.int32), face: wp.array(dtype=wp.int32), bary: wp.array(dtype=wp.vec2),
+                                 faces: wp.array2d(dtype=wp.int32), albedo: wp.array(dtype=wp.vec3),
+                                 specular: wp.array(dtype=wp.vec3), roughness: wp.array(dtype=float),
+                                 albedo_px: wp.array(dtype=wp.vec3), specular_px: wp.array(dtype=wp.vec3),
+                                 roughness_px: wp.array(dtype=float)):
+    """Per-vertex materials interpolated at each pixel's hit (Warp barycentrics)."""
+    p = wp.tid()
+    if hit[p] == 0:
+        return
+    f = face[p]
+    b = bary[p]
+    a = faces[f, 0]
+    c = faces[f, 1]
+    d = faces[f, 2]
+    w2 = 1.0 - b[0] - b[1]
+    albedo_px[p] = b[0] * albedo[a] + b[1] * albedo[c] + w2 * albedo[d]
+    specular_px[p] = b[0] * specular[a] + b[1] * specular[c] + w2 * specular[d]
+    roughness_px[p] = b[0] * roughness[a] + b[1] * roughness[c] + w2 * roughness[d]
+
+
+@wp.kernel
+def distant_axes_kernel(directions: wp.array(dtype=wp.vec3), light_count: int, sun_axes0: wp.array(dtype=wp.vec3),
+                        env_to_world: wp.array(dtype=wp.mat33), axes: wp.array(dtype=wp.vec3)):
+    """The frame's distant-light lobe axes: the scene's distant lights, then the suns taken out of
+    the environment (map frame) turned with it."""
+    k = wp.tid()
+    if k < light_count:
+        axes[k] = directions[k]
+    else:
+        axes[k] = env_to_world[0] * sun_axes0[k - light_count]

@@ -1,0 +1,146 @@
+"""Float64 mirror of the SG/SSDF shading kernels (:mod:`.kernels`): the tests' oracle.
+
+:func:`shade_reference` evaluates eq. 39, 41, 42 and 43 at receivers with NumPy from the same
+inputs the kernel reads (decoded SSDF maps, tangent frames, the environment's SG mixture and
+prefiltered table, sphere lights and distant-light lobes), one receiver at a time. Visibility is
+looked up per vertex in that vertex's frame and blended with the barycentric weights, as the
+kernel does.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ...basis import sg
+from ...scene.materials import hemisphere_to_concentric
+from .brdf import view_slice
+from .brdf_warp import slice_parameters
+from .lighting import point_light_lobe
+
+__all__ = ["shade_reference", "ssdf_value"]
+
+
+def _duff_basis(n: np.ndarray) -> np.ndarray:
+    sign = 1.0 if n[2] >= 0.0 else -1.0
+    a = -1.0 / (sign + n[2])
+    b = n[0] * n[1] * a
+    t = np.array([1.0 + sign * n[0] * n[0] * a, sign * b, -sign * n[0]])
+    bt = np.array([b, sign + n[1] * n[1] * a, -n[1]])
+    return np.stack([t, bt, n])
+
+
+def _exact_brdf(model: str, roughness: float, f0: float):
+    """The exact BRDF of the narrow-light path (None for models without one)."""
+    from ...scene.materials import BlinnPhong, Microfacet
+
+    if model == "beckmann":
+        return Microfacet(roughness=roughness, distribution="beckmann", f0=f0)
+    if model == "blinn-phong":
+        return BlinnPhong(exponent=roughness)
+    return None
+
+
+def ssdf_value(maps: np.ndarray, v: int, frame: np.ndarray, d_world: np.ndarray) -> float:
+    """Bilinear look-up of vertex ``v``'s map (R, R) at a world direction in its frame (rows t, b, n)."""
+    r = maps.shape[1]
+    d = frame @ d_world
+    d = d / np.linalg.norm(d)
+    if d[2] < 0.0:
+        d = np.array([d[0], d[1], 0.0])
+        d = d / max(np.linalg.norm(d), 1e-300) if np.linalg.norm(d) > 0 else np.array([0.0, 0.0, 1.0])
+    ab = hemisphere_to_concentric(d)
+    x = np.clip((ab[0] + 1.0) * 0.5 * r - 0.5, 0.0, r - 1)
+    y = np.clip((ab[1] + 1.0) * 0.5 * r - 0.5, 0.0, r - 1)
+    i0, j0 = int(np.floor(x)), int(np.floor(y))
+    i1, j1 = min(i0 + 1, r - 1), min(j0 + 1, r - 1)
+    fx, fy = x - i0, y - j0
+    m = maps[v].astype(np.float64)
+    top = (1 - fy) * m[i0, j0] + fy * m[i0, j1]
+    bottom = (1 - fy) * m[i1, j0] + fy * m[i1, j1]
+    return float((1 - fx) * top + fx * bottom)
+
+
+def shade_reference(points, normals, eye, albedo, specular, roughness, maps, frames, model: str, f0: float,
+                    env_mixture=None, table=None, env_to_world=np.eye(3), sphere_lights=(), distant_lobes=(),
+                    component: str = "specular", cosine: str = "paper", corners=None, weights=None,
+                    horizon: bool = True, narrow_lights: str = "brdf", narrow_ratio: float = 8.0) -> np.ndarray:
+    """Radiance (P, 3) float64 at P receivers, as :func:`.kernels.shade_point`.
+
+    Args:
+        points, normals: (P, 3) receivers; eye: (3,); albedo, specular: (P, 3); roughness: (P,).
+        maps: decoded SSDFs (V, R, R); frames: (V, 3, 3) tangent frames (rows t, b, n).
+        model, f0: the specular model (:data:`.brdf_warp.MODEL_IDS`) and Fresnel reflectance.
+        env_mixture: the environment's SG mixture (map frame) or None; table: its
+            :class:`~.lighting.PrefilteredEnvironment` or None; env_to_world: (3, 3).
+        sphere_lights: :class:`~warpshade.scene.lighting.SphereLight` posed at the frame.
+        distant_lobes: (axis, sharpness, amplitude RGB) per distant light.
+        component: "specular", "diffuse" or "both".
+        corners, weights: (P, 3) vertex indices and barycentric weights (default: receiver i is vertex i).
+        horizon: the tangent plane bounds the visibility too (``min(V^d, elevation)``).
+        narrow_lights, narrow_ratio: as the kernel: with "brdf", the specular of a light lobe more
+            than ``narrow_ratio`` times sharper than the slice is the exact BRDF at its direction
+            (Beckmann, Blinn-Phong) times its irradiance, cosine and visible fraction.
+    """
+    points = np.asarray(points, np.float64)
+    count = points.shape[0]
+    out = np.zeros((count, 3))
+    cos_axis, cos_lam, cos_mu = sg.clamped_cosine(np.array([0.0, 0.0, 1.0]), cosine)
+    cos_lam, cos_mu = float(cos_lam), float(cos_mu)
+    want_d = component != "specular"
+    want_s = component != "diffuse"
+    env = []
+    if env_mixture is not None:
+        axes = sg.rotate(env_mixture.axes, env_to_world)
+        env = [(axes[k], float(env_mixture.sharpness[k]), np.asarray(env_mixture.amplitude[k], np.float64))
+               for k in range(env_mixture.lobe_count)]
+    for i in range(count):
+        x, n = points[i], np.asarray(normals[i], np.float64)
+        o = np.asarray(eye, np.float64) - x
+        o = o / np.linalg.norm(o)
+        idx = (i, i, i) if corners is None else tuple(int(c) for c in corners[i])
+        w = (1.0, 0.0, 0.0) if weights is None else tuple(float(c) for c in weights[i])
+
+        def vis(d):
+            theta = sum(w[k] * ssdf_value(maps, idx[k], frames[idx[k]], d) for k in range(3) if k == 0 or w[k] > 0)
+            if horizon:
+                theta = min(theta, float(np.arcsin(np.clip(d @ n, -1.0, 1.0))))
+            return theta
+
+        rd = np.zeros(3)
+        rs = np.zeros(3)
+        facing = float(o @ n) > 0.0
+        slice_w = None
+        if want_s and facing:
+            frame = _duff_basis(n)
+            lobes = view_slice(model, frame @ o, **slice_parameters(model, float(roughness[i]), f0))
+            axis_l, lam_l, mu_l = lobes.axes[0], float(lobes.sharpness[0]), float(np.asarray(lobes.amplitude).reshape(-1)[0])
+            ax, lam, mu = sg.product(n, cos_lam, cos_mu, frame.T @ axis_l, lam_l, mu_l)
+            slice_w = (ax, float(lam), float(mu))
+            if table is not None:
+                f = sg.visible_fraction(vis(ax), lam)
+                rs += mu * f * table.lookup((env_to_world.T @ ax)[None], np.array([lam]))[0]
+        if want_d:
+            for axis_k, lam_k, amp_k in env:
+                ax, lam, mu = sg.product(n, cos_lam, cos_mu, axis_k, lam_k, 1.0)
+                rd += amp_k * mu * sg.hemisphere_integral(vis(ax), lam)
+        local = []
+        for light in sphere_lights:
+            a, l, m = point_light_lobe(light, x[None])
+            local.append((np.asarray(a).reshape(3), float(np.asarray(l).reshape(-1)[0]), np.asarray(m, np.float64).reshape(3)))
+        local += [(np.asarray(a, np.float64).reshape(3), float(l), np.asarray(m, np.float64).reshape(3)) for a, l, m in distant_lobes]
+        for axis_k, lam_k, amp_k in local:
+            ax, lam, mu = sg.product(axis_k, lam_k, 1.0, n, cos_lam, cos_mu)
+            if want_d:
+                rd += amp_k * mu * sg.hemisphere_integral(vis(ax), lam)
+            if slice_w is not None:
+                exact = _exact_brdf(model, float(roughness[i]), f0) if narrow_lights == "brdf" else None
+                if exact is not None and lam_k > narrow_ratio * slice_w[1]:
+                    frame = _duff_basis(n)
+                    cos_l = max(float(axis_k @ n), 0.0)
+                    b = float(exact.evaluate(frame @ o, frame @ axis_k)) if cos_l > 0 else 0.0
+                    rs += amp_k * float(sg.integral(lam_k)) * b * cos_l * float(sg.visible_fraction(vis(axis_k), lam_k))
+                else:
+                    ax2, lam2, mu2 = sg.product(axis_k, lam_k, 1.0, slice_w[0], slice_w[1], slice_w[2])
+                    rs += amp_k * mu2 * sg.hemisphere_integral(vis(ax2), lam2)
+        out[i] = np.asarray(albedo[i], np.float64) * rd / np.pi + np.asarray(specular[i], np.float64) * rs
+    return out

@@ -1,0 +1,537 @@
+"""Spherical Gaussians with SSDF visibility (Wang et al. 2009) as graph stages.
+
+* ``sg.ssdf`` (precompute): per-vertex spherical signed distance functions of ray-traced
+  visibility over the upper hemisphere of each tangent frame (512^2 traced, 128^2 kept, as the
+  paper), compressed by PCA with the term count chosen from an RMS budget in radians
+  (:func:`.model.bake_ssdf_model`);
+* ``sg.shade`` (per frame): eq. 39 + 41 (environment) and 42 + 43 (sphere and distant lights) per
+  vertex toward the eye (:mod:`.kernels`): the BRDF's NDF as an SG warped to the view slice, the
+  clamped cosine as an SG, the environment as an SG mixture (diffuse) and a prefiltered table
+  (specular), visibility from the SSDFs (eq. 30-31). Its BRDF parameters give every mesh's
+  material, or, with ``textures = true``, the meshes' UsdPreviewSurface textures sampled at the
+  vertices; the same stage shades per pixel (:meth:`ShadeStage.render_pixels`).
+
+Materials change at run time with no precompute: ``Runtime.set_material`` (a Beckmann
+``Microfacet`` or ``BlinnPhong``) or :meth:`ShadeStage.set_surface` (per-vertex arrays), both
+written into the stage's fixed buffers.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..._wp import launch_parallel, wp
+from ...basis import sg
+from ...scene import materials
+from ..stage import Param, Port, Stage, StageError, register_stage
+from . import kernels
+from .brdf_warp import MODEL_IDS
+from .lighting import directional_light_lobe
+from .model import (SUN_MODES, EnvironmentLighting, bake_ssdf_model, decode_maps, empty_table, environment_hash,
+                    environment_lighting, remember)
+
+__all__ = ["EnvironmentStage", "SSDFStage", "ShadeStage"]
+
+#: Receivers per CPU chunk below which a launch is not split over cores.
+CPU_CHUNK_MIN = 2048
+#: BRDF models of the per-point kernels (isotropic single-lobe NDFs).
+BRDF_MODELS = tuple(MODEL_IDS)
+#: BRDF models the glossy reference can shade (what ``--validate`` accepts for the specular term).
+VALIDATED_MODELS = ("beckmann", "blinn-phong")
+#: Specular of narrow lights: the exact BRDF at the light ("brdf") or the paper's SG product ("sg").
+NARROW_LIGHT_MODES = ("brdf", "sg")
+#: A light lobe this many times sharper than the BRDF slice counts as narrow.
+NARROW_LIGHT_RATIO = 8.0
+#: The exact models of the "brdf" mode: codes of warpshade.scene.materials_warp.BRDF_MODELS.
+EXACT_MODEL_CODES = {"beckmann": 4, "blinn-phong": 2}
+
+
+@register_stage
+class SSDFStage(Stage):
+    type_name = "sg.ssdf"
+    kind = "precompute"
+    description = "per-vertex SSDF visibility (ray traced hemisphere, signed angular distance, PCA from an error budget)"
+    parameters = {
+        "resolution": Param(128, int, "SSDF map kept per vertex (res x res over the hemisphere)", minimum=4, maximum=512),
+        "supersample": Param(4, int, "visibility traced at supersample x resolution per side", minimum=1, maximum=8),
+        "error_budget": Param(0.02, float, "RMS error of the PCA reconstruction, radians", minimum=1e-6),
+        "max_terms": Param(64, int, "most PCA terms", minimum=1, maximum=512),
+        "frame": Param(None, float, "time code of the bake (default: the scene's first frame)"),
+    }
+
+    def output_ports(self):
+        return {"ssdf": Port("arrays", (), "SSDF PCA: mean, basis, coefficients, error curve (local tangent frames)")}
+
+    def precompute(self, ctx, inputs):
+        p = self.params
+        frame = float(ctx.scene.frames[0]) if p["frame"] is None else p["frame"]
+        try:
+            model = bake_ssdf_model(ctx.scene, frame, p["resolution"], p["supersample"], p["error_budget"], p["max_terms"],
+                                    ctx.device, ctx.progress)
+        except ValueError as exc:
+            raise StageError(f"stage {self.name!r}: {exc}") from None
+        return {"ssdf": model.arrays()}
+
+    def check_artifact(self, outputs):
+        from ...transfer.ssdf import SSDFModel
+
+        SSDFModel.from_arrays(outputs["ssdf"])
+
+
+#: Parameters of the environment's preparation (``sg.environment``).
+ENVIRONMENT_PARAMS = {
+    "lobes": Param(8, int, "most SG lobes of the environment's diffuse mixture (fewer than 10)", minimum=1, maximum=9),
+    "error_budget": Param(None, float, "irradiance error the fit may leave (the fewest lobes that meet it)"),
+    "fit": Param("lbfgsb", str, "environment fit", choices=("nnls", "lbfgsb")),
+    "sun": Param("keep", str, "a small, very bright sun: left in the sky (the paper) or taken out and shaded as a "
+                 "distant-light lobe (eq. 42-43, its visibility at its own direction)", choices=SUN_MODES),
+}
+ENVIRONMENT_FITS = ("nnls", "lbfgsb")
+
+
+def _run_environment(ctx, stage_name: str):
+    envs = ctx.lighting.environments if ctx.lighting is not None else []
+    if len(envs) > 1:
+        raise StageError(f"stage {stage_name!r}: SG shading takes one environment; this run has {len(envs)}")
+    return envs[0] if envs else None
+
+
+@register_stage
+class EnvironmentStage(Stage):
+    type_name = "sg.environment"
+    kind = "precompute"
+    description = "the run's environment as an SG mixture (diffuse) and a prefiltered table over sharpness (specular)"
+    parameters = dict(ENVIRONMENT_PARAMS)
+
+    def output_ports(self):
+        return {"environment": Port("arrays", (), "SG mixture and prefiltered table of the environment (map frame)")}
+
+    def cache_key(self, ctx):
+        env = _run_environment(ctx, self.name)
+        return {"environment": None if env is None else environment_hash(env)}
+
+    def precompute(self, ctx, inputs):
+        p = self.params
+        env = _run_environment(ctx, self.name)
+        settings = np.array([p["lobes"], -1.0 if p["error_budget"] is None else p["error_budget"],
+                             ENVIRONMENT_FITS.index(p["fit"]), SUN_MODES.index(p["sun"])], np.float64)
+        if env is None:
+            return {"environment": {"none": np.zeros(1), "settings": settings}}
+        try:
+            lighting = environment_lighting(env, p["lobes"], p["error_budget"], p["fit"], ctx.device, ctx.progress, p["sun"])
+        except ValueError as exc:
+            raise StageError(f"stage {self.name!r}: {exc}") from None
+        return {"environment": {**lighting.arrays(), "settings": settings}}
+
+    def check_artifact(self, outputs):
+        arrays = outputs["environment"]
+        if "none" not in arrays:
+            EnvironmentLighting.from_arrays(arrays)
+
+
+def _rgb(value, name: str, stage: str) -> np.ndarray:
+    a = np.asarray(value, np.float64).reshape(-1)
+    if a.shape != (3,) or not np.all(np.isfinite(a)) or np.any(a < 0):
+        raise StageError(f"stage {stage!r}: parameter {name!r} needs three non-negative numbers, got {value!r}")
+    return a
+
+
+@register_stage
+class ShadeStage(Stage):
+    type_name = "sg.shade"
+    kind = "frame"
+    description = "spherical-Gaussian shading (eq. 39, 41-43) with SSDF visibility, per vertex (and per pixel)"
+    parameters = {
+        "brdf": Param("beckmann", str, "specular model (NDF as one SG lobe)", choices=BRDF_MODELS),
+        "roughness": Param(0.3, float, "microfacet roughness (Beckmann alpha / Cook-Torrance m / Ward alpha); "
+                           "Blinn-Phong: the exponent", minimum=1e-3),
+        "f0": Param(0.04, float, "Fresnel reflectance at normal incidence", minimum=0.0, maximum=1.0),
+        "specular": Param((1.0, 1.0, 1.0), tuple, "RGB specular colour"),
+        "component": Param("specular", str, "what the stage outputs", choices=kernels.COMPONENTS),
+        "textures": Param(False, bool, "materials from the meshes' UsdPreviewSurface textures at the vertices"),
+        "cosine": Param("paper", str, "clamped cosine lobe: the paper's (2.133, 1.170) or the L2 fit", choices=("paper", "l2")),
+        "horizon": Param(True, bool, "the tangent plane bounds the reconstructed visibility too (theta_d = "
+                         "min(V^d, elevation)); false: the paper's SSDF alone"),
+        "narrow_lights": Param("brdf", str, "specular of lights much narrower than the BRDF slice: the BRDF at the "
+                               "light's direction ('brdf'; Beckmann and Blinn-Phong) or the paper's SG product ('sg')",
+                               choices=NARROW_LIGHT_MODES),
+        "ssdf": Param("maps", str, "visibility look-up: decoded maps (bilinear) or PCA per look-up (the paper)",
+                      choices=("maps", "pca")),
+        "eye": Param(None, tuple, "viewer position, world (default: the scene camera, or Runtime.set_eye)"),
+    }
+
+    def input_ports(self):
+        return {"ssdf": Port("arrays"), "environment": Port("arrays"), "frames": Port("mat33", ("V",)),
+                "points": Port("vec3", ("V",)),
+                "normals": Port("vec3", ("V",)), "albedo": Port("float32", ("V", 3)), "lighting": Port("lighting")}
+
+    def output_ports(self):
+        return {"radiance": Port("float32", ("V", 3), "radiance toward the eye, linear RGB")}
+
+    # ---- set-up -----------------------------------------------------------------------
+    def setup(self, ctx, inputs):
+        from ...transfer.ssdf import SSDFModel
+
+        p = self.params
+        dev = ctx.device
+        self._ctx, self._scene, self._state, self._device = ctx, ctx.scene, ctx.state, dev
+        self._specular_rgb = _rgb(p["specular"], "specular", self.name)
+        if p["eye"] is not None:
+            eye = np.asarray(p["eye"], np.float64).reshape(-1)
+            if eye.shape != (3,) or not np.all(np.isfinite(eye)):
+                raise StageError(f"stage {self.name!r}: parameter 'eye' needs three finite numbers, got {p['eye']!r}")
+            self._eye = wp.array([wp.vec3(*eye.astype(np.float32))], dtype=wp.vec3, device=dev)
+        elif ctx.state.has_eye:
+            self._eye = ctx.state.eye
+        else:
+            raise StageError(f"stage {self.name!r}: the scene has no camera; set the 'eye' parameter")
+        self.follows_state_eye = p["eye"] is None
+        if p["brdf"] == "blinn-phong" and p["roughness"] < 1.0:
+            raise StageError(f"stage {self.name!r}: for brdf = 'blinn-phong', 'roughness' carries the exponent (>= 1), "
+                             f"got {p['roughness']}")
+        self.model = SSDFModel.from_arrays(inputs["ssdf"])
+        if self.model.coeffs.shape[0] != ctx.dims["V"]:
+            raise StageError(f"stage {self.name!r}: SSDFs of {self.model.coeffs.shape[0]} vertices for a scene of "
+                             f"{ctx.dims['V']}")
+        self._frames, self._points, self._normals = inputs["frames"], inputs["points"], inputs["normals"]
+        self._albedo_in = inputs["albedo"]
+        self._frame_lighting = inputs["lighting"]
+        self._environment_in = inputs["environment"]
+        if self._frame_lighting is None:
+            raise StageError(f"stage {self.name!r}: SG shading needs the frame's lighting")
+        self._vis = kernels.Visibility()
+        r = int(self.model.resolution)
+        if p["ssdf"] == "maps":
+            self._vis.maps = wp.array(decode_maps(self.model), dtype=float, device=dev)
+            self._vis.mean = wp.zeros(1, dtype=float, device=dev)
+            self._vis.basis = wp.zeros((1, 1), dtype=float, device=dev)
+            self._vis.coeffs = wp.zeros((1, 1), dtype=float, device=dev)
+        else:
+            self._vis.maps = wp.zeros((1, 1, 1), dtype=float, device=dev)
+            self._vis.mean = wp.array(self.model.mean.astype(np.float32), dtype=float, device=dev)
+            self._vis.basis = wp.array(self.model.basis.astype(np.float32), dtype=float, device=dev)
+            self._vis.coeffs = wp.array(self.model.coeffs.astype(np.float32), dtype=float, device=dev)
+        self._vis.frames = self._frames
+        st = kernels.Settings()
+        st.model = int(MODEL_IDS[p["brdf"]])
+        st.f0 = float(p["f0"])
+        cos_axis, cos_lam, cos_mu = sg.clamped_cosine(np.array([0.0, 0.0, 1.0]), p["cosine"])
+        st.cos_sharpness, st.cos_amplitude = float(cos_lam), float(cos_mu)
+        st.component = kernels.COMPONENTS.index(p["component"])
+        st.pca = 0 if p["ssdf"] == "maps" else 1
+        st.terms = int(self.model.coeffs.shape[1])
+        st.resolution = r
+        st.horizon = 1 if p["horizon"] else 0
+        st.exact_model = int(EXACT_MODEL_CODES.get(p["brdf"], -1)) if p["narrow_lights"] == "brdf" else -1
+        st.exact_ratio = float(NARROW_LIGHT_RATIO)
+        self._settings = st
+        count = ctx.dims["V"]
+        self._albedo = wp.zeros(count, dtype=wp.vec3, device=dev)
+        self._spec = wp.zeros(count, dtype=wp.vec3, device=dev)
+        self._rough = wp.zeros(count, dtype=float, device=dev)
+        self._radiance = wp.zeros((count, 3), dtype=wp.float32, device=dev)
+        self._upload_materials()
+        self._setup_lights()
+        return {"radiance": self._radiance}
+
+    # ---- materials --------------------------------------------------------------------
+    def _stage_values(self, brdf):
+        """(roughness, specular RGB) of a run-time BRDF for this stage's model."""
+        p = self.params
+        if brdf is None:
+            return float(p["roughness"]), self._specular_rgb
+        if isinstance(brdf, materials.Microfacet) and brdf.distribution == "beckmann" and p["brdf"] == "beckmann":
+            return float(brdf.roughness), self._specular_rgb * float(brdf.specular)
+        if isinstance(brdf, materials.BlinnPhong) and p["brdf"] == "blinn-phong":
+            return float(brdf.exponent), self._specular_rgb * float(brdf.specular)
+        raise StageError(f"stage {self.name!r}: run-time BRDF {brdf.describe()} is not a {p['brdf']!r} model this stage "
+                         "shades (set brdf = 'beckmann' for Beckmann microfacets, 'blinn-phong' for Blinn-Phong)")
+
+    def _upload_materials(self) -> None:
+        p = self.params
+        count = self._radiance.shape[0]
+        albedo = self._albedo_in.numpy().reshape(count, 3).astype(np.float32)
+        rough = np.full(count, p["roughness"], np.float32)
+        spec = np.tile(self._specular_rgb.astype(np.float32), (count, 1))
+        mats = self._state.materials
+        for m in self._scene.meshes:
+            sl = slice(m.vertex_offset, m.vertex_offset + m.vertex_count)
+            surface = getattr(m, "surface", None)
+            if p["textures"] and surface is not None:
+                if m.uvs is None:
+                    raise StageError(f"stage {self.name!r}: mesh {m.path} has textures but no UVs")
+                vals = surface.at_vertices(m.uvs)
+                albedo[sl] = vals["diffuse"]
+                rough[sl] = vals["roughness"]
+                spec[sl] = vals["specular"] * self._specular_rgb[None]
+            brdf = mats.brdf_of(m.path, None)
+            if brdf is not None:
+                r, s = self._stage_values(brdf)
+                rough[sl] = r
+                spec[sl] = s
+        self.set_surface(albedo=albedo, specular=spec, roughness=rough)
+
+    def set_surface(self, albedo=None, specular=None, roughness=None) -> None:
+        """Write per-vertex material arrays (any of albedo (V, 3), specular (V, 3), roughness (V,))
+        into the stage's buffers: the next frame uses them; nothing is recomputed."""
+        count = self._radiance.shape[0]
+        for name, value, buf, shape in (("albedo", albedo, self._albedo, (count, 3)), ("specular", specular, self._spec, (count, 3)),
+                                        ("roughness", roughness, self._rough, (count,))):
+            if value is None:
+                continue
+            a = np.asarray(value, np.float32)
+            if a.shape != shape or not np.all(np.isfinite(a)) or np.any(a < 0):
+                raise StageError(f"stage {self.name!r}: set_surface {name} must be finite, non-negative, shape {shape}; "
+                                 f"got {a.shape}")
+            if name == "roughness" and np.any(a <= 0):
+                raise StageError(f"stage {self.name!r}: set_surface roughness must be > 0")
+            buf.assign(a if a.ndim == 1 else a.reshape(count, 3))
+        self.surface = {"albedo": self._albedo, "specular": self._spec, "roughness": self._rough}
+
+    # ---- lights -----------------------------------------------------------------------
+    def _setup_lights(self) -> None:
+        p = self.params
+        dev = self._device
+        fl = self._frame_lighting
+        lights = kernels.Lights()
+        envs = fl.environments
+        if len(envs) > 1:
+            raise StageError(f"stage {self.name!r}: SG shading takes one environment; this run has {len(envs)}")
+        self.environment = None
+        if envs:
+            self.environment = self._environment_for(envs[0])
+            mix = self.environment.mixture
+            self._env_axes0 = wp.array(mix.axes.astype(np.float32), dtype=wp.vec3, device=dev)
+            lights.env_axes = wp.zeros(mix.lobe_count, dtype=wp.vec3, device=dev)
+            lights.env_sharpness = wp.array(mix.sharpness.astype(np.float32), dtype=float, device=dev)
+            lights.env_amplitude = wp.array(np.asarray(mix.amplitude, np.float32).reshape(-1, 3), dtype=wp.vec3, device=dev)
+            lights.env_count = mix.lobe_count
+            lights.table = self.environment.table.to_device(dev)
+            lights.has_table = 1
+        else:
+            self._env_axes0 = wp.zeros(0, dtype=wp.vec3, device=dev)
+            lights.env_axes = wp.zeros(0, dtype=wp.vec3, device=dev)
+            lights.env_sharpness = wp.zeros(0, dtype=float, device=dev)
+            lights.env_amplitude = wp.zeros(0, dtype=wp.vec3, device=dev)
+            lights.env_count = 0
+            lights.table = empty_table(dev)
+            lights.has_table = 0
+        lights.env_to_world = fl.environment_to_world if envs else wp.array(np.eye(3, dtype=np.float32)[None], dtype=wp.mat33, device=dev)
+        lights.sphere_position = fl.sphere_position
+        lights.sphere_radius = fl.sphere_radius
+        lights.sphere_radiance = fl.sphere_radiance
+        lights.sphere_count = fl.sphere_light_count
+        distant = list(fl.distant_lights)
+        sun_axes, sun_sharp, sun_amp = (self.environment.sun_lobes if self.environment is not None
+                                        else (np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3))))
+        count = len(distant) + len(sun_sharp)
+        self._distant_directions = fl.distant_direction if distant else wp.zeros(1, dtype=wp.vec3, device=dev)
+        self._sun_axes0 = wp.array(np.asarray(sun_axes, np.float32).reshape(-1, 3), dtype=wp.vec3, device=dev)
+        self._distant_lights = len(distant)
+        lights.distant_axes = wp.zeros(count, dtype=wp.vec3, device=dev)
+        sharp = np.zeros(count, np.float32)
+        amp = np.zeros((count, 3), np.float32)
+        for k, light in enumerate(distant):
+            _, lam, mu = directional_light_lobe(light)
+            sharp[k] = float(np.asarray(lam).reshape(-1)[0])
+            amp[k] = np.asarray(mu, np.float64).reshape(3)
+        sharp[len(distant):] = sun_sharp
+        amp[len(distant):] = sun_amp
+        lights.distant_sharpness = wp.array(sharp, dtype=float, device=dev)
+        lights.distant_amplitude = wp.array(amp, dtype=wp.vec3, device=dev)
+        lights.distant_count = count
+        self._lights = lights
+        self._check_point_lights()
+
+    def _environment_for(self, env) -> EnvironmentLighting:
+        """The prepared environment: the ``sg.environment`` artifact when it was built from this
+        image, else built now (a lighting set at run time) with that stage's settings."""
+        arrays = self._environment_in
+        image_hash = environment_hash(env)
+        stored = None if arrays is None or "none" in arrays else EnvironmentLighting.from_arrays(arrays)
+        settings = self._environment_settings()
+        if stored is not None and stored.image_hash == image_hash:
+            remember(stored, *settings)
+            return stored
+        lobes, budget, fit, sun = settings
+        return environment_lighting(env, lobes, budget, fit, self._device, None, sun)
+
+    def _environment_settings(self) -> tuple:
+        """(lobes, error_budget, fit, sun) the ``sg.environment`` stage used (its defaults without one)."""
+        arrays = self._environment_in
+        if arrays is not None and "settings" in arrays and np.asarray(arrays["settings"]).size == 4:
+            lobes, budget, fit, sun = np.asarray(arrays["settings"], np.float64).reshape(4)
+            return int(lobes), (None if budget < 0 else float(budget)), ENVIRONMENT_FITS[int(fit)], SUN_MODES[int(sun)]
+        d = ENVIRONMENT_PARAMS
+        return d["lobes"].default, d["error_budget"].default, d["fit"].default, d["sun"].default
+
+    def _check_point_lights(self) -> None:
+        """Precomputed visibility is for distant light: a sphere light inside a mesh's convex hull
+        (at the first frame's pose) at any frame is reported in ``diagnostics()['lights_inside_hull']``
+        and by a warning; its shadows from that mesh are wrong on those frames."""
+        from .lighting import inside_hull
+
+        self.lights_inside_hull = []
+        spheres = self._ctx.lighting.sphere_lights() if self._ctx.lighting is not None else []
+        if not spheres:
+            return
+        table = self._ctx.lighting.sphere_position_table(self._scene.frames)  # (T, S, 3)
+        points = self._scene.points_at(float(self._scene.frames[0]))
+        for m in self._scene.meshes:
+            pts = points[m.vertex_offset : m.vertex_offset + m.vertex_count]
+            if m.vertex_count < 4:
+                continue
+            for s in range(table.shape[1]):
+                inside = [int(t) for t in range(table.shape[0]) if inside_hull(pts, table[t, s])]
+                if inside:
+                    self.lights_inside_hull.append({"mesh": m.path, "light": s, "frames": inside[:8], "count": len(inside)})
+        if self.lights_inside_hull:
+            import warnings
+
+            first = self.lights_inside_hull[0]
+            warnings.warn(f"stage {self.name!r}: sphere light {first['light']} is inside the convex hull of {first['mesh']} "
+                          f"on {first['count']} frame(s) (from frame index {first['frames'][0]}): precomputed visibility is "
+                          "for distant light, its shadows there are wrong", RuntimeWarning, stacklevel=2)
+
+    def notify_changed(self, flags) -> bool:
+        from ...scene.state import Change
+
+        if flags & Change.PARAMETERS:
+            return False
+        if flags & Change.MATERIAL:
+            self._upload_materials()
+        if flags & Change.LIGHTING:
+            self._setup_lights()
+        return True
+
+    # ---- per frame --------------------------------------------------------------------
+    def _turn_lights(self) -> None:
+        """The frame's lobe axes: the environment's lobes and suns turned with it, distant lights."""
+        dev = self._device
+        lights = self._lights
+        if lights.env_count:
+            wp.launch(kernels.turn_lobes_kernel, dim=lights.env_count, device=dev,
+                      inputs=[self._env_axes0, lights.env_to_world, 0, lights.env_axes])
+        if lights.distant_count:
+            wp.launch(kernels.distant_axes_kernel, dim=lights.distant_count, device=dev,
+                      inputs=[self._distant_directions, self._distant_lights, self._sun_axes0, lights.env_to_world,
+                              lights.distant_axes])
+
+    def launch(self, state):
+        dev = self._device
+        lights = self._lights
+        self._turn_lights()
+
+        def inputs(start, stop):
+            return [self._points, self._normals, self._eye, self._albedo, self._spec, self._rough, lights, self._vis,
+                    self._settings, start, self._radiance]
+
+        launch_parallel(kernels.shade_vertices_kernel, self._radiance.shape[0], inputs, dev, min_count=CPU_CHUNK_MIN)
+
+    def pixel_materials(self, gbuffer) -> dict:
+        """The per-vertex materials interpolated at every ray of a G-buffer: ``albedo`` (N, 3),
+        ``specular`` (N, 3), ``roughness`` (N,), float32 host arrays (0 for misses)."""
+        alb, spc, rgh = self._interpolated_materials(gbuffer)
+        return {"albedo": alb.numpy(), "specular": spc.numpy(), "roughness": rgh.numpy()}
+
+    def _interpolated_materials(self, gbuffer):
+        dev = self._device
+        n = gbuffer.pixel_count
+        alb = wp.zeros(n, dtype=wp.vec3, device=dev)
+        spc = wp.zeros(n, dtype=wp.vec3, device=dev)
+        rgh = wp.zeros(n, dtype=float, device=dev)
+        wp.launch(kernels.interpolate_materials_kernel, dim=n, device=dev,
+                  inputs=[gbuffer.hit, gbuffer.face, gbuffer.bary, gbuffer.faces, self._albedo, self._spec, self._rough],
+                  outputs=[alb, spc, rgh])
+        return alb, spc, rgh
+
+    def render_pixels(self, gbuffer, albedo=None, specular=None, roughness=None, normals=None):
+        """Shade every pixel of a G-buffer of this frame (:func:`warpshade.render.render_gbuffer`:
+        hit, position, normal, face, bary, faces) with the stage's current lights, eye and
+        visibility. Per-pixel materials are arrays of ``gbuffer.pixel_count`` rows (textures
+        sampled by the caller); each one left None is the per-vertex material interpolated.
+        ``normals`` (unit world vectors at the hits, one row per pixel) replace the interpolated shading normals:
+        a normal map, i.e. the per-pixel rotation of the clamped cosine and the BRDF slice of
+        sec. 7 for these isotropic lobes (visibility stays the vertices' SSDFs).
+        Returns wp.array(vec3) of linear radiance, 0 for misses."""
+        dev = self._device
+        n = gbuffer.pixel_count
+        alb, spc, rgh = self._interpolated_materials(gbuffer)
+        for name, value, buf, rgb in (("albedo", albedo, alb, True), ("specular", specular, spc, True),
+                                      ("roughness", roughness, rgh, False)):
+            if value is None:
+                continue
+            a = np.asarray(value, np.float32)
+            want = (n, 3) if rgb else (n,)
+            if a.shape != want or not np.all(np.isfinite(a)) or np.any(a < 0):
+                raise StageError(f"stage {self.name!r}: render_pixels {name} must be finite, non-negative, shape {want}; "
+                                 f"got {a.shape}")
+            buf.assign(a)
+        shading_normals = gbuffer.normal
+        if normals is not None:
+            a = np.asarray(normals, np.float32)
+            hit = gbuffer.hit.numpy().astype(bool)
+            bad = a.shape != (n, 3) or not np.all(np.isfinite(a))
+            if not bad and np.any(np.abs(np.linalg.norm(a[hit], axis=-1) - 1.0) > 1e-3):
+                bad = True
+            if bad:
+                raise StageError(f"stage {self.name!r}: render_pixels normals must be finite unit vectors, shape {(n, 3)}; "
+                                 f"got {a.shape}")
+            shading_normals = wp.array(a, dtype=wp.vec3, device=dev)
+        lights = self._lights
+        self._turn_lights()
+        out = wp.zeros(n, dtype=wp.vec3, device=dev)
+
+        def inputs(start, stop):
+            return [gbuffer.hit, gbuffer.position, shading_normals, gbuffer.face, gbuffer.bary, gbuffer.faces, self._eye,
+                    alb, spc, rgh, lights, self._vis, self._settings, start, out]
+
+        launch_parallel(kernels.shade_pixels_kernel, n, inputs, dev, min_count=CPU_CHUNK_MIN)
+        return out
+
+    # ---- measuring --------------------------------------------------------------------
+    def reference_model(self):
+        return self.reference_model_at(None, self._state.materials)
+
+    def reference_model_at(self, frame, materials_at, eye=None, per_pixel: bool = False):
+        """The ground truth this output is measured against: the glossy reference (specular
+        term, Beckmann or Blinn-Phong BRDF, this stage's eye and colour), or the diffuse one.
+        ``per_pixel``: for a per-pixel reference that takes the textured roughness and colours
+        per pixel (textured materials cannot be measured per vertex)."""
+        p = self.params
+        if p["component"] == "diffuse":
+            return None
+        if p["component"] == "both":
+            raise StageError(f"stage {self.name!r}: component = 'both' has no single reference; validate 'specular' "
+                             "and 'diffuse' separately")
+        if p["brdf"] not in VALIDATED_MODELS:
+            raise StageError(f"stage {self.name!r}: the glossy reference shades {VALIDATED_MODELS}; brdf = {p['brdf']!r} "
+                             "cannot be validated")
+        textured = p["textures"] and not per_pixel
+        if textured and p["brdf"] != "beckmann":
+            raise StageError(f"stage {self.name!r}: per-vertex validation of textured materials needs brdf = 'beckmann' "
+                             "(the reference takes a roughness per vertex); measure it per pixel")
+        if p["brdf"] == "beckmann":
+            brdf = materials.Microfacet(roughness=p["roughness"], distribution="beckmann", f0=p["f0"])
+        else:
+            brdf = materials.BlinnPhong(exponent=p["roughness"])
+        if eye is None or not self.follows_state_eye:
+            eye = self._eye.numpy()[0]
+        model = {"brdf": brdf, "eye": np.asarray(eye, np.float64), "color": self._specular_rgb.copy()}
+        if textured:
+            # the materials the vertices were shaded with: roughness and specular colour per vertex
+            model["color"] = self._spec.numpy().astype(np.float64)
+            model["roughness"] = self._rough.numpy().astype(np.float64)
+        return model
+
+    def diagnostics(self) -> dict:
+        out = {"ssdf_terms": int(self.model.coeffs.shape[1]), "ssdf_resolution": int(self.model.resolution),
+               "lights_inside_hull": self.lights_inside_hull}
+        if self.environment is not None:
+            out["environment_lobes"] = int(self.environment.mixture.lobe_count)
+            out["environment_build_s"] = round(self.environment.build_s, 3)
+            out["environment_suns"] = int(len(self.environment.sun_lobes[1]))
+        return out
+
+    def model_bytes(self) -> int:
+        return int(self.model.mean.nbytes + self.model.basis.nbytes + self.model.coeffs.nbytes)
