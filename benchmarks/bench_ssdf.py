@@ -165,10 +165,10 @@ def main(argv=None) -> int:
                                             np.broadcast_to(sg.hemisphere_integral(elevation, l, method="quadrature"), tr.shape),
                                             pole[k]))
     terms_curve = []
+    full = ssdf.compress_ssdf(maps, error_budget=1e-12, max_terms=max_terms, method="exact")
     for n in TERMS:
         if n > models["exact"].error_curve.shape[0]:
             break
-        full = ssdf.compress_ssdf(maps, error_budget=1e-12, max_terms=max_terms, method="exact") if n == TERMS[0] else full
         if n > full.terms:
             break
         m_n = ssdf.SSDFModel(full.mean, full.basis[:n], full.coeffs[:, :n], full.resolution, full.error_curve, 0.0)

@@ -290,7 +290,6 @@ class ShadeStage(Stage):
 
     # ---- lights -----------------------------------------------------------------------
     def _setup_lights(self) -> None:
-        p = self.params
         dev = self._device
         fl = self._frame_lighting
         lights = kernels.Lights()
