@@ -171,11 +171,11 @@ def split_sun(env):
 
 
 def environment_lighting(env, lobes: int, error_budget, method: str, device=None, progress=None,
-                         sun: str = "keep") -> EnvironmentLighting:
+                         sun: str = "separate") -> EnvironmentLighting:
     """The SG mixture (at most ``lobes`` lobes, fewer when ``error_budget`` allows) and the
     prefiltered table of ``env`` (in its map frame), built once per image and settings in a
     process (the graph caches them on disk as the artifact of ``sg.environment``). With
-    ``sun = "separate"`` a small, very bright sun is first taken out as a lobe
+    ``sun = "separate"`` (default; ``"keep"`` is the paper's way) a small, very bright sun is first taken out as a lobe
     (:func:`split_sun`): it is then shaded as a distant light (eq. 42-43, visibility looked up
     at the sun's own direction) instead of through the table (eq. 41, the visibility of the whole
     BRDF lobe), and the rest of the sky goes to the mixture and the table."""
@@ -220,7 +220,7 @@ def _level_progress(progress):
     return update
 
 
-def remember(lighting: EnvironmentLighting, lobes: int, error_budget, method: str, sun: str = "keep") -> None:
+def remember(lighting: EnvironmentLighting, lobes: int, error_budget, method: str, sun: str = "separate") -> None:
     """Keep an environment read from the graph cache for in-process reuse."""
     _CACHE.setdefault((lighting.image_hash, lobes, error_budget, method, sun), lighting)
 

@@ -83,8 +83,8 @@ ENVIRONMENT_PARAMS = {
     "lobes": Param(8, int, "most SG lobes of the environment's diffuse mixture (fewer than 10)", minimum=1, maximum=9),
     "error_budget": Param(None, float, "irradiance error the fit may leave (the fewest lobes that meet it)"),
     "fit": Param("lbfgsb", str, "environment fit", choices=("nnls", "lbfgsb")),
-    "sun": Param("keep", str, "a small, very bright sun: left in the sky (the paper) or taken out and shaded as a "
-                 "distant-light lobe (eq. 42-43, its visibility at its own direction)", choices=SUN_MODES),
+    "sun": Param("separate", str, "a small, very bright sun: taken out and shaded as a narrow light (its "
+                 "visibility at its own direction) or left in the sky ('keep', the paper)", choices=SUN_MODES),
 }
 ENVIRONMENT_FITS = ("nnls", "lbfgsb")
 
