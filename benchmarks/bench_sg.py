@@ -312,7 +312,7 @@ def _sg_runtime(scene, lighting, stages, name):
 def pixel_timing(rt, frames, width, height):
     """Full frames (:func:`render_frame`) and relighting only (shade over a reused G-buffer)."""
     from warpshade._wp import wp
-    from warpshade.measure.pixels import pixel_stage, render_frame
+    from warpshade.measure.pixels import pixel_bvh, pixel_stage, render_frame
     from warpshade.render import camera_for, render_gbuffer
 
     render_frame(rt, frames[0], width, height)  # warm-up: kernels built, BVH made
@@ -326,7 +326,7 @@ def pixel_timing(rt, frames, width, height):
     st = pixel_stage(rt)
     rt.step(float(frames[-1]))
     cam = camera_for(rt.scene, float(frames[-1]), aspect=width / height)
-    gb = render_gbuffer(rt._pixel_bvh, rt.state.normals, cam, width, height)
+    gb = render_gbuffer(pixel_bvh(rt), rt.state.normals, cam, width, height)
     relight = []
     st.render_pixels(gb).numpy()
     for _ in range(max(5, len(frames))):
@@ -353,7 +353,7 @@ def _rel_rms(img, ref, mask):
 def vertex_vs_pixel(rt, frames, width, height, samples):
     """Fig. 8: per-vertex radiance interpolated per pixel and per-pixel shading, both against the
     per-pixel glossy reference (same BRDF, eye, colour, sky); images for the strip."""
-    from warpshade.measure.pixels import pixel_stage, render_frame
+    from warpshade.measure.pixels import pixel_bvh, pixel_stage, render_frame
     from warpshade.reference.pixels import reference_image
     from warpshade.render import interpolate_vertex_values, render_gbuffer
 
@@ -363,7 +363,7 @@ def vertex_vs_pixel(rt, frames, width, height, samples):
         im = render_frame(rt, f, width, height)
         vert = rt.step(float(f))
         vert = vert.numpy() if hasattr(vert, "numpy") else np.asarray(vert)
-        gb = render_gbuffer(rt._pixel_bvh, rt.state.normals, im.camera, width, height)
+        gb = render_gbuffer(pixel_bvh(rt), rt.state.normals, im.camera, width, height)
         per_vertex = interpolate_vertex_values(gb, vert.astype(np.float32)).numpy().reshape(height, width, 3)
         model = st.reference_model_at(float(f), rt.state.materials, rt.state.eye.numpy()[0])
         t0 = time.perf_counter()
@@ -446,10 +446,10 @@ def strip(path, panels, ref):
     import matplotlib.pyplot as plt
 
     from warpshade._fileio import atomic_path
-    from warpshade.measure.pixels import _exposure
+    from warpshade.measure.pixels import exposure_for
     from warpshade.render.image import tonemap_reference
 
-    ex = _exposure(ref.reshape(-1, 3))
+    ex = exposure_for(ref.reshape(-1, 3))
     fig, axes = plt.subplots(1, len(panels), figsize=(3.2 * len(panels), 2.9), squeeze=False)
     for ax, (title, img) in zip(axes[0], panels):
         diff = title.startswith("|")

@@ -17,6 +17,7 @@ against the per-pixel ray-traced reference (:func:`warpshade.reference.pixels.re
 from __future__ import annotations
 
 import time
+import weakref
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -24,7 +25,11 @@ import numpy as np
 
 from .._wp import wp
 
-__all__ = ["PixelImage", "measure_pixels", "pixel_materials", "pixel_stage", "render_frame", "write_pixel_images"]
+#: The primary-ray BVH of each run without one of its own (built once, refit per frame).
+_BVHS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+
+__all__ = ["PixelImage", "exposure_for", "measure_pixels", "pixel_bvh", "pixel_materials", "pixel_stage", "render_frame",
+           "write_pixel_images"]
 
 
 def pixel_stage(runtime):
@@ -98,11 +103,23 @@ def pixel_materials(stage, scene, gbuffer, textures: bool = True) -> dict:
     return out
 
 
+def pixel_bvh(runtime):
+    """The BVH the run's primary rays are cast against: the frame state's when the run keeps one,
+    else one built once per run (refit to the frame by :func:`render_frame`)."""
+    from ..geometry.bvh import Visibility
+
+    if runtime.state.bvh is not None:
+        return runtime.state.bvh
+    bvh = _BVHS.get(runtime)
+    if bvh is None:
+        bvh = _BVHS[runtime] = Visibility.from_scene(runtime.scene, device=runtime.device)
+    return bvh
+
+
 def render_frame(runtime, frame, width: int = 640, height: int = 480, supersample: int = 1, textures: bool | None = None,
                  stage=None, camera=None) -> PixelImage:
     """Step the run to ``frame`` and shade every pixel with its pixel stage (module docstring);
     ``textures`` (default: the stage's ``textures`` parameter) samples the meshes' textures per pixel."""
-    from ..geometry.bvh import Visibility
     from ..render import camera_for, render_gbuffer
 
     st = stage if stage is not None else pixel_stage(runtime)
@@ -116,10 +133,7 @@ def render_frame(runtime, frame, width: int = 640, height: int = 480, supersampl
     runtime.step(float(frame))
     state = runtime.state
     cam = camera if camera is not None else camera_for(runtime.scene, float(frame), aspect=width / height)
-    bvh = getattr(runtime, "_pixel_bvh", None)
-    if bvh is None:
-        bvh = Visibility.from_scene(runtime.scene, device=runtime.device)
-        runtime._pixel_bvh = bvh
+    bvh = pixel_bvh(runtime)
     bvh.update(state.points)
     ss = int(supersample)
     t1 = time.perf_counter()
@@ -141,7 +155,8 @@ def render_frame(runtime, frame, width: int = 640, height: int = 480, supersampl
     return PixelImage(linear, coverage, float(frame), cam, seconds, mats)
 
 
-def _exposure(linear: np.ndarray) -> float:
+def exposure_for(linear: np.ndarray) -> float:
+    """Exposure in stops mapping the 99th percentile of the luminance of (N, 3) radiance to 0.9."""
     lum = linear @ np.array([0.2126, 0.7152, 0.0722])
     lum = lum[lum > 0]
     p99 = float(np.percentile(lum, 99)) if lum.size else 1.0
@@ -163,7 +178,7 @@ def write_pixel_images(runtime, out_dir, frames=None, width: int = 640, height: 
         frames = sorted({rec[0], rec[len(rec) // 2], rec[-1]}) if rec else [float(runtime.scene.frames[0])]
     images = [render_frame(runtime, f, width, height, supersample, textures) for f in frames]
     if exposure is None:
-        exposure = _exposure(np.concatenate([im.linear.reshape(-1, 3) for im in images]))
+        exposure = exposure_for(np.concatenate([im.linear.reshape(-1, 3) for im in images]))
     paths = []
     for im in images:
         stem = Path(out_dir) / f"{runtime.spec.name}_px_{int(round(im.frame)):04d}"
@@ -210,7 +225,7 @@ def measure_pixels(runtime, out_dir, frames, width: int = 160, height: int = 120
         rel = float(np.sqrt(np.mean(d * d)) / denom) if denom > 0 else float("nan")
         noise = float(np.sqrt(np.mean(ref.stderr[mask] ** 2)) / denom) if denom > 0 else float("nan")
         path = Path(out_dir) / f"{runtime.spec.name}_px_{int(round(float(f))):04d}_vs_reference.png"
-        exposure = _exposure(ref.radiance.reshape(-1, 3))
+        exposure = exposure_for(ref.radiance.reshape(-1, 3))
         err = np.abs(im.linear - ref.radiance)
         strip = np.concatenate([tonemap_reference(im.linear, exposure=exposure), tonemap_reference(ref.radiance, exposure=exposure),
                                 tonemap_reference(err, exposure=exposure + 2.0)], axis=1)

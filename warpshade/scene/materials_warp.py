@@ -39,6 +39,7 @@ __all__ = [
     "brdf_sample",
     "brdf_with_roughness",
     "check_roughness",
+    "concentric_footprint",
     "hemisphere_to_concentric",
     "upload_brdf",
 ]
@@ -281,3 +282,16 @@ def hemisphere_to_concentric(d: wp.vec3) -> wp.vec2:
         b = -r
         a = -r * (1.5 * wp.pi - phi) / quarter
     return wp.vec2(a, b)
+
+
+@wp.func
+def concentric_footprint(ab: wp.vec2, res: int) -> wp.vec4:
+    """The bilinear footprint of a point ``ab`` of the concentric square on a ``res`` x ``res``
+    texture whose texel centres are ``(i + 0.5) / res * 2 - 1`` (``res >= 2``): ``(ia, ib, ta,
+    tb)`` with texels ``ia, ia + 1`` along ``a`` and ``ib, ib + 1`` along ``b`` (as floats) and
+    their weights ``ta``, ``tb`` in [0, 1], clamped at the edges."""
+    fa = (ab[0] + 1.0) * 0.5 * float(res) - 0.5
+    fb = (ab[1] + 1.0) * 0.5 * float(res) - 0.5
+    ia = wp.clamp(int(wp.floor(fa)), 0, res - 2)
+    ib = wp.clamp(int(wp.floor(fb)), 0, res - 2)
+    return wp.vec4(float(ia), float(ib), wp.clamp(fa - float(ia), 0.0, 1.0), wp.clamp(fb - float(ib), 0.0, 1.0))

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 from .._wp import wp
 from ..basis.sg_warp import sg_visible_fraction
-from ..scene.materials_warp import hemisphere_to_concentric
+from ..scene.materials_warp import concentric_footprint, hemisphere_to_concentric
 
 wp.set_module_options({"enable_backward": False})
 
@@ -66,14 +66,12 @@ def ssdf_eval(mean: wp.array(dtype=float), basis: wp.array2d(dtype=float), coeff
     arrays of an :class:`~warpshade.transfer.ssdf.SSDFModel` (texel ``a * R + b``); the map is
     sampled bilinearly between texel centres with edge clamping (resolution >= 2).
     """
-    ab = local_to_concentric(dir_local)
     res = resolution
-    fa = (ab[0] + 1.0) * 0.5 * float(res) - 0.5
-    fb = (ab[1] + 1.0) * 0.5 * float(res) - 0.5
-    ia = wp.clamp(int(wp.floor(fa)), 0, res - 2)
-    ib = wp.clamp(int(wp.floor(fb)), 0, res - 2)
-    ta = wp.clamp(fa - float(ia), 0.0, 1.0)
-    tb = wp.clamp(fb - float(ib), 0.0, 1.0)
+    fp = concentric_footprint(local_to_concentric(dir_local), res)
+    ia = int(fp[0])
+    ib = int(fp[1])
+    ta = fp[2]
+    tb = fp[3]
     t00 = ia * res + ib
     t01 = t00 + 1
     t10 = t00 + res

@@ -19,7 +19,7 @@ import functools
 from ..._wp import wp
 from ...basis.sh_warp import SHTables, sh_kernels
 from ...basis.zh import zh_kernels
-from ...scene.materials_warp import hemisphere_to_concentric
+from ...scene.materials_warp import concentric_footprint, hemisphere_to_concentric
 
 wp.set_module_options({"enable_backward": False})
 
@@ -153,13 +153,11 @@ def shade_kernels(order: int):
 @wp.func
 def view_factor(factors: wp.array3d(dtype=wp.float32), ab: wp.vec2, j: int) -> float:
     """Bilinear interpolation of view factor j between texel centres of a (res, res, n_b) texture."""
-    res = factors.shape[0]
-    fa = (ab[0] + 1.0) * 0.5 * float(res) - 0.5
-    fb = (ab[1] + 1.0) * 0.5 * float(res) - 0.5
-    ia = wp.clamp(int(wp.floor(fa)), 0, res - 2)
-    ib = wp.clamp(int(wp.floor(fb)), 0, res - 2)
-    ta = wp.clamp(fa - float(ia), 0.0, 1.0)
-    tb = wp.clamp(fb - float(ib), 0.0, 1.0)
+    fp = concentric_footprint(ab, factors.shape[0])
+    ia = int(fp[0])
+    ib = int(fp[1])
+    ta = fp[2]
+    tb = fp[3]
     return ((1.0 - ta) * (1.0 - tb) * factors[ia, ib, j] + ta * (1.0 - tb) * factors[ia + 1, ib, j]
             + (1.0 - ta) * tb * factors[ia, ib + 1, j] + ta * tb * factors[ia + 1, ib + 1, j])
 

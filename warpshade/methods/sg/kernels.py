@@ -32,8 +32,8 @@ from __future__ import annotations
 
 from ..._wp import wp
 from ...basis.sg_warp import SG, sg_hemisphere_integral, sg_integral, sg_make, sg_product, sg_rotate, sg_visible_fraction
-from ...scene.materials_warp import BRDFParams, brdf_eval
-from ...transfer.ssdf_warp import local_to_concentric
+from ...scene.materials_warp import BRDFParams, brdf_eval, concentric_footprint
+from ...transfer.ssdf_warp import local_to_concentric, ssdf_eval
 from .brdf_warp import specular_slice
 from .lighting_warp import PrefilteredTable, gamma_lookup, point_light_sg
 
@@ -109,50 +109,23 @@ class Visibility:
 
 
 @wp.func
-def ssdf_bilinear(maps: wp.array3d(dtype=float), v: int, uv: wp.vec2, r: int):
-    """Bilinear fetch of vertex ``v``'s map at ``uv`` (texel centres at ``(i + 0.5) / r``, clamped)."""
-    x = wp.clamp(uv[0] * float(r) - 0.5, 0.0, float(r - 1))
-    y = wp.clamp(uv[1] * float(r) - 0.5, 0.0, float(r - 1))
-    i0 = int(wp.floor(x))
-    j0 = int(wp.floor(y))
-    i1 = wp.min(i0 + 1, r - 1)
-    j1 = wp.min(j0 + 1, r - 1)
-    fx = x - float(i0)
-    fy = y - float(j0)
-    top = (1.0 - fy) * maps[v, i0, j0] + fy * maps[v, i0, j1]
-    bottom = (1.0 - fy) * maps[v, i1, j0] + fy * maps[v, i1, j1]
-    return (1.0 - fx) * top + fx * bottom
+def ssdf_bilinear(maps: wp.array3d(dtype=float), v: int, ab: wp.vec2, r: int):
+    """Bilinear fetch of vertex ``v``'s map at a point ``ab`` of the concentric square."""
+    fp = concentric_footprint(ab, r)
+    i = int(fp[0])
+    j = int(fp[1])
+    top = (1.0 - fp[3]) * maps[v, i, j] + fp[3] * maps[v, i, j + 1]
+    bottom = (1.0 - fp[3]) * maps[v, i + 1, j] + fp[3] * maps[v, i + 1, j + 1]
+    return (1.0 - fp[2]) * top + fp[2] * bottom
 
 
 @wp.func
 def _ssdf_vertex(vis: Visibility, st: Settings, v: int, d_world: wp.vec3):
-    ab = local_to_concentric(vis.frames[v] * d_world)
-    uv = wp.vec2(0.5 * (ab[0] + 1.0), 0.5 * (ab[1] + 1.0))
+    d = vis.frames[v] * d_world
     if st.pca == 0:
-        return ssdf_bilinear(vis.maps, v, uv, st.resolution)
-    # reconstruct from the PCA at the four texels of the bilinear footprint
-    r = st.resolution
-    x = wp.clamp(uv[0] * float(r) - 0.5, 0.0, float(r - 1))
-    y = wp.clamp(uv[1] * float(r) - 0.5, 0.0, float(r - 1))
-    i0 = int(wp.floor(x))
-    j0 = int(wp.floor(y))
-    i1 = wp.min(i0 + 1, r - 1)
-    j1 = wp.min(j0 + 1, r - 1)
-    fx = x - float(i0)
-    fy = y - float(j0)
-    t00 = i0 * r + j0
-    t01 = i0 * r + j1
-    t10 = i1 * r + j0
-    t11 = i1 * r + j1
-    w00 = (1.0 - fx) * (1.0 - fy)
-    w01 = (1.0 - fx) * fy
-    w10 = fx * (1.0 - fy)
-    w11 = fx * fy
-    acc = w00 * vis.mean[t00] + w01 * vis.mean[t01] + w10 * vis.mean[t10] + w11 * vis.mean[t11]
-    for k in range(st.terms):
-        c = vis.coeffs[v, k]
-        acc += c * (w00 * vis.basis[k, t00] + w01 * vis.basis[k, t01] + w10 * vis.basis[k, t10] + w11 * vis.basis[k, t11])
-    return acc
+        return ssdf_bilinear(vis.maps, v, local_to_concentric(d), st.resolution)
+    # the paper's path: reconstructed from the PCA at the look-up
+    return ssdf_eval(vis.mean, vis.basis, vis.coeffs, v, v, v, 1.0, 0.0, 0.0, d, st.resolution, st.terms)
 
 
 @wp.func
