@@ -46,6 +46,8 @@ __all__ = [
     "EnvironmentMap",
     "upload_environment",
     "disabled_environment",
+    "LatLongTaps",
+    "latlong_taps",
     "env_radiance",
     "env_sample",
     "env_pdf",
@@ -174,31 +176,50 @@ def _to_map(env: EnvironmentMap, direction: wp.vec3) -> wp.vec3:
     return wp.normalize(wp.transpose(env.to_world[0]) * direction)
 
 
+@wp.struct
+class LatLongTaps:
+    """The bilinear footprint of a direction on a lat-long map: rows ``r0, r1`` (clamped at the
+    poles), columns ``c0, c1`` (wrapped in azimuth), and the weights ``fv``, ``fu`` of the second."""
+
+    r0: int
+    r1: int
+    c0: int
+    c1: int
+    fv: float
+    fu: float
+
+
+@wp.func
+def latlong_taps(d: wp.vec3, height: int, width: int):
+    """:class:`LatLongTaps` of a unit map-frame direction on a ``height`` x ``width`` lat-long map
+    (row 0 = +z pole, texel centres at ``(i + 0.5) pi / H`` and ``(j + 0.5) 2 pi / W``)."""
+    theta = wp.acos(wp.clamp(d[2], -1.0, 1.0))
+    phi = wp.atan2(d[1], d[0])
+    if phi < 0.0:
+        phi += 2.0 * wp.pi
+    v = theta / wp.pi * float(height) - 0.5
+    u = phi / (2.0 * wp.pi) * float(width) - 0.5
+    v0 = wp.floor(v)
+    u0 = wp.floor(u)
+    t = LatLongTaps()
+    t.fv = v - v0
+    t.fu = u - u0
+    t.r0 = wp.clamp(int(v0), 0, height - 1)
+    t.r1 = wp.clamp(int(v0) + 1, 0, height - 1)
+    t.c0 = ((int(u0) % width) + width) % width
+    t.c1 = (t.c0 + 1) % width
+    return t
+
+
 @wp.func
 def env_radiance(env: EnvironmentMap, direction: wp.vec3) -> wp.vec3:
     """Bilinear radiance of the environment in a world direction (0 when disabled)."""
     if env.enabled == 0:
         return wp.vec3(0.0)
-    d = _to_map(env, direction)
-    theta = wp.acos(wp.clamp(d[2], -1.0, 1.0))
-    phi = wp.atan2(d[1], d[0])
-    if phi < 0.0:
-        phi += 2.0 * wp.pi
-    h = env.height
-    w = env.width
-    v = theta / wp.pi * float(h) - 0.5
-    u = phi / (2.0 * wp.pi) * float(w) - 0.5
-    v0 = wp.floor(v)
-    u0 = wp.floor(u)
-    fv = v - v0
-    fu = u - u0
-    r0 = wp.clamp(int(v0), 0, h - 1)
-    r1 = wp.clamp(int(v0) + 1, 0, h - 1)
-    c0 = ((int(u0) % w) + w) % w
-    c1 = (c0 + 1) % w
-    top = (1.0 - fu) * env.image[r0, c0] + fu * env.image[r0, c1]
-    bottom = (1.0 - fu) * env.image[r1, c0] + fu * env.image[r1, c1]
-    return (1.0 - fv) * top + fv * bottom
+    t = latlong_taps(_to_map(env, direction), env.height, env.width)
+    top = (1.0 - t.fu) * env.image[t.r0, t.c0] + t.fu * env.image[t.r0, t.c1]
+    bottom = (1.0 - t.fu) * env.image[t.r1, t.c0] + t.fu * env.image[t.r1, t.c1]
+    return (1.0 - t.fv) * top + t.fv * bottom
 
 
 @wp.func

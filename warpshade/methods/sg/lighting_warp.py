@@ -22,6 +22,7 @@ from __future__ import annotations
 
 from ..._wp import wp
 from ...basis.sg_warp import SG, sg_integral, sg_make, sg_sharpness_for_area
+from ...scene.lighting_warp import latlong_taps
 
 wp.set_module_options({"enable_backward": False})
 
@@ -69,26 +70,12 @@ class PrefilteredTable:
 
 @wp.func
 def _map_bilinear(table: PrefilteredTable, level: int, d: wp.vec3) -> wp.vec3:
-    h = table.height[level]
     w = table.width[level]
     base = table.offset[level]
-    theta = wp.acos(wp.clamp(d[2], -1.0, 1.0))
-    phi = wp.atan2(d[1], d[0])
-    if phi < 0.0:
-        phi += _TWO_PI
-    v = theta / _PI * float(h) - 0.5
-    u = phi / _TWO_PI * float(w) - 0.5
-    v0 = wp.floor(v)
-    u0 = wp.floor(u)
-    fv = v - v0
-    fu = u - u0
-    r0 = wp.clamp(int(v0), 0, h - 1)
-    r1 = wp.clamp(int(v0) + 1, 0, h - 1)
-    c0 = ((int(u0) % w) + w) % w
-    c1 = (c0 + 1) % w
-    top = (1.0 - fu) * table.data[base + r0 * w + c0] + fu * table.data[base + r0 * w + c1]
-    bottom = (1.0 - fu) * table.data[base + r1 * w + c0] + fu * table.data[base + r1 * w + c1]
-    return (1.0 - fv) * top + fv * bottom
+    t = latlong_taps(d, table.height[level], w)
+    top = (1.0 - t.fu) * table.data[base + t.r0 * w + t.c0] + t.fu * table.data[base + t.r0 * w + t.c1]
+    bottom = (1.0 - t.fu) * table.data[base + t.r1 * w + t.c0] + t.fu * table.data[base + t.r1 * w + t.c1]
+    return (1.0 - t.fv) * top + t.fv * bottom
 
 
 @wp.func
