@@ -17,3 +17,14 @@ def device(request):
 @pytest.fixture
 def rng():
     return np.random.default_rng(1234)
+
+
+def pytest_addoption(parser):
+    parser.addoption("--update-goldens", action="store_true", default=False,
+                     help="rewrite tests/golden/*.npz from this run's graph outputs (say why in the commit)")
+
+
+@pytest.fixture
+def update_goldens(request):
+    """True when the run was asked to rewrite the golden outputs (``--update-goldens``)."""
+    return request.config.getoption("--update-goldens")

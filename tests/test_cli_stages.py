@@ -10,6 +10,8 @@ from warpshade import cli
 from warpshade.graph import load
 from warpshade.measure import write_usd
 
+from goldens import golden_mismatch, golden_path, write_golden
+
 STAGES = sorted((Path(__file__).resolve().parent.parent / "stages").glob("*.toml"))
 #: Training frames of the data-driven graphs in this test (their own selection takes minutes).
 TRAINING_SUBSET = "0:600:50"
@@ -26,7 +28,7 @@ def test_stage_folder_is_not_empty():
 
 
 @pytest.mark.parametrize("graph_file", STAGES, ids=[p.stem for p in STAGES])
-def test_stage_graph_runs(graph_file, tmp_path):
+def test_stage_graph_runs(graph_file, tmp_path, update_goldens):
     spec = load(graph_file)
     for st in spec.stages:
         if st.type == "datadriven.data":
@@ -59,6 +61,14 @@ def test_stage_graph_runs(graph_file, tmp_path):
         assert out.shape == (rt.scene.vertex_count, 3)
         assert np.all(np.isfinite(out)), f"{graph_file.name}: NaN/inf radiance at frame {f}"
         assert out.min() >= -1e-3 * max(1.0, out.max()), f"{graph_file.name}: negative radiance"
+    results = {float(f): rt.results[float(f)] for f in frames}
+    if update_goldens or not golden_path(spec.name).exists():
+        write_golden(spec.name, results)
+        if not update_goldens:
+            pytest.fail(f"{graph_file.name}: no golden output yet; wrote tests/golden/{spec.name}.npz (commit it)")
+    else:
+        problem = golden_mismatch(spec.name, results)
+        assert problem is None, problem
     usd = write_usd(rt, tmp_path / f"{spec.name}.usda")
     from pxr import Usd, UsdGeom
 

@@ -3,8 +3,6 @@ against the float64 mirror, physics checks against analytic values and the gloss
 reference, failure modes, and the environment artifact's caching."""
 
 import math
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -22,8 +20,7 @@ from warpshade.render.raycast import GBuffer, render_gbuffer
 from warpshade.scene import Camera, DistantLight, Environment, LightingSource, LightTrack, Mesh, Scene, SphereLight
 from warpshade.scene import materials as M
 
-sys.path.insert(0, str(Path(__file__).parent))
-from grids import ground_grid  # noqa: E402
+from grids import ground_grid
 
 # float32 kernel vs the float64 mirror, relative to the largest radiance: the lobe products'
 # exp(|l1 p1 + l2 p2| - l1 - l2) in float32 round the exponent by ~lambda * 2^-24, with lambda up
