@@ -7,7 +7,7 @@ import pytest
 import trimesh
 
 from warpshade._wp import wp
-from warpshade.graph import GraphError, GraphSpec, Param, Port, Stage, StageSpec, load, register_stage
+from warpshade.graph import FrameStage, GraphError, GraphSpec, Param, Port, PrecomputeStage, StageSpec, load, register_stage
 from warpshade.measure import measure_error, render_comparisons, write_report, write_usd
 from warpshade.scene import Environment, Mesh, Scene
 
@@ -15,11 +15,10 @@ CALLS = {"const": 0}
 
 
 @register_stage
-class _Const(Stage):
+class _Const(PrecomputeStage):
     """Precompute: a (V, K) array filled with ``value`` (counts its invocations)."""
 
     type_name = "test.const"
-    kind = "precompute"
     parameters = {"k": Param(2, int), "value": Param(1.0, float)}
 
     def dims(self):
@@ -50,11 +49,10 @@ def _sum_rows(values: wp.array2d(dtype=wp.float32), points: wp.array(dtype=wp.ve
 
 
 @register_stage
-class _Sum(Stage):
+class _Sum(FrameStage):
     """Frame stage: radiance = (row sum of values, point z, 0)."""
 
     type_name = "test.sum"
-    kind = "frame"
     parameters = {"k": Param(2, int)}
 
     def dims(self):
@@ -77,9 +75,8 @@ class _Sum(Stage):
 
 
 @register_stage
-class _Loop(Stage):
+class _Loop(FrameStage):
     type_name = "test.loop"
-    kind = "frame"
 
     def input_ports(self):
         return {"radiance": Port("float32", ("V", 3))}

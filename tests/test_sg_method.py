@@ -442,7 +442,7 @@ def test_ssdf_of_another_scene_is_refused(blocked, plane, monkeypatch):
     def wrong(self, ctx, inputs):
         return {"ssdf": other.arrays()}
 
-    monkeypatch.setattr(sg_stages.SSDFStage, "precompute", wrong)
+    monkeypatch.setattr(sg_stages.SgSsdfStage, "precompute", wrong)
     with pytest.raises(StageError, match=f"SSDFs of {plane.vertex_count} vertices for a scene of {blocked.vertex_count}"):
         _compile(blocked, [SKY])
 

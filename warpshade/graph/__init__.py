@@ -12,7 +12,8 @@ Writing USD, pictures and reports, and measuring against ground truth, are in
 :mod:`warpshade.measure`.
 """
 
-from ..methods.stage import Param, Port, Stage, StageContext, StageError, get_stage_type, register_stage, stage_types
+from ..methods.stage import (FrameStage, Param, Port, PrecomputeStage, Stage, StageContext, StageError, get_stage_type,
+                             register_stage, stage_types)
 from .cache import ArtifactCache, default_cache_dir
 from .errors import GraphError
 from .runtime import Runtime, parse_frames
@@ -21,9 +22,11 @@ from .spec import SCENE_PORTS, GraphSpec, StageSpec, extend_static_frames, light
 __all__ = [
     "ArtifactCache",
     "GraphError",
+    "FrameStage",
     "GraphSpec",
     "Param",
     "Port",
+    "PrecomputeStage",
     "Runtime",
     "SCENE_PORTS",
     "Stage",

@@ -41,8 +41,10 @@ from ..scene.state import Change
 
 __all__ = [
     "Change",
+    "FrameStage",
     "Port",
     "Param",
+    "PrecomputeStage",
     "Stage",
     "StageContext",
     "StageError",
@@ -165,16 +167,15 @@ class StageContext:
 
 
 class Stage:
-    """Base class of all stages (see module docstring for the contract).
+    """What every stage has: a registered type name, typed parameters and typed ports.
 
-    Subclasses set the class attributes and override the methods of their kind. Parameters are
-    available as ``self.params`` (a dict, validated against ``parameters``).
+    A method never subclasses this directly: it writes a :class:`PrecomputeStage` (runs once,
+    cached) or a :class:`FrameStage` (runs every frame). Parameters are available as
+    ``self.params`` (a dict, validated against ``parameters``).
     """
 
     type_name: ClassVar[str] = ""
-    kind: ClassVar[str] = "frame"  # "precompute" | "frame"
-    version: ClassVar[int] = 1  # bump when the artifact format or algorithm changes
-    uses_scene: ClassVar[bool] = True  # precompute: does the artifact depend on the scene?
+    kind: ClassVar[str] = ""  # set by PrecomputeStage ("precompute") and FrameStage ("frame")
     parameters: ClassVar[dict[str, Param]] = {}
     description: ClassVar[str] = ""
 
@@ -202,7 +203,27 @@ class Stage:
         """Stage-specific symbolic dimensions (e.g. ``{"C": order**2}``)."""
         return {}
 
-    # ---- precompute stages --------------------------------------------------------------
+    def describe(self) -> dict:
+        return {"name": self.name, "type": self.type_name, "kind": self.kind, "params": dict(self.params)}
+
+
+class PrecomputeStage(Stage):
+    """A stage that runs once per scene and parameters; its artifacts are cached on disk.
+
+    A method writes :meth:`precompute` (and :meth:`check_artifact`, and bumps :attr:`version` when
+    the artifact's format or algorithm changes); :meth:`cache_params` and :meth:`cache_key` only
+    when a parameter names a file.
+    """
+
+    kind: ClassVar[str] = "precompute"
+    version: ClassVar[int] = 1  # bump when the artifact format or algorithm changes
+    uses_scene: ClassVar[bool] = True  # does the artifact depend on the scene?
+
+    #: A small JSON-ready summary a precompute may leave (histograms, fit errors, choices made).
+    #: The runtime stores it with the cached artifacts and restores it on a cache hit, and
+    #: includes it in run reports.
+    report: dict | None = None
+
     def precompute(self, ctx, inputs: dict) -> dict:
         """Compute artifacts from host inputs. Returns output name -> NumPy array."""
         raise NotImplementedError(f"stage {self.name!r} ({self.type_name}) has no precompute")
@@ -226,32 +247,22 @@ class Stage:
         default accepts anything that has the declared ports.
         """
 
-    def reference_model(self) -> dict | None:
-        """What ground truth this stage's radiance is measured against, or None for the default.
+    def describe(self) -> dict:
+        out = super().describe()
+        if self.report:
+            out["report"] = self.report
+        return out
 
-        The default (None) is the diffuse reference of :func:`warpshade.reference.shade` with
-        the scene's albedo. A stage whose output is something else returns keyword arguments
-        for :func:`warpshade.reference.shade_glossy` (``brdf``, ``eye``, ``color``), from its own
-        parameters and inputs (known after ``setup``).
-        """
-        return None
 
-    #: True when the stage shades toward the state's eye (the camera, or ``set_eye``): its
-    #: reference then follows the eye of each frame (an animated camera).
-    follows_state_eye: bool = False
+class FrameStage(Stage):
+    """A stage that runs every frame, inside the recorded frame.
 
-    def reference_model_at(self, frame: float, materials, eye=None) -> dict | None:
-        """:meth:`reference_model` for time code ``frame``, with the run's material assignment
-        of that frame (a :class:`~warpshade.scene.state.MaterialAssignment`) and its eye (3,).
-        The default replaces the model's eye when the stage :attr:`follows_state_eye`; stages
-        whose BRDFs change over a run override this. A model may hold ``groups``: a list of
-        ``{"vertices": indices, "brdf": BRDF}`` for meshes with BRDFs of their own."""
-        model = self.reference_model()
-        if model is not None and "eye" in model and eye is not None and self.follows_state_eye:
-            model = {**model, "eye": np.asarray(eye, np.float64)}
-        return model
+    A method writes :meth:`setup` (allocate outputs, bind inputs: once) and :meth:`launch` (kernel
+    launches on those buffers: every frame), and :meth:`notify_changed` when a change from
+    outside the frame can be absorbed without a new set-up.
+    """
 
-    # ---- frame stages -------------------------------------------------------------------
+    kind: ClassVar[str] = "frame"
     #: False when :meth:`launch` cannot be recorded (it runs from Python every frame, between
     #: the recorded segments); :attr:`capture_note` says why.
     capturable: ClassVar[bool] = True
@@ -283,11 +294,6 @@ class Stage:
         """
         return not (flags & Change.PARAMETERS)
 
-    #: A small JSON-ready summary a precompute may leave (histograms, fit errors, choices made).
-    #: The runtime stores it with the cached artifacts and restores it on a cache hit, and
-    #: includes it in run reports.
-    report: dict | None = None
-
     def model_bytes(self) -> int:
         """Bytes of per-scene model data this stage keeps on the device (for reports)."""
         return 0
@@ -297,11 +303,31 @@ class Stage:
         cheaper estimate); read from the device, so only after a frame, never inside one."""
         return {}
 
-    def describe(self) -> dict:
-        out = {"name": self.name, "type": self.type_name, "kind": self.kind, "params": dict(self.params)}
-        if self.report:
-            out["report"] = self.report
-        return out
+    # ---- measuring (to move to the measuring layer's protocol) -------------------------
+    def reference_model(self) -> dict | None:
+        """What ground truth this stage's radiance is measured against, or None for the default.
+
+        The default (None) is the diffuse reference of :func:`warpshade.reference.shade` with
+        the scene's albedo. A stage whose output is something else returns keyword arguments
+        for :func:`warpshade.reference.shade_glossy` (``brdf``, ``eye``, ``color``), from its own
+        parameters and inputs (known after ``setup``).
+        """
+        return None
+
+    #: True when the stage shades toward the state's eye (the camera, or ``set_eye``): its
+    #: reference then follows the eye of each frame (an animated camera).
+    follows_state_eye: bool = False
+
+    def reference_model_at(self, frame: float, materials, eye=None) -> dict | None:
+        """:meth:`reference_model` for time code ``frame``, with the run's material assignment
+        of that frame (a :class:`~warpshade.scene.state.MaterialAssignment`) and its eye (3,).
+        The default replaces the model's eye when the stage :attr:`follows_state_eye`; stages
+        whose BRDFs change over a run override this. A model may hold ``groups``: a list of
+        ``{"vertices": indices, "brdf": BRDF}`` for meshes with BRDFs of their own."""
+        model = self.reference_model()
+        if model is not None and "eye" in model and eye is not None and self.follows_state_eye:
+            model = {**model, "eye": np.asarray(eye, np.float64)}
+        return model
 
 
 _REGISTRY: dict[str, type[Stage]] = {}
@@ -311,8 +337,8 @@ def register_stage(cls: type[Stage]) -> type[Stage]:
     """Class decorator: register a stage type under ``cls.type_name``."""
     if not cls.type_name:
         raise ValueError(f"{cls.__name__}: type_name is empty")
-    if cls.kind not in ("precompute", "frame"):
-        raise ValueError(f"{cls.__name__}: kind must be 'precompute' or 'frame', got {cls.kind!r}")
+    if not issubclass(cls, (PrecomputeStage, FrameStage)):
+        raise ValueError(f"{cls.__name__}: a stage type subclasses PrecomputeStage or FrameStage")
     existing = _REGISTRY.get(cls.type_name)
     if existing is not None and existing is not cls and existing.__qualname__ != cls.__qualname__:
         raise ValueError(f"stage type {cls.type_name!r} registered twice ({existing.__name__}, {cls.__name__})")

@@ -15,14 +15,14 @@ from .model import DataDrivenModel, choose_sizes, fit_full, fit_reduced, novelty
 from .pose import PARAMETERISATIONS, pose_features, pose_layout
 from .reference import hemisphere_transfer_error, transfer_reference
 from .rows import harness_rows
-from .stages import DataStage, FitStage, TransferStage
+from .stages import DataDrivenDataStage, DataDrivenFitStage, DataDrivenTransferStage
 
 __all__ = [
     "PARAMETERISATIONS",
     "DataDrivenModel",
-    "DataStage",
-    "FitStage",
-    "TransferStage",
+    "DataDrivenDataStage",
+    "DataDrivenFitStage",
+    "DataDrivenTransferStage",
     "choose_sizes",
     "fit_full",
     "fit_reduced",

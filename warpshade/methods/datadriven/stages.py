@@ -22,14 +22,14 @@ import numpy as np
 
 from ..._wp import cpu_workers, launch_parallel, wp
 from ..common import order_param, rays_param
-from ..stage import Param, Port, Stage, StageError, register_stage
+from ..stage import FrameStage, Param, Port, PrecomputeStage, StageError, register_stage
 from . import kernels
 from .model import (DataDrivenModel, PoseSpace, choose_sizes, fit_full, fit_reduced, lighting_weights, novelty,
                     validation_split)
 from .pose import PARAMETERISATIONS, ROOT_MODES, pose_features, pose_layout, root_references
 from .training import check_same_character, parse_frame_selection, topology_key, trace_training
 
-__all__ = ["DataStage", "FitStage", "TransferStage", "model_to_arrays", "model_from_arrays"]
+__all__ = ["DataDrivenDataStage", "DataDrivenFitStage", "DataDrivenTransferStage", "model_to_arrays", "model_from_arrays"]
 
 _ORDER = order_param(6, minimum=1, maximum=8)
 _SPACES = {"world": 0, "local": 1}
@@ -61,9 +61,8 @@ def _load_training(ctx, stage):
 
 
 @register_stage
-class DataStage(Stage):
+class DataDrivenDataStage(PrecomputeStage):
     type_name = "datadriven.data"
-    kind = "precompute"
     description = "ray-traced transfer and pose vectors at every frame of a training clip (tasks for an executor)"
     parameters = {
         "training": Param("", str, "training clip: a USD file relative to the graph, or a scene spec such as "
@@ -199,9 +198,8 @@ def _select_columns(data: dict, kind: str, root: str) -> np.ndarray:
 
 
 @register_stage
-class FitStage(Stage):
+class DataDrivenFitStage(PrecomputeStage):
     type_name = "datadriven.fit"
-    kind = "precompute"
     uses_scene = False
     description = "linear maps pose -> transfer (Tikhonov, alpha by closed-form LOO), full or PCA-reduced"
     parameters = {
@@ -329,9 +327,8 @@ def _vec(a: np.ndarray, device):
 
 
 @register_stage
-class TransferStage(Stage):
+class DataDrivenTransferStage(FrameStage):
     type_name = "datadriven.transfer"
-    kind = "frame"
     description = "transfer vectors from the frame's joint angles by the data-driven model (1-3 products per frame)"
     parameters = {
         "order": _ORDER,

@@ -15,15 +15,15 @@ Modules, in the shape of every method (see :mod:`warpshade.methods.prt`): :mod:`
 from .model import LDPRTModel, fit_transfer, local_transfer
 from .reference import shade_reference, world_transfer_reference
 from .rows import harness_rows
-from .stages import FitStage, FramesStage, LocalTransferStage, RotatedShadeStage, ShadeStage
+from .stages import LdprtFitStage, LdprtFramesStage, LdprtTransferStage, LdprtShadeRotatedStage, LdprtShadeStage
 
 __all__ = [
-    "FitStage",
-    "FramesStage",
+    "LdprtFitStage",
+    "LdprtFramesStage",
     "LDPRTModel",
-    "LocalTransferStage",
-    "RotatedShadeStage",
-    "ShadeStage",
+    "LdprtTransferStage",
+    "LdprtShadeRotatedStage",
+    "LdprtShadeStage",
     "fit_transfer",
     "harness_rows",
     "local_transfer",

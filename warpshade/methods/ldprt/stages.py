@@ -35,22 +35,22 @@ from ..._wp import wp
 from ...basis.zh import DEFAULT_RIDGE as _RIDGE
 from ...basis.sh_warp import sh_kernels
 from ..common import ShLighting, order_param, rays_param
-from ..stage import Param, Port, Stage, StageError, register_stage
+from ..stage import FrameStage, Param, Port, PrecomputeStage, StageError, register_stage
 from . import kernels
 from .glossy import BRDF_KINDS
 from .model import STORED_BANDS, fit_transfer, local_transfer
 
 __all__ = [
-    "FitStage",
-    "FramesStage",
-    "GlossyFitStage",
-    "GlossyShadeStage",
-    "LocalTransferStage",
-    "MembraneStage",
-    "RotatedShadeStage",
-    "ShadeStage",
-    "WrinkleShadeStage",
-    "WrinkleTableStage",
+    "LdprtFitStage",
+    "LdprtFramesStage",
+    "LdprtGlossyFitStage",
+    "LdprtGlossyShadeStage",
+    "LdprtTransferStage",
+    "LdprtMembraneStage",
+    "LdprtShadeRotatedStage",
+    "LdprtShadeStage",
+    "LdprtWrinkleShadeStage",
+    "LdprtWrinkleTableStage",
 ]
 
 _ORDER = order_param(4, minimum=1, maximum=8)
@@ -64,9 +64,8 @@ def _bake_frame(ctx, frame):
 
 
 @register_stage
-class FitStage(Stage):
+class LdprtFitStage(PrecomputeStage):
     type_name = "ldprt.fit"
-    kind = "precompute"
     version = 2  # 2: coefficient ridge
     description = "local-frame transfer fitted with ZH lobes per vertex (error-budgeted lobe count)"
     parameters = {
@@ -109,9 +108,8 @@ class FitStage(Stage):
 
 
 @register_stage
-class LocalTransferStage(Stage):
+class LdprtTransferStage(PrecomputeStage):
     type_name = "ldprt.transfer"
-    kind = "precompute"
     description = "ray-traced diffuse transfer in the per-vertex tangent frame at a bake frame"
     parameters = {"order": _ORDER, "samples": _SAMPLES, "frame": _FRAME,
                   "seed": Param(0, int, "seed of the per-vertex sample rotations")}
@@ -130,9 +128,8 @@ class LocalTransferStage(Stage):
 
 
 @register_stage
-class FramesStage(Stage):
+class LdprtFramesStage(FrameStage):
     type_name = "ldprt.frames"
-    kind = "frame"
     description = "per-vertex tangent frames of the current pose (rows t, b, n)"
 
     def input_ports(self):
@@ -154,9 +151,8 @@ class FramesStage(Stage):
 
 
 @register_stage
-class ShadeStage(Stage):
+class LdprtShadeStage(FrameStage):
     type_name = "ldprt.shade"
-    kind = "frame"
     description = "shade by ZH lobes rotated with the surface (light-specialised table or direct SH)"
     parameters = {
         "order": _ORDER,
@@ -215,9 +211,8 @@ class ShadeStage(Stage):
 
 
 @register_stage
-class RotatedShadeStage(Stage):
+class LdprtShadeRotatedStage(FrameStage):
     type_name = "ldprt.shade_rotated"
-    kind = "frame"
     description = "full local SH transfer rotated to world per vertex (zxzxz), then dotted with the lighting"
     parameters = {"order": _ORDER}
 
@@ -253,9 +248,8 @@ class RotatedShadeStage(Stage):
 
 
 @register_stage
-class GlossyFitStage(Stage):
+class LdprtGlossyFitStage(PrecomputeStage):
     type_name = "ldprt.glossy_fit"
-    kind = "precompute"
     version = 3  # 2: visibility open below the horizon by default; 3: coefficient ridge
     description = "glossy LDPRT: BRDF SVD rows times local visibility transfer, each row fitted with ZH lobes"
     parameters = {
@@ -317,9 +311,8 @@ class GlossyFitStage(Stage):
 
 
 @register_stage
-class GlossyShadeStage(Stage):
+class LdprtGlossyShadeStage(FrameStage):
     type_name = "ldprt.glossy_shade"
-    kind = "frame"
     description = "view-dependent glossy LDPRT shading (eq. 16) with the light-specialised table"
     parameters = {
         "order": _ORDER,
@@ -400,9 +393,8 @@ class GlossyShadeStage(Stage):
 
 
 @register_stage
-class MembraneStage(Stage):
+class LdprtMembraneStage(PrecomputeStage):
     type_name = "ldprt.membrane"
-    kind = "precompute"
     description = "translucent thin-membrane single lobe about the normal (eq. 22-23), per-vertex translucency"
     parameters = {
         "order": _ORDER,
@@ -417,7 +409,7 @@ class MembraneStage(Stage):
         return {"L": 1, "N": self.params["order"]}
 
     def output_ports(self):
-        return FitStage.output_ports(self)
+        return LdprtFitStage.output_ports(self)
 
     def precompute(self, ctx, inputs):
         from .membrane import membrane_model, thickness
@@ -432,9 +424,8 @@ class MembraneStage(Stage):
 
 
 @register_stage
-class WrinkleTableStage(Stage):
+class LdprtWrinkleTableStage(PrecomputeStage):
     type_name = "ldprt.wrinkle_table"
-    kind = "precompute"
     uses_scene = False
     description = "sinusoidal groove transfer ray traced over (phase, depth), fitted with 3 bilinear ZH lobes"
     parameters = {
@@ -475,9 +466,8 @@ class WrinkleTableStage(Stage):
 
 
 @register_stage
-class WrinkleShadeStage(Stage):
+class LdprtWrinkleShadeStage(FrameStage):
     type_name = "ldprt.wrinkle_shade"
-    kind = "frame"
     description = "shade a smooth deforming surface with sinusoidal wrinkle transfer (flutes along an axis)"
     parameters = {
         "order": Param(4, int, "SH order n (the wrinkle table's)", minimum=3, maximum=8),

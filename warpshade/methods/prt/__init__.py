@@ -14,13 +14,13 @@ the same modules:
 from .model import TransferModel, bake_transfer
 from .reference import shade_transfer_reference, shade_unshadowed_reference
 from .rows import harness_rows
-from .stages import ShadeTransferStage, TransferStage, UnshadowedStage
+from .stages import PrtShadeStage, PrtTransferStage, PrtUnshadowedStage
 
 __all__ = [
-    "ShadeTransferStage",
+    "PrtShadeStage",
     "TransferModel",
-    "TransferStage",
-    "UnshadowedStage",
+    "PrtTransferStage",
+    "PrtUnshadowedStage",
     "bake_transfer",
     "harness_rows",
     "shade_transfer_reference",

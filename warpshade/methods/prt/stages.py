@@ -22,20 +22,19 @@ from __future__ import annotations
 from ..._wp import wp
 from ...basis import sh
 from ..common import WINDOW_PARAMS, ShLighting, order_param, rays_param
-from ..stage import Param, Port, Stage, register_stage
+from ..stage import FrameStage, Param, Port, PrecomputeStage, register_stage
 from . import kernels
 from .model import TransferModel, bake_transfer
 
-__all__ = ["TransferStage", "ShadeTransferStage", "TracedShadeStage", "UnshadowedStage"]
+__all__ = ["PrtTransferStage", "PrtShadeStage", "PrtTraceStage", "PrtUnshadowedStage"]
 
 _ORDER = order_param(4, minimum=1, maximum=10)
 _RADIANCE = Port("float32", ("V", 3), "outgoing radiance, linear RGB")
 
 
 @register_stage
-class TransferStage(Stage):
+class PrtTransferStage(PrecomputeStage):
     type_name = "prt.transfer"
-    kind = "precompute"
     description = "ray-traced diffuse transfer vectors per vertex (world frame) at one frame"
     parameters = {
         "order": _ORDER,
@@ -60,9 +59,8 @@ class TransferStage(Stage):
 
 
 @register_stage
-class ShadeTransferStage(Stage):
+class PrtShadeStage(FrameStage):
     type_name = "prt.shade"
-    kind = "frame"
     description = "shade by dot(lighting SH, transfer) per vertex and channel"
     parameters = {
         "order": _ORDER,
@@ -103,9 +101,8 @@ class ShadeTransferStage(Stage):
 
 
 @register_stage
-class UnshadowedStage(Stage):
+class PrtUnshadowedStage(FrameStage):
     type_name = "prt.unshadowed"
-    kind = "frame"
     description = "unshadowed irradiance indexed by the current normal"
     parameters = {"order": order_param(3, minimum=1, maximum=10), **WINDOW_PARAMS}
 
@@ -132,9 +129,8 @@ class UnshadowedStage(Stage):
 
 
 @register_stage
-class TracedShadeStage(Stage):
+class PrtTraceStage(FrameStage):
     type_name = "prt.trace"
-    kind = "frame"
     needs_bvh = True
     description = "transfer ray traced at every frame against the frame's BVH, then shaded (brute-force baseline)"
     parameters = {

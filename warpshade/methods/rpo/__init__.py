@@ -20,14 +20,14 @@ from .lighting import ZHLighting, fit_zh_lighting
 from .model import OperatorCache, ReflectanceOperator, build_operator
 from .reference import shade_exact_brdf, shade_reference
 from .rows import harness_rows
-from .stages import ShadeStage, StaticVisibilityStage, TracedVisibilityStage
+from .stages import RpoShadeStage, RpoVisibilityStaticStage, RpoVisibilityTracedStage
 
 __all__ = [
     "OperatorCache",
     "ReflectanceOperator",
-    "ShadeStage",
-    "StaticVisibilityStage",
-    "TracedVisibilityStage",
+    "RpoShadeStage",
+    "RpoVisibilityStaticStage",
+    "RpoVisibilityTracedStage",
     "ZHLighting",
     "build_operator",
     "fit_zh_lighting",

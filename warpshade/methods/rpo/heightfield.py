@@ -70,7 +70,7 @@ from ..._wp import launch_parallel, wp
 from ...basis import sh
 from ...basis.sh_warp import sh_kernels
 from ..common import ShLighting, order_param
-from ..stage import Param, Port, Stage, StageError, register_stage
+from ..stage import FrameStage, Param, Port, StageError, register_stage
 from .stages import OPERATORS, SHADE_PARAMS, GlossyStage
 
 wp.set_module_options({"enable_backward": False})
@@ -615,9 +615,8 @@ def _layout(stage, ctx) -> GridLayout:
 
 
 @register_stage
-class HeightFieldVisibilityStage(Stage):
+class HeightFieldVisibilityStage(FrameStage):
     type_name = "rpo.heightfield_visibility"
-    kind = "frame"
     description = ("world-frame SH visibility of a dynamic height field from horizon angles (eq. 4-5): max pyramid, "
                    "horizon march per azimuth, tabulated wedges z-rotated and summed, sub-sampled")
     parameters = {
@@ -729,7 +728,6 @@ class HeightFieldVisibilityStage(Stage):
 @register_stage
 class HeightFieldShadeStage(GlossyStage):
     type_name = "rpo.heightfield_shade"
-    kind = "frame"
     description = ("RPO glossy shading of a height field at every vertex over sub-sampled visibility: lighting "
                    "products at the visibility texels, F(wo) from a per-BRDF table, one SH rotation per vertex")
 

@@ -28,11 +28,11 @@ from ..._wp import launch_parallel, wp
 from ...basis.sh_warp import sh_kernels
 from ...scene import brdfs, materials
 from ..common import ShLighting, order_param, rays_param
-from ..stage import Param, Port, Stage, StageError, register_stage
+from ..stage import FrameStage, Param, Port, PrecomputeStage, StageError, register_stage
 from . import kernels
 from .model import COSINE_MODES, VIEW_ORDER, OperatorCache, cosine_sh
 
-__all__ = ["GlossyStage", "SHADE_PARAMS", "ShadeStage", "StaticVisibilityStage", "TracedVisibilityStage"]
+__all__ = ["GlossyStage", "SHADE_PARAMS", "RpoShadeStage", "RpoVisibilityStaticStage", "RpoVisibilityTracedStage"]
 
 _ORDER = order_param(4, minimum=2, maximum=6)
 _FRAME = Param(None, float, "time code of the bake pose (default: the scene's first frame)")
@@ -77,7 +77,7 @@ SHADE_PARAMS = {
 }
 
 
-class GlossyStage(Stage):
+class GlossyStage(FrameStage):
     """What RPO shading stages share: checks of the common parameters, the eye, the colour, the
     default BRDF, and the glossy reference of each frame (per mesh when BRDFs differ)."""
 
@@ -132,9 +132,8 @@ class GlossyStage(Stage):
 
 
 @register_stage
-class ShadeStage(GlossyStage):
+class RpoShadeStage(GlossyStage):
     type_name = "rpo.shade"
-    kind = "frame"
     description = "reflectance product operators (eq. 11): run-time BRDFs over per-vertex SH visibility, toward the eye"
     parameters = {
         **SHADE_PARAMS,
@@ -303,9 +302,8 @@ class ShadeStage(GlossyStage):
 
 
 @register_stage
-class TracedVisibilityStage(Stage):
+class RpoVisibilityTracedStage(FrameStage):
     type_name = "rpo.visibility_traced"
-    kind = "frame"
     needs_bvh = True
     description = "SH visibility ray traced at every frame in the tangent frames (open below the horizon)"
     parameters = {
@@ -338,9 +336,8 @@ class TracedVisibilityStage(Stage):
 
 
 @register_stage
-class StaticVisibilityStage(Stage):
+class RpoVisibilityStaticStage(PrecomputeStage):
     type_name = "rpo.visibility_static"
-    kind = "precompute"
     version = 1
     description = "SH visibility ray traced once at a bake frame, tangent frame (open below the horizon)"
     parameters = {

@@ -19,14 +19,14 @@ from .lighting import EnvironmentSG, PrefilteredEnvironment, fit_environment, po
 from .model import EnvironmentLighting, bake_ssdf_model, decode_maps, environment_lighting
 from .reference import shade_reference
 from .rows import harness_rows
-from .stages import SSDFStage, ShadeStage
+from .stages import SgSsdfStage, SgShadeStage
 
 __all__ = [
     "EnvironmentLighting",
     "EnvironmentSG",
     "PrefilteredEnvironment",
-    "SSDFStage",
-    "ShadeStage",
+    "SgSsdfStage",
+    "SgShadeStage",
     "bake_ssdf_model",
     "decode_maps",
     "environment_lighting",

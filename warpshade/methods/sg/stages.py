@@ -9,10 +9,10 @@
   clamped cosine as an SG, the environment as an SG mixture (diffuse) and a prefiltered table
   (specular), visibility from the SSDFs (eq. 30-31). Its BRDF parameters give every mesh's
   material, or, with ``textures = true``, the meshes' UsdPreviewSurface textures sampled at the
-  vertices; the same stage shades per pixel (:meth:`ShadeStage.render_pixels`).
+  vertices; the same stage shades per pixel (:meth:`SgShadeStage.render_pixels`).
 
 Materials change at run time with no precompute: ``Runtime.set_material`` (a Beckmann
-``Microfacet`` or ``BlinnPhong``) or :meth:`ShadeStage.set_surface` (per-vertex arrays), both
+``Microfacet`` or ``BlinnPhong``) or :meth:`SgShadeStage.set_surface` (per-vertex arrays), both
 written into the stage's fixed buffers.
 """
 
@@ -23,14 +23,14 @@ import numpy as np
 from ..._wp import launch_parallel, wp
 from ...basis import sg
 from ...scene import materials
-from ..stage import Param, Port, Stage, StageError, register_stage
+from ..stage import FrameStage, Param, Port, PrecomputeStage, StageError, register_stage
 from . import kernels
 from .brdf_warp import MODEL_IDS
 from .lighting import directional_light_lobe
 from .model import (SUN_MODES, EnvironmentLighting, bake_ssdf_model, decode_maps, empty_table, environment_hash,
                     environment_lighting, remember)
 
-__all__ = ["EnvironmentStage", "SSDFStage", "ShadeStage"]
+__all__ = ["SgEnvironmentStage", "SgSsdfStage", "SgShadeStage"]
 
 #: Receivers per CPU chunk below which a launch is not split over cores.
 CPU_CHUNK_MIN = 2048
@@ -47,9 +47,8 @@ EXACT_MODEL_CODES = {"beckmann": 4, "blinn-phong": 2}
 
 
 @register_stage
-class SSDFStage(Stage):
+class SgSsdfStage(PrecomputeStage):
     type_name = "sg.ssdf"
-    kind = "precompute"
     description = "per-vertex SSDF visibility (ray traced hemisphere, signed angular distance, PCA from an error budget)"
     parameters = {
         "resolution": Param(128, int, "SSDF map kept per vertex (res x res over the hemisphere)", minimum=4, maximum=512),
@@ -97,9 +96,8 @@ def _run_environment(ctx, stage_name: str):
 
 
 @register_stage
-class EnvironmentStage(Stage):
+class SgEnvironmentStage(PrecomputeStage):
     type_name = "sg.environment"
-    kind = "precompute"
     description = "the run's environment as an SG mixture (diffuse) and a prefiltered table over sharpness (specular)"
     parameters = dict(ENVIRONMENT_PARAMS)
 
@@ -137,9 +135,8 @@ def _rgb(value, name: str, stage: str) -> np.ndarray:
 
 
 @register_stage
-class ShadeStage(Stage):
+class SgShadeStage(FrameStage):
     type_name = "sg.shade"
-    kind = "frame"
     description = "spherical-Gaussian shading (eq. 39, 41-43) with SSDF visibility, per vertex (and per pixel)"
     parameters = {
         "brdf": Param("beckmann", str, "specular model (NDF as one SG lobe)", choices=BRDF_MODELS),

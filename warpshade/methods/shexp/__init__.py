@@ -12,6 +12,6 @@ lobe fits, windows).
 """
 
 from .rows import graph_stages, harness_rows
-from .stages import BlockersStage, ShadeStage, SphereTraceStage, StaticBakeStage, TablesStage
+from .stages import ShexpBlockersStage, ShexpShadeStage, ShexpSphereTraceStage, ShexpStaticBakeStage, ShexpTablesStage
 
-__all__ = ["BlockersStage", "ShadeStage", "SphereTraceStage", "StaticBakeStage", "TablesStage", "graph_stages", "harness_rows"]
+__all__ = ["ShexpBlockersStage", "ShexpShadeStage", "ShexpSphereTraceStage", "ShexpStaticBakeStage", "ShexpTablesStage", "graph_stages", "harness_rows"]

@@ -29,20 +29,19 @@ import numpy as np
 from ..._wp import wp
 from ...basis import sh
 from ..common import WINDOW, WINDOW_SIZE, ShLighting, band_weights, order_param, rays_param
-from ..stage import Param, Port, Stage, StageError, register_stage
+from ..stage import FrameStage, Param, Port, PrecomputeStage, StageError, register_stage
 from . import kernels
 from .blockers import BlockerFrames, BlockerModel, build_blocker_model, static_mesh_mask
 from .pipeline import ShexpShader, SphereTracer
 
-__all__ = ["TablesStage", "BlockersStage", "StaticBakeStage", "ShadeStage", "SphereTraceStage", "VisibilityStage"]
+__all__ = ["ShexpTablesStage", "ShexpBlockersStage", "ShexpStaticBakeStage", "ShexpShadeStage", "ShexpSphereTraceStage", "ShexpVisibilityStage"]
 
 _ORDER = order_param(4, minimum=2, maximum=8)
 
 
 @register_stage
-class TablesStage(Stage):
+class ShexpTablesStage(PrecomputeStage):
     type_name = "shexp.tables"
-    kind = "precompute"
     uses_scene = False
     description = "per-order SH exp/log tables: blocking-cap log visibility and OL coefficients"
     parameters = {"order": _ORDER, "samples": Param(512, int, "table samples (the paper uses 256)", minimum=256, maximum=8192)}
@@ -71,9 +70,8 @@ class TablesStage(Stage):
 
 
 @register_stage
-class BlockersStage(Stage):
+class ShexpBlockersStage(PrecomputeStage):
     type_name = "shexp.blockers"
-    kind = "precompute"
     version = 2  # 2: static spheres, ground-plane discs and the fit summary in the model
     description = "sphere sets bounding the closed occluder meshes (+ hierarchy and receiver clusters)"
     parameters = {
@@ -114,9 +112,8 @@ class BlockersStage(Stage):
 
 
 @register_stage
-class StaticBakeStage(Stage):
+class ShexpStaticBakeStage(PrecomputeStage):
     type_name = "shexp.static_bake"
-    kind = "precompute"
     description = "cosine-weighted visibility of static occluders for static receivers (sec. 7)"
     parameters = {"order": _ORDER, "samples": rays_param(256, "rays per receiver"),
                   "seed": Param(0, int, "seed of the per-vertex sample rotations")}
@@ -158,9 +155,8 @@ class StaticBakeStage(Stage):
 
 
 @register_stage
-class ShadeStage(Stage):
+class ShexpShadeStage(FrameStage):
     type_name = "shexp.shade"
-    kind = "frame"
     #: also write the (windowed) per-vertex SH visibility (``shexp.visibility``)
     store_visibility = False
     description = "SHEXP per frame: spheres, cuts, log accumulation, SH exp, diffuse shading"
@@ -251,9 +247,8 @@ class ShadeStage(Stage):
 
 
 @register_stage
-class SphereTraceStage(Stage):
+class ShexpSphereTraceStage(FrameStage):
     type_name = "shexp.sphere_trace"
-    kind = "frame"
     description = "ray tracing against the blocker spheres instead of the mesh (paper Fig. 7b)"
     parameters = {
         "samples": rays_param(512, "rays per receiver (MIS: half cosine, half environment)", minimum=4),
@@ -292,7 +287,7 @@ class SphereTraceStage(Stage):
 
 
 @register_stage
-class VisibilityStage(ShadeStage):
+class ShexpVisibilityStage(ShexpShadeStage):
     """SHEXP as a visibility generator: the same per-frame accumulation as ``shexp.shade``, with
     each receiver's accumulated (windowed) SH visibility as an output, world frame (for the
     reflectance product operators, ``rpo.shade`` with ``visibility_space = "world"``)."""
