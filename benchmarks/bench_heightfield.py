@@ -1,6 +1,6 @@
 """Dynamic height fields with RPO shading (Nowrouzezahrai et al. 2009, Fig. 11): cost and error.
 
-On the bundled water (``usd_assets/ripples.usda``: 512 x 512 vertices, 48 frames), through the
+On the bundled water (``bundled:ripples``: 512 x 512 vertices, 48 frames), through the
 stage-graph runtime on the CPU:
 
 * time per frame (the recorded frame replayed, median over the clip) and per stage (a profile:
@@ -148,7 +148,7 @@ def main(argv=None) -> int:
     report = {
         "benchmark": "bench_heightfield", "date": DATE, "device": "cpu", "cpu_count": os.cpu_count(),
         "platform": platform.platform(), "processor": platform.processor(),
-        "scene": {"file": "usd_assets/ripples.usda", "vertices": scene.vertex_count, "triangles": scene.triangle_count,
+        "scene": {"file": "bundled:ripples", "vertices": scene.vertex_count, "triangles": scene.triangle_count,
                   "frames": len(scene.frames)},
         "reference": {"spp": args.spp, "vertices": int(idx.size), "frames": frames, "seconds": round(ref_s, 1),
                       "brdf": brdf.describe(), "method": "mis"},

@@ -40,9 +40,10 @@ sys.path.insert(0, str(ROOT))
 from warpshade._fileio import write_json_atomic  # noqa: E402
 from warpshade._wp import cpu_workers, launch_parallel, resolve_device, wp  # noqa: E402
 from warpshade.geometry.bvh import RAY_MAX_DISTANCE, Visibility, _occlusion_kernel  # noqa: E402
+from warpshade.io import bundled_asset_directory  # noqa: E402
 from warpshade.transfer import TransferTracer, sample_rays  # noqa: E402
 
-DEFAULT_SCENE = ROOT / "usd_assets" / "blockers.usda"
+DEFAULT_SCENE = Path(bundled_asset_directory()) / "blockers.usda"
 
 
 def array_scene():
@@ -144,7 +145,7 @@ def convergence_table(scene, frame, device, receivers, order, counts, reference_
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--scene", default=None, help="USD scene (default: usd_assets/blockers.usda, else an array scene)")
+    parser.add_argument("--scene", default=None, help="USD scene (default: the bundled blockers.usda, else an array scene)")
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--receivers", type=int, default=4096)
     parser.add_argument("--samples", type=int, default=256)

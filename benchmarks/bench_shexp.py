@@ -126,7 +126,7 @@ def figure_spheres(count: int = 60):
         from warpshade.io import load_scene
         from warpshade.methods.shexp.blockers import build_blocker_model
 
-        scene = load_scene(str(ROOT / "usd_assets" / "figure.usda"))
+        scene = load_scene("bundled:figure")
         spheres = build_blocker_model(scene, count, calibrate=False).spheres
         f0 = float(scene.frames[0])
         return spheres.centres_at(scene, f0), spheres.radii_at(scene, f0), "figure.usda sphere set (warpshade.methods.shexp.spheres)"

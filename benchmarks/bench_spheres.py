@@ -59,7 +59,7 @@ from warpshade.scene import FrameEvaluator
 PAPER_FIGURE4 = {"octree (Hubbard 1995)": (575, 4.1), "medial axis (Bradshaw 2004)": (64, 0.52), "variational (Ren 2006)": (64, 0.35)}
 
 MESHES = {
-    "figure": ("usd_assets/figure.usda", "/World/Figure/Body"),
+    "figure": ("bundled:figure", "/World/Figure/Body"),
     "bunny": ("warp-example:bunny", None),
     "bear": ("warp-example:bear", None),
 }
@@ -67,7 +67,7 @@ MESHES = {
 
 def mesh_points(key):
     spec, path = MESHES[key]
-    scene = load_scene(str(ROOT / spec) if spec.endswith(".usda") else spec)
+    scene = load_scene(spec)
     mesh = next(m for m in scene.meshes if path is None or m.path == path)
     pts = scene.points_at(scene.frames[0])[mesh.vertex_offset : mesh.vertex_offset + mesh.vertex_count]
     return pts, mesh.faces, mesh.path, scene.up_axis
@@ -164,7 +164,7 @@ def drift(spheres, scene, frames):
 
 
 def run_animation(quick, device):
-    scene = load_scene(str(ROOT / "usd_assets" / "figure.usda"))
+    scene = load_scene("bundled:figure")
     frames = scene.frames[::3] if quick else scene.frames
     results = {}
     base = ss.spheres_for_scene(scene, budget=32, progress=True, device=device)

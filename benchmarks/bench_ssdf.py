@@ -37,7 +37,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 RESULTS = ROOT / "benchmarks" / "results"
-SCENE = ROOT / "usd_assets" / "blockers.usda"
+SCENE = "bundled:blockers"
 SHARPNESS = (2.0, 10.0, 50.0, 200.0, 1000.0)
 TERMS = (1, 2, 4, 8, 12, 16, 24, 32, 48, 64)
 #: Lobe axes in the local tangent frame: (elevation above the horizon, azimuth), degrees.
@@ -82,11 +82,11 @@ def main(argv=None) -> int:
     resolution, supersample = (64, 4) if args.quick else (128, 4)
     count = 64 if args.quick else args.vertices
     fine = resolution * supersample
-    scene = load_scene(str(SCENE))
+    scene = load_scene(SCENE)
     rng = np.random.default_rng(2009)
     vertices = np.sort(rng.choice(scene.vertex_count, size=min(count, scene.vertex_count), replace=False))
     report: dict = {
-        "scene": str(SCENE.relative_to(ROOT)), "frame": args.frame, "vertices": int(vertices.size),
+        "scene": SCENE, "frame": args.frame, "vertices": int(vertices.size),
         "scene_vertices": scene.vertex_count, "resolution": resolution, "supersample": supersample,
         "fine_resolution": fine, "device": args.device, "cpu_threads": cpu_workers(),
         "machine": platform.platform(), "date": datetime.date.today().isoformat(),

@@ -71,7 +71,7 @@ def mesh_transfer(samples: int, quick: bool) -> dict:
     from warpshade.io import load_scene
     from warpshade.methods.ldprt import local_transfer
 
-    scene = load_scene(str(ROOT / "usd_assets" / "figure.usda"))
+    scene = load_scene("bundled:figure")
     body = next(m for m in scene.meshes if m.path.endswith("Body"))
     verts = np.arange(body.vertex_offset, body.vertex_offset + body.vertex_count)
     if quick:

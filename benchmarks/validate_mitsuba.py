@@ -90,20 +90,21 @@ sys.path.insert(0, str(ROOT))
 from warpshade._fileio import write_json_atomic  # noqa: E402
 from warpshade._wp import resolve_device, wp  # noqa: E402
 from warpshade.geometry.bvh import RAY_MAX_DISTANCE, Visibility  # noqa: E402
+from warpshade.io import bundled_asset_directory  # noqa: E402
 from warpshade.reference import ReferenceShader, pixel_hits, reference_image  # noqa: E402
 from warpshade.render import camera_for, interpolate_vertex_values, render, write_png  # noqa: E402
 from warpshade.render.image import tonemap_reference  # noqa: E402
 from warpshade.scene import DistantLight, Environment, SphereLight, materials  # noqa: E402
 from warpshade.transfer import sample_rays  # noqa: E402
 
-DEFAULT_SCENE = ROOT / "usd_assets" / "blockers.usda"
+DEFAULT_SCENE = Path(bundled_asset_directory()) / "blockers.usda"
 # A disagreeing ray counts as "on an edge" when its hit's smallest barycentric is below this.
 EDGE_BARYCENTRIC = 1e-4
 # ... as "grazing" when |cos| between the ray and the hit triangle's normal is below this.
 GRAZING_COSINE = 1e-3
 # Maps Mitsuba's envmap frame (y up, azimuth atan2(x, -z), mirrored image) to our map frame.
 _MITSUBA_TO_MAP = np.array([[0.0, 0.0, -1.0], [-1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
-SUNLIT_SCENE = ROOT / "usd_assets" / "sunlit.usda"
+SUNLIT_SCENE = Path(bundled_asset_directory()) / "sunlit.usda"
 # Glossy part: the per-vertex roughness spans this range (smooth in the rest position).
 GLOSSY_ALPHA_RANGE = (0.12, 0.45)
 # The sphere light standing in for Mitsuba's point light: radius / distance to the scene centre.

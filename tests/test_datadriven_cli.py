@@ -3,14 +3,11 @@ in this process, in local worker processes and on a Dask LocalCluster (training 
 ground-truth frames are the tasks). Each run has its own empty cache, so every run computes."""
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from warpshade.cli import main
-
-ROOT = Path(__file__).resolve().parent.parent
 
 GRAPH = """
 [graph]
@@ -54,7 +51,7 @@ def _run(tmp_path, monkeypatch, name, scheduler):
     monkeypatch.setenv("WARPSHADE_CACHE", str(tmp_path / f"cache-{name}"))
     monkeypatch.delenv("WARPSHADE_SCHEDULER", raising=False)
     graph = tmp_path / "bend_dd.toml"
-    graph.write_text(GRAPH.format(scene=(ROOT / "usd_assets" / "bend.usda").as_posix()))
+    graph.write_text(GRAPH.format(scene="bundled:bend"))
     out = tmp_path / f"out-{name}"
     args = ["run", str(graph), "--out", str(out), "--validate", "--no-previews"]
     if scheduler is not None:
@@ -81,7 +78,7 @@ def test_run_is_the_same_with_and_without_a_scheduler(tmp_path, monkeypatch):
 def test_bad_scheduler_is_one_line(tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("WARPSHADE_CACHE", str(tmp_path / "cache"))
     graph = tmp_path / "bend_dd.toml"
-    graph.write_text(GRAPH.format(scene=(ROOT / "usd_assets" / "bend.usda").as_posix()))
+    graph.write_text(GRAPH.format(scene="bundled:bend"))
     assert main(["run", str(graph), "--out", str(tmp_path / "o"), "--scheduler", "nowhere:1"]) == 2
     err = capsys.readouterr().err
     assert "--scheduler" in err and "nowhere:1" in err

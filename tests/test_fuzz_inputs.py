@@ -16,10 +16,10 @@ from hypothesis import strategies as st
 
 from warpshade.graph import GraphError, load, stage_types
 from warpshade.graph.cache import ArtifactCache
-from warpshade.io import load_usd
+from warpshade.io import bundled_asset_directory, load_usd
 
-ROOT = Path(__file__).resolve().parents[1]
-FIGURE = (ROOT / "usd_assets" / "figure.usda").read_text()
+ASSETS = Path(bundled_asset_directory())
+FIGURE = (ASSETS / "figure.usda").read_text()
 #: hypothesis budgets: each example is a file written and loaded (USD loads take ~50 ms).
 TOML_EXAMPLES = 150
 USD_EXAMPLES = 60
@@ -183,7 +183,7 @@ def corrupted_figure(draw):
 @given(text=corrupted_figure())
 def test_corrupted_usd_scenes_load_or_name_the_problem(tmp_path_factory, text):
     folder = tmp_path_factory.mktemp("usd")
-    (folder / "sky.hdr").write_bytes((ROOT / "usd_assets" / "sky.hdr").read_bytes())  # the dome's texture
+    (folder / "sky.hdr").write_bytes((ASSETS / "sky.hdr").read_bytes())  # the dome's texture
     path = folder / "figure.usda"
     path.write_text(text, errors="replace")
     try:

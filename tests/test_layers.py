@@ -3,9 +3,11 @@
 Every ``import`` / ``from ... import`` of every module counts, at module level and inside
 functions (:mod:`imports_graph`); imports under ``if TYPE_CHECKING:`` do not. The layer order is
 read from ``warpshade.__doc__`` (the line of names joined by ``->``), so the documentation and
-the check cannot drift apart.
+the check cannot drift apart. ``pxr`` is imported only by ``io`` and by the asset generator
+(``usd_assets``, a tool at the top beside ``cli``).
 """
 
+import ast
 import re
 from pathlib import Path
 
@@ -33,7 +35,7 @@ def layer_of(module: str, layers) -> int | None:
 
 def test_every_module_is_in_a_documented_layer():
     layers = documented_layers()
-    assert layers[0] == ["_wp", "_fileio", "_hashing", "_limits", "_tasks"] and layers[-1] == ["cli"]
+    assert layers[0] == ["_wp", "_fileio", "_hashing", "_limits", "_tasks"] and layers[-1] == ["cli", "usd_assets"]
     top = {p.stem if p.is_file() else p.name for p in PACKAGE.iterdir()
            if (p.suffix == ".py" and p.stem != "__init__") or (p.is_dir() and (p / "__init__.py").exists())}
     assert top == {n for layer in layers for n in layer}, "the docstring lists exactly the package's modules"
@@ -65,4 +67,18 @@ def test_private_basis_modules_are_imported_only_inside_basis():
     private = re.compile(r"^warpshade\.basis\._")
     outside = [f"{s} -> {t}" for s, targets in graph.items() if not s.startswith("warpshade.basis")
                for t in targets if private.match(t)]
+    assert not outside, outside
+
+
+def test_only_io_and_the_asset_generator_import_pxr():
+    allowed = ("io", "usd_assets")
+    outside = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        rel = path.relative_to(PACKAGE)
+        if rel.parts[0] in allowed:
+            continue
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import)
+                     else [node.module or ""] if isinstance(node, ast.ImportFrom) and not node.level else [])
+            outside += [f"{rel}:{node.lineno} imports {n}" for n in names if n.split(".")[0] == "pxr"]
     assert not outside, outside

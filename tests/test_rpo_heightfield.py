@@ -2,7 +2,6 @@
 their float64 oracles, analytic cases, the visibility against ray tracing, failure cases, and the
 bundled graph end to end on a reduced-resolution copy of the water."""
 
-import importlib.util
 import math
 import shutil
 from pathlib import Path
@@ -15,7 +14,7 @@ from warpshade._wp import wp
 from warpshade.basis import sh
 from warpshade.graph import GraphSpec, StageSpec, load
 from warpshade.io import heightfield as hfio
-from warpshade.io import load_scene
+from warpshade.io import bundled_asset_directory, load_scene
 from warpshade.methods.rpo import heightfield as hf
 from warpshade.methods.rpo import heightfield_reference as ref
 from warpshade.methods.stage import StageError
@@ -288,11 +287,10 @@ def test_spiky_heights_stay_finite_and_bounded():
 
 # ---- the asset and the graph -------------------------------------------------------------------
 def test_loader_expands_the_height_field(tmp_path):
-    gen_spec = importlib.util.spec_from_file_location("usd_assets_generate", ROOT / "usd_assets" / "generate.py")
-    gen = importlib.util.module_from_spec(gen_spec)
-    gen_spec.loader.exec_module(gen)
-    path = gen.make_ripples(str(tmp_path), resolution=64, frame_count=4, file_name="ripples64.usda")
-    shutil.copy(ROOT / "usd_assets" / "sky.hdr", tmp_path / "sky.hdr")
+    from warpshade.usd_assets.generator.ripples import make_ripples
+
+    path = make_ripples(str(tmp_path), resolution=64, frame_count=4, file_name="ripples64.usda")
+    shutil.copy(Path(bundled_asset_directory()) / "sky.hdr", tmp_path / "sky.hdr")
     scene = load_scene(path)
     mesh = scene.meshes[0]
     assert scene.vertex_count == 64 * 64 and mesh.animation == "deforming" and mesh.point_samples.shape == (4, 4096, 3)

@@ -13,11 +13,9 @@ import numpy as np
 import pytest
 
 from warpshade.basis import quadrature, sg
-from warpshade.io.images import read_hdr
+from warpshade.io import bundled_asset_directory, read_hdr
 from warpshade.methods.sg import lighting as L
 from warpshade.scene.lighting import DistantLight, Environment, SphereLight, sky_radiance
-
-ROOT = __import__("pathlib").Path(__file__).resolve().parents[1]
 
 #: 3-lobe recovery: the environment is float32 texels of the mixture, L-BFGS-B stops at ftol 1e-15.
 RECOVERY_RADIANCE_TOL = 1e-5
@@ -103,7 +101,7 @@ def test_fit_recovers_a_three_lobe_mixture():
 
 
 def test_bundled_sky_fewer_than_ten_lobes():
-    env = Environment(read_hdr(ROOT / "usd_assets" / "sky.hdr"))
+    env = Environment(read_hdr(f"{bundled_asset_directory()}/sky.hdr"))
     fit = L.fit_environment(env, max_lobes=9, method="nnls")
     r = fit.report
     assert fit.lobe_count <= 9 and fit.mixture.amplitude.shape == (fit.lobe_count, 3)

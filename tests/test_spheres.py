@@ -90,7 +90,7 @@ def box_set(box):
 
 @pytest.fixture(scope="module")
 def figure_scene():
-    return load_scene("usd_assets/figure.usda")
+    return load_scene("bundled:figure")
 
 
 @pytest.fixture(scope="module")
@@ -255,7 +255,7 @@ def test_rigid_attachment_follows_the_transform_exactly(box, device):
 
 
 def test_skinned_attachment_is_mvc_of_the_deformed_mesh_and_tracks_a_bend(device):
-    scene = load_scene("usd_assets/bend.usda")
+    scene = load_scene("bundled:bend")
     joints = scene.skeletons[0].joint_count
     spheres = ss.spheres_for_scene(scene, budget=8, max_bones=joints, **FAST_FIT)
     mesh = scene.meshes[0]
@@ -283,7 +283,7 @@ def test_skinned_attachment_is_mvc_of_the_deformed_mesh_and_tracks_a_bend(device
 
 
 def test_skin_weight_attachment_reproduces_the_fit_pose(device):
-    scene = load_scene("usd_assets/bend.usda")
+    scene = load_scene("bundled:bend")
     spheres = ss.spheres_for_scene(scene, budget=4, skinned_attachment="skin_weights", **FAST_FIT)
     assert spheres.attachments[0]["method"] == "skin_weights"
     np.testing.assert_allclose(spheres.centres_at(scene, scene.frames[0]), spheres.centres, atol=1e-10)
@@ -400,7 +400,7 @@ def test_recorded_blocker_frames_match_uncaptured_launches(figure_scene, device)
 
 
 def test_blocker_scene_spheres_come_out_as_one_sphere(device):
-    scene = load_scene("usd_assets/blockers.usda")
+    scene = load_scene("bundled:blockers")
     spheres = ss.spheres_for_scene(scene, budget=12, split="volume", target_error=0.1, device=device, **FAST_FIT)
     counts = dict(zip(spheres.mesh_path, (s.sphere_count for s in spheres.sets)))
     assert counts["/World/Blockers/BigSphere/Mesh"] == 1 and counts["/World/Blockers/SmallSphere/Mesh"] == 1

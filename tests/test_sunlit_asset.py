@@ -1,7 +1,6 @@
 """The bundled ``sunlit`` scene: a glossy torus knot with a roughness texture on a textured ground
 plane, an HDR sky with a small, very bright sun, and a moving tinted sphere light."""
 
-import importlib.util
 import os
 
 import numpy as np
@@ -9,9 +8,11 @@ import pytest
 from scipy.spatial import ConvexHull
 
 from warpshade.basis import quadrature
-from warpshade.io.usd import bundled_asset_directory, load_usd
+from warpshade.io import bundled_asset_directory, load_usd
 from warpshade.scene import Environment, SphereLight
 from warpshade.scene.textures import Texture
+from warpshade.usd_assets import generator
+from warpshade.usd_assets.generator import sunlit
 
 ASSETS = bundled_asset_directory()
 SUNLIT_FILES = ["sunlit.usda", "sunlit_sky.hdr", "sunlit_knot_roughness.png", "sunlit_ground_diffuse.png",
@@ -25,14 +26,6 @@ RTOL_RGBE_IRRADIANCE = 0.02
 
 
 @pytest.fixture(scope="module")
-def generator():
-    spec = importlib.util.spec_from_file_location("usd_assets_generate", os.path.join(ASSETS, "generate.py"))
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-@pytest.fixture(scope="module")
 def scene():
     return load_usd("bundled:sunlit")
 
@@ -41,19 +34,19 @@ def _mesh(scene, name):
     return next(m for m in scene.meshes if m.path == f"/World/{name}")
 
 
-def test_generator_reproduces_the_bundled_files(tmp_path, generator):
+def test_generator_reproduces_the_bundled_files(tmp_path):
     written = generator.generate(str(tmp_path), scenes=["sunlit"])
     assert set(SUNLIT_FILES) <= {os.path.basename(p) for p in written}
     total = 0
     for name in SUNLIT_FILES:
         total += os.path.getsize(os.path.join(ASSETS, name))
         with open(os.path.join(ASSETS, name), "rb") as a, open(tmp_path / name, "rb") as b:
-            assert a.read() == b.read(), f"{name} differs: rerun python usd_assets/generate.py --scenes sunlit"
+            assert a.read() == b.read(), f"{name} differs: rerun python -m warpshade.usd_assets.generator --scenes sunlit"
     assert total < MAX_TOTAL_BYTES, f"sunlit files total {total} bytes"
     assert "sunlit" not in generator.SCENES  # regenerated explicitly, like ripples
 
 
-def test_meshes_uvs_and_surface_maps(scene, generator):
+def test_meshes_uvs_and_surface_maps(scene):
     assert scene.up_axis == "Z" and len(scene.frames) == 48 and scene.fps == 24.0 and scene.camera is not None
     knot, ground = _mesh(scene, "Knot"), _mesh(scene, "Ground")
     assert 1500 <= knot.vertex_count <= 3000 and ground.vertex_count >= 40 * 40
@@ -66,7 +59,7 @@ def test_meshes_uvs_and_surface_maps(scene, generator):
     # spatially varying roughness in the texture and at the vertices, specular workflow on the knot
     rough = knot.surface.roughness
     assert isinstance(rough, Texture) and rough.channels == 1 and rough.wrap_s == "repeat"
-    lo, hi = generator.SUNLIT_KNOT_ROUGHNESS
+    lo, hi = sunlit.SUNLIT_KNOT_ROUGHNESS
     assert rough.value_range[0] == pytest.approx(lo, abs=1 / 255) and rough.value_range[1] == pytest.approx(hi, abs=1 / 255)
     at = knot.surface.at_vertices(knot.uvs)
     assert at["roughness"].min() < 0.12 and at["roughness"].max() > 0.45
@@ -79,7 +72,7 @@ def test_meshes_uvs_and_surface_maps(scene, generator):
     np.testing.assert_allclose(ground.albedo, g["diffuse"], atol=1e-6)
 
 
-def test_sky_has_a_small_very_bright_sun(scene, generator):
+def test_sky_has_a_small_very_bright_sun(scene):
     env = next(light for light in scene.lights if isinstance(light, Environment))
     lum = env.image @ np.array([0.2126, 0.7152, 0.0722])
     sky_median = np.median(lum)
@@ -89,21 +82,21 @@ def test_sky_has_a_small_very_bright_sun(scene, generator):
     dirs = q.directions @ env.to_world.T
     weight = (q.weights * np.maximum(dirs[:, 2], 0.0)).reshape(env.height, env.width)
     e_sun, e_sky = np.sum(lum * weight * sun), np.sum(lum * weight * ~sun)
-    assert e_sun / e_sky == pytest.approx(generator.SUNLIT_SUN_TO_SKY, rel=RTOL_RGBE_IRRADIANCE)
+    assert e_sun / e_sky == pytest.approx(sunlit.SUNLIT_SUN_TO_SKY, rel=RTOL_RGBE_IRRADIANCE)
     # the sun's solid angle is that of a 1.2 degree disc, and it sits where the generator put it
     solid = np.sum(lum * q.weights.reshape(lum.shape) * sun) / lum.max()
     assert np.pi * np.radians(0.5) ** 2 < solid < np.pi * np.radians(0.9) ** 2
     direction = np.sum(dirs.reshape(*lum.shape, 3) * (lum * sun)[..., None], axis=(0, 1))
     direction /= np.linalg.norm(direction)
-    assert np.degrees(np.arccos(direction @ generator.sunlit_sun_direction())) < 0.7
+    assert np.degrees(np.arccos(direction @ sunlit.sunlit_sun_direction())) < 0.7
     assert 35.0 <= np.degrees(np.arcsin(direction[2])) <= 45.0
 
 
-def test_the_sun_casts_a_shadow_of_the_knot_in_view(scene, generator):
+def test_the_sun_casts_a_shadow_of_the_knot_in_view(scene):
     from warpshade.geometry.bvh import Visibility
 
     ground = _mesh(scene, "Ground")
-    sun = generator.sunlit_sun_direction()
+    sun = sunlit.sunlit_sun_direction()
     vis = Visibility.from_scene(scene, frame=0.0, device="cpu")
     origins = ground.points + [0.0, 0.0, 1e-3]
     shadowed = vis.occluded(origins, np.tile(sun, (len(origins), 1))).numpy().astype(bool)

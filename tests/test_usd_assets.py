@@ -2,15 +2,18 @@
 and the training / held-out clips of the two characters (figure, wanderer) for data-driven PRT."""
 
 import dataclasses
-import importlib.util
 import os
 
 import numpy as np
 import pytest
 
 from warpshade.cli import main
-from warpshade.io.usd import bundled_asset_directory, load_usd
+from warpshade.io import bundled_asset_directory, load_usd
 from warpshade.scene.scene import Scene
+from warpshade.usd_assets import generator
+from warpshade.usd_assets.generator import figure, motions, wanderer
+from warpshade.usd_assets.generator.bend import bend_joint_rotations
+from warpshade.usd_assets.generator.cloth import cloth_points
 
 ASSETS = bundled_asset_directory()
 FILES = ["sky.hdr", "blockers.usda", "figure.usda", "figure_orbit.usda", "cloth.usda", "bend.usda"]
@@ -24,11 +27,11 @@ CLIP_FILES = ["figure_train.usda", "figure_walk.usda", "wanderer_train.usdc", "w
 MAX_CLIP_BYTES = 8 * 1024 * 1024
 #: Every held-out joint-angle component stays at least this far (radians) inside the training range.
 RANGE_MARGIN = 0.02
-#: Per character: the generator's joints and joint-limit table, and the training clip's frames
-#: (the range of motion, then the motion library).
+#: Per character: the generator's joints, joint-limit table and training clip, and the training
+#: clip's frames (the range of motion, then the motion library).
 TRAINING = {
-    "figure": ("FIGURE_JOINTS", "FIGURE_LIMITS", 300, 600),
-    "wanderer": ("WANDERER_JOINTS", "WANDERER_LIMITS", 600, 1000),
+    "figure": (figure.FIGURE_JOINTS, figure.FIGURE_LIMITS, figure.FIGURE_TRAIN_CLIP, 300, 600),
+    "wanderer": (wanderer.WANDERER_JOINTS, wanderer.WANDERER_LIMITS, wanderer.WANDERER_TRAIN_CLIP, 600, 1000),
 }
 #: The held-out clips stay held out (radians, RMS over all joint-angle components, i.e. the
 #: rotation-vector components of every joint): no test frame lies within HELD_OUT_POSE_RMS of a
@@ -45,14 +48,6 @@ HELD_OUT_WINDOW = 12
 
 
 @pytest.fixture(scope="module")
-def generator():
-    spec = importlib.util.spec_from_file_location("usd_assets_generate", os.path.join(ASSETS, "generate.py"))
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-@pytest.fixture(scope="module")
 def clips():
     """Every clip of the two characters, loaded once: name -> (Scene, joint angles (T, J, 3))."""
     out = {}
@@ -64,7 +59,7 @@ def clips():
     return out
 
 
-def test_generator_reproduces_the_bundled_files(tmp_path, generator):
+def test_generator_reproduces_the_bundled_files(tmp_path):
     written = generator.generate(str(tmp_path))
     assert sorted(os.path.basename(p) for p in written) == sorted(FILES + CLIP_FILES)
     for name in FILES + CLIP_FILES:
@@ -72,7 +67,7 @@ def test_generator_reproduces_the_bundled_files(tmp_path, generator):
         size = os.path.getsize(bundled)
         assert size < (MAX_CLIP_BYTES if name in CLIP_FILES else MAX_BYTES), f"{name} is {size} bytes"
         with open(bundled, "rb") as a, open(tmp_path / name, "rb") as b:
-            assert a.read() == b.read(), f"{name} differs from the generator's output: rerun python usd_assets/generate.py"
+            assert a.read() == b.read(), f"{name} differs from the generator's output: rerun python -m warpshade.usd_assets.generator"
 
 
 def test_blockers_structure():
@@ -109,14 +104,14 @@ def test_figure_structure_and_arms_cross_in_front_of_the_torso(clips):
     assert max(in_front) > 0.2  # at some frames a good part of a forearm is right in front of the chest
 
 
-def test_cloth_and_bend_structure(generator):
+def test_cloth_and_bend_structure():
     cloth = load_usd("bundled:cloth")
     sheet = next(m for m in cloth.meshes if m.animation == "deforming")
     assert sheet.vertex_count == 900 and sheet.uvs is not None and sheet.point_samples.shape == (60, 900, 3)
-    np.testing.assert_allclose(sheet.point_samples[7], generator.cloth_points(7), atol=1e-4)
+    np.testing.assert_allclose(sheet.point_samples[7], cloth_points(7), atol=1e-4)
     bend = load_usd("bundled:bend")
     assert bend.skeletons[0].joint_count == 4 and bend.meshes[0].animation == "skinned"
-    np.testing.assert_allclose(bend.skeletons[0].joint_angles(20), generator.bend_joint_rotations(20), atol=1e-3)
+    np.testing.assert_allclose(bend.skeletons[0].joint_angles(20), bend_joint_rotations(20), atol=1e-3)
     for scene in (cloth, bend):
         assert scene.lights and scene.lights[0].path.endswith("sky.hdr") and scene.camera is not None
 
@@ -204,7 +199,7 @@ def test_training_clip_moves_the_joints_independently(clips, character):
     assert np.abs(np.corrcoef(z.T) - np.eye(z.shape[1])).max() < 0.95
 
 
-def test_wanderer_structure(clips, generator):
+def test_wanderer_structure(clips):
     scene = clips["wanderer_test"][0]
     skel = scene.skeletons[0]
     names = [n.rsplit("/", 1)[-1] for n in skel.joint_names]
@@ -212,7 +207,7 @@ def test_wanderer_structure(clips, generator):
     ground = next(m for m in scene.meshes if m.path == "/World/Ground")
     assert body.animation == hat.animation == "skinned" and ground.animation == "static"
     assert body.vertex_count + hat.vertex_count >= 10_000 and skel.joint_count >= 20
-    assert names == [j[0] for j in generator.WANDERER_JOINTS]
+    assert names == [j[0] for j in wanderer.WANDERER_JOINTS]
     parent = {names[j]: (names[p] if p >= 0 else None) for j, p in enumerate(skel.parents)}
     for chain in (["Hips", "Spine", "Chest", "Neck", "Head"], ["LHip", "LKnee", "LAnkle"], ["RHip", "RKnee", "RAnkle"]):
         assert all(parent[b] == a for a, b in zip(chain, chain[1:])), chain
@@ -232,7 +227,7 @@ def test_wanderer_structure(clips, generator):
     assert np.all(hat.skin.joint_indices == names.index("Head")) and np.all(hat.skin.joint_weights == 1.0)
     assert np.ptp(hat.points[:, 0]) > 0.8 and np.ptp(body.points[:, 0]) < 1.0
     assert scene.camera is not None and scene.lights and scene.lights[0].path.endswith("sky.hdr")
-    np.testing.assert_allclose(skel.joint_angles(60), generator.wanderer_test_rotations(60), atol=1e-3)
+    np.testing.assert_allclose(skel.joint_angles(60), wanderer.wanderer_test_rotations(60), atol=1e-3)
 
 
 def test_the_hat_casts_a_wide_shadow_that_moves_with_the_head(clips):
@@ -259,18 +254,16 @@ def test_the_hat_casts_a_wide_shadow_that_moves_with_the_head(clips):
 
 
 @pytest.mark.parametrize("character", sorted(CLIPS))
-def test_training_clip_is_the_range_of_motion_then_the_motion_library(clips, generator, character):
+def test_training_clip_is_the_range_of_motion_then_the_motion_library(clips, character):
     """The range of motion, unchanged, then natural motions: every pose inside the joint-limit
     table, and no pose jumps anywhere in the library (the segments cross-fade)."""
-    joints, table, rom_frames, frames = TRAINING[character]
-    joints, table = getattr(generator, joints), getattr(generator, table)
-    limits = generator.joint_limits(joints, table)
-    clip = getattr(generator, f"{character.upper()}_TRAIN_CLIP")
+    joints, table, clip, rom_frames, frames = TRAINING[character]
+    limits = motions.joint_limits(joints, table)
     angles = clips[CLIPS[character][0]][1]
     assert clip.shape == (frames, len(joints), 3) and angles.shape == clip.shape
     np.testing.assert_allclose(angles, clip, atol=2e-3)  # the file holds the generator's clip
-    mixed = rom_frames - len(joints) * generator.SWEEP_FRAMES
-    np.testing.assert_array_equal(clip[:rom_frames], generator.range_of_motion_clip(limits, mixed))
+    mixed = rom_frames - len(joints) * motions.SWEEP_FRAMES
+    np.testing.assert_array_equal(clip[:rom_frames], motions.range_of_motion_clip(limits, mixed))
     assert np.all(clip >= limits[..., 0] - 1e-9) and np.all(clip <= limits[..., 1] + 1e-9)
     step = np.diff(clip[rom_frames - 1 :], axis=0)  # from the last frame of the range of motion on
     assert np.abs(step).max() < 0.45

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from warpshade.io.images import write_exr, write_hdr
-from warpshade.io.usd import load_usd
+from warpshade.io import load_usd
 from warpshade.scene import DistantLight, Environment, SphereLight, usd_dome_texel_directions
 
 #: RGBE stores 8 mantissa bits: relative error 2**-8 of the largest channel.
@@ -174,21 +174,15 @@ def test_sphere_light_and_unsupported_lights(tmp_path):
 
 
 def test_bundled_sky_puts_the_sun_where_the_generator_says(tmp_path):
-    import importlib.util
-    import os
+    from warpshade.usd_assets.generator.sky import SUN_DIRECTION
 
-    from warpshade.io.usd import bundled_asset_directory
-
-    spec = importlib.util.spec_from_file_location("gen", os.path.join(bundled_asset_directory(), "generate.py"))
-    gen = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(gen)
     env = load_usd("bundled:blockers").lights[0]
     from warpshade.basis import quadrature
 
     q = quadrature.fibonacci(4000)
     brightest = q.directions[np.argmax(env.radiance(q.directions).sum(axis=1))]
     # within the 12 degree sun disc, at the lat-long resolution of the 64 x 128 texture
-    assert np.degrees(np.arccos(np.clip(brightest @ gen.SUN_DIRECTION, -1, 1))) < 4.0
+    assert np.degrees(np.arccos(np.clip(brightest @ SUN_DIRECTION, -1, 1))) < 4.0
     assert env.radiance([0.0, 0.0, 1.0]).sum() > env.radiance([0.0, 0.0, -1.0]).sum()  # sky above ground
 
 

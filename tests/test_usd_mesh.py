@@ -11,7 +11,8 @@ import warnings
 import numpy as np
 import pytest
 
-from warpshade.io.usd import ZERO_AREA_RELATIVE, load_scene, load_usd, resolve_scene_path
+from warpshade.io import load_scene, load_usd, resolve_scene_path
+from warpshade.io.usd_mesh import ZERO_AREA_RELATIVE
 
 #: Values pass through USD float32 attributes; compare at float32 resolution.
 ATOL_FLOAT32_IO = 1e-6

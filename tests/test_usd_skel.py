@@ -4,14 +4,14 @@ The oracle for skinning is ``UsdSkel.BakeSkinning`` run by USD itself on a tempo
 bundled scene (the bundled file is never written).
 """
 
-import importlib.util
 import os
 import shutil
 
 import numpy as np
 import pytest
 
-from warpshade.io.usd import bundled_asset_directory, load_usd
+from warpshade.io import bundled_asset_directory, load_usd
+from warpshade.usd_assets.generator import figure
 
 #: Issue 3 asks the Warp skinning to agree with UsdSkel to 1e-4 of the model's size; float32
 #: skinning of a ~2 m figure is good to ~1e-7 of its size, so this bound has a wide margin.
@@ -23,13 +23,6 @@ SKIN_RTOL_REFERENCE = 1e-6
 ANGLE_ATOL = 1e-3
 
 FRAMES = [0.0, 13.0, 29.0, 44.0, 59.0]
-
-
-def _generator():
-    spec = importlib.util.spec_from_file_location("usd_assets_generate", os.path.join(bundled_asset_directory(), "generate.py"))
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def _baked_world_points(tmp_path, name, root_path, mesh_path, frames):
@@ -73,19 +66,18 @@ def test_warp_skinning_agrees_with_usdskel(tmp_path, device, name, root_path, me
 
 
 def test_figure_skeleton_structure_and_joint_angles():
-    gen = _generator()
     scene = load_usd("bundled:figure")
     skel = scene.skeletons[0]
-    assert skel.joint_count == len(gen.FIGURE_JOINTS) >= 10
-    assert [n.rsplit("/", 1)[-1] for n in skel.joint_names] == [j[0] for j in gen.FIGURE_JOINTS]
-    names = [j[0] for j in gen.FIGURE_JOINTS]
-    expected_parents = [-1 if p is None else names.index(p) for _, p, _ in gen.FIGURE_JOINTS]
+    assert skel.joint_count == len(figure.FIGURE_JOINTS) >= 10
+    assert [n.rsplit("/", 1)[-1] for n in skel.joint_names] == [j[0] for j in figure.FIGURE_JOINTS]
+    names = [j[0] for j in figure.FIGURE_JOINTS]
+    expected_parents = [-1 if p is None else names.index(p) for _, p, _ in figure.FIGURE_JOINTS]
     np.testing.assert_array_equal(skel.parents, expected_parents)
     assert skel.local_transforms.shape[0] == len(scene.frames) >= 60
     for f in (0, 7, 22, 45):
-        np.testing.assert_allclose(skel.joint_angles(f), gen.figure_joint_rotations(f), atol=ANGLE_ATOL)
+        np.testing.assert_allclose(skel.joint_angles(f), figure.figure_joint_rotations(f), atol=ANGLE_ATOL)
     # the root of the figure stands where the SkelRoot puts it
-    np.testing.assert_allclose(skel.skel_to_world[0][3, :3], gen.FIGURE_ROOT_TRANSLATE, atol=1e-9)
+    np.testing.assert_allclose(skel.skel_to_world[0][3, :3], figure.FIGURE_ROOT_TRANSLATE, atol=1e-9)
 
 
 SKEL_FILE = """#usda 1.0

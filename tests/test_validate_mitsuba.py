@@ -7,6 +7,8 @@ from pathlib import Path
 
 import pytest
 
+from warpshade.io import bundled_asset_directory
+
 pytest.importorskip("mitsuba", reason="Mitsuba 3 not installed (pip install -e '.[validate]')")
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -63,7 +65,7 @@ GLOSSY_MAX_MEAN_DIFFERENCE = 0.01
 def test_quick_glossy_validation_agrees_with_mitsuba(tmp_path):
     run = subprocess.run(
         [sys.executable, str(ROOT / "benchmarks" / "validate_mitsuba.py"), "--quick", "--glossy", "beckmann", "ggx",
-         "--point-light", "--scene", str(ROOT / "usd_assets" / "blockers.usda"), "--out", str(tmp_path)],
+         "--point-light", "--scene", str(Path(bundled_asset_directory()) / "blockers.usda"), "--out", str(tmp_path)],
         capture_output=True, text=True, timeout=600, cwd=ROOT,
     )
     assert run.returncode == 0, run.stdout + run.stderr

@@ -4,7 +4,7 @@ The package is layered; a module imports only modules of its own layer or of lay
 left, at module level and inside functions alike (``tests/test_layers.py`` checks it, and that
 there is no import cycle)::
 
-    _wp, _fileio, _hashing, _limits, _tasks -> basis -> geometry -> scene -> io -> render -> transfer -> methods -> reference -> graph -> measure -> cli
+    _wp, _fileio, _hashing, _limits, _tasks -> basis -> geometry -> scene -> io -> render -> transfer -> methods -> reference -> graph -> measure -> cli, usd_assets
 
 * ``_wp``, ``_fileio``, ``_hashing``, ``_limits``, ``_tasks``: Warp set-up and launch helpers,
   atomic files, content hashes, the sizes refused before allocating, the executor that runs
@@ -13,7 +13,7 @@ there is no import cycle)::
 * ``geometry``: meshes on the device: BVH, normals, skinning, tangent frames, sphere sets;
 * ``scene``: the static ``Scene``, the per-frame ``FrameState`` and the kernels that fill it,
   lights and their per-frame device form, materials;
-* ``io``: USD and images in and out (the only place that imports ``pxr``);
+* ``io``: USD and images in and out (with the asset generator, the only place that imports ``pxr``);
 * ``render``: the ray-cast camera (G-buffers of primary hits), tone mapping, PNG previews: below
   the methods and the reference, which shade its G-buffers per pixel;
 * ``transfer``: ray-traced visibility and transfer, SSDFs;
@@ -22,7 +22,10 @@ there is no import cycle)::
 * ``reference``: brute-force ray-traced ground truth;
 * ``graph``: the stage-graph runtime (TOML specs, cache, precompute, the recorded frame);
 * ``measure``: ground-truth caches, errors, pictures, outputs, error budgets, harness settings;
-* ``cli``: the ``warpshade`` command.
+* ``cli``: the ``warpshade`` command;
+* ``usd_assets``: the bundled scenes (package data, ``bundled:NAME``) and their generator
+  (``python -m warpshade.usd_assets.generator``), a tool at the top like ``cli`` that writes USD
+  and so imports ``pxr``; nothing in warpshade imports it.
 
 The top-level ``warpshade`` module itself is a facade (``load_usd``, ``load_scene``).
 """

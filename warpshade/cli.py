@@ -48,7 +48,7 @@ def _cmd_info(args) -> int:
 
     import numpy as np
 
-    from .io.usd import load_scene, resolve_scene_path
+    from .io import load_scene, resolve_scene_path
     from .scene import DistantLight, Environment, SphereLight
 
     path = resolve_scene_path(args.scene)

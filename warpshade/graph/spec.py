@@ -23,7 +23,7 @@ TOML layout (paths are relative to the TOML file)::
     [graph]
     name = "blockers-shexp"
     description = "..."
-    scene = "../usd_assets/blockers.usda"     # or "warp-example:bunny"
+    scene = "bundled:blockers"                # or "warp-example:bunny"
     ground_plane = false                      # optional scene option
     frames = "0:60"                           # time codes A <= t < B (optional)
     output = "shade.radiance"

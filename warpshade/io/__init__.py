@@ -1,11 +1,20 @@
-"""USD and image input/output. Only :mod:`warpshade.io.usd` imports ``pxr`` (loaded on first use).
+"""USD and image input/output: the only layer that imports ``pxr`` (loaded on first use).
+
+Modules: :mod:`~warpshade.io.usd` (the stage reader, with :mod:`~warpshade.io.usd_mesh`,
+:mod:`~warpshade.io.usd_skel`, :mod:`~warpshade.io.usd_lights`, :mod:`~warpshade.io.textures`
+and :mod:`~warpshade.io.heightfield`), :mod:`~warpshade.io.scene_specs` (scene specs and the
+bundled scenes, no ``pxr``), :mod:`~warpshade.io.usd_write` (shading results out),
+:mod:`~warpshade.io.images` (HDR images).
 
 Public names:
 
 * :func:`load_usd` -- a USD stage as a :class:`warpshade.scene.Scene`;
 * :func:`load_scene` -- the same from a scene spec (``PATH``, ``warp-example:NAME``,
   ``bundled:NAME``) with an optional ground plane and sky;
-* :func:`resolve_scene_path` -- a scene spec to a file path;
+* :func:`resolve_scene_path` -- a scene spec to a file path; :data:`SCENE_SPEC_PREFIXES` -- the
+  prefixes it understands;
+* :func:`bundled_asset_directory` -- the directory of the bundled scenes (``warpshade/usd_assets/``,
+  package data of the installed package);
 * :func:`read_image`, :func:`read_exr`, :func:`read_hdr`, :func:`write_hdr`,
   :func:`write_exr` -- linear HDR images;
 * :func:`read_texture_file` -- a material texture image (PNG, JPEG, ... or EXR/HDR) as stored
@@ -15,11 +24,14 @@ Public names:
 from __future__ import annotations
 
 from .images import read_exr, read_hdr, read_image, write_exr, write_hdr
+from .scene_specs import SCENE_SPEC_PREFIXES, bundled_asset_directory, resolve_scene_path
 
 __all__ = [
     "load_usd",
     "load_scene",
     "resolve_scene_path",
+    "SCENE_SPEC_PREFIXES",
+    "bundled_asset_directory",
     "read_image",
     "read_exr",
     "read_hdr",
@@ -28,7 +40,7 @@ __all__ = [
     "read_texture_file",
 ]
 
-_USD_NAMES = ("load_usd", "load_scene", "resolve_scene_path")
+_USD_NAMES = ("load_usd", "load_scene")
 _TEXTURE_NAMES = ("read_texture_file",)
 
 

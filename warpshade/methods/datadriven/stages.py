@@ -43,8 +43,7 @@ def _load_training(ctx, stage):
     path = stage.params["training"]
     if not path:
         return ctx.scene
-    from ...io import load_scene
-    from ...io.usd import SCENE_SPEC_PREFIXES
+    from ...io import SCENE_SPEC_PREFIXES, load_scene
 
     if path.startswith(SCENE_SPEC_PREFIXES):
         try:

@@ -7,7 +7,7 @@ stage -- and picks the cheapest that meets the target (or, when none does, the m
 flagged as not meeting it)::
 
     python -m warpshade.measure.budget --method shexp --scene figure --target 0.2
-    python -m warpshade.measure.budget --method shexp --scene usd_assets/blockers.usda --target 0.14 \\
+    python -m warpshade.measure.budget --method shexp --scene bundled:blockers --target 0.14 \\
         --grid orders=3,4,6 spheres=8,32 methods=ol,hyb
 
 The chosen sphere count is what the blockers stage really fitted (its report's

@@ -1,0 +1,77 @@
+"""The generator of the bundled scenes in ``warpshade/usd_assets/`` (:func:`warpshade.io.bundled_asset_directory`).
+
+Run ``python -m warpshade.usd_assets.generator [--scenes NAME ...] [--out DIR]``: by default it
+writes ``sky.hdr`` and every scene of ``SCENES`` into the bundled directory; ``ripples`` and
+``sunlit`` are written only on request (``--scenes ripples sunlit``).
+
+Every scene is Z-up, in metres (``metersPerUnit = 1``), 24 frames per second, time codes
+0..59 (60 frames) for animated scenes unless said otherwise below, and has:
+
+* a ``DomeLight`` (/World/Sky) whose lat-long texture ``sky.hdr`` (64 x 128, Radiance RGBE) is
+  a procedural sky with a soft sun, written by :mod:`.sky`; the dome carries USD's
+  ``rotateX:orientToStageUpAxis`` op so its +Y pole points up (+Z);
+* a ``Camera`` (/World/Camera) framing the action;
+* meshes only (no implicit prims), with per-vertex ``displayColor`` or a UsdPreviewSurface.
+
+Modules: :mod:`.writing` (stages, meshes, ground, camera, rounding, saving), :mod:`.sky`,
+:mod:`.shapes` (mesh builders), :mod:`.skeletons` (rigs, skinning, characters), :mod:`.motions`
+(range-of-motion clips and motion libraries), and one module per scene, whose docstring
+describes it: :mod:`.blockers`, :mod:`.figure` (``figure``, ``figure_train``, ``figure_walk``),
+:mod:`.figure_orbit`, :mod:`.cloth`, :mod:`.bend`, :mod:`.wanderer` (``wanderer_train``,
+``wanderer_test``), :mod:`.ripples`, :mod:`.sunlit`.
+
+Output is deterministic: coordinates, weights and quaternions are rounded to 1e-4 (camera
+matrices to 1e-6) before they are written, so the files only change when the generator changes;
+``tests/test_usd_assets.py`` and ``tests/test_sunlit_asset.py`` regenerate them and compare bytes.
+The binary ``.usdc`` (crate) files are reproducible byte for byte too, with a given USD release
+(the thread count does not matter); like the text of the ``.usda`` files, they may change with
+a USD release that writes another crate version.
+
+This package writes USD, so it imports ``pxr``: it is a tool at the top of the layer order, beside
+:mod:`warpshade.cli` (``warpshade/__init__.py``), and nothing in warpshade imports it.
+"""
+
+from __future__ import annotations
+
+import os
+
+from ...io import bundled_asset_directory
+from .bend import make_bend
+from .blockers import make_blockers
+from .cloth import make_cloth
+from .figure import make_figure, make_figure_train, make_figure_walk
+from .figure_orbit import make_figure_orbit
+from .ripples import make_ripples
+from .sky import write_sky
+from .sunlit import make_sunlit
+from .wanderer import make_wanderer_test, make_wanderer_train
+
+#: The scenes written by default (``ripples`` and ``sunlit`` are written on request).
+SCENES = ("blockers", "figure", "figure_train", "figure_walk", "figure_orbit", "cloth", "bend", "wanderer_train", "wanderer_test")
+
+#: Scene name -> the function that writes it into a directory (returns the written path(s)).
+MAKERS = {
+    "ripples": make_ripples,
+    "blockers": make_blockers,
+    "figure_orbit": make_figure_orbit,
+    "figure": make_figure,
+    "figure_train": make_figure_train,
+    "figure_walk": make_figure_walk,
+    "cloth": make_cloth,
+    "bend": make_bend,
+    "wanderer_train": make_wanderer_train,
+    "wanderer_test": make_wanderer_test,
+    "sunlit": make_sunlit,
+}
+
+
+def generate(out_dir: str | None = None, scenes=SCENES) -> list[str]:
+    """Write the sky texture and the named scenes into ``out_dir`` (default: the bundled
+    directory); returns the written paths."""
+    out_dir = bundled_asset_directory() if out_dir is None else out_dir
+    os.makedirs(out_dir, exist_ok=True)
+    written = [write_sky(out_dir)]
+    for name in scenes:
+        result = MAKERS[name](out_dir)
+        written.extend([result] if isinstance(result, str) else result)
+    return written
