@@ -2,7 +2,7 @@
 
 A 512 x 512 grid with 48 frames of animated points is over 100 MB as USD point samples; the
 height field is instead described by a handful of numbers on a ``UsdGeom.Mesh`` prim and
-expanded by the loader (:mod:`warpshade.io.usd` calls :func:`read_mesh` for every Mesh prim
+expanded by the loader (:mod:`warpshade.io.usd_mesh` calls :func:`read_mesh` for every Mesh prim
 that :func:`is_height_field`) into a regular grid mesh whose points are animated per time code
 (``animation = "deforming"``).
 

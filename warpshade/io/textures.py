@@ -1,6 +1,6 @@
 """UsdPreviewSurface networks in: the :class:`~warpshade.scene.textures.SurfaceMaps` of a mesh.
 
-Used by :mod:`warpshade.io.usd` for every mesh it reads (this module imports ``pxr`` too; it is
+Used by :mod:`warpshade.io.usd_mesh` for every mesh it reads (this module imports ``pxr`` too; it is
 part of the USD reader). For a mesh bound to a material (``UsdShade.MaterialBindingAPI``,
 ``ComputeBoundMaterial``) whose surface shader is a ``UsdPreviewSurface``, the inputs
 ``diffuseColor``, ``roughness``, ``specularColor``, ``useSpecularWorkflow``, ``metallic`` and
