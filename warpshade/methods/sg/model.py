@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...transfer.ssdf import SSDFModel, bake_ssdf, compress_ssdf
+from ...transfer import SSDFModel, bake_ssdf, compress_ssdf
 from .envfit import fit_environment
 from .prefilter import PrefilteredEnvironment
 

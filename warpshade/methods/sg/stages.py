@@ -72,7 +72,7 @@ class SgSsdfStage(PrecomputeStage):
         return {"ssdf": model.arrays()}
 
     def check_artifact(self, outputs):
-        from ...transfer.ssdf import SSDFModel
+        from ...transfer import SSDFModel
 
         SSDFModel.from_arrays(outputs["ssdf"])
 
@@ -167,7 +167,7 @@ class SgShadeStage(FrameStage):
 
     # ---- set-up -----------------------------------------------------------------------
     def setup(self, ctx, inputs):
-        from ...transfer.ssdf import SSDFModel
+        from ...transfer import SSDFModel
 
         p = self.params
         dev = ctx.device
