@@ -4,7 +4,7 @@ On the bundled water (``bundled:ripples``: 512 x 512 vertices, 48 frames), throu
 stage-graph runtime on the CPU:
 
 * time per frame (the recorded frame replayed, median over the clip) and per stage (a profile:
-  scene evaluation, ``rpo.heightfield_visibility``, the shading) of the graph
+  scene evaluation, ``heightfield.visibility``, the shading) of the graph
   ``stages/ripples_height_rpo.toml`` (128^2 visibility texels, 512^2 shading) and of variants:
   other visibility resolutions (64^2, 256^2), n = 3, the horizon march settings, the generic
   path (per-vertex visibility + ``ldprt.frames`` + ``rpo.shade``);
@@ -89,7 +89,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
 
     import warpshade.methods.ldprt.stages  # noqa: F401  (ldprt.frames)
-    import warpshade.methods.rpo.heightfield  # noqa: F401  (the height-field stages)
+    import warpshade.methods.heightfield  # noqa: F401  (the height-field stages)
     import warpshade.methods.rpo.stages  # noqa: F401  (rpo.shade)
     from warpshade.reference import shade_glossy
     from warpshade.render.raycast import render

@@ -2,11 +2,11 @@
 
 1. Isotropic models with one closed-form lobe (Beckmann, Cook-Torrance eq. 12, Blinn-Phong,
    isotropic Ward) over a sweep of roughness / exponents: the NDF error (lobe against the exact
-   NDF, relative L2 over the hemisphere of h) and the slice error of :func:`brdf.slice_error`
+   NDF, relative L2 over the hemisphere of h) and the slice error of :func:`slices.slice_error`
    (the warped slice times the cosine against the exact BRDF times the cosine, relative L2 over
    the hemisphere of i) at view polar angles 0, 30, 60, 75 and 85 degrees (azimuth 0). Also the
    three closed forms of the Beckmann lobe (the measurement behind the default) and the analytic
-   sharp-lobe limit of the slice error (:func:`brdf.isotropic_warp_floor`).
+   sharp-lobe limit of the slice error (:func:`slices.isotropic_warp_floor`).
 2. Anisotropic models fitted with free axes by L-BFGS-B (Ashikhmin-Shirley nu = 75, nv = 1200 as
    in the paper's Fig. 2; anisotropic Ward alpha_x = 0.1, alpha_y = 0.4): lobe count 1..8 against
    the NDF fit error, the fit time and the slice error at views 0 / 30 / 60 degrees, azimuths 0 and
@@ -37,7 +37,8 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from warpshade._fileio import atomic_path, write_json_atomic
-from warpshade.methods.sg import brdf
+from warpshade.methods.sg import brdf, slices
+from warpshade.methods.sg import ndf as sg_ndf
 
 RESULTS = ROOT / "benchmarks" / "results"
 VIEW_THETAS = (0.0, 30.0, 60.0, 75.0, 85.0)
@@ -61,7 +62,7 @@ def view(theta_deg: float, phi_deg: float = 0.0) -> np.ndarray:
 
 def ndf_error_isotropic(model: str, params: dict, nodes: int = 800) -> float:
     """Relative L2 error of the closed-form lobe against the exact NDF over the hemisphere of h."""
-    lobes = brdf.ndf_lobes(model, **params)
+    lobes = sg_ndf.ndf_lobes(model, **params)
     x, w = np.polynomial.legendre.leggauss(nodes)
     split = min(0.5 * np.pi, 12.0 / math.sqrt(max(lobes.sharpness[0], 1e-6)))
     t, wt = [], []
@@ -82,9 +83,9 @@ def isotropic(quick: bool) -> dict:
         rows = []
         for value in values[::2] if quick else values:
             params = {name: value}
-            exact = brdf.make_brdf(model, **params)
-            lobes = brdf.ndf_lobes(model, **params)
-            errors = {f"{t:g}": brdf.slice_error(exact, model, params, view(t)) for t in VIEW_THETAS}
+            exact = brdf.microfacet_brdf(model, **params)
+            lobes = sg_ndf.ndf_lobes(model, **params)
+            errors = {f"{t:g}": slices.slice_error(exact, model, params, view(t)) for t in VIEW_THETAS}
             row = {name: value, "sharpness": float(lobes.sharpness[0]), "amplitude": float(lobes.amplitude[0]),
                    "ndf_error": ndf_error_isotropic(model, params), "slice_error": errors}
             rows.append(row)
@@ -97,7 +98,7 @@ def isotropic(quick: bool) -> dict:
                                if (f != "taylor" or a < 0.7) else None) for f in brdf.BECKMANN_FORMS}
         print(f"  beckmann forms a={a:g}: " + "  ".join(f"{k} {v:.4f}" for k, v in forms[f"{a:g}"].items()), flush=True)
     out["beckmann_forms"] = forms
-    out["isotropic_warp_floor"] = {f"{t:g}": float(brdf.isotropic_warp_floor(math.cos(math.radians(t))))
+    out["isotropic_warp_floor"] = {f"{t:g}": float(slices.isotropic_warp_floor(math.cos(math.radians(t))))
                                    for t in VIEW_THETAS}
     print("  isotropic-warp floor (sharp-lobe limit): " +
           "  ".join(f"{t}deg {e:.4f}" for t, e in out["isotropic_warp_floor"].items()), flush=True)
@@ -108,15 +109,15 @@ def anisotropic(quick: bool) -> dict:
     out = {}
     counts = (1, 2, 4, 7) if quick else tuple(range(1, 9))
     for model, params in ANISOTROPIC.items():
-        exact = brdf.make_brdf(model, **params)
+        exact = brdf.microfacet_brdf(model, **params)
         rows = []
         for k in counts:
             t0 = time.perf_counter()
             slice_params = {**params, "lobes": k}
-            fit = brdf.fit_model_ndf(model, **slice_params)  # cached: view_slice below reuses it
+            fit = sg_ndf.fit_model_ndf(model, **slice_params)  # cached: view_slice below reuses it
             seconds = time.perf_counter() - t0
-            errors = {f"{t:g}/{p:g}": brdf.slice_error(exact, model, slice_params, view(t, p)) for t, p in ANISO_VIEWS}
-            culled_85 = int(brdf.view_slice(model, view(85.0), **slice_params).culled.sum())
+            errors = {f"{t:g}/{p:g}": slices.slice_error(exact, model, slice_params, view(t, p)) for t, p in ANISO_VIEWS}
+            culled_85 = int(slices.view_slice(model, view(85.0), **slice_params).culled.sum())
             rows.append({"lobes": k, "ndf_error": fit.relative_error, "initial_error": fit.initial_error,
                          "fit_seconds": seconds, "iterations": fit.iterations, "converged": fit.success,
                          "slice_error": errors, "culled_at_85deg": culled_85})

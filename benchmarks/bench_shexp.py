@@ -124,7 +124,7 @@ def figure_spheres(count: int = 60):
     """Leaf spheres of the bundled figure at its first frame (sphere module), or procedural."""
     try:
         from warpshade.io import load_scene
-        from warpshade.methods.shexp.blockers import build_blocker_model
+        from warpshade.methods.shexp.model import build_blocker_model
 
         scene = load_scene("bundled:figure")
         spheres = build_blocker_model(scene, count, calibrate=False).spheres
@@ -295,7 +295,7 @@ def sphere_trace_errors(scene, lighting, frames, budget: int, orders, samples: i
     frame's state.
     """
     from warpshade.measure import run_setting
-    from warpshade.methods.shexp.blockers import BlockerFrames, BlockerModel
+    from warpshade.methods.shexp.model import BlockerFrames, BlockerModel
     from warpshade.methods.shexp.pipeline import ShexpShader, SphereTracer
     from warpshade.scene import FrameEvaluator
 

@@ -77,7 +77,7 @@ def main(argv=None) -> int:
     from warpshade._wp import cpu_workers
     from warpshade.basis import sg
     from warpshade.io import load_scene
-    from warpshade.transfer import ssdf
+    from warpshade.transfer import ssdf, ssdf_pca, ssdf_products
 
     resolution, supersample = (64, 4) if args.quick else (128, 4)
     count = 64 if args.quick else args.vertices
@@ -131,7 +131,7 @@ def main(argv=None) -> int:
     models = {}
     for method in ("exact", "randomized"):
         t = time.perf_counter()
-        models[method] = ssdf.compress_ssdf(maps, error_budget=args.budget, max_terms=max_terms, method=method)
+        models[method] = ssdf_pca.compress_ssdf(maps, error_budget=args.budget, max_terms=max_terms, method=method)
         pca[method] = {"time_s": time.perf_counter() - t, "terms": models[method].terms,
                        "rms_error_rad": models[method].rms_error, "budget_met": models[method].budget_met,
                        "error_curve_rad": models[method].error_curve.tolist()}
@@ -152,7 +152,7 @@ def main(argv=None) -> int:
     oracle_s = time.perf_counter() - t
     flat_axes = np.tile(axes, (vertices.size, 1))  # (V * A, 3), vertex-major
     flat_maps = np.repeat(maps, axes.shape[0], axis=0)
-    theta_full = ssdf.sample_maps(flat_maps, flat_axes).reshape(vertices.size, axes.shape[0])
+    theta_full = ssdf_products.sample_maps(flat_maps, flat_axes).reshape(vertices.size, axes.shape[0])
     elevation = np.arcsin(axes[:, 2])[None, :]
     pole = sg.hemisphere_integral(0.5 * np.pi, lam)
     fig7 = {"sharpness": lam.tolist(), "axes_deg": AXES_DEG, "oracle_samples": ORACLE_SAMPLES, "oracle_s": oracle_s,
@@ -165,14 +165,14 @@ def main(argv=None) -> int:
                                             np.broadcast_to(sg.hemisphere_integral(elevation, l, method="quadrature"), tr.shape),
                                             pole[k]))
     terms_curve = []
-    full = ssdf.compress_ssdf(maps, error_budget=1e-12, max_terms=max_terms, method="exact")
+    full = ssdf_pca.compress_ssdf(maps, error_budget=1e-12, max_terms=max_terms, method="exact")
     for n in TERMS:
         if n > models["exact"].error_curve.shape[0]:
             break
         if n > full.terms:
             break
-        m_n = ssdf.SSDFModel(full.mean, full.basis[:n], full.coeffs[:, :n], full.resolution, full.error_curve, 0.0)
-        theta = ssdf.ssdf_lookup(m_n, np.repeat(m_n.coeffs, axes.shape[0], axis=0), flat_axes).reshape(vertices.size, -1)
+        m_n = ssdf_pca.SSDFModel(full.mean, full.basis[:n], full.coeffs[:, :n], full.resolution, full.error_curve, 0.0)
+        theta = ssdf_products.ssdf_lookup(m_n, np.repeat(m_n.coeffs, axes.shape[0], axis=0), flat_axes).reshape(vertices.size, -1)
         per_l = [_errors(sg.hemisphere_integral(np.clip(theta, -0.5 * np.pi, 0.5 * np.pi), l), truth[:, :, k], pole[k])
                  for k, l in enumerate(lam)]
         fig7["pca"][str(n)] = per_l

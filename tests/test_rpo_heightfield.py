@@ -1,4 +1,4 @@
-"""Dynamic height fields with RPO shading (warpshade.methods.rpo.heightfield): the kernels against
+"""Dynamic height fields with RPO shading (warpshade.methods.heightfield): the kernels against
 their float64 oracles, analytic cases, the visibility against ray tracing, failure cases, and the
 bundled graph end to end on a reduced-resolution copy of the water."""
 
@@ -15,8 +15,9 @@ from warpshade.basis import sh
 from warpshade.graph import GraphSpec, StageSpec, load
 from warpshade.io import heightfield as hfio
 from warpshade.io import bundled_asset_directory, load_scene
-from warpshade.methods.rpo import heightfield as hf
-from warpshade.methods.rpo import heightfield_reference as ref
+from warpshade.methods.heightfield import kernels as hfk
+from warpshade.methods.heightfield import model as hf
+from warpshade.methods.heightfield import reference as ref
 from warpshade.methods.stage import StageError
 from warpshade.scene import Camera, Environment, LightingSource, Mesh, Scene
 
@@ -64,10 +65,10 @@ def _sky(scene):
 
 
 def _run(scene, vis_params=None, shade_params=None, frame=0.0, per_vertex=True):
-    stages = [StageSpec("vis", "rpo.heightfield_visibility", {"order": 4, "resolution": 32, "per_vertex": per_vertex,
+    stages = [StageSpec("vis", "heightfield.visibility", {"order": 4, "resolution": 32, "per_vertex": per_vertex,
                                                               **(vis_params or {})})]
     if shade_params is not None:
-        stages.append(StageSpec("shade", "rpo.heightfield_shade", {"order": 4, "rank": 8, "roughness": 0.3,
+        stages.append(StageSpec("shade", "heightfield.shade", {"order": 4, "rank": 8, "roughness": 0.3,
                                                                     **shade_params}))
     out = "shade.radiance" if shade_params is not None else ("vis.visibility" if per_vertex else "vis.texel_visibility")
     rt = GraphSpec(stages=stages, output=out, name="hf-test").compile(scene, device="cpu", cache_dir=None, progress=False,
@@ -79,7 +80,7 @@ def _run(scene, vis_params=None, shade_params=None, frame=0.0, per_vertex=True):
 # ---- SH algebra and tables ----------------------------------------------------------------------
 @pytest.mark.parametrize("order", [3, 4])
 def test_static_rotation_and_product_match_float64(order, rng):
-    _, _, rot_k, pair_k = hf.shade_kernels(order)
+    _, _, rot_k, pair_k = hfk.shade_kernels(order)
     f = rng.normal(size=(64, order * order))
     g = rng.normal(size=(64, order * order))
     r = Rotation.random(64, random_state=3).as_matrix()
@@ -231,10 +232,10 @@ def test_heightfield_shade_agrees_with_rpo_shade():
 
     scene = _ripples(48)
     common = {"order": 4, "rank": 8, "roughness": 0.3}
-    stages = [StageSpec("vis", "rpo.heightfield_visibility", {"order": 4, "resolution": 48}),
+    stages = [StageSpec("vis", "heightfield.visibility", {"order": 4, "resolution": 48}),
               StageSpec("frames", "ldprt.frames"),
               StageSpec("rpo", "rpo.shade", {**common, "visibility_space": "world"}, {"visibility": "vis.visibility"}),
-              StageSpec("shade", "rpo.heightfield_shade", common, {"texel_visibility": "vis.texel_visibility"})]
+              StageSpec("shade", "heightfield.shade", common, {"texel_visibility": "vis.texel_visibility"})]
     rt = GraphSpec(stages=stages, output="shade.radiance").compile(scene, device="cpu", cache_dir=None, progress=False,
                                                                    lighting=_sky(scene))
     rt.step(0.0)
@@ -249,10 +250,10 @@ def test_grid_checks_and_bad_parameters_are_clear_errors():
     flat = np.zeros((9, 9))
     x, y = hfio.grid_xy(9, (2.0, 2.0))
     not_square = Scene.from_meshes([Mesh("/m", np.stack([x, y, 0 * x], 1)[:72], hfio.grid_faces(9)[:112])])
-    with pytest.raises(StageError, match="rpo.heightfield_visibility.*square"):
+    with pytest.raises(StageError, match="heightfield.visibility.*square"):
         _run(not_square)
     pts = np.stack([x, y, 0 * x], 1)[np.random.default_rng(0).permutation(81)]
-    with pytest.raises(StageError, match="rpo.heightfield_visibility.*(regular 9 x 9 grid|row-major)"):
+    with pytest.raises(StageError, match="heightfield.visibility.*(regular 9 x 9 grid|row-major)"):
         _run(Scene.from_meshes([Mesh("/m", pts, hfio.grid_faces(9))]))
     samples = np.stack([np.stack([x, y, 0 * x], 1)] * 2).astype(np.float32)
     samples[1, :, 0] += 0.05
@@ -307,7 +308,7 @@ def test_loader_expands_the_height_field(tmp_path):
     graph = load(ROOT / "stages" / "ripples_height_rpo.toml")
     graph.validate_spec = {"frames": [0]}
     for st in graph.stages:  # the 128 x 128 texels of the graph as written exceed this 64 x 64 copy
-        if st.type == "rpo.heightfield_visibility":
+        if st.type == "heightfield.visibility":
             st.params["resolution"] = 32
     rt = graph.compile(scene, device="cpu", cache_dir=None, progress=False)
     rt.run([0.0, 1.0], warmup=False)

@@ -13,7 +13,8 @@ import pytest
 
 from warpshade._wp import wp
 from warpshade.basis.sg import SGMixture
-from warpshade.methods.sg import brdf
+from warpshade.methods.sg import brdf, slices
+from warpshade.methods.sg import ndf as sg_ndf
 from warpshade.methods.sg import brdf_warp
 from warpshade.scene.materials import Microfacet, hemisphere_quadrature
 
@@ -61,7 +62,7 @@ def _isotropic_l2_error(model, params, nodes=800, upper=0.5 * np.pi):
     """Relative L2 error of the closed-form lobe against the exact NDF over the cap theta_h <= upper
     (default the hemisphere; 1-D Gauss-Legendre in theta_h, split at 12 lobe widths; both
     functions are isotropic)."""
-    lobes = brdf.ndf_lobes(model, **params)
+    lobes = sg_ndf.ndf_lobes(model, **params)
     assert lobes.lobe_count == 1 and np.allclose(lobes.axes, [[0, 0, 1]])
     x, w = np.polynomial.legendre.leggauss(nodes)
     split = min(upper, 12.0 / math.sqrt(lobes.sharpness[0]))
@@ -95,12 +96,12 @@ def test_beckmann_factor_reproduces_microfacet(rng, roughness):
 @pytest.mark.parametrize("model,params", [
     ("cook-torrance", {"m": 0.2, "eta": 1.5}), ("blinn-phong", {"exponent": 40.0}),
     ("ward", {"alpha_x": 0.1, "alpha_y": 0.3}), ("ashikhmin-shirley", {"nu": 75.0, "nv": 1200.0}),
-    ("tabulated", {"theta_h": np.linspace(0, np.pi / 2, 46), "ndf_values": np.exp(-np.linspace(0, 9, 46))}),
+    ("tabulated-ndf", {"theta_h": np.linspace(0, np.pi / 2, 46), "ndf_values": np.exp(-np.linspace(0, 9, 46))}),
 ])
 def test_models_factor_exactly(rng, model, params):
     o, i = _random_hemisphere(rng, 500), _random_hemisphere(rng, 500)
     h = (o + i) / np.linalg.norm(o + i, axis=1, keepdims=True)
-    b = brdf.make_brdf(model, **params)
+    b = brdf.microfacet_brdf(model, **params)
     val = b.evaluate(o, i)
     assert np.all(np.isfinite(val)) and np.all(val >= 0.0)
     np.testing.assert_allclose(brdf.remaining_factor(model, o, i, **params) * brdf.ndf_exact(model, h, **params), val,
@@ -154,7 +155,7 @@ def test_fresnel_eq14(eta):
 
 @pytest.mark.parametrize("m", [0.05, 0.1, 0.2, 0.3, 0.5])
 def test_cook_torrance_lobe_eq12(m):
-    lobes = brdf.ndf_lobes("cook-torrance", m=m)
+    lobes = sg_ndf.ndf_lobes("cook-torrance", m=m)
     assert lobes.sharpness[0] == pytest.approx(2 / m**2) and lobes.amplitude[0] == 1.0
     assert _isotropic_l2_error("cook-torrance", {"m": m}) <= CT_ERR_PER_M2 * m * m
 
@@ -165,7 +166,7 @@ def test_beckmann_lobe_forms(a):
     assert errors["normalized"] <= BECKMANN_ERR_PER_A2 * a * a
     # the default is the best closed form on the whole range (the measurement that chose it)
     assert errors["normalized"] < errors["paper"] < errors["taylor"]
-    lam, mu = brdf.beckmann_lobe(a)
+    lam, mu = sg_ndf.beckmann_lobe(a)
     # the projected-area normalisation it keeps: integral over H of mu e^(lam(z-1)) z = 1
     x, w = np.polynomial.legendre.leggauss(400)
     z = 0.5 * (x + 1)
@@ -189,7 +190,7 @@ def test_lbfgsb_recovers_synthetic_mixture():
     axes = np.array([[0.1, 0.0, 1.0], [-0.05, 0.08, 1.0], [0.0, 0.0, 1.0]])
     axes /= np.linalg.norm(axes, axis=1, keepdims=True)
     target = SGMixture(axes, np.array([40.0, 150.0, 600.0]), np.array([0.5, 1.0, 0.8]))
-    fit = brdf.fit_ndf(target.evaluate, 3, axes="free", azimuth_nodes=96)
+    fit = sg_ndf.fit_ndf(target.evaluate, 3, axes="free", azimuth_nodes=96)
     assert fit.relative_error < EXACT_FIT_REL < fit.initial_error
     np.testing.assert_allclose(fit.mixture.sharpness, target.sharpness, rtol=RECOVER_RTOL)
     np.testing.assert_allclose(fit.mixture.amplitude, target.amplitude, rtol=RECOVER_RTOL)
@@ -198,8 +199,8 @@ def test_lbfgsb_recovers_synthetic_mixture():
 
 def test_lm_recovers_synthetic_mixture_about_z():
     target = SGMixture(np.tile([0.0, 0.0, 1.0], (2, 1)), np.array([20.0, 300.0]), np.array([0.7, 0.3]))
-    fit = brdf.fit_ndf(target.evaluate, 2, axes="fixed")
-    one = brdf.fit_ndf(target.evaluate, 1, axes="fixed")
+    fit = sg_ndf.fit_ndf(target.evaluate, 2, axes="fixed")
+    one = sg_ndf.fit_ndf(target.evaluate, 1, axes="fixed")
     assert fit.relative_error < EXACT_FIT_REL < one.relative_error
     np.testing.assert_allclose(fit.mixture.sharpness, [20.0, 300.0], rtol=RECOVER_RTOL)
     np.testing.assert_allclose(fit.mixture.amplitude, [0.7, 0.3], rtol=RECOVER_RTOL)
@@ -209,26 +210,26 @@ def test_lm_tabulated_beckmann_beats_its_start():
     a = 0.3
     t = np.linspace(0.0, 0.5 * np.pi, 91)
     d = np.exp(-np.tan(t) ** 2 / a**2) / (np.pi * a * a * np.cos(t) ** 4)
-    fit = brdf.fit_ndf(brdf.tabulated_ndf(t, d), 1, axes="fixed")
+    fit = sg_ndf.fit_ndf(brdf.tabulated_ndf(t, d), 1, axes="fixed")
     assert fit.relative_error < 0.6 * fit.initial_error
     closed = _isotropic_l2_error("beckmann", {"roughness": a})
     # the least-squares lobe is at least as good as the best closed form (on the fitting cap)
     assert fit.relative_error <= closed * 1.01
-    lobes = brdf.ndf_lobes("tabulated", theta_h=t, ndf_values=d, lobes=2)
+    lobes = sg_ndf.ndf_lobes("tabulated-ndf", theta_h=t, ndf_values=d, lobes=2)
     assert lobes.lobe_count == 2 and np.all(np.diff(lobes.sharpness) >= 0.0)
 
 
 def test_lbfgsb_anisotropic_more_lobes_less_error():
     b = brdf.AshikhminShirley(nu=75.0, nv=1200.0)
-    one = brdf.fit_ndf(b.ndf, 1, azimuth_nodes=128)
-    four = brdf.fit_ndf(b.ndf, 4, azimuth_nodes=128)
+    one = sg_ndf.fit_ndf(b.ndf, 1, azimuth_nodes=128)
+    four = sg_ndf.fit_ndf(b.ndf, 4, azimuth_nodes=128)
     assert four.relative_error < 0.5 * one.relative_error
     assert four.relative_error < four.initial_error
     assert np.all(np.diff(four.mixture.sharpness) >= 0.0)  # sorted by sharpness
     # the lobes spread along the broad (nu, +x) direction of the NDF
     assert np.ptp(four.mixture.axes[:, 0]) > 5 * np.ptp(four.mixture.axes[:, 1])
     w = brdf.Ward(alpha_x=0.1, alpha_y=0.3)
-    three, single = (brdf.fit_ndf(w.ndf, k, azimuth_nodes=128) for k in (3, 1))
+    three, single = (sg_ndf.fit_ndf(w.ndf, k, azimuth_nodes=128) for k in (3, 1))
     assert three.relative_error < single.relative_error
 
 
@@ -238,8 +239,8 @@ def test_lbfgsb_anisotropic_more_lobes_less_error():
 def _warped_ndf_error(model, params, view, nodes=(200, 256)):
     """Brute-force reflection of the exact NDF, D(h(i)) with h(i) = (o + i)/|o + i|, against the
     warped lobes without M (eq. 18-21), relative L2 over the sphere of i."""
-    ndf = brdf.ndf_lobes(model, **params)
-    sl = brdf.view_slice(model, view, **params)
+    ndf = sg_ndf.ndf_lobes(model, **params)
+    sl = slices.view_slice(model, view, **params)
     dirs, w = hemisphere_quadrature(*nodes)
     dirs = np.concatenate([dirs, dirs * [1, 1, -1]])
     w = np.concatenate([w, w])
@@ -263,8 +264,8 @@ def test_warp_matches_brute_force_reflection():
 def test_view_slice_eq18_to_22():
     o = _view(40.0, 25.0)
     params = {"roughness": 0.25, "f0": 0.05}
-    sl = brdf.view_slice("beckmann", o, **params)
-    lam, mu = brdf.beckmann_lobe(0.25)
+    sl = slices.view_slice("beckmann", o, **params)
+    lam, mu = sg_ndf.beckmann_lobe(0.25)
     np.testing.assert_allclose(sl.axes[0], [-o[0], -o[1], o[2]], atol=1e-15)  # 2 (o.z) z - o
     assert sl.sharpness[0] == pytest.approx(lam / (4 * o[2]), rel=1e-14)
     assert sl.amplitude[0] == pytest.approx(mu * brdf.remaining_factor("beckmann", o, sl.axes[0], **params), rel=1e-14)
@@ -276,8 +277,8 @@ def test_view_slice_eq18_to_22():
     ("blinn-phong", {"exponent": 50.0}), ("ward", {"alpha_x": 0.2}),
 ])
 def test_slice_error_grows_towards_grazing(model, params):
-    exact = brdf.make_brdf(model, **params)
-    errors = [brdf.slice_error(exact, model, params, _view(t)) for t in (0.0, 30.0, 60.0, 85.0, 89.5)]
+    exact = brdf.microfacet_brdf(model, **params)
+    errors = [slices.slice_error(exact, model, params, _view(t)) for t in (0.0, 30.0, 60.0, 85.0, 89.5)]
     assert errors[0] < SLICE_ERR_NORMAL
     assert errors[0] < errors[2] < errors[3]
     assert all(math.isfinite(e) for e in errors)  # grazing: large (documented), never NaN
@@ -287,33 +288,33 @@ def test_slice_error_grows_towards_grazing(model, params):
 def test_sharp_slice_error_is_the_isotropic_warp_floor(theta):
     """Sharp lobes: M_o and the cosine are constant over the lobe and the NDF lobe is exact, so the
     slice error is the analytic distance between the anisotropic exact reflection and the
-    isotropic warped lobe (brdf.isotropic_warp_floor)."""
+    isotropic warped lobe (slices.isotropic_warp_floor)."""
     params = {"exponent": 1e4}
-    err = brdf.slice_error(brdf.make_brdf("blinn-phong", **params), "blinn-phong", params, _view(theta))
-    assert err == pytest.approx(float(brdf.isotropic_warp_floor(math.cos(math.radians(theta)))), rel=SHARP_FLOOR_RTOL)
-    assert brdf.isotropic_warp_floor(1.0) == 0.0
+    err = slices.slice_error(brdf.microfacet_brdf("blinn-phong", **params), "blinn-phong", params, _view(theta))
+    assert err == pytest.approx(float(slices.isotropic_warp_floor(math.cos(math.radians(theta)))), rel=SHARP_FLOOR_RTOL)
+    assert slices.isotropic_warp_floor(1.0) == 0.0
 
 
 def test_slice_error_independent_quadrature():
     model, params, view = "cook-torrance", {"m": 0.35, "eta": 1.4}, _view(35.0)
-    exact = brdf.make_brdf(model, **params)
-    sl = brdf.view_slice(model, view, **params)
+    exact = brdf.microfacet_brdf(model, **params)
+    sl = slices.view_slice(model, view, **params)
     dirs, w = hemisphere_quadrature(400, 800)
     ref = exact.evaluate(np.broadcast_to(view, dirs.shape), dirs) * dirs[:, 2]
     approx = sl.evaluate(dirs) * dirs[:, 2]
     oracle = math.sqrt(w @ (approx - ref) ** 2 / (w @ ref**2))
-    assert brdf.slice_error(exact, model, params, view) == pytest.approx(oracle, abs=QUADRATURE_ATOL)
+    assert slices.slice_error(exact, model, params, view) == pytest.approx(oracle, abs=QUADRATURE_ATOL)
 
 
 def test_anisotropic_slice_and_culling():
     params = {"nu": 75.0, "nv": 1200.0, "lobes": 4}
-    exact = brdf.make_brdf("ashikhmin-shirley", **params)
-    normal = brdf.slice_error(exact, "ashikhmin-shirley", params, _view(0.0))
+    exact = brdf.microfacet_brdf("ashikhmin-shirley", **params)
+    normal = slices.slice_error(exact, "ashikhmin-shirley", params, _view(0.0))
     assert normal < 0.3
-    sl = brdf.view_slice("ashikhmin-shirley", _view(89.0), **params)
+    sl = slices.view_slice("ashikhmin-shirley", _view(89.0), **params)
     assert np.all(np.isfinite(sl.amplitude)) and np.all(np.isfinite(sl.sharpness))
     assert sl.culled.any() and np.all(sl.amplitude[sl.culled] == 0.0)  # reported, zeroed
-    below = brdf.view_slice("cook-torrance", np.array([0.3, 0.0, -0.5]), m=0.2)
+    below = slices.view_slice("cook-torrance", np.array([0.3, 0.0, -0.5]), m=0.2)
     assert below.culled.all() and np.all(below.amplitude == 0.0)
 
 
@@ -321,13 +322,13 @@ def test_anisotropic_slice_and_culling():
 def test_extreme_roughness_is_finite(m):
     exact = brdf.CookTorrance(m=m)
     for t in (0.0, 45.0, 89.9):
-        sl = brdf.view_slice("cook-torrance", _view(t), m=m)
+        sl = slices.view_slice("cook-torrance", _view(t), m=m)
         assert np.all(np.isfinite(sl.sharpness)) and np.all(np.isfinite(sl.amplitude))
-        err = brdf.slice_error(exact, "cook-torrance", {"m": m}, _view(t))
+        err = slices.slice_error(exact, "cook-torrance", {"m": m}, _view(t))
         assert math.isfinite(err)
     # mirror-like: at normal view the single lobe is nearly exact
     if m == 0.01:
-        assert brdf.slice_error(exact, "cook-torrance", {"m": m}, _view(0.0)) < 0.01
+        assert slices.slice_error(exact, "cook-torrance", {"m": m}, _view(0.0)) < 0.01
 
 
 # ---- bad input ---------------------------------------------------------------------------------
@@ -339,20 +340,20 @@ def test_extreme_roughness_is_finite(m):
     (lambda: brdf.CookTorrance(m=0.2, f0=1.5), "f0"),
     (lambda: brdf.Ward(alpha_x=0.1, alpha_y=float("nan")), "alpha_y"),
     (lambda: brdf.AshikhminShirley(nu=0.0), "nu"),
-    (lambda: brdf.ndf_lobes("phong", exponent=3), "model"),
-    (lambda: brdf.ndf_lobes("ward", alpha_x=0.1, alpha=0.2), "alpha"),
-    (lambda: brdf.ndf_lobes("blinn-phong", exponent=-1.0), "exponent"),
-    (lambda: brdf.ndf_lobes("beckmann", roughness=0.2, form="exact"), "form"),
-    (lambda: brdf.ndf_lobes("beckmann", roughness=0.9, form="taylor"), "roughness"),
-    (lambda: brdf.ndf_lobes("ward", alpha_x=0.1, alpha_y=0.3, lobes=0), "lobes"),
-    (lambda: brdf.ndf_lobes("tabulated", theta_h=[0, 1], ndf_values=[1, 0], lobes=3), "lobes"),
+    (lambda: sg_ndf.ndf_lobes("phong", exponent=3), "model"),
+    (lambda: sg_ndf.ndf_lobes("ward", alpha_x=0.1, alpha=0.2), "alpha"),
+    (lambda: sg_ndf.ndf_lobes("blinn-phong", exponent=-1.0), "exponent"),
+    (lambda: sg_ndf.ndf_lobes("beckmann", roughness=0.2, form="exact"), "form"),
+    (lambda: sg_ndf.ndf_lobes("beckmann", roughness=0.9, form="taylor"), "roughness"),
+    (lambda: sg_ndf.ndf_lobes("ward", alpha_x=0.1, alpha_y=0.3, lobes=0), "lobes"),
+    (lambda: sg_ndf.ndf_lobes("tabulated-ndf", theta_h=[0, 1], ndf_values=[1, 0], lobes=3), "lobes"),
     (lambda: brdf.tabulated_ndf([0.0, 0.5, 0.4], [1, 1, 1]), "theta_h"),
     (lambda: brdf.tabulated_ndf([0.0, 0.5], [1, -1]), "values"),
-    (lambda: brdf.fit_ndf(lambda h: np.zeros(h.shape[:-1]), 1), "zero"),
-    (lambda: brdf.fit_ndf(lambda h: h[..., 2], 1, axes="loose"), "axes"),
-    (lambda: brdf.view_slice("cook-torrance", [0.0, 0.0, 0.0], m=0.2), "view_local"),
-    (lambda: brdf.view_slice("cook-torrance", [0.0, 0.0, np.nan], m=0.2), "view_local"),
-    (lambda: brdf.slice_error(brdf.CookTorrance(), "cook-torrance", {}, [0.0, 0.6, -0.8]), "view_local"),
+    (lambda: sg_ndf.fit_ndf(lambda h: np.zeros(h.shape[:-1]), 1), "zero"),
+    (lambda: sg_ndf.fit_ndf(lambda h: h[..., 2], 1, axes="loose"), "axes"),
+    (lambda: slices.view_slice("cook-torrance", [0.0, 0.0, 0.0], m=0.2), "view_local"),
+    (lambda: slices.view_slice("cook-torrance", [0.0, 0.0, np.nan], m=0.2), "view_local"),
+    (lambda: slices.slice_error(brdf.CookTorrance(), "cook-torrance", {}, [0.0, 0.6, -0.8]), "view_local"),
     (lambda: brdf_warp.specular_slices([[0, 0, 1]], "ggx", 0.2), "model"),
     (lambda: brdf_warp.specular_slices([[0, 0, 1]], "ward", 1.5), "roughness"),
     (lambda: brdf_warp.specular_slices([[0, 0, 1]], "beckmann", 0.2, f0=1.0), "f0"),

@@ -14,7 +14,7 @@ import pytest
 
 from warpshade.basis import quadrature, sg
 from warpshade.io import bundled_asset_directory, read_hdr
-from warpshade.methods.sg import lighting as L
+from warpshade.methods.sg import envfit, envmap, lights, prefilter
 from warpshade.scene.lighting import DistantLight, Environment, SphereLight, sky_radiance
 
 #: 3-lobe recovery: the environment is float32 texels of the mixture, L-BFGS-B stops at ftol 1e-15.
@@ -73,13 +73,13 @@ def smooth_env():
 
 @pytest.fixture(scope="module")
 def smooth_table(smooth_env):
-    return L.PrefilteredEnvironment.build(smooth_env, device="cpu")
+    return prefilter.PrefilteredEnvironment.build(smooth_env, device="cpu")
 
 
 @pytest.fixture(scope="module")
 def sun_case():
     env, s = _sharp_sun_env(64, 128)
-    return env, s, L.PrefilteredEnvironment.build(env, device="cpu")
+    return env, s, prefilter.PrefilteredEnvironment.build(env, device="cpu")
 
 
 # ---- diffuse fit ---------------------------------------------------------------------------------
@@ -88,7 +88,7 @@ def test_fit_recovers_a_three_lobe_mixture():
     axes /= np.linalg.norm(axes, axis=1, keepdims=True)
     truth = sg.SGMixture(axes, [3.0, 12.0, 50.0], [[1.0, 0.8, 0.5], [0.3, 0.6, 1.0], [2.0, 1.5, 1.0]])
     env = Environment(truth.evaluate(quadrature.latlong_directions(32, 64)).astype(np.float32))
-    fit = L.fit_environment(env, max_lobes=3, method="lbfgsb")
+    fit = envfit.fit_environment(env, max_lobes=3, method="lbfgsb")
     assert fit.report["radiance_error"] < RECOVERY_RADIANCE_TOL
     assert fit.report["irradiance_fit_error"] < RECOVERY_RADIANCE_TOL
     order = np.argsort(fit.mixture.sharpness)
@@ -96,13 +96,13 @@ def test_fit_recovers_a_three_lobe_mixture():
     np.testing.assert_allclose(fit.mixture.axes[order], axes, atol=1e-4)
     np.testing.assert_allclose(fit.mixture.amplitude[order], truth.amplitude, rtol=1e-4)
     # NNLS alone gets close with lobes from its candidate grid, never negative
-    nn = L.fit_environment(env, max_lobes=3, method="nnls")
+    nn = envfit.fit_environment(env, max_lobes=3, method="nnls")
     assert np.all(nn.mixture.amplitude >= 0.0) and nn.report["irradiance_fit_error"] < 0.1
 
 
 def test_bundled_sky_fewer_than_ten_lobes():
     env = Environment(read_hdr(f"{bundled_asset_directory()}/sky.hdr"))
-    fit = L.fit_environment(env, max_lobes=9, method="nnls")
+    fit = envfit.fit_environment(env, max_lobes=9, method="nnls")
     r = fit.report
     assert fit.lobe_count <= 9 and fit.mixture.amplitude.shape == (fit.lobe_count, 3)
     assert np.all(fit.mixture.amplitude >= 0.0)
@@ -112,8 +112,8 @@ def test_bundled_sky_fewer_than_ten_lobes():
     errs = [m["irradiance_fit_error"] for m in r["by_lobe_count"]]
     assert errs[-1] <= errs[0]
     # the irradiance the report measures is the mixture's SG irradiance
-    n = quadrature.fibonacci(L.FIT_NORMALS).directions
-    exact = L._irradiance_quadrature(n, *L._texels(np.asarray(env.image, np.float64)))
+    n = quadrature.fibonacci(envfit.FIT_NORMALS).directions
+    exact = envfit._irradiance_quadrature(n, *envfit._texels(np.asarray(env.image, np.float64)))
     got = fit.irradiance(n)
     assert abs(np.linalg.norm(got - exact) / np.linalg.norm(exact) - r["irradiance_error"]) < 1e-9
 
@@ -122,45 +122,45 @@ def test_fit_is_in_the_world_frame_and_budget_picks_smallest(smooth_env):
     from scipy.spatial.transform import Rotation
 
     rot = Rotation.from_rotvec([0.3, -0.5, 0.9]).as_matrix()
-    base = L.fit_environment(smooth_env, max_lobes=4)
-    turned = L.fit_environment(smooth_env.rotated(rot), max_lobes=4)
+    base = envfit.fit_environment(smooth_env, max_lobes=4)
+    turned = envfit.fit_environment(smooth_env.rotated(rot), max_lobes=4)
     np.testing.assert_allclose(turned.mixture.axes, base.mixture.axes @ rot.T, atol=1e-9)
     np.testing.assert_allclose(turned.mixture.amplitude, base.mixture.amplitude, rtol=1e-9)
-    seq = [m["irradiance_fit_error"] for m in L.fit_environment(smooth_env, max_lobes=9).report["by_lobe_count"]]
+    seq = [m["irradiance_fit_error"] for m in envfit.fit_environment(smooth_env, max_lobes=9).report["by_lobe_count"]]
     budget = 0.5 * (seq[0] + seq[-1])
-    chosen = L.fit_environment(smooth_env, max_lobes=9, error_budget=budget)
+    chosen = envfit.fit_environment(smooth_env, max_lobes=9, error_budget=budget)
     want = next(i for i, e in enumerate(seq) if e <= budget) + 1
     assert chosen.report["budget_met"] and len(chosen.report["by_lobe_count"]) == want
-    unmet = L.fit_environment(smooth_env, max_lobes=2, error_budget=1e-9)
+    unmet = envfit.fit_environment(smooth_env, max_lobes=2, error_budget=1e-9)
     assert unmet.report["budget_met"] is False and unmet.lobe_count <= 2
 
 
 @pytest.mark.parametrize("count", [0, 10, -1, 2.5, True])
 def test_bad_lobe_counts(smooth_env, count):
     with pytest.raises(ValueError, match="max_lobes"):
-        L.fit_environment(smooth_env, max_lobes=count)
+        envfit.fit_environment(smooth_env, max_lobes=count)
 
 
 def test_bad_fit_arguments(smooth_env):
     with pytest.raises(ValueError, match="method"):
-        L.fit_environment(smooth_env, method="adam")
+        envfit.fit_environment(smooth_env, method="adam")
     with pytest.raises(ValueError, match="error_budget"):
-        L.fit_environment(smooth_env, error_budget=0.0)
+        envfit.fit_environment(smooth_env, error_budget=0.0)
 
 
 def test_nan_and_negative_environments_rejected():
     bad = Environment.constant((1.0, 1.0, 1.0), 8, 16)
     bad.image[2, 3, 1] = -0.5
-    for call in (lambda: L.fit_environment(bad), lambda: L.PrefilteredEnvironment.build(bad, device="cpu"),
-                 lambda: L.gamma_reference(bad, [[0.0, 0.0, 1.0]], 1.0)):
+    for call in (lambda: envfit.fit_environment(bad), lambda: prefilter.PrefilteredEnvironment.build(bad, device="cpu"),
+                 lambda: prefilter.gamma_reference(bad, [[0.0, 0.0, 1.0]], 1.0)):
         with pytest.raises(ValueError, match="negative radiance"):
             call()
     nan = Environment.constant((1.0, 1.0, 1.0), 8, 16)
     nan.image[0, 0, 0] = np.nan  # bypasses Environment's own check
     with pytest.raises(ValueError, match="NaN"):
-        L.fit_environment(nan)
+        envfit.fit_environment(nan)
     with pytest.raises(ValueError, match="env must be"):
-        L.fit_environment(np.ones((8, 16, 3)))
+        envfit.fit_environment(np.ones((8, 16, 3)))
 
 
 # ---- prefiltered environment ---------------------------------------------------------------------
@@ -170,7 +170,7 @@ LAMBDAS = [0.5, 0.7, 3.0, 20.0, 100.0, 700.0, 4096.0]
 def test_gamma_smooth_sky_vs_reference(smooth_env, smooth_table):
     p = _dirs(24, 1)
     for lam in LAMBDAS:
-        ref = L.gamma_reference(smooth_env, p, lam)
+        ref = prefilter.gamma_reference(smooth_env, p, lam)
         got = smooth_table.lookup(p, lam)
         if lam <= 100.0:
             rel = np.linalg.norm(got - ref, axis=1) / np.linalg.norm(ref, axis=1)
@@ -185,7 +185,7 @@ def test_gamma_sharp_sun_vs_reference(sun_case):
     near = s + 0.05 * np.random.default_rng(2).normal(size=(8, 3))
     p = np.concatenate([_dirs(16, 3), near / np.linalg.norm(near, axis=1, keepdims=True), s[None]])
     for lam in LAMBDAS:
-        ref = L.gamma_reference(env, p, lam)
+        ref = prefilter.gamma_reference(env, p, lam)
         got = table.lookup(p, lam)
         err = np.abs(got - ref).max() / np.abs(ref).max()
         tol = GAMMA_RTOL_SUN_RESOLVED if lam <= 100.0 else GAMMA_RTOL_SUN_SUBTEXEL
@@ -195,7 +195,7 @@ def test_gamma_sharp_sun_vs_reference(sun_case):
 
 def test_gamma_energy_and_limits(sun_case):
     env, s, table = sun_case
-    total = L.environment_integral(env)
+    total = envmap.environment_integral(env)
     p = _dirs(6, 4)
     np.testing.assert_allclose(table.lookup(p, 0.0), np.broadcast_to(total, (6, 3)), rtol=ENERGY_RTOL)
     np.testing.assert_allclose(table.lookup(p, 1e-9), np.broadcast_to(total, (6, 3)), rtol=ENERGY_RTOL)
@@ -208,7 +208,7 @@ def test_gamma_energy_and_limits(sun_case):
     np.testing.assert_allclose(table.lookup(p, lam), env.radiance(p) * sg.integral(lam), rtol=2e-3)
     # a constant sky is exact at every lambda
     const = Environment.constant((0.2, 0.5, 1.0), 16, 32)
-    ct = L.PrefilteredEnvironment.build(const, levels=[0.5, 8.0, 200.0], device="cpu")
+    ct = prefilter.PrefilteredEnvironment.build(const, levels=[0.5, 8.0, 200.0], device="cpu")
     for lam in (0.0, 0.3, 2.0, 50.0, 1e4):
         np.testing.assert_allclose(ct.lookup(p, lam), np.outer(np.ones(6), [0.2, 0.5, 1.0]) * sg.integral(lam),
                                    rtol=CONSTANT_RTOL)
@@ -233,7 +233,7 @@ def test_turning_sky_is_a_rotated_lookup(smooth_env, smooth_table, device):
     for lam in (2.0, 60.0):
         got = smooth_table.lookup(p, lam, world_to_map=rot.T)
         np.testing.assert_allclose(got, smooth_table.lookup(p @ rot, lam), rtol=1e-12)
-        ref = L.gamma_reference(turned, p, lam)
+        ref = prefilter.gamma_reference(turned, p, lam)
         assert (np.linalg.norm(got - ref, axis=1) / np.linalg.norm(ref, axis=1)).max() < GAMMA_RTOL_RESOLVED
         dev = smooth_table.lookup_device(p, lam, world_to_map=rot.T, device=device)
         assert np.abs(dev - got).max() <= RTOL_FLOAT32 * np.abs(got).max()
@@ -241,25 +241,25 @@ def test_turning_sky_is_a_rotated_lookup(smooth_env, smooth_table, device):
 
 def test_table_arrays_round_trip_and_checks(smooth_table):
     arrays = smooth_table.arrays()
-    back = L.PrefilteredEnvironment.from_arrays(arrays)
+    back = prefilter.PrefilteredEnvironment.from_arrays(arrays)
     p = _dirs(10, 7)
     for lam in (0.2, 5.0, 1e4):
         np.testing.assert_array_equal(back.lookup(p, lam), smooth_table.lookup(p, lam))
     broken = dict(arrays)
     del broken["levels"]
     with pytest.raises(ValueError, match="'levels'"):
-        L.PrefilteredEnvironment.from_arrays(broken)
+        prefilter.PrefilteredEnvironment.from_arrays(broken)
     broken = dict(arrays, data=arrays["data"][:-1])
     with pytest.raises(ValueError, match="'data'"):
-        L.PrefilteredEnvironment.from_arrays(broken)
+        prefilter.PrefilteredEnvironment.from_arrays(broken)
     nan = arrays["data"].copy()
     nan[3, 1] = np.nan
     with pytest.raises(ValueError, match="'data'"):
-        L.PrefilteredEnvironment.from_arrays(dict(arrays, data=nan))
+        prefilter.PrefilteredEnvironment.from_arrays(dict(arrays, data=nan))
     with pytest.raises(ValueError, match="'levels'"):
-        L.PrefilteredEnvironment.from_arrays(dict(arrays, levels=arrays["levels"][::-1]))
+        prefilter.PrefilteredEnvironment.from_arrays(dict(arrays, levels=arrays["levels"][::-1]))
     with pytest.raises(ValueError, match="levels"):
-        L.PrefilteredEnvironment.build(Environment.constant(), levels=[1.0, 0.5], device="cpu")
+        prefilter.PrefilteredEnvironment.build(Environment.constant(), levels=[1.0, 0.5], device="cpu")
     with pytest.raises(ValueError, match="lam"):
         smooth_table.lookup(p, -1.0)
 
@@ -268,7 +268,7 @@ def test_table_arrays_round_trip_and_checks(smooth_table):
 def test_point_light_lobe_energy_and_irradiance(device):
     light = SphereLight([0.0, 0.0, 2.0], 0.05, [3.0, 2.0, 1.0])
     x = np.array([[0.0, 0.0, 0.0], [0.4, -0.2, 0.1]])
-    axis, lam, amp = L.point_light_lobe(light, x)
+    axis, lam, amp = lights.point_light_lobe(light, x)
     d = np.linalg.norm(light.position - x, axis=1)
     solid = 2.0 * np.pi * (1.0 - np.sqrt(1.0 - (light.radius / d) ** 2))
     np.testing.assert_allclose(amp * sg.integral(lam)[:, None], np.outer(solid, light.radiance), rtol=1e-12)
@@ -292,7 +292,7 @@ def test_point_light_lobe_energy_and_irradiance(device):
                                                  xa, ax_w, lam_w, amp_w], device=device)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        ref = L.point_light_lobe(light, xs)
+        ref = lights.point_light_lobe(light, xs)
     np.testing.assert_allclose(ax_w.numpy(), ref[0], atol=1e-6)
     np.testing.assert_allclose(lam_w.numpy(), ref[1], rtol=1e-5)
     np.testing.assert_allclose(amp_w.numpy(), ref[2], rtol=1e-5)
@@ -302,7 +302,7 @@ def test_receiver_inside_sphere_light_is_bounded_and_reported():
     light = SphereLight([0.0, 0.0, 0.0], 1.0, [2.0, 2.0, 2.0])
     x = np.array([[0.1, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 1.0 + 1e-9], [5.0, 0.0, 0.0]])
     with pytest.warns(RuntimeWarning, match="2 of 4 receivers are inside"):
-        axis, lam, amp, inside = L.point_light_lobe(light, x, return_inside=True)
+        axis, lam, amp, inside = lights.point_light_lobe(light, x, return_inside=True)
     assert inside.tolist() == [True, True, False, False]
     assert np.all(np.isfinite(axis)) and np.all(np.isfinite(lam)) and np.all(np.isfinite(amp))
     np.testing.assert_allclose(amp[:2] * sg.integral(lam[:2])[:, None], 4 * np.pi * 2.0, rtol=1e-12)
@@ -310,30 +310,30 @@ def test_receiver_inside_sphere_light_is_bounded_and_reported():
     e_out = amp[2] * sg.integral(lam[2])
     assert np.all(e_out <= 4 * np.pi * 2.0) and np.all(e_out > 0.4 * 4 * np.pi * 2.0)
     with pytest.raises(ValueError, match="x must be"):
-        L.point_light_lobe(light, [0.0, 0.0, 0.0])
+        lights.point_light_lobe(light, [0.0, 0.0, 0.0])
 
 
 def test_directional_light_lobe():
     light = DistantLight([0.0, 1.0, 1.0], [5.0, 4.0, 3.0], angle_deg=2.0)
-    axis, lam, amp = L.directional_light_lobe(light)
+    axis, lam, amp = lights.directional_light_lobe(light)
     r = math.radians(1.0)
     assert lam == pytest.approx(float(sg.sharpness_for_area(2 * np.pi * r * r)))
     np.testing.assert_allclose(amp * sg.integral(lam), light.irradiance, rtol=1e-12)
     np.testing.assert_allclose(axis, [0.0, 2 ** -0.5, 2 ** -0.5])
     delta = DistantLight([0.0, 0.0, 1.0], [1.0, 1.0, 1.0], angle_deg=0.0)
-    _, lam_d, amp_d = L.directional_light_lobe(delta)
-    r_min = math.radians(L.MIN_DISTANT_ANGLE_DEG) / 2
+    _, lam_d, amp_d = lights.directional_light_lobe(delta)
+    r_min = math.radians(lights.MIN_DISTANT_ANGLE_DEG) / 2
     assert np.isfinite(lam_d) and lam_d == pytest.approx(float(sg.sharpness_for_area(2 * np.pi * r_min ** 2)))
     np.testing.assert_allclose(amp_d * sg.integral(lam_d), 1.0, rtol=1e-12)
 
 
 def test_inside_hull():
     cube = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], float)
-    assert L.inside_hull(cube, [0.5, 0.5, 0.5])
-    assert not L.inside_hull(cube, [0.5, 0.5, 1.5])
+    assert lights.inside_hull(cube, [0.5, 0.5, 0.5])
+    assert not lights.inside_hull(cube, [0.5, 0.5, 1.5])
     flat = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], float)
-    assert not L.inside_hull(flat, [0.5, 0.5, 0.0])
+    assert not lights.inside_hull(flat, [0.5, 0.5, 0.0])
     with pytest.raises(ValueError, match="points_of_mesh"):
-        L.inside_hull(np.ones((5, 2)), [0, 0, 0])
+        lights.inside_hull(np.ones((5, 2)), [0, 0, 0])
     with pytest.raises(ValueError, match="light_position"):
-        L.inside_hull(cube, [0, 0])
+        lights.inside_hull(cube, [0, 0])

@@ -13,7 +13,8 @@ from warpshade.graph import GraphSpec, StageSpec
 from warpshade.methods.sg import EnvironmentLighting, decode_maps, shade_reference
 from warpshade.methods.sg import model as sg_model
 from warpshade.methods.sg import stages as sg_stages
-from warpshade.methods.sg.lighting import PrefilteredEnvironment, directional_light_lobe
+from warpshade.methods.sg.lights import directional_light_lobe
+from warpshade.methods.sg.prefilter import PrefilteredEnvironment
 from warpshade.methods.stage import StageError
 from warpshade.reference import shade_glossy
 from warpshade.render.raycast import GBuffer, render_gbuffer

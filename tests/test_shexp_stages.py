@@ -11,7 +11,7 @@ import trimesh
 from warpshade.graph import GraphSpec, StageSpec
 from warpshade.scene import LightingSource
 from warpshade.methods.shexp import reference
-from warpshade.methods.shexp.blockers import BlockerModel, plane_blockers
+from warpshade.methods.shexp.model import BlockerModel, plane_blockers
 from warpshade.scene import Environment, Mesh, Scene
 from warpshade.scene.scene import ground_plane
 
@@ -98,7 +98,7 @@ def test_static_bake_reduces_to_prt(device):
 
 
 def test_blocker_model_arrays_roundtrip(scene, tmp_path):
-    from warpshade.methods.shexp.blockers import build_blocker_model
+    from warpshade.methods.shexp.model import build_blocker_model
 
     model = build_blocker_model(scene, 3, hierarchy=True, vertices_per_cluster=40, device="cpu", **FIT)
     # through the on-disk artifact format: flattened "arrays" port entries in one .npz

@@ -360,7 +360,7 @@ def test_recorded_animator_replays_the_skinned_figure(figure_scene, figure_spher
 def test_recorded_blocker_frames_match_uncaptured_launches(figure_scene, device):
     # SHEXP's per-frame blocker pass (animator, refit, receiver bounds, cut, ratio vectors)
     # recorded with the scene evaluation and replayed, against uncaptured launches
-    from warpshade.methods.shexp import blockers
+    from warpshade.methods.shexp import model as blockers
     scene = figure_scene
     model = blockers.build_blocker_model(scene, 12, hierarchy=True, vertices_per_cluster=300, **FAST_FIT)
     frames = blockers.BlockerFrames(scene, model, 3, theta_max_degrees=25.0, device=device)

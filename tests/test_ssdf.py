@@ -12,7 +12,7 @@ from warpshade.basis import sg
 from warpshade.geometry.bvh import Visibility, trace_occlusion_reference
 from warpshade.geometry.frames import TangentFrames
 from warpshade.scene import Mesh, Scene
-from warpshade.transfer import ssdf
+from warpshade.transfer import ssdf, ssdf_pca, ssdf_products
 
 HALF_PI = 0.5 * np.pi
 # Warp's float32 watertight ray test vs float64 Moller-Trumbore on the same rays: grazing rays
@@ -229,7 +229,7 @@ def cap_maps():
 
 
 def test_pca_curve_and_budget(cap_maps):
-    model = ssdf.compress_ssdf(cap_maps, error_budget=0.05, max_terms=24)
+    model = ssdf_pca.compress_ssdf(cap_maps, error_budget=0.05, max_terms=24)
     curve = model.error_curve
     assert curve.shape == (24,) and curve.dtype == np.float64
     assert np.all(np.diff(curve) <= 0.0)
@@ -249,30 +249,30 @@ def test_pca_curve_and_budget(cap_maps):
 
 
 def test_pca_randomized_matches_exact(cap_maps):
-    a = ssdf.compress_ssdf(cap_maps, error_budget=0.05, max_terms=12, method="exact")
-    b = ssdf.compress_ssdf(cap_maps, error_budget=0.05, max_terms=12, method="randomized")
+    a = ssdf_pca.compress_ssdf(cap_maps, error_budget=0.05, max_terms=12, method="exact")
+    b = ssdf_pca.compress_ssdf(cap_maps, error_budget=0.05, max_terms=12, method="randomized")
     np.testing.assert_allclose(b.error_curve, a.error_curve, rtol=1e-3, atol=1e-6)
     assert a.terms == b.terms
 
 
 def test_pca_extremes_and_round_trip(cap_maps):
-    tight = ssdf.compress_ssdf(cap_maps, error_budget=1e-12, max_terms=4)
+    tight = ssdf_pca.compress_ssdf(cap_maps, error_budget=1e-12, max_terms=4)
     assert not tight.budget_met and tight.terms == 4 and np.all(np.isfinite(tight.error_curve))
-    full = ssdf.compress_ssdf(cap_maps[:3], error_budget=1e-6, max_terms=10)  # rank 2 after centring
+    full = ssdf_pca.compress_ssdf(cap_maps[:3], error_budget=1e-6, max_terms=10)  # rank 2 after centring
     assert full.error_curve.shape == (10,) and full.error_curve[-1] < 1e-6 and full.terms <= 3
-    constant = ssdf.compress_ssdf(np.full((5, 4, 4), HALF_PI, np.float32), error_budget=0.01)
+    constant = ssdf_pca.compress_ssdf(np.full((5, 4, 4), HALF_PI, np.float32), error_budget=0.01)
     assert constant.terms == 1 and np.all(constant.reconstruct() == pytest.approx(HALF_PI))
-    model = ssdf.compress_ssdf(cap_maps, error_budget=0.05, max_terms=8)
-    again = ssdf.SSDFModel.from_arrays(model.arrays(), vertex_count=40)
+    model = ssdf_pca.compress_ssdf(cap_maps, error_budget=0.05, max_terms=8)
+    again = ssdf_pca.SSDFModel.from_arrays(model.arrays(), vertex_count=40)
     assert again.terms == model.terms and again.error_budget == 0.05
     np.testing.assert_array_equal(again.reconstruct(), model.reconstruct())
     bad = dict(model.arrays(), coeffs=np.full_like(model.coeffs, np.nan))
     with pytest.raises(ValueError, match="coeffs"):
-        ssdf.SSDFModel.from_arrays(bad)
+        ssdf_pca.SSDFModel.from_arrays(bad)
     with pytest.raises(ValueError, match="mean"):
-        ssdf.SSDFModel.from_arrays(dict(model.arrays(), mean=model.mean[:-1]))
+        ssdf_pca.SSDFModel.from_arrays(dict(model.arrays(), mean=model.mean[:-1]))
     with pytest.raises(ValueError, match="rows"):
-        ssdf.SSDFModel.from_arrays(model.arrays(), vertex_count=41)
+        ssdf_pca.SSDFModel.from_arrays(model.arrays(), vertex_count=41)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -280,12 +280,12 @@ def test_pca_extremes_and_round_trip(cap_maps):
 
 
 def test_lookup_at_texel_centres_and_warp_eval(cap_maps, device):
-    model = ssdf.compress_ssdf(cap_maps, error_budget=0.02, max_terms=16)
+    model = ssdf_pca.compress_ssdf(cap_maps, error_budget=0.02, max_terms=16)
     r = model.resolution
     # at a texel centre the bilinear lookup is that texel of the reconstruction
     dirs = ssdf.texel_directions(r)
     rows = np.repeat(model.coeffs[5:6], dirs.shape[0], axis=0)
-    np.testing.assert_allclose(ssdf.ssdf_lookup(model, rows, dirs), model.reconstruct([5])[0].ravel(), atol=1e-9)
+    np.testing.assert_allclose(ssdf_products.ssdf_lookup(model, rows, dirs), model.reconstruct([5])[0].ravel(), atol=1e-9)
     # Warp: barycentric blends of three vertices at random directions, some below the horizon
     rng = np.random.default_rng(11)
     p = 500
@@ -296,25 +296,25 @@ def test_lookup_at_texel_centres_and_warp_eval(cap_maps, device):
     d = _unit(rng.normal(size=(p, 3)))
     d[:20, 2] = -np.abs(d[:20, 2])
     blend = np.einsum("pk,pkn->pn", w, model.coeffs[ids].astype(np.float64))
-    ref = ssdf.ssdf_lookup(model, blend, d)
-    got = ssdf.evaluate_ssdf_warp(model, ids, w, d, device=device)
+    ref = ssdf_products.ssdf_lookup(model, blend, d)
+    got = ssdf_products.evaluate_ssdf_warp(model, ids, w, d, device=device)
     np.testing.assert_allclose(got, ref, atol=ATOL_EVAL_FLOAT32)
     # below the horizon reads the horizon edge
     flat = d[:20].copy()
     flat[:, 2] = 0.0
-    np.testing.assert_allclose(ref[:20], ssdf.ssdf_lookup(model, blend[:20], flat), atol=1e-12)
-    theta, frac = ssdf.product_warp(model, ids, w, d, 50.0, device=device)
-    ref_frac = ssdf.ssdf_product(model, blend, d, 50.0)
+    np.testing.assert_allclose(ref[:20], ssdf_products.ssdf_lookup(model, blend[:20], flat), atol=1e-12)
+    theta, frac = ssdf_products.product_warp(model, ids, w, d, 50.0, device=device)
+    ref_frac = ssdf_products.ssdf_product(model, blend, d, 50.0)
     np.testing.assert_allclose(theta, np.clip(ref, -HALF_PI, HALF_PI), atol=ATOL_EVAL_FLOAT32)
     np.testing.assert_allclose(frac, ref_frac, atol=1e-4)
 
 
 def test_sample_maps_matches_lookup(cap_maps):
-    model = ssdf.compress_ssdf(cap_maps, error_budget=1e-9, max_terms=40)  # exact up to float32
+    model = ssdf_pca.compress_ssdf(cap_maps, error_budget=1e-9, max_terms=40)  # exact up to float32
     rng = np.random.default_rng(5)
     d = _unit(rng.normal(size=(40, 3)) + (0, 0, 1.5))
-    a = ssdf.sample_maps(cap_maps, d)
-    b = ssdf.ssdf_lookup(model, model.coeffs, d)
+    a = ssdf_products.sample_maps(cap_maps, d)
+    b = ssdf_products.ssdf_lookup(model, model.coeffs, d)
     np.testing.assert_allclose(b, a, atol=1e-5)
 
 
@@ -358,7 +358,7 @@ def test_lobe_oracle_against_quadrature(wall_scene):
 def test_product_against_ray_tracing(wall_scene):
     scene, v = wall_scene
     maps = ssdf.bake_ssdf(scene, None, resolution=64, supersample=4, vertices=[v])
-    model = ssdf.compress_ssdf(maps, error_budget=0.01)  # one vertex: the mean is the map
+    model = ssdf_pca.compress_ssdf(maps, error_budget=0.01)  # one vertex: the mean is the map
     frame = _frame_of(scene, v)
     world = _unit(np.array([[0.0, 0.0, 1.0], [-0.5, 0.2, 0.8], [0.4, -0.3, 0.85], [-0.7, 0.0, 0.72], [0.1, 0.5, 0.85]]))
     axes_local = world @ frame.T
@@ -366,19 +366,19 @@ def test_product_against_ray_tracing(wall_scene):
     traced = ssdf.trace_lobe_visibility(scene, None, axes_local[None], lam, samples=4096, vertices=[v])[0]
     rows = np.repeat(model.coeffs, axes_local.shape[0], axis=0)
     for k, l in enumerate(lam):
-        approx = ssdf.ssdf_integral(model, rows, axes_local, l)
+        approx = ssdf_products.ssdf_integral(model, rows, axes_local, l)
         pole = sg.hemisphere_integral(HALF_PI, l)
         assert np.abs(approx - traced[:, k]).max() / pole <= TOL_PRODUCT_FRACTION
-        amp = ssdf.ssdf_product(model, rows, axes_local, l, amplitude=2.0)
+        amp = ssdf_products.ssdf_product(model, rows, axes_local, l, amplitude=2.0)
         np.testing.assert_allclose(amp * pole, 2.0 * approx, rtol=1e-12)  # eq. 31 keeps the integral
 
 
 def test_product_extreme_sharpness(cap_maps):
-    model = ssdf.compress_ssdf(cap_maps, error_budget=0.05)
+    model = ssdf_pca.compress_ssdf(cap_maps, error_budget=0.05)
     rows = model.coeffs[:4]
     d = _unit(np.array([[0.0, 0.0, 1.0], [0.5, 0.0, 0.5], [0.0, 1.0, 0.0], [0.0, 0.0, -1.0]]))
     for lam in (0.0, 1e-8, 1e4, 1e7):
-        out = ssdf.ssdf_product(model, rows, d, lam)
+        out = ssdf_products.ssdf_product(model, rows, d, lam)
         assert np.all(np.isfinite(out)) and np.all(out >= 0.0) and np.all(out <= 2.0 + 1e-12)
 
 
@@ -393,12 +393,12 @@ def test_sparse_tessellation_misses_the_shadow():
     sparse = Scene.from_meshes([Mesh("ground", sparse_p, sparse_f), Mesh("ball", ball_p, ball.faces)])
     dense = Scene.from_meshes([Mesh("ground", dense_p, dense_f), Mesh("ball", ball_p, ball.faces)])
     corners = ssdf.bake_ssdf(sparse, None, resolution=16, supersample=4, vertices=[0, 1, 2, 3])
-    model = ssdf.compress_ssdf(corners, error_budget=1e-4)
+    model = ssdf_pca.compress_ssdf(corners, error_budget=1e-4)
     zenith = np.array([[0.0, 0.0, 1.0]])
-    blended = ssdf.evaluate_ssdf_warp(model, [[0, 3, 3]], [[0.5, 0.5, 0.0]], zenith)  # the diagonal's midpoint
+    blended = ssdf_products.evaluate_ssdf_warp(model, [[0, 3, 3]], [[0.5, 0.5, 0.0]], zenith)  # the diagonal's midpoint
     centre = int(np.flatnonzero(np.all(dense_p == 0.0, axis=1))[0])
     truth = ssdf.bake_ssdf(dense, None, resolution=16, supersample=4, vertices=[centre])
-    truth_zenith = ssdf.sample_maps(truth, zenith)
+    truth_zenith = ssdf_products.sample_maps(truth, zenith)
     assert np.all(np.isfinite(blended)) and abs(float(blended[0])) <= HALF_PI + 1e-6
     assert truth_zenith[0] < 0.0 < blended[0]
 
@@ -421,15 +421,15 @@ def test_bad_arguments(wall_scene, cap_maps):
     with pytest.raises(ValueError, match="method"):
         ssdf.signed_distance(vis, 6, method="octree")
     with pytest.raises(ValueError, match="error_budget"):
-        ssdf.compress_ssdf(cap_maps, error_budget=0.0)
+        ssdf_pca.compress_ssdf(cap_maps, error_budget=0.0)
     with pytest.raises(ValueError, match="error_budget"):
-        ssdf.compress_ssdf(cap_maps, error_budget=-1.0)
+        ssdf_pca.compress_ssdf(cap_maps, error_budget=-1.0)
     with pytest.raises(ValueError, match="error_budget"):
-        ssdf.compress_ssdf(cap_maps, error_budget=float("nan"))
+        ssdf_pca.compress_ssdf(cap_maps, error_budget=float("nan"))
     with pytest.raises(ValueError, match="max_terms"):
-        ssdf.compress_ssdf(cap_maps, max_terms=0)
+        ssdf_pca.compress_ssdf(cap_maps, max_terms=0)
     with pytest.raises(ValueError, match="maps"):
-        ssdf.compress_ssdf(np.full((2, 4, 4), np.nan))
+        ssdf_pca.compress_ssdf(np.full((2, 4, 4), np.nan))
     with pytest.raises(ValueError, match="supersample"):
         ssdf.bake_ssdf(scene, None, resolution=8, supersample=0, vertices=[v])
     with pytest.raises(ValueError, match="resolution"):
@@ -438,12 +438,12 @@ def test_bad_arguments(wall_scene, cap_maps):
         ssdf.bake_visibility(scene, None, resolution=4, vertices=[10**6])
     with pytest.raises(ValueError, match="progress"):
         ssdf.bake_visibility(scene, None, resolution=4, vertices=[v], progress=3)
-    model = ssdf.compress_ssdf(cap_maps, error_budget=0.05)
+    model = ssdf_pca.compress_ssdf(cap_maps, error_budget=0.05)
     with pytest.raises(ValueError, match="coeffs_rows"):
-        ssdf.ssdf_lookup(model, np.zeros((1, model.terms + 1)), [[0.0, 0.0, 1.0]])
+        ssdf_products.ssdf_lookup(model, np.zeros((1, model.terms + 1)), [[0.0, 0.0, 1.0]])
     with pytest.raises(ValueError, match="dirs_local"):
-        ssdf.ssdf_lookup(model, np.zeros((1, model.terms)), [[0.0, 0.0, 0.0]])
+        ssdf_products.ssdf_lookup(model, np.zeros((1, model.terms)), [[0.0, 0.0, 0.0]])
     with pytest.raises(ValueError, match="sharpness"):
-        ssdf.ssdf_product(model, np.zeros((1, model.terms)), [[0.0, 0.0, 1.0]], -1.0)
+        ssdf_products.ssdf_product(model, np.zeros((1, model.terms)), [[0.0, 0.0, 1.0]], -1.0)
     with pytest.raises(ValueError, match="vertex_ids"):
-        ssdf.evaluate_ssdf_warp(model, [[0, 0, 99]], [[1.0, 0.0, 0.0]], [[0.0, 0.0, 1.0]])
+        ssdf_products.evaluate_ssdf_warp(model, [[0, 0, 99]], [[1.0, 0.0, 0.0]], [[0.0, 0.0, 1.0]])

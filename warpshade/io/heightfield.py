@@ -31,7 +31,7 @@ Heights at time ``t = time code / timeCodesPerSecond`` (seconds)::
 ``lambda / 2^o``, amplitude ``a / 2^o``, directions and phases drawn by
 ``numpy.random.default_rng(seed)``), so the same attributes give the same floats everywhere.
 
-Grid layout (what :mod:`warpshade.methods.rpo.heightfield` checks): vertex ``r * G + c`` (row r
+Grid layout (what :func:`warpshade.methods.heightfield.grid_layout` checks): vertex ``r * G + c`` (row r
 along +y, column c along +x) at ``(-sx/2 + c sx/(G-1), -sy/2 + r sy/(G-1), h)``; two triangles
 per cell, ``(v00, v10, v11)`` and ``(v00, v11, v01)`` (counter-clockwise seen from +z, so a flat
 field's normals are +z). Points are computed in float64 and stored as float32 samples.

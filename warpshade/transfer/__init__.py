@@ -15,14 +15,16 @@ bounces per RGB channel, shape (receiver_count, 3, order**2), world frame
 Spherical signed distance functions of visibility (Wang et al. 2009, sec. 5):
 :func:`bake_ssdf` (hemisphere visibility per vertex in its tangent frame, signed angular
 distance to the nearest visibility boundary), :func:`compress_ssdf` (PCA to an error budget, an
-:class:`SSDFModel`) and the look-ups and SG products of :mod:`warpshade.transfer.ssdf`.
+:class:`SSDFModel`, :mod:`warpshade.transfer.ssdf_pca`) and the look-ups and SG products of
+:mod:`warpshade.transfer.ssdf_products`.
 """
 
 from .bake import compute
 from .interreflection import MAX_BOUNCES, InterreflectionTracer
 from .raytrace import SPACES, TransferResult, TransferTracer, sample_rays
-from .ssdf import (SSDF_LIMIT, SSDFModel, bake_ssdf, bake_visibility, compress_ssdf, evaluate_ssdf_warp, product_warp,
-                   sample_maps, signed_distance, ssdf_integral, ssdf_lookup, ssdf_product, trace_lobe_visibility)
+from .ssdf import SSDF_LIMIT, bake_ssdf, bake_visibility, signed_distance, trace_lobe_visibility
+from .ssdf_pca import SSDFModel, compress_ssdf
+from .ssdf_products import evaluate_ssdf_warp, product_warp, sample_maps, ssdf_integral, ssdf_lookup, ssdf_product
 
 __all__ = ["MAX_BOUNCES", "SPACES", "SSDF_LIMIT", "InterreflectionTracer", "SSDFModel", "TransferResult", "TransferTracer",
            "bake_ssdf", "bake_visibility", "compress_ssdf", "compute", "evaluate_ssdf_warp", "product_warp", "sample_maps",

@@ -1,6 +1,6 @@
 """Warp side of the spherical signed distance functions (SSDFs) of :mod:`warpshade.transfer.ssdf`.
 
-Kernels (float32; the float64 oracles are in :mod:`.ssdf`):
+Kernels (float32; the float64 oracles are in :mod:`.ssdf` and :mod:`.ssdf_products`):
 
 * :data:`trace_hemisphere_kernel` -- binary visibility of one ray per (receiver, texel) of the
   concentric hemisphere map, the texel direction taken from the tangent frame to world space;
@@ -63,7 +63,7 @@ def ssdf_eval(mean: wp.array(dtype=float), basis: wp.array2d(dtype=float), coeff
     """SSDF (radians) of the blend ``w0 c[i0] + w1 c[i1] + w2 c[i2]`` at a local direction.
 
     ``mean`` (R*R,), ``basis`` (>= terms, R*R) and ``coeffs`` (vertex_count, >= terms) are the
-    arrays of an :class:`~warpshade.transfer.ssdf.SSDFModel` (texel ``a * R + b``); the map is
+    arrays of an :class:`~warpshade.transfer.ssdf_pca.SSDFModel` (texel ``a * R + b``); the map is
     sampled bilinearly between texel centres with edge clamping (resolution >= 2).
     """
     res = resolution

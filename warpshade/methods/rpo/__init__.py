@@ -7,27 +7,27 @@ swapped at run time (``Runtime.set_material``, the ``[[material]]`` track) with 
 precompute. The lighting reaches each tangent frame by a full SH rotation or the paper's 3-lobe
 ZH approximation (:mod:`.lighting`). Visibility generators: per-frame ray tracing, a static bake
 (:mod:`.stages`), SHEXP's blocker spheres (``shexp.visibility``) and dynamic height fields
-(:mod:`.heightfield`: horizon angles from a max pyramid, SH wedges placed by z-rotations, and a
-shading path at full resolution with visibility sub-sampled).
+(:mod:`warpshade.methods.heightfield`, whose shading stage shares :class:`GlossyStage`).
 
 Modules: :mod:`.model` (the operators), :mod:`.kernels`, :mod:`.reference` (float64 mirrors and
-the exact-BRDF oracle), :mod:`.stages`, :mod:`.rows`, :mod:`.budget`, :mod:`.lighting`,
-:mod:`.heightfield` (+ :mod:`.heightfield_reference`).
+the exact-BRDF oracle), :mod:`.stages`, :mod:`.rows`, :mod:`.budget`, :mod:`.lighting`.
 """
 
-from . import heightfield  # noqa: F401  (registers rpo.heightfield_visibility, rpo.heightfield_shade)
 from .lighting import ZHLighting, fit_zh_lighting
 from .model import OperatorCache, ReflectanceOperator, build_operator
 from .reference import shade_exact_brdf, shade_reference
 from .rows import harness_rows
-from .stages import RpoShadeStage, RpoVisibilityStaticStage, RpoVisibilityTracedStage
+from .stages import OPERATORS, SHADE_PARAMS, GlossyStage, RpoShadeStage, RpoVisibilityStaticStage, RpoVisibilityTracedStage
 
 __all__ = [
+    "GlossyStage",
+    "OPERATORS",
     "OperatorCache",
     "ReflectanceOperator",
     "RpoShadeStage",
     "RpoVisibilityStaticStage",
     "RpoVisibilityTracedStage",
+    "SHADE_PARAMS",
     "ZHLighting",
     "build_operator",
     "fit_zh_lighting",

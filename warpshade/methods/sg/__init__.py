@@ -14,11 +14,15 @@ Modules, in the shape of :mod:`warpshade.methods.prt`: :mod:`.stages` (``sg.ssdf
 :mod:`.budget`, plus :mod:`.brdf`, :mod:`.brdf_warp`, :mod:`.lighting`, :mod:`.lighting_warp`.
 """
 
-from .brdf import make_brdf, ndf_lobes, view_slice
-from .lighting import EnvironmentSG, PrefilteredEnvironment, fit_environment, point_light_lobe
+from .brdf import microfacet_brdf
+from .envfit import EnvironmentSG, fit_environment
+from .lights import point_light_lobe
 from .model import EnvironmentLighting, bake_ssdf_model, decode_maps, environment_lighting
+from .ndf import ndf_lobes
+from .prefilter import PrefilteredEnvironment
 from .reference import shade_reference
 from .rows import harness_rows
+from .slices import view_slice
 from .stages import SgSsdfStage, SgShadeStage
 
 __all__ = [
@@ -32,7 +36,7 @@ __all__ = [
     "environment_lighting",
     "fit_environment",
     "harness_rows",
-    "make_brdf",
+    "microfacet_brdf",
     "ndf_lobes",
     "point_light_lobe",
     "shade_reference",

@@ -5,7 +5,7 @@ textures or arrays, identified by an integer (:data:`MODEL_IDS`). All directions
 shading frame (+z the normal), ``view_local`` towards the viewer.
 
 * ``specular_slice(view_local, model, roughness, f0) -> SG`` -- the single NDF lobe about z+
-  (closed forms of :func:`.brdf.ndf_lobes`: Beckmann ``form="normalized"``, Cook-Torrance eq. 12,
+  (closed forms of :func:`.ndf.ndf_lobes`: Beckmann ``form="normalized"``, Cook-Torrance eq. 12,
   Blinn-Phong, isotropic Ward) warped to the view (eq. 17-22): axis ``2 (o.z) z - o`` (the mirror
   direction), sharpness ``lambda / (4 o_z)``, amplitude ``vec3(M_o(p_W) mu)`` (grey: the caller
   multiplies by the specular colour ``ks``). ``roughness`` is Beckmann's alpha, Cook-Torrance's
@@ -21,7 +21,7 @@ shading frame (+z the normal), ``view_local`` towards the viewer.
   alpha)`` (the separable Smith term of :class:`~warpshade.scene.materials.Microfacet`, through
   :mod:`warpshade.scene.materials_warp`'s ``Lambda``).
 
-The float64 oracle is :func:`.brdf.view_slice` on the same models (:func:`reference_slices`
+The float64 oracle is :func:`.slices.view_slice` on the same models (:func:`reference_slices`
 runs it for arrays of views); :func:`specular_slices` launches :data:`specular_slice_kernel`.
 """
 
@@ -32,7 +32,8 @@ import numpy as np
 from ..._wp import wp
 from ...basis.sg_warp import SG, sg_make
 from ...scene import materials_warp
-from . import brdf as _brdf
+from .brdf import COS_FLOOR
+from .slices import view_slice
 
 wp.set_module_options({"enable_backward": False})
 
@@ -56,7 +57,7 @@ __all__ = [
 #: Integer model ids of :func:`specular_slice` (and :func:`remaining_factor`).
 MODEL_IDS = {"beckmann": 0, "cook-torrance": 1, "blinn-phong": 2, "ward": 3}
 
-_COS_FLOOR = wp.constant(float(_brdf.COS_FLOOR))
+_COS_FLOOR = wp.constant(float(COS_FLOOR))
 _PI = 3.141592653589793
 
 
@@ -235,7 +236,7 @@ def specular_slices(views, models, roughness, f0=0.04, device=None):
 
 
 def slice_parameters(name: str, roughness: float, f0: float) -> dict:
-    """The keyword parameters of :func:`.brdf.view_slice` for a model id's (roughness, f0) pair as
+    """The keyword parameters of :func:`.slices.view_slice` for a model id's (roughness, f0) pair as
     the kernels take it (Blinn-Phong: ``roughness`` is the exponent; Ward: isotropic alpha)."""
     if name == "beckmann":
         return {"roughness": roughness, "f0": f0, "form": "normalized"}
@@ -247,7 +248,7 @@ def slice_parameters(name: str, roughness: float, f0: float) -> dict:
 
 
 def reference_slices(views, models, roughness, f0=0.04):
-    """The float64 oracle of :func:`specular_slices`: :func:`.brdf.view_slice` per view with the
+    """The float64 oracle of :func:`specular_slices`: :func:`.slices.view_slice` per view with the
     same parameters (Cook-Torrance with ``f0 = 0`` uses the default eta 1.33 there, while the
     kernel maps f0 = 0 to eta 1: pass f0 > 0 to compare).
 
@@ -259,7 +260,7 @@ def reference_slices(views, models, roughness, f0=0.04):
     lam = np.zeros(len(v))
     amp = np.zeros(len(v))
     for k in range(len(v)):
-        s = _brdf.view_slice(names[k], v[k], **slice_parameters(names[k], float(r[k]), float(f[k])))
+        s = view_slice(names[k], v[k], **slice_parameters(names[k], float(r[k]), float(f[k])))
         if s.culled[0]:
             axes[k], lam[k], amp[k] = (0.0, 0.0, 1.0), 1.0, 0.0
         else:

@@ -1,13 +1,13 @@
 """SG lighting on the Warp device: the prefiltered environment and the local-light lobes.
 
-The float64 description and every oracle live in :mod:`.lighting`; this module holds the kernels
-and ``@wp.func`` helpers, float32:
+The float64 description and every oracle live in :mod:`.prefilter` and :mod:`.lights`; this
+module holds the kernels and ``@wp.func`` helpers, float32:
 
-* :class:`PrefilteredTable` (``@wp.struct``): the pyramid of :class:`.lighting.PrefilteredEnvironment`
+* :class:`PrefilteredTable` (``@wp.struct``): the pyramid of :class:`.prefilter.PrefilteredEnvironment`
   on the device, all maps in one flat array so that a kernel takes one argument;
 * :func:`gamma_hat_lookup` / :func:`gamma_lookup`: the normalised and the plain prefiltered
   environment ``Gamma_L(p, lambda)`` (eq. 34-35) at a *world* direction, given the world->map
-  rotation, interpolated exactly as :meth:`.lighting.PrefilteredEnvironment.lookup` documents;
+  rotation, interpolated exactly as :meth:`.prefilter.PrefilteredEnvironment.lookup` documents;
 * :data:`prefilter_kernel`: one level of the pyramid (each output texel sums the source texels
   inside the lobe's truncated support);
 * :func:`point_light_sg` (eq. 32, normalised to the sphere's radiance times its solid angle) and
@@ -43,7 +43,7 @@ _TWO_PI = 6.283185307179586
 
 @wp.struct
 class PrefilteredTable:
-    """The prefiltered environment on one device (see :class:`.lighting.PrefilteredEnvironment`).
+    """The prefiltered environment on one device (see :class:`.prefilter.PrefilteredEnvironment`).
 
     Fields:
         data: every map, flattened row-major one after the other, wp.array(vec3): the normalised
@@ -153,7 +153,7 @@ def prefilter_kernel(
 
     ``src`` is the source map (H_s, W_s) of radiance values, ``src_dir`` the unit map-frame
     direction each stands for, ``row_weight`` the texel solid angle of each row (see
-    ``lighting._sources``). Source texels farther than ``support_angle`` from the lobe axis (where
+    :func:`.envmap.source_chain`). Source texels farther than ``support_angle`` from the lobe axis (where
     the lobe is below the truncation threshold) are skipped, conservatively by row band and
     azimuth window; ``G`` is evaluated as ``exp(-lam |p - s|^2 / 2)`` (no cancellation in
     ``1 - p.s`` for sharp lobes).
@@ -194,7 +194,7 @@ def prefilter_kernel(
 @wp.func
 def point_light_sg(position: wp.vec3, radius: float, radiance: wp.vec3, x: wp.vec3) -> SG:
     """The SG of a sphere light seen from ``x`` (eq. 32), float32 mirror of
-    :func:`.lighting.point_light_lobe`: axis towards the centre, sharpness
+    :func:`.lights.point_light_lobe`: axis towards the centre, sharpness
     ``f_a^-1(2 pi r^2 / d^2)``, amplitude such that the lobe integrates to ``radiance`` times the
     sphere's solid angle from ``x``. A receiver inside the sphere (``d <= r``) gets the constant
     lobe (sharpness 0, amplitude ``radiance``): it sees the light in every direction."""
@@ -216,7 +216,7 @@ def point_light_sg(position: wp.vec3, radius: float, radiance: wp.vec3, x: wp.ve
 
 @wp.func
 def directional_light_sg(direction: wp.vec3, sharpness: float, amplitude: wp.vec3) -> SG:
-    """The SG of a distant light (eq. 33) from :func:`.lighting.directional_light_lobe`'s values
+    """The SG of a distant light (eq. 33) from :func:`.lights.directional_light_lobe`'s values
     (``direction`` towards the light, world frame; normalised here)."""
     return sg_make(wp.normalize(direction), sharpness, amplitude)
 

@@ -19,8 +19,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...transfer.ssdf import SSDFModel, bake_ssdf, compress_ssdf
-from .lighting import PrefilteredEnvironment, fit_environment
+from ...transfer import SSDFModel, bake_ssdf, compress_ssdf
+from .envfit import fit_environment
+from .prefilter import PrefilteredEnvironment
 
 __all__ = ["SUN_MODES", "EnvironmentLighting", "split_sun", "bake_ssdf_model", "decode_maps", "empty_table", "environment_hash", "environment_lighting",
            "remember"]
@@ -48,7 +49,7 @@ class EnvironmentLighting:
 
     Attributes:
         mixture: the RGB SG mixture of the diffuse term (:class:`~warpshade.basis.sg.SGMixture`).
-        table: the :class:`~warpshade.methods.sg.lighting.PrefilteredEnvironment` (eq. 35).
+        table: the :class:`~warpshade.methods.sg.prefilter.PrefilteredEnvironment` (eq. 35).
         fit: what the fit reports (lobe count, errors); build_s: seconds spent building both;
         image_hash: content hash of the environment image it was built from.
     """

@@ -13,9 +13,9 @@ import numpy as np
 
 from ...basis import sg
 from ...scene.materials import hemisphere_to_concentric
-from .brdf import view_slice
 from .brdf_warp import slice_parameters
-from .lighting import point_light_lobe
+from .lights import point_light_lobe
+from .slices import view_slice
 
 __all__ = ["shade_reference", "ssdf_value"]
 
@@ -71,7 +71,7 @@ def shade_reference(points, normals, eye, albedo, specular, roughness, maps, fra
         maps: decoded SSDFs (V, R, R); frames: (V, 3, 3) tangent frames (rows t, b, n).
         model, f0: the specular model (:data:`.brdf_warp.MODEL_IDS`) and Fresnel reflectance.
         env_mixture: the environment's SG mixture (map frame) or None; table: its
-            :class:`~.lighting.PrefilteredEnvironment` or None; env_to_world: (3, 3).
+            :class:`~.prefilter.PrefilteredEnvironment` or None; env_to_world: (3, 3).
         sphere_lights: :class:`~warpshade.scene.lighting.SphereLight` posed at the frame.
         distant_lobes: (axis, sharpness, amplitude RGB) per distant light.
         component: "specular", "diffuse" or "both".

@@ -26,7 +26,7 @@ from ...scene import materials
 from ..stage import FrameStage, Param, Port, PrecomputeStage, StageError, register_stage
 from . import kernels
 from .brdf_warp import MODEL_IDS
-from .lighting import directional_light_lobe
+from .lights import directional_light_lobe
 from .model import (SUN_MODES, EnvironmentLighting, bake_ssdf_model, decode_maps, empty_table, environment_hash,
                     environment_lighting, remember)
 
@@ -72,7 +72,7 @@ class SgSsdfStage(PrecomputeStage):
         return {"ssdf": model.arrays()}
 
     def check_artifact(self, outputs):
-        from ...transfer.ssdf import SSDFModel
+        from ...transfer import SSDFModel
 
         SSDFModel.from_arrays(outputs["ssdf"])
 
@@ -167,7 +167,7 @@ class SgShadeStage(FrameStage):
 
     # ---- set-up -----------------------------------------------------------------------
     def setup(self, ctx, inputs):
-        from ...transfer.ssdf import SSDFModel
+        from ...transfer import SSDFModel
 
         p = self.params
         dev = ctx.device
@@ -365,7 +365,7 @@ class SgShadeStage(FrameStage):
         """Precomputed visibility is for distant light: a sphere light inside a mesh's convex hull
         (at the first frame's pose) at any frame is reported in ``diagnostics()['lights_inside_hull']``
         and by a warning; its shadows from that mesh are wrong on those frames."""
-        from .lighting import inside_hull
+        from .lights import inside_hull
 
         self.lights_inside_hull = []
         spheres = self._ctx.lighting.sphere_lights() if self._ctx.lighting is not None else []

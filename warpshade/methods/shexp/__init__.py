@@ -3,7 +3,7 @@
 Modules, in the shape of every method (see :mod:`warpshade.methods.prt`): :mod:`.stages`
 (``shexp.tables``, ``shexp.blockers``, ``shexp.static_bake``, ``shexp.shade``,
 ``shexp.sphere_trace``), :mod:`.kernels` (the per-receiver Warp pass and its helpers),
-:mod:`.blockers` (the blocker model artifact -- sphere sets, hierarchy, receiver clusters --
+:mod:`.model` (the blocker model artifact -- sphere sets, hierarchy, receiver clusters --
 and its per-frame animation), :mod:`.reference` (float64 oracle), :mod:`.rows` (harness
 settings), :mod:`.budget` (candidate settings of an error budget); SHEXP's own parts:
 :mod:`.pipeline` (the shader's fixed buffers and launches, also usable on host arrays),

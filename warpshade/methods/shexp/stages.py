@@ -31,7 +31,7 @@ from ...basis import sh
 from ..common import WINDOW, WINDOW_SIZE, ShLighting, band_weights, order_param, rays_param
 from ..stage import FrameStage, Param, Port, PrecomputeStage, StageError, register_stage
 from . import kernels
-from .blockers import BlockerFrames, BlockerModel, build_blocker_model, static_mesh_mask
+from .model import BlockerFrames, BlockerModel, build_blocker_model, static_mesh_mask
 from .pipeline import ShexpShader, SphereTracer
 
 __all__ = ["ShexpTablesStage", "ShexpBlockersStage", "ShexpStaticBakeStage", "ShexpShadeStage", "ShexpSphereTraceStage", "ShexpVisibilityStage"]

@@ -1,16 +1,16 @@
-"""Float64 oracles of the height-field kernels (:mod:`.heightfield`).
+"""Float64 oracles of the height-field kernels (:mod:`.kernels`).
 
 * :func:`horizon_reference` -- horizon slopes by brute force: every half vertex spacing along
   each azimuth, bilinear heights of the full-resolution grid, to the grid's edge;
 * :func:`wedge_reference` -- the SH of one azimuthal wedge open above an elevation, by direct
   quadrature of its indicator over the region (2-D Gauss-Legendre in phi and z, SH evaluated
   at the directions: independent of the separable, closed-form-in-phi table of
-  :func:`.heightfield.wedge_table`);
+  :func:`.model.wedge_table`);
 * :func:`visibility_reference` -- eq. 4-5 in float64 from given horizon slopes: the sum of exact
   wedges (no table interpolation) turned by exact z-rotations;
 * :func:`pyramid_reference`, :func:`horizon_march_reference` -- the max pyramid and the
   kernel's march (same samples and levels) in float64: what the kernel computes;
-* :func:`shade_reference` -- the shading of :class:`.heightfield.HeightFieldShadeStage` in
+* :func:`shade_reference` -- the shading of :class:`.stages.HeightFieldShadeStage` in
   float64 (frame about the normal with the view in its x-z plane, the F table, full SH rotation
   and product of :mod:`warpshade.basis.sh`).
 """
@@ -129,7 +129,7 @@ def wedge_reference(order: int, center: float, width: float, z0: float, nodes: i
 
 def wedge_exact(order: int, azimuths: int, z0, nodes: int = 96) -> np.ndarray:
     """The canonical wedge ``|phi| <= pi / A``, ``z > z0`` in SH at any z0 (..., n*n): the
-    separable integral of :func:`.heightfield.wedge_table` with no table interpolation."""
+    separable integral of :func:`.model.wedge_table` with no table interpolation."""
     z0 = np.atleast_1d(np.asarray(z0, np.float64))
     n = int(order)
     half = math.pi / azimuths

@@ -1,0 +1,86 @@
+"""Dynamic height fields shaded with reflectance product operators (Nowrouzezahrai et al. 2009,
+eq. 4-5 and sec. 7 / Fig. 11, after Snyder and Nowrouzezahrai 2008).
+
+A height field is a regular G x G grid mesh (row-major vertices, row r along +y, column c along
++x, Z-up; :mod:`warpshade.io.heightfield`) whose heights change every frame. Two frame stages:
+
+``heightfield.visibility`` -- world-frame SH visibility from horizon angles (eq. 4-5), all in
+Warp kernels per frame:
+
+1. the frame's heights (the z of ``points``) -> a max pyramid: level k holds the maximum height
+   over 2^k x 2^k vertices (:func:`.model.pyramid_levels`);
+2. at every texel of an R x R visibility grid (``resolution``: sub-sampled, corners on the grid
+   corners) and for each of A azimuths ``phi_i = 2 pi i / A`` (``azimuths``), the horizon: the
+   largest slope ``(H - h0) / d`` of the pyramid over a march with doubling distance
+   (``d_j = spacing * 2^(j / q)``, q = ``samples_per_octave``), each sample reading the
+   maximum of the pyramid cell holding it, on the level whose cell side is ``footprint`` times
+   the step to the next sample (:func:`.model.march_plan`; ``footprint = 1`` is conservative: no gaps
+   along the march, but the cell's maximum raises the horizon by about 3.5 degrees on the
+   water; the default 0.5 halves that bias; ``benchmarks/bench_heightfield.py`` measured
+   q = 1, 0.5 as cheapest with no loss against the glossy reference). The march ends at the
+   grid's edge: beyond it nothing blocks;
+3. the visibility of the azimuthal wedge ``[phi_i - pi/A, phi_i + pi/A]`` is 0 below the horizon
+   elevation and 1 above (eq. 4); its SH comes from a canonical wedge about phi = 0 tabulated
+   over the sine of the horizon elevation (:func:`.model.wedge_table`, float64 Gauss-Legendre in
+   cos(theta) with the azimuthal integral in closed form, built once at set-up) and placed by a
+   z-rotation (``sh_rotate_z``); the wedges are summed (eq. 5).
+
+   Below the local tangent plane (``below``): ``"open"`` (default) counts directions under the
+   tangent plane as open, the convention of ``rpo.visibility_traced`` and of eq. 1: per wedge
+   ``W(z_h) + W(-1) - W(min(z_t, z_h))`` with ``z_t`` the sine of the tangent plane's elevation
+   in that azimuth (so an unoccluded texel has V = 1 exactly); ``"blocked"`` keeps what the
+   horizon says (the surface's first march step follows its tangent plane, so the lower
+   hemisphere is mostly 0). The BRDF light factors vanish there either way; what differs is
+   the SH ringing the truncated product sees (measured in ``benchmarks/bench_heightfield.py``).
+4. outputs: ``texel_visibility`` (R*R, n*n) and, with ``per_vertex`` (default), ``visibility``
+   (V, n*n): bilinear at every grid vertex, world frame, for ``rpo.shade`` with
+   ``visibility_space = "world"`` and frames from ``ldprt.frames``.
+
+``heightfield.shade`` -- eq. 11 at every vertex, arranged for a height field (the paper
+shades 512^2 vertices at full resolution over sub-sampled visibility):
+
+* the lighting product ``g_c = l_c * v`` (one order-n SH product per channel) is formed at the
+  *visibility* resolution and interpolated bilinearly (it is linear in v, so this equals the
+  product of the interpolated visibility); radiance is then ``L_c = F_w(wo) . g_c`` since
+  ``l . (F * v) = F . (l * v)`` (the Gaunt coefficients are symmetric);
+* per vertex, the tangent frame is chosen about the normal so that the view lies in its x-z
+  plane: the local view is ``(sin t, 0, cos t)`` and ``F(wo)`` of the operators (``sum_b (w_b .
+  y(wo)) u_b``) is a 1-D table over ``cos t`` (``view_table`` entries, linear interpolation),
+  built once per BRDF; for an isotropic BRDF this is the same F as in any other frame about the
+  normal. ``factors = "exact"`` tabulates the cosine-weighted BRDF's own SH projection instead
+  of its rank-k factors (no SVD truncation, no view-factor fit);
+* ``F`` is turned to the world by one SH rotation per vertex (trig-free zxzxz: the cosines and
+  sines of the Euler angles come from the frame, the multiple angles by recurrence).
+
+Views at or below a vertex's tangent plane give 0 (counted); negative radiance from SH ringing
+is clamped (counted): :meth:`.stages.HeightFieldShadeStage.diagnostics`.
+
+Modules, as in every method (``docs/adding-a-method.md``):
+
+* :mod:`.stages` -- the two graph stages (the shading one shares RPO's glossy-stage base);
+* :mod:`.kernels` -- the Warp kernels;
+* :mod:`.model` -- what the stages build at set-up: the checked grid layout, the march, the
+  wedge and view tables (a height field has no artifact that outlives a run);
+* :mod:`.reference` -- the float64 mirror of the kernels, the tests' oracle;
+* :mod:`.rows` -- the settings the speed-vs-accuracy harness runs;
+* :mod:`.budget` -- the candidate settings an error budget chooses from.
+"""
+
+from .model import GridLayout, grid_layout, march_plan, pyramid_levels, view_table, wedge_table
+from .reference import shade_reference, visibility_reference
+from .rows import harness_rows
+from .stages import HeightFieldShadeStage, HeightFieldVisibilityStage
+
+__all__ = [
+    "GridLayout",
+    "HeightFieldShadeStage",
+    "HeightFieldVisibilityStage",
+    "grid_layout",
+    "harness_rows",
+    "march_plan",
+    "pyramid_levels",
+    "shade_reference",
+    "view_table",
+    "visibility_reference",
+    "wedge_table",
+]

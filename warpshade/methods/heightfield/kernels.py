@@ -1,0 +1,417 @@
+"""Warp kernels of the height field: the max pyramid, the horizon march, the wedge sums and the
+shading (float32). Their float64 mirrors are in :mod:`.reference`.
+
+* :data:`heights_kernel`, :data:`reduce_kernel` -- the frame's heights and the max pyramid;
+* :func:`horizon_slope`, :data:`horizon_kernel` -- the march's horizon slopes;
+* :func:`visibility_kernels` -- per order: SH visibility at the texels, bilinear to the vertices;
+* :func:`shade_kernels` -- per order: lighting products at the texels, shading at every vertex;
+* :func:`static_sh_funcs` -- straight-line SH z-rotation, frame rotation and product.
+"""
+
+# No "from __future__ import annotations": Warp resolves closure types in annotations.
+
+import functools
+import math
+
+import numpy as np
+
+from ..._wp import wp
+from ...basis import sh
+from ...basis.sh_warp import sh_kernels
+
+wp.set_module_options({"enable_backward": False})
+
+__all__ = [
+    "STAT_BELOW_HORIZON",
+    "STAT_NEGATIVE",
+    "heights_kernel",
+    "horizon_kernel",
+    "horizon_slope",
+    "reduce_kernel",
+    "shade_kernels",
+    "static_sh_funcs",
+    "texel_weights",
+    "visibility_kernels",
+]
+
+#: ``stats`` entries of the shading kernel.
+STAT_NEGATIVE, STAT_BELOW_HORIZON = 0, 1
+
+
+@wp.kernel(enable_backward=False)
+def heights_kernel(points: wp.array(dtype=wp.vec3), out: wp.array(dtype=wp.float32)):
+    i = wp.tid()
+    out[i] = points[i][2]
+
+
+@wp.kernel(enable_backward=False)
+def reduce_kernel(pyr: wp.array(dtype=wp.float32), src_off: int, src_size: int, dst_off: int, dst_size: int):
+    i = wp.tid()
+    r = i // dst_size
+    c = i - r * dst_size
+    r0 = 2 * r
+    c0 = 2 * c
+    r1 = wp.min(r0 + 1, src_size - 1)
+    c1 = wp.min(c0 + 1, src_size - 1)
+    a = wp.max(pyr[src_off + r0 * src_size + c0], pyr[src_off + r0 * src_size + c1])
+    b = wp.max(pyr[src_off + r1 * src_size + c0], pyr[src_off + r1 * src_size + c1])
+    pyr[dst_off + i] = wp.max(a, b)
+
+
+@wp.func
+def texel_weights(vtx: int, size: int, res: int):
+    """Bilinear position of grid vertex ``vtx`` (row-major, size x size) over the res x res texels:
+    the first texel's index and the weights of (t00, t00 + 1, t00 + res, t00 + res + 1)."""
+    r = vtx // size
+    c = vtx - r * size
+    scale = float(res - 1) / float(size - 1)
+    fu = float(c) * scale
+    fv = float(r) * scale
+    c0 = wp.min(int(fu), res - 2)
+    r0 = wp.min(int(fv), res - 2)
+    tu = fu - float(c0)
+    tv = fv - float(r0)
+    return r0 * res + c0, wp.vec4((1.0 - tu) * (1.0 - tv), tu * (1.0 - tv), (1.0 - tu) * tv, tu * tv)
+
+
+@wp.func
+def _bilinear_height(pyr: wp.array(dtype=wp.float32), size: int, u: float, v: float) -> float:
+    fu = wp.clamp(u, 0.0, float(size - 1))
+    fv = wp.clamp(v, 0.0, float(size - 1))
+    c0 = wp.min(int(fu), size - 2)
+    r0 = wp.min(int(fv), size - 2)
+    tu = fu - float(c0)
+    tv = fv - float(r0)
+    h00 = pyr[r0 * size + c0]
+    h01 = pyr[r0 * size + c0 + 1]
+    h10 = pyr[(r0 + 1) * size + c0]
+    h11 = pyr[(r0 + 1) * size + c0 + 1]
+    return (1.0 - tv) * ((1.0 - tu) * h00 + tu * h01) + tv * ((1.0 - tu) * h10 + tu * h11)
+
+
+def _x90_terms(order: int, sign: float) -> list:
+    """Nonzero entries ``(row, column, value)`` of the SH rotation matrix of Rx(sign * 90 deg)."""
+    c = math.radians(90.0 * sign)
+    rx = np.array([[1.0, 0.0, 0.0], [0.0, math.cos(c), -math.sin(c)], [0.0, math.sin(c), math.cos(c)]])
+    m = sh.rotation_matrix(rx, order)
+    rows, cols = np.nonzero(np.abs(m) > 1e-12)
+    return [(int(i), int(j), float(m[i, j])) for i, j in zip(rows, cols)]
+
+
+def _product_terms(order: int) -> list:
+    """The Gaunt entries with ``j <= k`` as ``(i, j, k, weight)`` (``(f * g)_i = sum w (f_j g_k +
+    f_k g_j)``, diagonal weights halved)."""
+    idx, val = sh.triple_product_tensor(order)
+    out = []
+    for (i, j, k), v in zip(idx, val):
+        if j <= k:
+            out.append((int(i), int(j), int(k), float(v) * (0.5 if j == k else 1.0)))
+    return out
+
+
+@functools.lru_cache(maxsize=None)
+def static_sh_funcs(order: int):
+    """Straight-line SH functions of one order (constants folded into the code): ``(rotate_z_cs,
+    rotate_frame, product)``.
+
+    * ``rotate_z_cs(f, c, s)``: coefficients of ``f(Rz(a)^-1 s)`` given ``cos a, sin a``;
+    * ``rotate_frame(f, R)``: coefficients of ``f(R^-1 s)`` by zxzxz with the Euler angles'
+      cosines and sines read off R (no trigonometric calls, no table loads);
+    * ``product(f, g)``: the order-n truncated SH product, unrolled over the Gaunt entries.
+    """
+    shk = sh_kernels(order)
+    N2 = order * order
+    ORDER = order
+    vec_t = shk.vec
+    XP = _x90_terms(order, 1.0)
+    XM = _x90_terms(order, -1.0)
+    NXP, NXM = len(XP), len(XM)
+    PT = _product_terms(order)
+    NPT = len(PT)
+
+    @wp.func
+    def rotate_z_cs(f: vec_t, c1: float, s1: float) -> vec_t:
+        out = f
+        c = float(1.0)
+        s = float(0.0)
+        for m in range(1, ORDER):
+            cn = c * c1 - s * s1
+            s = s * c1 + c * s1
+            c = cn
+            for l in range(m, ORDER):
+                a = f[l * l + l + m]
+                b = f[l * l + l - m]
+                out[l * l + l + m] = c * a - s * b
+                out[l * l + l - m] = s * a + c * b
+        return out
+
+    @wp.func
+    def x90p(f: vec_t) -> vec_t:
+        out = vec_t()
+        for e in range(wp.static(NXP)):
+            out[wp.static(XP[e][0])] += wp.static(XP[e][2]) * f[wp.static(XP[e][1])]
+        return out
+
+    @wp.func
+    def x90m(f: vec_t) -> vec_t:
+        out = vec_t()
+        for e in range(wp.static(NXM)):
+            out[wp.static(XM[e][0])] += wp.static(XM[e][2]) * f[wp.static(XM[e][1])]
+        return out
+
+    @wp.func
+    def rotate_frame(f: vec_t, r: wp.mat33) -> vec_t:
+        # R = Rz(alpha) Ry(beta) Rz(gamma) = Rz(alpha) Rx(-90) Rz(beta) Rx(90) Rz(gamma)
+        sb = wp.sqrt(r[0, 2] * r[0, 2] + r[1, 2] * r[1, 2])
+        cb = r[2, 2]
+        ca = float(1.0)
+        sa = float(0.0)
+        cg = float(1.0)
+        sg = float(0.0)
+        if sb > 1.0e-6:
+            ca = r[0, 2] / sb
+            sa = r[1, 2] / sb
+            cg = -r[2, 0] / sb
+            sg = r[2, 1] / sb
+        else:
+            sb = 0.0
+            if cb > 0.0:
+                cb = 1.0
+                ca = r[0, 0]
+                sa = r[1, 0]
+            else:
+                cb = -1.0
+                ca = r[1, 1]
+                sa = -r[1, 0]
+            q = wp.sqrt(ca * ca + sa * sa)
+            if q > 0.0:
+                ca = ca / q
+                sa = sa / q
+            else:
+                ca = 1.0
+                sa = 0.0
+        out = rotate_z_cs(f, cg, sg)
+        out = x90p(out)
+        out = rotate_z_cs(out, cb, sb)
+        out = x90m(out)
+        return rotate_z_cs(out, ca, sa)
+
+    @wp.func
+    def product(f: vec_t, g: vec_t) -> vec_t:
+        out = vec_t()
+        for e in range(wp.static(NPT)):
+            out[wp.static(PT[e][0])] += wp.static(PT[e][3]) * (f[wp.static(PT[e][1])] * g[wp.static(PT[e][2])] +
+                                                               f[wp.static(PT[e][2])] * g[wp.static(PT[e][1])])
+        return out
+
+    return rotate_z_cs, rotate_frame, product
+
+
+@wp.func
+def horizon_slope(pyr: wp.array(dtype=wp.float32), steps: wp.array(dtype=wp.vec4), step_level: wp.array2d(dtype=wp.int32),
+                  u5: float, v5: float, h0: float, az: wp.vec4) -> float:
+    """Largest ``(H - h0) / d`` over the march from (u5 - 0.5, v5 - 0.5) (vertex units) along one
+    azimuth; -1e30 when no sample is inside the grid.
+
+    ``steps[j] = (d_j, 1 / d_j, 2^-k_j, -)``, ``step_level[j] = (offset, side)`` of level k_j in
+    ``pyr``, ``az = (cos phi, sin phi, cos phi / dx, sin phi / dy)``."""
+    best = float(-1.0e30)
+    for j in range(steps.shape[0]):
+        st = steps[j]
+        n_k = step_level[j, 1]
+        ci = int(wp.floor((u5 + st[0] * az[2]) * st[2]))
+        ri = int(wp.floor((v5 + st[0] * az[3]) * st[2]))
+        if ci < 0 or ri < 0 or ci >= n_k or ri >= n_k:
+            break
+        best = wp.max(best, (pyr[step_level[j, 0] + ri * n_k + ci] - h0) * st[1])
+    return best
+
+
+@wp.kernel(enable_backward=False)
+def horizon_kernel(pyr: wp.array(dtype=wp.float32), steps: wp.array(dtype=wp.vec4), step_level: wp.array2d(dtype=wp.int32),
+                   azimuth: wp.array(dtype=wp.vec4), size: int, uv: wp.array(dtype=wp.vec2), out: wp.array2d(dtype=wp.float32)):
+    """The horizon slopes of the march at points ``uv`` (vertex units), (P, A): what the texel
+    kernel computes before the wedges (tests and diagnostics)."""
+    p, i = wp.tid()
+    h0 = _bilinear_height(pyr, size, uv[p][0], uv[p][1])
+    out[p, i] = horizon_slope(pyr, steps, step_level, uv[p][0] + 0.5, uv[p][1] + 0.5, h0, azimuth[i])
+
+
+@functools.lru_cache(maxsize=None)
+def visibility_kernels(order: int):
+    """``(texel_kernel, upsample_kernel)`` of one SH order (cached)."""
+    shk = sh_kernels(order)
+    N2 = order * order
+    vec_t = shk.vec
+    rotate_z_cs, _, _ = static_sh_funcs(order)
+
+    @wp.func
+    def wedge(table: wp.array2d(dtype=wp.float32), z: float) -> vec_t:
+        e = table.shape[0]
+        t = (wp.clamp(z, -1.0, 1.0) + 1.0) * 0.5 * float(e - 1)
+        i0 = wp.min(int(t), e - 2)
+        f = t - float(i0)
+        out = vec_t()
+        for k in range(N2):
+            out[k] = (1.0 - f) * table[i0, k] + f * table[i0 + 1, k]
+        return out
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def texel_kernel(
+        pyr: wp.array(dtype=wp.float32),
+        steps: wp.array(dtype=wp.vec4),
+        step_level: wp.array2d(dtype=wp.int32),
+        azimuth: wp.array(dtype=wp.vec4),
+        table: wp.array2d(dtype=wp.float32),
+        size: int,
+        res: int,
+        dx: float,
+        dy: float,
+        open_below: int,
+        start: int,
+        out: wp.array2d(dtype=wp.float32),
+    ):
+        t = wp.tid() + start
+        a = t // res
+        b = t - a * res
+        scale = float(size - 1) / float(res - 1)
+        u = float(b) * scale  # column (x), vertex units
+        v = float(a) * scale  # row (y)
+        h0 = _bilinear_height(pyr, size, u, v)
+        gx = (_bilinear_height(pyr, size, u + 1.0, v) - _bilinear_height(pyr, size, u - 1.0, v)) / \
+            ((wp.min(u + 1.0, float(size - 1)) - wp.max(u - 1.0, 0.0)) * dx)
+        gy = (_bilinear_height(pyr, size, u, v + 1.0) - _bilinear_height(pyr, size, u, v - 1.0)) / \
+            ((wp.min(v + 1.0, float(size - 1)) - wp.max(v - 1.0, 0.0)) * dy)
+        full = wedge(table, -1.0)
+        acc = vec_t()
+        for i in range(azimuth.shape[0]):
+            az = azimuth[i]
+            best = horizon_slope(pyr, steps, step_level, u + 0.5, v + 0.5, h0, az)
+            zh = -1.0
+            if best > -1.0e29:
+                zh = best / wp.sqrt(1.0 + best * best)
+            w = wedge(table, zh)
+            if open_below == 1:
+                tau = gx * az[0] + gy * az[1]
+                zt = wp.min(tau / wp.sqrt(1.0 + tau * tau), zh)
+                lo = wedge(table, zt)
+                for k in range(N2):
+                    w[k] = w[k] + full[k] - lo[k]
+            acc = acc + rotate_z_cs(w, az[0], az[1])
+        for k in range(N2):
+            out[t, k] = acc[k]
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def upsample_kernel(texels: wp.array2d(dtype=wp.float32), size: int, res: int, start: int,
+                        out: wp.array2d(dtype=wp.float32)):
+        vtx = wp.tid() + start
+        t00, w = texel_weights(vtx, size, res)
+        w00, w01, w10, w11 = w[0], w[1], w[2], w[3]
+        for k in range(N2):
+            out[vtx, k] = w00 * texels[t00, k] + w01 * texels[t00 + 1, k] + w10 * texels[t00 + res, k] + \
+                w11 * texels[t00 + res + 1, k]
+
+    return texel_kernel, upsample_kernel
+
+
+@functools.lru_cache(maxsize=None)
+def shade_kernels(order: int):
+    """``(product_kernel, shade_kernel, rotate_kernel)`` of one SH order (cached)."""
+    shk = sh_kernels(order)
+    N2 = order * order
+    vec_t = shk.vec
+    sh_load = shk.load
+    _, rotate_frame, product = static_sh_funcs(order)
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def product_kernel(vis: wp.array2d(dtype=wp.float32), light: wp.array2d(dtype=wp.float32), start: int,
+                       out: wp.array2d(dtype=wp.float32)):
+        t = wp.tid() + start
+        v = sh_load(vis, t)
+        for ch in range(3):
+            g = product(sh_load(light, ch), v)
+            for k in range(N2):
+                out[t, ch * N2 + k] = g[k]
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def shade_kernel(
+        points: wp.array(dtype=wp.vec3),
+        normals: wp.array(dtype=wp.vec3),
+        eye: wp.array(dtype=wp.vec3),
+        g: wp.array2d(dtype=wp.float32),
+        ftable: wp.array2d(dtype=wp.float32),
+        size: int,
+        res: int,
+        specular: wp.vec3,
+        start: int,
+        radiance: wp.array2d(dtype=wp.float32),
+        stats: wp.array(dtype=wp.int32),
+    ):
+        vtx = wp.tid() + start
+        n = normals[vtx]
+        d = eye[0] - points[vtx]
+        dl = wp.length(d)
+        mu = float(0.0)
+        if dl > 0.0:
+            d = d / dl
+            mu = wp.dot(n, d)
+        if mu <= 0.0:
+            radiance[vtx, 0] = 0.0
+            radiance[vtx, 1] = 0.0
+            radiance[vtx, 2] = 0.0
+            wp.atomic_add(stats, STAT_BELOW_HORIZON, 1)
+            return
+        # local frame about n with the view in its x-z plane
+        x = d - mu * n
+        xl = wp.length(x)
+        if xl > 1.0e-6:
+            x = x / xl
+        else:
+            x = wp.vec3(1.0, 0.0, 0.0) - n[0] * n
+            if wp.length(x) < 1.0e-3:
+                x = wp.vec3(0.0, 1.0, 0.0) - n[1] * n
+            x = wp.normalize(x)
+        y = wp.cross(n, x)
+        # F(wo) from the table over cos(theta_o)
+        e = ftable.shape[0]
+        tt = wp.min(mu, 1.0) * float(e - 1)
+        i0 = wp.min(int(tt), e - 2)
+        fr = tt - float(i0)
+        f = vec_t()
+        for k in range(N2):
+            f[k] = (1.0 - fr) * ftable[i0, k] + fr * ftable[i0 + 1, k]
+        # to the world: f(F s) with F rows (x, y, n), i.e. the rotation R = F^T
+        rt = wp.mat33(x[0], y[0], n[0], x[1], y[1], n[1], x[2], y[2], n[2])
+        fw = rotate_frame(f, rt)
+        # g at the vertex (bilinear over the visibility texels)
+        t00, w = texel_weights(vtx, size, res)
+        w00, w01, w10, w11 = w[0], w[1], w[2], w[3]
+        neg = int(0)
+        for ch in range(3):
+            acc = float(0.0)
+            for k in range(N2):
+                col = ch * N2 + k
+                gk = w00 * g[t00, col] + w01 * g[t00 + 1, col] + w10 * g[t00 + res, col] + w11 * g[t00 + res + 1, col]
+                acc += fw[k] * gk
+            if acc < 0.0:
+                acc = 0.0
+                neg = 1
+            radiance[vtx, ch] = specular[ch] * acc
+        if neg == 1:
+            wp.atomic_add(stats, STAT_NEGATIVE, 1)
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def rotate_kernel(f: wp.array2d(dtype=wp.float32), rot: wp.array(dtype=wp.mat33), out: wp.array2d(dtype=wp.float32)):
+        i = wp.tid()
+        o = rotate_frame(sh_load(f, i), rot[i])
+        for k in range(N2):
+            out[i, k] = o[k]
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def pair_product_kernel(f: wp.array2d(dtype=wp.float32), h: wp.array2d(dtype=wp.float32), out: wp.array2d(dtype=wp.float32)):
+        i = wp.tid()
+        o = product(sh_load(f, i), sh_load(h, i))
+        for k in range(N2):
+            out[i, k] = o[k]
+
+    return product_kernel, shade_kernel, rotate_kernel, pair_product_kernel

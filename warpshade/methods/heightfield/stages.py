@@ -1,0 +1,241 @@
+"""The height-field stages (thin: the maths is in :mod:`.kernels`, the set-up tables in
+:mod:`.model`): ``heightfield.visibility`` and ``heightfield.shade``."""
+
+# No "from __future__ import annotations": Warp resolves closure types in annotations.
+
+import math
+
+import numpy as np
+
+from ..._wp import launch_parallel, wp
+from ..common import ShLighting, order_param
+from ..rpo import OPERATORS, SHADE_PARAMS, GlossyStage
+from ..stage import FrameStage, Param, Port, StageError, register_stage
+from .kernels import (STAT_BELOW_HORIZON, STAT_NEGATIVE, heights_kernel, horizon_kernel, reduce_kernel, shade_kernels,
+                      visibility_kernels)
+from .model import WEDGE_ENTRIES, GridLayout, grid_layout, march_plan, pyramid_levels, view_table, wedge_table
+
+__all__ = ["HeightFieldShadeStage", "HeightFieldVisibilityStage"]
+
+#: Items per CPU chunk below which a launch is not split over cores.
+CPU_CHUNK_MIN = 2048
+#: Modes of ``below``.
+BELOW_MODES = ("open", "blocked")
+#: Modes of ``factors``.
+FACTOR_MODES = ("rpo", "exact")
+
+_ORDER = order_param(4, minimum=2, maximum=6)
+
+
+def _layout(stage, ctx) -> GridLayout:
+    try:
+        return grid_layout(ctx.scene, f"stage {stage.name!r} ({stage.type_name})")
+    except ValueError as exc:
+        raise StageError(str(exc)) from None
+
+
+@register_stage
+class HeightFieldVisibilityStage(FrameStage):
+    type_name = "heightfield.visibility"
+    description = ("world-frame SH visibility of a dynamic height field from horizon angles (eq. 4-5): max pyramid, "
+                   "horizon march per azimuth, tabulated wedges z-rotated and summed, sub-sampled")
+    parameters = {
+        "order": _ORDER,
+        "resolution": Param(128, int, "visibility texels per side (sub-sampled; bilinear to the vertices)", minimum=2,
+                            maximum=4096),
+        "azimuths": Param(16, int, "azimuthal directions (wedges) of the horizon", minimum=4, maximum=128),
+        "samples_per_octave": Param(1, int, "horizon-march samples per doubling of the distance", minimum=1, maximum=8),
+        "footprint": Param(0.5, float, "pyramid cell side relative to the step to the next sample (1: conservative)",
+                           minimum=0.05, maximum=4.0),
+        "below": Param("open", str, "directions below the local tangent plane: 'open' or as the horizon says ('blocked')",
+                       choices=BELOW_MODES),
+        "per_vertex": Param(True, bool, "also write the (V, n*n) per-vertex visibility (for rpo.shade)"),
+        "table_entries": Param(WEDGE_ENTRIES, int, "entries of the wedge table over sin(horizon elevation)", minimum=16,
+                               maximum=65536),
+    }
+
+    def dims(self):
+        return {"C": self.params["order"] ** 2, "S": self.params["resolution"] ** 2}
+
+    def input_ports(self):
+        return {"points": Port("vec3", ("V",))}
+
+    def output_ports(self):
+        out = {"texel_visibility": Port("float32", ("S", "C"), "SH visibility at the R x R texels, world frame")}
+        if self.params["per_vertex"]:
+            out["visibility"] = Port("float32", ("V", "C"), "SH visibility at every grid vertex (bilinear), world frame")
+        return out
+
+    def setup(self, ctx, inputs):
+        p = self.params
+        dev = ctx.device
+        lay = _layout(self, ctx)
+        if p["resolution"] > lay.size:
+            raise StageError(f"stage {self.name!r}: resolution {p['resolution']} exceeds the {lay.size} x {lay.size} grid")
+        self.layout = lay
+        n = p["order"]
+        sizes = pyramid_levels(lay.size)
+        offs = np.concatenate([[0], np.cumsum([s * s for s in sizes])]).astype(np.int64)
+        self._sizes = sizes
+        self._offs = offs
+        self._pyr = wp.zeros(int(offs[-1]), dtype=wp.float32, device=dev)
+        d, lev = march_plan(lay, p["samples_per_octave"], p["footprint"])
+        self.march = (d, lev)
+        steps = np.stack([d, 1.0 / d, 2.0 ** -lev.astype(np.float64), np.zeros_like(d)], 1)
+        self._steps = wp.array(steps.astype(np.float32), dtype=wp.vec4, device=dev)
+        self._step_level = wp.array(np.stack([offs[lev], np.asarray(sizes)[lev]], 1).astype(np.int32), dtype=wp.int32,
+                                    device=dev)
+        a = p["azimuths"]
+        phi = 2.0 * np.pi * np.arange(a) / a
+        az = np.stack([np.cos(phi), np.sin(phi), np.cos(phi) / lay.dx, np.sin(phi) / lay.dy], 1)
+        self._azimuth = wp.array(az.astype(np.float32), dtype=wp.vec4, device=dev)
+        self.table = wedge_table(n, a, p["table_entries"])
+        self._table = wp.array(self.table.astype(np.float32), dtype=wp.float32, device=dev)
+        self._points = inputs["points"]
+        r = p["resolution"]
+        self._texels = wp.zeros((r * r, n * n), dtype=wp.float32, device=dev)
+        self._texel_kernel, self._upsample_kernel = visibility_kernels(n)
+        out = {"texel_visibility": self._texels}
+        self._vertex = None
+        if p["per_vertex"]:
+            self._vertex = wp.zeros((ctx.dims["V"], n * n), dtype=wp.float32, device=dev)
+            out["visibility"] = self._vertex
+        return out
+
+    def launch(self, state):
+        p, lay = self.params, self.layout
+        dev = self._pyr.device
+        g = lay.size
+        wp.launch(heights_kernel, dim=g * g, inputs=[self._points, self._pyr], device=dev)
+        for k in range(1, len(self._sizes)):
+            s = self._sizes[k]
+            wp.launch(reduce_kernel, dim=s * s, inputs=[self._pyr, int(self._offs[k - 1]), self._sizes[k - 1],
+                                                         int(self._offs[k]), s], device=dev)
+        r = p["resolution"]
+        open_below = 1 if p["below"] == "open" else 0
+
+        def texel_inputs(start, stop):
+            return [self._pyr, self._steps, self._step_level, self._azimuth, self._table, g, r, lay.dx, lay.dy,
+                    open_below, start, self._texels]
+
+        launch_parallel(self._texel_kernel, r * r, texel_inputs, dev, min_count=CPU_CHUNK_MIN)
+        if self._vertex is not None:
+            def up_inputs(start, stop):
+                return [self._texels, g, r, start, self._vertex]
+
+            launch_parallel(self._upsample_kernel, g * g, up_inputs, dev, min_count=CPU_CHUNK_MIN)
+
+    def horizons(self, uv) -> np.ndarray:
+        """The march's horizon slopes of the current pyramid at points ``uv`` (P, 2) (column,
+        row in vertex units), (P, A) float32 (host; after a frame has run)."""
+        uv = np.asarray(uv, np.float32).reshape(-1, 2)
+        dev = self._pyr.device
+        out = wp.zeros((uv.shape[0], self.params["azimuths"]), dtype=wp.float32, device=dev)
+        wp.launch(horizon_kernel, dim=out.shape, inputs=[self._pyr, self._steps, self._step_level, self._azimuth,
+                                                         self.layout.size, wp.array(uv, dtype=wp.vec2, device=dev), out],
+                  device=dev)
+        return out.numpy()
+
+    def diagnostics(self) -> dict:
+        d, lev = self.march
+        return {"grid": self.layout.size, "levels": len(self._sizes), "march_samples": int(d.size),
+                "march_levels": [int(x) for x in lev]}
+
+    def model_bytes(self) -> int:
+        return int(self._table.capacity + self._steps.capacity + self._step_level.capacity)
+
+
+@register_stage
+class HeightFieldShadeStage(GlossyStage):
+    type_name = "heightfield.shade"
+    description = ("RPO glossy shading of a height field at every vertex over sub-sampled visibility: lighting "
+                   "products at the visibility texels, F(wo) from a per-BRDF table, one SH rotation per vertex")
+
+    parameters = {
+        **SHADE_PARAMS,
+        "factors": Param("rpo", str, "F(wo) from the rank-k operators ('rpo') or the BRDF's own projection ('exact')",
+                         choices=FACTOR_MODES),
+        "view_table": Param(128, int, "entries of the F(wo) table over cos(theta_o)", minimum=8, maximum=65536),
+    }
+
+    def input_ports(self):
+        return {"points": Port("vec3", ("V",)), "normals": Port("vec3", ("V",)),
+                "texel_visibility": Port("float32", ("S", "C")), "lighting": Port("lighting")}
+
+    def setup(self, ctx, inputs):
+        p = self.params
+        self._setup_common(ctx, inputs)
+        dev = ctx.device
+        lay = _layout(self, ctx)
+        self.layout = lay
+        texels = inputs["texel_visibility"]
+        r = int(round(math.sqrt(texels.shape[0])))
+        if r * r != texels.shape[0] or r < 2 or r > lay.size:
+            raise StageError(f"stage {self.name!r}: texel_visibility has {texels.shape[0]} rows, not an R x R grid with "
+                             f"2 <= R <= {lay.size}")
+        self.resolution = r
+        n = p["order"]
+        self._points, self._normals, self._texels = inputs["points"], inputs["normals"], texels
+        self._lighting = ShLighting(inputs["lighting"], n)
+        self._g = wp.zeros((r * r, 3 * n * n), dtype=wp.float32, device=dev)
+        self._ftable = wp.zeros((p["view_table"], n * n), dtype=wp.float32, device=dev)
+        self._stats = wp.zeros(2, dtype=wp.int32, device=dev)
+        self._radiance = wp.zeros((ctx.dims["V"], 3), dtype=wp.float32, device=dev)
+        self._product, self._shade, _, _ = shade_kernels(n)
+        self._upload_material()
+        return {"radiance": self._radiance}
+
+    def _current_brdf(self):
+        mats = self._state.materials
+        brdfs = [mats.brdf_of(m.path, self._brdf) for m in self._scene.meshes]
+        descs = [b.describe() for b in brdfs]
+        if any(d != descs[0] for d in descs[1:]):
+            raise StageError(f"stage {self.name!r}: a height field has one BRDF; the run assigns several")
+        return brdfs[0]
+
+    def _upload_material(self) -> None:
+        p = self.params
+        brdf = self._current_brdf()
+        try:
+            op = OPERATORS.get(brdf, p["order"], p["rank"], "brdf", p["view_resolution"], p["view_order"])
+        except ValueError as exc:
+            raise StageError(f"stage {self.name!r}: {exc}") from None
+        self.operator = op
+        self.brdf = brdf
+        self.table = view_table(op, p["view_table"], p["factors"], brdf)
+        self._ftable.assign(self.table.astype(np.float32))
+
+    def notify_changed(self, flags) -> bool:
+        from ...scene.state import Change
+
+        if flags & Change.PARAMETERS:
+            return False
+        if flags & Change.MATERIAL:
+            self._upload_material()
+        return True
+
+    def launch(self, state):
+        self._lighting.launch()
+        self._stats.zero_()
+        dev = self._radiance.device
+        r, g = self.resolution, self.layout.size
+
+        def product_inputs(start, stop):
+            return [self._texels, self._lighting.light, start, self._g]
+
+        launch_parallel(self._product, r * r, product_inputs, dev, min_count=CPU_CHUNK_MIN)
+
+        def shade_inputs(start, stop):
+            return [self._points, self._normals, self._eye, self._g, self._ftable, g, r,
+                    self._specular, start, self._radiance, self._stats]
+
+        launch_parallel(self._shade, g * g, shade_inputs, dev, min_count=CPU_CHUNK_MIN)
+
+    def diagnostics(self) -> dict:
+        s = self._stats.numpy()
+        return {"negative_clamped": int(s[STAT_NEGATIVE]), "below_horizon": int(s[STAT_BELOW_HORIZON]),
+                "material": self.brdf.describe(), "factors": self.params["factors"],
+                "operator_build_s": round(self.operator.build_s, 4)}
+
+    def model_bytes(self) -> int:
+        return int(self._ftable.capacity)
