@@ -477,14 +477,6 @@ class Runtime:
         self._track_key = key
         self.notify_changed(Change.MATERIAL)
 
-    def reference_model(self, frame=None) -> dict | None:
-        """What the output at time code ``frame`` is measured against (the output stage's
-        ``reference_model``, with the materials and eye of that frame)."""
-        st = self.output_stage()
-        if frame is None:
-            return st.reference_model()
-        return st.reference_model_at(float(frame), self.materials_at(frame), self.evaluator.eye_at(frame))
-
     def set_eye(self, position) -> None:
         """Move the viewer of view-dependent stages (world position); the next frame uses it."""
         self.evaluator.set_eye(position)

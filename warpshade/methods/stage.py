@@ -35,8 +35,6 @@ import math
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
-import numpy as np
-
 from ..scene.state import Change
 
 __all__ = [
@@ -302,32 +300,6 @@ class FrameStage(Stage):
         """Facts about the last frame worth reporting (e.g. receivers that fell back to a
         cheaper estimate); read from the device, so only after a frame, never inside one."""
         return {}
-
-    # ---- measuring (to move to the measuring layer's protocol) -------------------------
-    def reference_model(self) -> dict | None:
-        """What ground truth this stage's radiance is measured against, or None for the default.
-
-        The default (None) is the diffuse reference of :func:`warpshade.reference.shade` with
-        the scene's albedo. A stage whose output is something else returns keyword arguments
-        for :func:`warpshade.reference.shade_glossy` (``brdf``, ``eye``, ``color``), from its own
-        parameters and inputs (known after ``setup``).
-        """
-        return None
-
-    #: True when the stage shades toward the state's eye (the camera, or ``set_eye``): its
-    #: reference then follows the eye of each frame (an animated camera).
-    follows_state_eye: bool = False
-
-    def reference_model_at(self, frame: float, materials, eye=None) -> dict | None:
-        """:meth:`reference_model` for time code ``frame``, with the run's material assignment
-        of that frame (a :class:`~warpshade.scene.state.MaterialAssignment`) and its eye (3,).
-        The default replaces the model's eye when the stage :attr:`follows_state_eye`; stages
-        whose BRDFs change over a run override this. A model may hold ``groups``: a list of
-        ``{"vertices": indices, "brdf": BRDF}`` for meshes with BRDFs of their own."""
-        model = self.reference_model()
-        if model is not None and "eye" in model and eye is not None and self.follows_state_eye:
-            model = {**model, "eye": np.asarray(eye, np.float64)}
-        return model
 
 
 _REGISTRY: dict[str, type[Stage]] = {}
