@@ -196,7 +196,7 @@ def measure_error(runtime, frames=None, samples: int | None = None, seed: int = 
         cache_dir: where the ground truth is cached (:func:`truth_cache`).
         executor: computes missing ground-truth frames as tasks (:func:`ground_truth`).
     """
-    from ..graph.runtime import parse_frames
+    from ..graph.scene_inputs import parse_frames
 
     spec = runtime.spec.validate_spec
     if frames is None:

@@ -256,7 +256,7 @@ class RpoShadeStage(GlossyStage):
         self._zh_axes0.assign(self.zh.axes.astype(np.float32))
         self._zh_coeffs.assign(self.zh.coeffs.astype(np.float32))
 
-    def notify_changed(self, flags) -> bool:
+    def notify_changed(self, flags, keys=frozenset()) -> bool:
         from ...scene.state import Change
 
         if flags & Change.PARAMETERS:

@@ -389,7 +389,7 @@ class SgShadeStage(FrameStage):
                           f"on {first['count']} frame(s) (from frame index {first['frames'][0]}): precomputed visibility is "
                           "for distant light, its shadows there are wrong", RuntimeWarning, stacklevel=2)
 
-    def notify_changed(self, flags) -> bool:
+    def notify_changed(self, flags, keys=frozenset()) -> bool:
         from ...scene.state import Change
 
         if flags & Change.PARAMETERS:
