@@ -353,6 +353,7 @@ def _rel_rms(img, ref, mask):
 def vertex_vs_pixel(rt, frames, width, height, samples):
     """Fig. 8: per-vertex radiance interpolated per pixel and per-pixel shading, both against the
     per-pixel glossy reference (same BRDF, eye, colour, sky); images for the strip."""
+    from warpshade.measure import ground_truth_model
     from warpshade.measure.pixels import pixel_bvh, pixel_stage, render_frame
     from warpshade.reference.pixels import reference_image
     from warpshade.render import interpolate_vertex_values, render_gbuffer
@@ -365,7 +366,7 @@ def vertex_vs_pixel(rt, frames, width, height, samples):
         vert = vert.numpy() if hasattr(vert, "numpy") else np.asarray(vert)
         gb = render_gbuffer(pixel_bvh(rt), rt.state.normals, im.camera, width, height)
         per_vertex = interpolate_vertex_values(gb, vert.astype(np.float32)).numpy().reshape(height, width, 3)
-        model = st.reference_model_at(float(f), rt.state.materials, rt.state.eye.numpy()[0])
+        model = ground_truth_model(st, rt.state.materials, rt.state.eye.numpy()[0])
         t0 = time.perf_counter()
         ref = reference_image(rt.scene, float(f), model["brdf"], camera=im.camera, width=width, height=height, samples=samples,
                               eye=model["eye"], lighting=rt.lighting.lights_at(float(f)), specular=im.materials["specular"],

@@ -49,7 +49,7 @@ from warpshade.measure import (  # noqa: E402
     setting_error,
 )
 from warpshade.measure.scenes import ROTATE_DEGREES_PER_FRAME  # noqa: E402
-from warpshade.methods.harness import all_rows  # noqa: E402
+from warpshade.methods.rows import all_rows  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
 SCENES = BENCH_SCENES

@@ -46,10 +46,10 @@ def scenes():
     return {name: load_scene(f"bundled:{name}") for name in ("blockers", "figure", "cloth")}
 
 
-def _runtime(scene, graph, capture, tmp_path, lighting=None):
+def _runtime(scene, graph, capture, tmp_path, device, lighting=None):
     stages = [StageSpec(n, t, dict(p)) for (n, t, p) in GRAPHS[graph]]
     lighting = lighting or LightingSource(scene.lights, scene.up_axis, 6.0, float(scene.frames[0]))
-    return GraphSpec(stages, "shade.radiance", name=graph).compile(scene, device="cpu", cache_dir=tmp_path, progress=False,
+    return GraphSpec(stages, "shade.radiance", name=graph).compile(scene, device=device, cache_dir=tmp_path, progress=False,
                                                                     capture=capture, lighting=lighting)
 
 
@@ -66,20 +66,20 @@ class _LaunchCounter:
 
 
 @pytest.mark.parametrize("scene_name, graph", CASES, ids=[f"{s}-{g}" for s, g in CASES])
-def test_replayed_frames_equal_cold_stepping(scenes, scene_name, graph, tmp_path, monkeypatch):
+def test_replayed_frames_equal_cold_stepping(scenes, scene_name, graph, tmp_path, monkeypatch, device):
     monkeypatch.setenv("WARPSHADE_THREADS", "1")  # no chunked CPU launches: the frame is one replay
     scene = scenes[scene_name]
     frames = [f for f in FRAME_ORDER if f in scene.frames]
-    cold = _runtime(scene, graph, False, tmp_path)
-    replay = _runtime(scene, graph, True, tmp_path)
+    cold = _runtime(scene, graph, False, tmp_path, device)
+    replay = _runtime(scene, graph, True, tmp_path, device)
     want = [cold.step(f).numpy().copy() for f in frames]
     replay.step(frames[0])  # compiles, launched from Python
     replay.step(frames[0])  # recorded, then replayed
     program = replay.program
     assert program is not None and program.graph_count >= 1
     # the only Python call a recorded CPU frame may make here: the BVH refit Warp's CPU capture
-    # does not record (a refit, no kernel launch)
-    allowed = [CPU_REFIT_NOTE] if graph == "traced" else []
+    # does not record (a refit, no kernel launch); on CUDA nothing
+    allowed = [CPU_REFIT_NOTE] if graph == "traced" and device == "cpu" else []
     assert program.uncaptured == allowed, f"Python calls in the recorded frame: {program.uncaptured}"
     counter = _LaunchCounter(monkeypatch)
     got = [replay.step(f).numpy().copy() for f in frames]
@@ -91,21 +91,24 @@ def test_replayed_frames_equal_cold_stepping(scenes, scene_name, graph, tmp_path
     assert not np.allclose(want[0], want[2]), "the frames differ (the test sees the animation)"
 
 
-def test_chunked_cpu_launches_run_between_recorded_segments(scenes, tmp_path, monkeypatch):
+def test_chunked_cpu_launches_run_between_recorded_segments(scenes, tmp_path, monkeypatch, device):
     """A launch big enough to be split over the CPU cores becomes a Python call of the program:
-    still every core, and still the cold result."""
+    still every core, and still the cold result. On CUDA the same frame is recorded whole."""
     scene = scenes["blockers"]
     graph = [StageSpec("shade", "prt.trace", {"order": 3, "samples": 256})]  # 2.4k vertices x 256 rays: chunked
-    rts = [GraphSpec(graph, "shade.radiance").compile(scene, device="cpu", cache_dir=None, progress=False, capture=c)
+    rts = [GraphSpec(graph, "shade.radiance").compile(scene, device=device, cache_dir=None, progress=False, capture=c)
            for c in (False, True)]
     want = rts[0].step(10.0).numpy().copy()
     rts[1].step(10.0)
     got = rts[1].step(10.0).numpy().copy()
-    assert rts[1].program.uncaptured == [CPU_REFIT_NOTE, "chunked CPU launch"] and rts[1].program.graph_count == 3
+    if device == "cpu":
+        assert rts[1].program.uncaptured == [CPU_REFIT_NOTE, "chunked CPU launch"] and rts[1].program.graph_count == 3
+    else:
+        assert rts[1].program.uncaptured == [] and rts[1].program.graph_count == 1
     np.testing.assert_allclose(got, want, rtol=0, atol=REPLAY_RTOL * np.abs(want).max())
 
 
-def test_frame_lighting_matches_float64_lighting(scenes):
+def test_frame_lighting_matches_float64_lighting(scenes, device):
     """Rotation about the up axis, a tracked distant light, a tracked environment and a moving
     sphere light, evaluated on the device from the frame index."""
     scene = scenes["blockers"]
@@ -120,7 +123,7 @@ def test_frame_lighting_matches_float64_lighting(scenes):
     lights = [env, DistantLight((0.2, 0.5, 1.0), (3.0, 2.0, 1.0), angle_deg=4.0, track=LightTrack(times, turns)),
               SphereLight((0.5, 0.5, 1.5), 0.2, (8.0, 8.0, 8.0), track=LightTrack(times, turns))]
     source = LightingSource(lights, scene.up_axis, 7.0, 0.0)
-    ev = FrameEvaluator(scene, "cpu", lighting=source)
+    ev = FrameEvaluator(scene, device, lighting=source)
     lighting = ev.state.lighting
     l3, l6 = lighting.sh(3), lighting.sh(6)
     for f in (0.0, 13.0, 40.0, 59.0):
@@ -138,10 +141,10 @@ def test_frame_lighting_matches_float64_lighting(scenes):
     assert lighting.changed.numpy()[0] == 0, "the same frame again: the lighting did not change"
 
 
-def test_scene_evaluation_records_and_replays(scenes):
+def test_scene_evaluation_records_and_replays(scenes, device):
     scene = scenes["figure"]
-    ev = FrameEvaluator(scene, "cpu")
-    program = record_program(ev.launch, "cpu")
+    ev = FrameEvaluator(scene, device)
+    program = record_program(ev.launch, device)
     for f in (3.0, 40.0):
         ev.set_frame(f)
         program.replay()
@@ -151,9 +154,9 @@ def test_scene_evaluation_records_and_replays(scenes):
         ev.set_frame(3.5)
 
 
-def test_changes_reach_the_next_frame_and_swapping_back_restores_it(scenes, tmp_path):
+def test_changes_reach_the_next_frame_and_swapping_back_restores_it(scenes, tmp_path, device):
     scene = scenes["blockers"]
-    rt = _runtime(scene, "unshadowed", True, tmp_path)
+    rt = _runtime(scene, "unshadowed", True, tmp_path, device)
     rt.step(5.0)
     before = rt.step(5.0).numpy().copy()
     program = rt.program
@@ -178,7 +181,7 @@ def test_changes_reach_the_next_frame_and_swapping_back_restores_it(scenes, tmp_
     with pytest.raises(GraphError, match="no parameter 'nope'"):
         rt.set_parameter("shade", "nope", 1)
     prt = GraphSpec([StageSpec("bake", "prt.transfer", {"order": 3, "samples": 16}), StageSpec("shade", "prt.shade", {"order": 3})],
-                    "shade.radiance").compile(scene, device="cpu", cache_dir=tmp_path, progress=False)
+                    "shade.radiance").compile(scene, device=device, cache_dir=tmp_path, progress=False)
     with pytest.raises(GraphError, match="changes the stage's ports"):
         prt.set_parameter("shade", "order", 4)
     with pytest.raises(GraphError, match="precompute stage"):
@@ -186,13 +189,13 @@ def test_changes_reach_the_next_frame_and_swapping_back_restores_it(scenes, tmp_
     # a new lighting: the same as compiling with it
     sky = [Environment.constant((0.5, 0.6, 0.7))]
     rt.set_lighting(sky)
-    fresh = _runtime(scene, "unshadowed", True, tmp_path, lighting=LightingSource.fixed(sky, scene.up_axis))
+    fresh = _runtime(scene, "unshadowed", True, tmp_path, device, lighting=LightingSource.fixed(sky, scene.up_axis))
     np.testing.assert_allclose(rt.step(5.0).numpy(), fresh.step(5.0).numpy(), rtol=0, atol=1e-7)
 
 
-def test_lighting_override_is_a_host_write_before_the_replay(scenes, tmp_path):
+def test_lighting_override_is_a_host_write_before_the_replay(scenes, tmp_path, device):
     scene = scenes["blockers"]
-    rt = _runtime(scene, "unshadowed", True, tmp_path)
+    rt = _runtime(scene, "unshadowed", True, tmp_path, device)
     rt.step(0.0)
     rt.step(0.0)
     program = rt.program

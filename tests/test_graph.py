@@ -285,3 +285,68 @@ def test_comparisons_need_a_measured_reference(moving_scene, tmp_path):
         render_comparisons(rt, measured, tmp_path, frames=[1.0])
     (png,) = render_comparisons(rt, measured, tmp_path, width=48, height=36)
     assert png.name.endswith("_0000_vs_reference.png") and png.exists()
+
+
+@wp.kernel
+def _scale_rows(gain: wp.array(dtype=wp.float32), points: wp.array(dtype=wp.vec3), out: wp.array2d(dtype=wp.float32)):
+    v = wp.tid()
+    out[v, 0] = gain[0] * points[v][2]
+    out[v, 1] = 0.0
+    out[v, 2] = 0.0
+
+
+@register_stage
+class _Gain(FrameStage):
+    """Frame stage: radiance = (gain * point z, 0, 0); absorbs a new ``gain`` (a device write),
+    needs a new set-up for a new ``offset``."""
+
+    type_name = "test.gain"
+    parameters = {"gain": Param(1.0, float), "offset": Param(0.0, float)}
+    built = 0
+
+    def __init__(self, name, params=None):
+        super().__init__(name, params)
+        type(self).built += 1
+        self.setups, self.told = 0, []
+
+    def input_ports(self):
+        return {"points": Port("vec3", ("V",))}
+
+    def output_ports(self):
+        return {"radiance": Port("float32", ("V", 3))}
+
+    def setup(self, ctx, inputs):
+        self.setups += 1
+        self.points = inputs["points"]
+        self.gain = wp.array([self.params["gain"]], dtype=wp.float32, device=ctx.device)
+        self.out = wp.zeros((ctx.dims["V"], 3), dtype=wp.float32, device=ctx.device)
+        return {"radiance": self.out}
+
+    def notify_changed(self, flags, keys=frozenset()):
+        self.told.append(set(keys))
+        if keys == {"gain"}:
+            self.gain.assign(np.array([self.params["gain"]], np.float32))
+            return True
+        return super().notify_changed(flags, keys)
+
+    def launch(self, state):
+        wp.launch(_scale_rows, dim=state.vertex_count, inputs=[self.gain, self.points, self.out], device=state.device)
+
+
+def test_a_stage_told_which_parameter_changed_absorbs_it_without_a_new_setup(moving_scene, tmp_path):
+    path = tmp_path / "g.toml"
+    path.write_text('[graph]\noutput = "shade.radiance"\n[[stage]]\nname = "shade"\ntype = "test.gain"\n')
+    before = _Gain.built
+    rt = load(path).compile(moving_scene, device="cpu", cache_dir=None, progress=False)
+    assert _Gain.built == before + 1, "load checks the stages, compile runs the same ones: each built once"
+    st = rt.output_stage()
+    rt.step(2.0)
+    base = rt.step(2.0).numpy().copy()
+    program = rt.program
+    rt.set_parameter("shade", "gain", 3.0)
+    assert st.told[-1] == {"gain"} and st.setups == 1
+    np.testing.assert_allclose(rt.step(2.0).numpy()[:, 0], 3.0 * base[:, 0], rtol=1e-6)
+    assert rt.program is program, "an absorbed parameter keeps the recording"
+    rt.set_parameter("shade", "offset", 1.0)
+    assert st.told[-1] == {"offset"} and st.setups == 2 and rt.program is None
+    np.testing.assert_allclose(rt.step(2.0).numpy()[:, 0], 3.0 * base[:, 0], rtol=1e-6)

@@ -10,6 +10,7 @@ import pytest
 from warpshade.basis import sg
 from warpshade.geometry.bvh import Visibility
 from warpshade.graph import GraphSpec, StageSpec
+from warpshade.measure import reference_model
 from warpshade.methods.sg import EnvironmentLighting, decode_maps, shade_reference
 from warpshade.methods.sg import model as sg_model
 from warpshade.methods.sg import stages as sg_stages
@@ -363,7 +364,7 @@ def _specular_vs_glossy(plane, eye, roughness):
     env = Environment.constant((1.0, 1.0, 1.0), height=8, width=16)
     rt = _compile(plane, [env], {"eye": eye, "roughness": roughness, "f0": 0.04})
     out = rt.step(0.0).numpy()
-    ref = rt.reference_model()
+    ref = reference_model(rt)
     assert ref["brdf"].distribution == "beckmann" and ref["brdf"].roughness == roughness
     truth = shade_glossy(plane, 0.0, ref["brdf"], eye=ref["eye"], lighting=[env], samples=2048, color=ref["color"],
                          device="cpu")
@@ -427,12 +428,12 @@ def test_extreme_roughness_is_finite(blocked, roughness):
 
 def test_validation_refusals(blocked):
     with pytest.raises(StageError, match="'both' has no single reference"):
-        _compile(blocked, [SKY], {"component": "both"}).reference_model()
-    assert _compile(blocked, [SKY], {"component": "diffuse"}).reference_model() is None
+        reference_model(_compile(blocked, [SKY], {"component": "both"}))
+    assert reference_model(_compile(blocked, [SKY], {"component": "diffuse"})) is None
     ward = _compile(blocked, [SKY], {"brdf": "ward", "roughness": 0.3})
     assert np.all(np.isfinite(ward.step(0.0).numpy()))
     with pytest.raises(StageError, match="ward.*cannot be validated"):
-        ward.reference_model()
+        reference_model(ward)
     with pytest.raises(StageError, match="exponent"):
         _compile(blocked, [SKY], {"brdf": "blinn-phong", "roughness": 0.5})
 

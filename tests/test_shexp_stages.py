@@ -103,7 +103,7 @@ def test_blocker_model_arrays_roundtrip(scene, tmp_path):
     model = build_blocker_model(scene, 3, hierarchy=True, vertices_per_cluster=40, device="cpu", **FIT)
     # through the on-disk artifact format: flattened "arrays" port entries in one .npz
     from warpshade.graph.cache import ArtifactCache
-    from warpshade.graph.runtime import _flatten, _unflatten
+    from warpshade.graph.precompute import _flatten, _unflatten
     from warpshade.methods.stage import Port
 
     ports = {"model": Port("arrays")}

@@ -15,6 +15,7 @@ Two launch-level tools live here because every layer uses them:
   chunked CPU launch (the replay is single-threaded, and launches from pool threads are not
   recorded), a host upload that cannot live on the device -- split the recording into
   segments: captured graphs with Python calls between them.
+* :class:`HostFields` -- named int32 host inputs (frame index, flags) in one :class:`HostInput`;
 * :class:`HostInput` -- a small device array written by the host before each replay (the time
   code of the frame, an override flag), through a pinned staging buffer on CUDA whose copy is
   part of the recorded frame.
@@ -35,6 +36,7 @@ __all__ = [
     "init",
     "cpu_workers",
     "launch_parallel",
+    "HostFields",
     "HostInput",
     "FrameProgram",
     "record_program",
@@ -204,6 +206,42 @@ class HostInput:
         """Copy the host values to the device (nothing to do on the CPU)."""
         if self._staging is not self.array:
             wp.copy(self.array, self._staging)
+
+
+class HostFields:
+    """Named int32 host inputs of a recorded frame, packed in one :class:`HostInput`.
+
+    Field ``i`` of ``names`` is element ``i`` of :attr:`array` (what kernels read); the host
+    changes fields only through :meth:`write`, so one object -- the owner that calls it -- is
+    the writer of every field.
+
+    Args:
+        names: the field names, in slot order.
+        device: the Warp device.
+    """
+
+    def __init__(self, names, device):
+        self.names = tuple(names)
+        self._slot = {n: i for i, n in enumerate(self.names)}
+        self._input = HostInput((len(self.names),), wp.int32, device)
+
+    @property
+    def array(self):
+        """The device array kernels read, int32 (len(names),) (fixed address)."""
+        return self._input.array
+
+    def __getitem__(self, name: str) -> int:
+        """The value the host last wrote to field ``name``."""
+        return int(self._input.host[self._slot[name]])
+
+    def write(self, **fields) -> None:
+        """Set fields by name (ints) for the next frame; KeyError for an unknown name."""
+        for name, value in fields.items():
+            self._input.host[self._slot[name]] = int(value)
+
+    def launch(self) -> None:
+        """Copy the host values to the device (an operation of the recorded frame)."""
+        self._input.launch()
 
 
 # ---- recorded frames ------------------------------------------------------------------------

@@ -326,7 +326,7 @@ def _order(text: str) -> int:
 
 def _frames(text: str) -> str:
     from .graph import GraphError
-    from .graph.spec import check_frames_spec
+    from .graph.loader import check_frames_spec
 
     try:
         check_frames_spec(text, "value")

@@ -8,6 +8,11 @@ Public surface::
     radiance = rt.step(frame)                         # wp.array (vertex_count, 3), per frame
     rt.run()                                          # every frame, recorded in rt.results
 
+Modules: :mod:`.spec` (a graph, its wiring and validation), :mod:`.loader` (TOML files),
+:mod:`.scene_inputs` (frames, lighting, scene options), :mod:`.precompute` (cached artifacts),
+:mod:`.frame` (set-up, the recorded frame), :mod:`.changes` (run-time changes),
+:mod:`.runtime` (the run).
+
 Writing USD, pictures and reports, and measuring against ground truth, are in
 :mod:`warpshade.measure`.
 """
@@ -16,8 +21,10 @@ from ..methods.stage import (FrameStage, Param, Port, PrecomputeStage, Stage, St
                              register_stage, stage_types)
 from .cache import ArtifactCache, default_cache_dir
 from .errors import GraphError
-from .runtime import Runtime, parse_frames
-from .spec import SCENE_PORTS, GraphSpec, StageSpec, extend_static_frames, lighting_from_spec, load
+from .loader import load
+from .runtime import Runtime
+from .scene_inputs import extend_static_frames, lighting_from_spec, parse_frames
+from .spec import SCENE_PORTS, GraphSpec, StageSpec
 
 __all__ = [
     "ArtifactCache",

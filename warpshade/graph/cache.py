@@ -10,7 +10,7 @@ On read the digest is recomputed: a truncated, zero-length or bit-flipped file, 
 a valid archive, or one holding pickled objects is *damaged* -- it is reported
 (:attr:`ArtifactCache.damaged`), removed and treated as a miss, never raised and never
 returned. What the arrays must look like (shapes, dtypes, finite values) is checked one level
-up, against the stage's declared ports (:mod:`warpshade.graph.runtime`).
+up, against the stage's declared ports (:mod:`warpshade.graph.precompute`).
 """
 
 from __future__ import annotations

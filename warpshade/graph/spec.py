@@ -1,4 +1,6 @@
-"""Stage graphs: specification, TOML loading and validation.
+"""Stage graphs: the specification, its wiring and validation, and compiling it to a run.
+
+Graphs are written in Python (:class:`GraphSpec`) or TOML (:func:`warpshade.graph.loader.load`).
 
 A graph names a scene, a lighting set-up, a frame range, a list of stages (each a registered
 stage type with parameters) and the output port that carries per-vertex radiance. Stage inputs
@@ -56,24 +58,17 @@ TOML layout (paths are relative to the TOML file)::
 
 from __future__ import annotations
 
-import math
-import re
-import sys
+import copy
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..methods.stage import Port, Stage, StageError, get_stage_type
-from ..scene.lighting import Environment, LightingSource, SphereLight, scaled_light, up_rotation
+from ..scene.lighting import LightingSource
 from .errors import GraphError
 from .runtime import Runtime
+from .scene_inputs import extend_static_frames, lighting_from_spec, parse_frames
 
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover - Python 3.10
-    import tomli as tomllib
-
-__all__ = ["StageSpec", "GraphSpec", "load", "lighting_from_spec", "extend_static_frames", "check_name", "check_frames_spec",
-           "SCENE_PORTS", "SCENE_OPTIONS"]
+__all__ = ["SCENE_PORTS", "GraphSpec", "StageSpec", "Wire"]
 
 
 SCENE_PORTS: dict[str, Port] = {
@@ -123,6 +118,9 @@ class GraphSpec:
     #: the material track: ``[[material]]`` tables, each ``{"frames": spec, "prims": [...] or None,
     #: "brdf": BRDF, "where": str}`` (later entries win where they overlap).
     materials: list = field(default_factory=list)
+    #: The stages :func:`~warpshade.graph.loader.load` built to check the graph, with the stage
+    #: table they were built from: the first compile uses them when the table is unchanged.
+    _checked: tuple | None = field(default=None, init=False, repr=False, compare=False)
 
     # ---- validation ---------------------------------------------------------------------
     def build(self, dims: dict | None = None):
@@ -138,7 +136,23 @@ class GraphSpec:
         Raises:
             GraphError: naming the stage and port at fault.
         """
-        where = f"graph {self.name!r}" + (f" ({self.source_path})" if self.source_path else "")
+        return self._wire(self._instantiate(), dims)
+
+    def check(self) -> None:
+        """Check stage types, parameters and wiring before any scene is loaded; the stages built
+        for it are kept for the first :meth:`compile` (while the stage table is unchanged)."""
+        stages, _ = self.build()
+        self._checked = (self._stage_table(), stages)
+
+    def _where(self) -> str:
+        return f"graph {self.name!r}" + (f" ({self.source_path})" if self.source_path else "")
+
+    def _stage_table(self) -> list:
+        """A copy of what the stages are built from (to tell whether it changed)."""
+        return copy.deepcopy([(s.name, s.type, s.params, s.inputs) for s in self.stages])
+
+    def _instantiate(self) -> dict[str, Stage]:
+        where = self._where()
         if not self.stages:
             raise GraphError(f"{where}: has no stages")
         stages: dict[str, Stage] = {}
@@ -150,7 +164,19 @@ class GraphSpec:
                 stages[spec.name] = cls(spec.name, spec.params)
             except StageError as exc:
                 raise GraphError(f"{where}: {exc}") from None
+        return stages
 
+    def _stages_for_run(self, dims: dict):
+        """The stages of a new run, wired and checked against the scene's ``dims``: those
+        :meth:`check` built, once, when the stage table has not changed since; new ones else."""
+        checked, self._checked = self._checked, None
+        if checked is not None and checked[0] == self._stage_table():
+            return self._wire({s.name: s for s in checked[1]}, dims)
+        return self.build(dims)
+
+    def _wire(self, stages: dict, dims: dict | None):
+        """(ordered stages, wiring) of the instantiated ``stages``, validated (see :meth:`build`)."""
+        where = self._where()
         providers: dict[str, list[Wire]] = {}
         for port in SCENE_PORTS:
             providers.setdefault(port, []).append(Wire("scene", port))
@@ -322,8 +348,6 @@ class GraphSpec:
         Raises:
             GraphError: naming the selection when it is malformed or selects nothing.
         """
-        from .runtime import parse_frames
-
         where = "frames" if frames is not None else f"graph {self.name!r}: [graph] frames"
         try:
             return parse_frames(frames if frames is not None else self.frames, scene)
@@ -383,283 +407,5 @@ class GraphSpec:
         self._check_validate_frames(scene)
         if lighting is None:
             lighting = self.lighting_source(scene)
-        return Runtime(self, scene, device=device, lighting=lighting, **kwargs)
-
-
-def lighting_from_spec(spec: dict, scene, base_dir: Path | None = None) -> LightingSource:
-    """A graph's ``[lighting]`` table as a :class:`~warpshade.scene.LightingSource`.
-
-    Keys: ``source`` ("scene" default; "distant": the scene's environments and distant lights
-    without its sphere lights; "sky", "constant", or an .hdr/.exr path relative to the graph file), ``rotate_degrees_per_frame`` (0), ``intensity`` (1.0, scales every light),
-    ``color`` (for "constant").
-
-    Raises:
-        ValueError: naming the key at fault.
-    """
-    spec = dict(spec or {})
-    source = spec.pop("source", "scene")
-    speed = float(spec.pop("rotate_degrees_per_frame", 0.0))
-    intensity = float(spec.pop("intensity", 1.0))
-    color = spec.pop("color", (1.0, 1.0, 1.0))
-    if spec:
-        raise ValueError(f"[lighting]: unknown key(s) {sorted(spec)}")
-    to_world = up_rotation(scene.up_axis)
-    if source == "scene":
-        lights = list(scene.lights) or [Environment.sky(to_world=to_world)]
-    elif source == "distant":
-        lights = [light for light in scene.lights if not isinstance(light, SphereLight)] or [Environment.sky(to_world=to_world)]
-    elif source == "sky":
-        lights = [Environment.sky(to_world=to_world)]
-    elif source == "constant":
-        lights = [Environment.constant(color)]
-    else:
-        from ..io.images import read_image
-
-        p = Path(source)
-        if not p.is_absolute() and base_dir is not None:
-            p = base_dir / p
-        lights = [Environment(read_image(p), to_world=to_world, path=str(p))]
-    if intensity != 1.0:
-        lights = [scaled_light(light, intensity) for light in lights]
-    return LightingSource(lights, scene.up_axis, speed, float(scene.frames[0]))
-
-
-def extend_static_frames(scene, frame_count: int):
-    """A static scene with ``frame_count`` time codes 0..frame_count-1 (e.g. to rotate lighting).
-
-    Raises:
-        GraphError: when the scene is animated (its own time range must be used).
-    """
-    if frame_count < 1:
-        raise GraphError(f"frame_count must be >= 1, got {frame_count}")
-    if not scene.is_static:
-        raise GraphError(f"scene {scene.source}: frame_count only applies to static scenes (this one is animated)")
-    from ..scene import Scene
-
-    return Scene(
-        scene.meshes, frames=range(frame_count), fps=scene.fps, skeletons=scene.skeletons, lights=scene.lights,
-        camera=scene.camera, up_axis=scene.up_axis, source=scene.source, skipped=scene.skipped,
-    )
-
-
-_GRAPH_KEYS = {"name", "description", "scene", "frames", "output"}
-#: Scene options a ``[graph]`` table may carry (passed to :func:`warpshade.io.load_scene`, except
-#: ``frame_count``) and their types.
-SCENE_OPTIONS = {"ground_plane": bool, "sky": bool, "ground_resolution": int, "frame_count": int}
-_TABLES = ("graph", "lighting", "validate", "stage", "material")
-_LIGHTING_KEYS = ("source", "rotate_degrees_per_frame", "intensity", "color")
-_VALIDATE_KEYS = ("frames", "samples")
-#: Graph and stage names: they become file and cache-key names, so no separators, no "..".
-NAME_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,99}$")
-
-
-def check_name(name, where: str) -> str:
-    """A graph or stage name usable as a file name: letters, digits, ``_ . -``, at most 100,
-    starting with a letter or digit, no ``..`` (nothing is ever written outside ``--out``).
-
-    Raises:
-        GraphError: naming ``where``.
-    """
-    if not isinstance(name, str) or not NAME_PATTERN.match(name) or ".." in name:
-        raise GraphError(f"{where}: name {name!r} is not allowed: use letters, digits, '_', '.' and '-' "
-                         "(at most 100, starting with a letter or digit, no '..'); it names the output files")
-    return name
-
-
-def _number(value, where: str, minimum: float | None = None, integer: bool = False):
-    kind = "an integer" if integer else "a number"
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or (integer and not isinstance(value, int)):
-        raise GraphError(f"{where} must be {kind}, got {value!r}")
-    if not math.isfinite(value):
-        raise GraphError(f"{where} must be finite, got {value!r}")
-    if minimum is not None and value < minimum:
-        raise GraphError(f"{where} must be >= {minimum}, got {value!r}")
-    return value
-
-
-def check_frames_spec(spec, where: str):
-    """Syntax of a frame selection (``"A:B"``, ``"A"``, a list of numbers): finite numbers only.
-
-    Raises:
-        GraphError: naming ``where``.
-    """
-    if spec is None:
-        return None
-    if isinstance(spec, (list, tuple)):
-        if not spec:
-            raise GraphError(f"{where}: the list of frames is empty")
-        for f in spec:
-            _number(f, f"{where}: frame")
-        return list(spec)
-    if not isinstance(spec, str):
-        raise GraphError(f"{where} must be a range 'A:B', one time code or a list of numbers, got {spec!r}")
-    parts = spec.split(":", 1) if ":" in spec else [spec]
-    for part in parts:
-        if not part.strip() and len(parts) == 2:
-            continue
-        try:
-            value = float(part)
-        except ValueError:
-            raise GraphError(f"{where}: {part.strip()!r} in {spec!r} is not a number (expected 'A:B', 'A' or a list)") from None
-        if not math.isfinite(value):
-            raise GraphError(f"{where}: {spec!r} is not a finite time code")
-    return spec
-
-
-def _check_lighting_table(t, where: str) -> dict:
-    if not isinstance(t, dict):
-        raise GraphError(f"{where}: [lighting] must be a table")
-    unknown = sorted(set(t) - set(_LIGHTING_KEYS))
-    if unknown:
-        raise GraphError(f"{where}: [lighting] has unknown key(s) {unknown}; known: {list(_LIGHTING_KEYS)}")
-    if "source" in t and not isinstance(t["source"], str):
-        raise GraphError(f"{where}: [lighting] source must be 'scene', 'sky', 'constant' or an image path, got {t['source']!r}")
-    if "rotate_degrees_per_frame" in t:
-        _number(t["rotate_degrees_per_frame"], f"{where}: [lighting] rotate_degrees_per_frame")
-    if "intensity" in t:
-        _number(t["intensity"], f"{where}: [lighting] intensity", minimum=0.0)
-    if "color" in t:
-        c = t["color"]
-        if not isinstance(c, list) or len(c) != 3:
-            raise GraphError(f"{where}: [lighting] color must be three numbers, got {c!r}")
-        for x in c:
-            _number(x, f"{where}: [lighting] color component", minimum=0.0)
-    return t
-
-
-def _check_validate_table(t, where: str) -> dict:
-    from .._limits import MAX_RAYS_PER_VERTEX
-
-    if not isinstance(t, dict):
-        raise GraphError(f"{where}: [validate] must be a table")
-    unknown = sorted(set(t) - set(_VALIDATE_KEYS))
-    if unknown:
-        raise GraphError(f"{where}: [validate] has unknown key(s) {unknown}; known: {list(_VALIDATE_KEYS)}")
-    if "frames" in t:
-        if not isinstance(t["frames"], list):
-            raise GraphError(f"{where}: [validate] frames must be a list of time codes, got {t['frames']!r}")
-        check_frames_spec(t["frames"], f"{where}: [validate] frames")
-    if "samples" in t:
-        n = _number(t["samples"], f"{where}: [validate] samples", minimum=4, integer=True)
-        if n > MAX_RAYS_PER_VERTEX:
-            raise GraphError(f"{where}: [validate] samples = {n} exceeds the limit of {MAX_RAYS_PER_VERTEX} rays per vertex")
-    return t
-
-
-def _check_material_tables(tables, where: str, base_dir) -> list:
-    """The ``[[material]]`` track: a BRDF (the keys of :func:`warpshade.scene.materials.brdf_from_spec`)
-    per frame range (``frames``, default every frame) for every mesh or the meshes ``prims``."""
-    from ..scene.brdfs import brdf_from_spec
-
-    if not isinstance(tables, list):
-        raise GraphError(f"{where}: [[material]] must be an array of tables")
-    out = []
-    for i, t in enumerate(tables):
-        at = f"{where}: [[material]] #{i + 1}"
-        if not isinstance(t, dict):
-            raise GraphError(f"{at} must be a table")
-        frames = check_frames_spec(t.get("frames"), f"{at} frames")
-        prims = t.get("prims")
-        if prims is not None and (not isinstance(prims, list) or not all(isinstance(p, str) for p in prims) or not prims):
-            raise GraphError(f"{at}: prims must be a non-empty list of mesh prim paths, got {prims!r}")
-        try:
-            brdf = brdf_from_spec({k: v for k, v in t.items() if k not in ("frames", "prims")}, at, base_dir)
-        except ValueError as exc:
-            raise GraphError(str(exc)) from None
-        out.append({"frames": frames, "prims": prims, "brdf": brdf, "where": at})
-    return out
-
-
-def _check_scene_options(options: dict, where: str) -> dict:
-    from .._limits import MAX_TIME_CODES
-
-    for key, value in options.items():
-        if key not in SCENE_OPTIONS:
-            raise GraphError(f"{where}: [graph] has unknown key {key!r}; known: {sorted(_GRAPH_KEYS | set(SCENE_OPTIONS))}")
-        want = SCENE_OPTIONS[key]
-        if want is bool and not isinstance(value, bool):
-            raise GraphError(f"{where}: [graph] {key} must be true or false, got {value!r}")
-        if want is int:
-            _number(value, f"{where}: [graph] {key}", minimum=1 if key == "frame_count" else 2, integer=True)
-    if options.get("frame_count", 1) > MAX_TIME_CODES:
-        raise GraphError(f"{where}: [graph] frame_count = {options['frame_count']} exceeds the limit of {MAX_TIME_CODES} "
-                         "time codes (warpshade._limits.MAX_TIME_CODES)")
-    return options
-
-
-def load(path) -> GraphSpec:
-    """Load a stage graph from a TOML file (see module docstring for the layout).
-
-    Everything that can be checked without the scene is checked here: the file, TOML syntax,
-    the tables and their keys, the types and ranges of values, graph and stage names, frame
-    selections, stage types and parameters (:meth:`GraphSpec.build`).
-
-    Raises:
-        GraphError: naming the file and the table or key at fault.
-    """
-    path = Path(path)
-    if not path.exists():
-        raise GraphError(f"stage graph file {path} does not exist")
-    if path.is_dir():
-        raise GraphError(f"stage graph file {path} is a directory, not a TOML file")
-    try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise GraphError(f"stage graph file {path}: cannot be read ({exc.strerror or exc})") from None
-    try:
-        text = data.decode("utf-8")
-    except UnicodeDecodeError:
-        raise GraphError(f"stage graph file {path}: is not a text (UTF-8 TOML) file") from None
-    try:
-        doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise GraphError(f"stage graph file {path}: invalid TOML: {exc}") from None
-    where = f"stage graph file {path}"
-    unknown = sorted(set(doc) - set(_TABLES))
-    if unknown:
-        raise GraphError(f"{where}: unknown table(s) {unknown}; known: {list(_TABLES)}")
-    g = doc.get("graph")
-    if not isinstance(g, dict):
-        raise GraphError(f"{where}: missing [graph] table")
-    if "output" not in g:
-        raise GraphError(f"{where}: [graph] needs an 'output = \"stage.port\"' entry")
-    for key in ("output", "description", "scene"):
-        if key in g and not isinstance(g[key], str):
-            raise GraphError(f"{where}: [graph] {key} must be a string, got {g[key]!r}")
-    default_name = re.sub(r"[^A-Za-z0-9_.-]", "_", path.stem).strip("._-") or "graph"
-    name = check_name(g.get("name", default_name), f"{where}: [graph]")
-    frames = check_frames_spec(g.get("frames"), f"{where}: [graph] frames")
-    scene_options = _check_scene_options({k: v for k, v in g.items() if k not in _GRAPH_KEYS}, where)
-    raw_stages = doc.get("stage", [])
-    if not isinstance(raw_stages, list) or not raw_stages:
-        raise GraphError(f"{where}: needs at least one [[stage]] table")
-    stages = []
-    for i, st in enumerate(raw_stages):
-        if not isinstance(st, dict) or "name" not in st or "type" not in st:
-            raise GraphError(f"{where}: [[stage]] #{i + 1} needs 'name' and 'type'")
-        check_name(st["name"], f"{where}: [[stage]] #{i + 1}")
-        if not isinstance(st["type"], str):
-            raise GraphError(f"{where}: stage {st['name']!r}: 'type' must be a string, got {st['type']!r}")
-        params = {k: v for k, v in st.items() if k not in ("name", "type", "inputs")}
-        inputs = st.get("inputs", {})
-        if not isinstance(inputs, dict) or not all(isinstance(v, str) for v in inputs.values()):
-            raise GraphError(f"{where}: stage {st['name']!r}: 'inputs' must be a table of \"stage.port\" strings")
-        stages.append(StageSpec(st["name"], st["type"], params, inputs))
-    lighting = _check_lighting_table(doc.get("lighting", {}), where)
-    validate = _check_validate_table(doc.get("validate", {}), where)
-    material_track = _check_material_tables(doc.get("material", []), where, path.resolve().parent)
-    spec = GraphSpec(
-        stages=stages,
-        output=g["output"],
-        name=name,
-        description=g.get("description", ""),
-        scene=g.get("scene"),
-        scene_options=scene_options,
-        frames=frames,
-        lighting=lighting,
-        validate_spec=validate,
-        source_path=path.resolve(),
-        materials=material_track,
-    )
-    spec.build()  # stage types, parameters, wiring: before any scene is loaded
-    return spec
+        stages, wiring = self._stages_for_run({"V": scene.vertex_count, "T": len(scene.frames), "F": scene.triangle_count})
+        return Runtime(self, scene, stages, wiring, device=device, lighting=lighting, **kwargs)

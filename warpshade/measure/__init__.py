@@ -1,5 +1,6 @@
 """The measuring layer, above the runtime: ground truth, errors, pictures, outputs, budgets.
 
+* :mod:`.protocols` -- what measuring asks of a stage (its reference model, per-pixel shading);
 * :mod:`.truth` -- ray-traced ground truth cached on disk; a run's error against it;
 * :mod:`.metrics` -- relative RMS, 99th percentile, ground-truth noise;
 * :mod:`.pictures` -- previews and method | reference | error pictures of a run;
@@ -16,6 +17,7 @@ from .harness import run_setting, setting_error
 from .metrics import combine_metrics, error_metrics
 from .outputs import report, write_report, write_usd
 from .pictures import comparison_figure, error_colors, render_comparisons, render_previews
+from .protocols import ground_truth_model
 from .scenes import BENCH_SCENES, error_frames, load_bench_scene, pick_frames, scene_kinds
 from .truth import GT_SEED, VALIDATE_SEED, Measurement, ground_truth, measure_error, reference_model, truth_cache
 
@@ -33,6 +35,7 @@ __all__ = [
     "error_frames",
     "error_metrics",
     "ground_truth",
+    "ground_truth_model",
     "load_bench_scene",
     "measure_error",
     "method_candidates",

@@ -1,4 +1,4 @@
-"""Per-pixel images of a run: stages that shade G-buffers (``render_pixels``), their materials
+"""Per-pixel images of a run: stages that shade G-buffers (:class:`.protocols.PixelStage`), their materials
 from the meshes' textures at every pixel, linear EXR + PNG per frame, and the error of each image
 against the per-pixel ray-traced reference (:func:`warpshade.reference.pixels.reference_image`).
 
@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from .._wp import wp
+from .protocols import PixelStage, ground_truth_model
 
 #: The primary-ray BVH of each run without one of its own (built once, refit per frame).
 _BVHS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
@@ -33,12 +34,12 @@ __all__ = ["PixelImage", "exposure_for", "measure_pixels", "pixel_bvh", "pixel_m
 
 
 def pixel_stage(runtime):
-    """The stage of the run that shades pixels (has ``render_pixels``): the output's, else the
-    first such stage; None when there is none."""
+    """The stage of the run that shades pixels (a :class:`~warpshade.measure.protocols.PixelStage`):
+    the output's, else the first such stage; None when there is none."""
     out_name = runtime.spec.output.split(".")[0] if getattr(runtime, "spec", None) is not None else None
     stages = list(runtime.stages)
     for st in ([s for s in stages if s.name == out_name] + stages):
-        if hasattr(st, "render_pixels"):
+        if isinstance(st, PixelStage):
             return st
     return None
 
@@ -192,9 +193,9 @@ def measure_pixels(runtime, out_dir, frames, width: int = 160, height: int = 120
                    textures: bool | None = None, seed: int = 0) -> dict:
     """Per-pixel error of the pixel stage against the per-pixel glossy reference, per frame.
 
-    The reference has the stage's reference BRDF (:meth:`reference_model_at`), eye and colour, the
-    frame's lights, and the per-pixel roughness and specular colour the method shaded with; the
-    error is the relative RMS over fully covered pixels (``sqrt(mean |d|^2) / sqrt(mean |ref|^2)``
+    The reference has the stage's per-pixel reference BRDF, eye and colour
+    (:func:`~warpshade.measure.protocols.ground_truth_model` with ``per_pixel``), the frame's
+    lights, and the per-pixel roughness and specular colour the method shaded with; the error is the relative RMS over fully covered pixels (``sqrt(mean |d|^2) / sqrt(mean |ref|^2)``
     over RGB), with the part explained by the reference's own noise.
 
     Returns:
@@ -210,7 +211,7 @@ def measure_pixels(runtime, out_dir, frames, width: int = 160, height: int = 120
     report = {"width": width, "height": height, "samples": samples, "supersample": supersample, "frames": {}}
     for f in frames:
         im = render_frame(runtime, f, width, height, supersample, textures)
-        model = st.reference_model_at(float(f), runtime.state.materials, runtime.state.eye.numpy()[0], per_pixel=True)
+        model = ground_truth_model(st, runtime.state.materials, runtime.state.eye.numpy()[0], per_pixel=True)
         brdf = model["brdf"]
         mats = im.materials
         uses_roughness = hasattr(brdf, "roughness")

@@ -34,7 +34,7 @@ def load_bench_scene(key: str, rotate_degrees_per_frame: float = ROTATE_DEGREES_
     Raises:
         ValueError: an unknown key that is no loadable scene spec either.
     """
-    from ..graph.spec import extend_static_frames
+    from ..graph.scene_inputs import extend_static_frames
     from ..io import load_scene
     from ..scene import LightingSource
 

@@ -2,7 +2,7 @@
 
 * :func:`ground_truth` -- reference radiance and its Monte Carlo standard error per frame
   (:func:`warpshade.reference.shade`, or :func:`~warpshade.reference.shade_glossy` for a
-  stage whose ``reference_model`` names a BRDF), cached by a content hash of the scene, the
+  stage whose reference model names a BRDF, :mod:`.protocols`), cached by a content hash of the scene, the
   frame, the lighting, the samples, the seed, the estimator version and the model;
 * :func:`reference_model` -- what a run's output is measured against;
 * :func:`measure_error` -- a run's recorded (or freshly stepped) output against ground truth on
@@ -19,6 +19,7 @@ import numpy as np
 
 from .._hashing import hash_json
 from .metrics import combine_metrics, error_metrics
+from .protocols import ground_truth_model
 
 __all__ = ["GT_SEED", "VALIDATE_SEED", "Measurement", "ground_truth", "reference_model", "measure_error", "truth_cache"]
 
@@ -155,9 +156,15 @@ def ground_truth(scene, lighting, frames, samples: int = 1024, device="cpu", cac
     return {float(f): out[float(f)] for f in frames}
 
 
-def reference_model(runtime) -> dict | None:
-    """What the run's output is measured against: None (diffuse) or glossy reference arguments."""
-    return runtime.reference_model()
+def reference_model(runtime, frame=None) -> dict | None:
+    """What the run's output is measured against: None (diffuse) or the reference's arguments
+    (:func:`~warpshade.measure.protocols.ground_truth_model` of the output stage), for time code
+    ``frame`` -- with the material assignment and eye of that frame -- or, when None, for the
+    run's current materials and eye."""
+    st = runtime.output_stage()
+    if frame is None:
+        return ground_truth_model(st)
+    return ground_truth_model(st, runtime.materials_at(frame), runtime.evaluator.eye_at(frame))
 
 
 @dataclass
@@ -189,7 +196,7 @@ def measure_error(runtime, frames=None, samples: int | None = None, seed: int = 
         cache_dir: where the ground truth is cached (:func:`truth_cache`).
         executor: computes missing ground-truth frames as tasks (:func:`ground_truth`).
     """
-    from ..graph.runtime import parse_frames
+    from ..graph.scene_inputs import parse_frames
 
     spec = runtime.spec.validate_spec
     if frames is None:
@@ -197,7 +204,7 @@ def measure_error(runtime, frames=None, samples: int | None = None, seed: int = 
     samples = int(spec.get("samples", 1024) if samples is None else samples)
     sel = parse_frames(list(frames), runtime.scene)
     # the reference of each frame (a material track or a moving eye make it differ between frames)
-    models = {float(f): runtime.reference_model(f) for f in sel}
+    models = {float(f): reference_model(runtime, f) for f in sel}
     truth = {}
     for desc in {hash_json(_model_description(m)) for m in models.values()}:
         fs = [f for f in sel if hash_json(_model_description(models[float(f)])) == desc]

@@ -2,7 +2,7 @@
 
 Each method subpackage holds ``kernels.py`` (Warp kernels) beside ``stages.py`` (the stages
 that orchestrate them), registers its stage types on import, and may define
-``harness_rows(quick)`` for the speed-vs-accuracy harness (:mod:`warpshade.methods.harness`).
+``harness_rows(quick)`` for the speed-vs-accuracy harness (:mod:`warpshade.methods.rows`).
 Subpackages are discovered, so adding a method needs no edit here.
 """
 

@@ -2,21 +2,22 @@
 
 A stage declares typed input and output ports and typed parameters, and is one of two kinds:
 
-* ``"precompute"`` -- runs once per scene and parameters; :meth:`Stage.precompute` returns
+* ``"precompute"`` -- runs once per scene and parameters; :meth:`PrecomputeStage.precompute` returns
   host artifacts (NumPy arrays) that the runtime caches on disk, keyed by a content hash of
   everything that matters (stage type and version, parameters, the scene when the stage reads
   it, and the keys of its input artifacts), so a change anywhere upstream recomputes it and
   nothing else;
-* ``"frame"`` -- runs every frame. :meth:`Stage.setup` allocates its device outputs once and
+* ``"frame"`` -- runs every frame. :meth:`FrameStage.setup` allocates its device outputs once and
   binds its inputs (device arrays of upstream ports, the scene's per-frame arrays);
-  :meth:`Stage.launch` ``(state)`` only launches kernels on fixed buffers, reading what
+  :meth:`FrameStage.launch` ``(state)`` only launches kernels on fixed buffers, reading what
   changes per frame from the :class:`~warpshade.scene.state.FrameState` -- never from the
   runtime or another stage -- so the whole frame (scene evaluation and every stage) is recorded
   once and replayed, on CUDA and on the CPU (:func:`warpshade._wp.record_program`).
 
 Changes that do not come from the frame (a new lighting, albedo, eye or a stage parameter)
-reach a frame stage through one call, :meth:`Stage.notify_changed` with
-:class:`~warpshade.scene.state.Change` flags (after Newton's ``notify_model_changed``).
+reach a frame stage through one call, :meth:`FrameStage.notify_changed` with
+:class:`~warpshade.scene.state.Change` flags and the names of the parameters that changed
+(after Newton's ``notify_model_changed`` and Mitsuba's ``SceneParameters.update``).
 
 Every stage type registers itself under a dotted name (``"prt.transfer"``) with
 :func:`register_stage`; stage graphs (TOML or Python, :mod:`warpshade.graph`) refer to stages
@@ -34,8 +35,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from typing import Any, ClassVar
-
-import numpy as np
 
 from ..scene.state import Change
 
@@ -284,13 +283,17 @@ class FrameStage(Stage):
         """Kernel launches on fixed buffers only, for the frame ``state`` holds (recordable)."""
         raise NotImplementedError(f"stage {self.name!r} ({self.type_name}) has no launch")
 
-    def notify_changed(self, flags: Change) -> bool:
-        """Something outside the frame changed (:class:`~warpshade.scene.state.Change` flags).
+    def notify_changed(self, flags: Change, keys: frozenset = frozenset()) -> bool:
+        """Something outside the frame changed (:class:`~warpshade.scene.state.Change` flags);
+        with :data:`~warpshade.scene.state.Change.PARAMETERS`, ``keys`` names the parameters of
+        this stage that changed (``self.params`` already holds their new values).
 
         Returns True when the stage keeps working with its current set-up (what changed is read
-        from device arrays it already binds), False when it must be set up again -- the runtime
-        then re-runs :meth:`setup` for it and every stage downstream. The default: a changed
-        parameter needs a new set-up, anything else is read per frame.
+        from device arrays it already binds, or the stage has just written it into them: the
+        recorded frame is replayed as it is), False when it must be set up again -- the runtime
+        then re-runs :meth:`setup` for it and every stage downstream and records the frame anew.
+        The default: a changed parameter needs a new set-up, anything else is read per frame. A
+        stage absorbs a parameter it can write into its bound arrays by checking ``keys``.
         """
         return not (flags & Change.PARAMETERS)
 
@@ -302,32 +305,6 @@ class FrameStage(Stage):
         """Facts about the last frame worth reporting (e.g. receivers that fell back to a
         cheaper estimate); read from the device, so only after a frame, never inside one."""
         return {}
-
-    # ---- measuring (to move to the measuring layer's protocol) -------------------------
-    def reference_model(self) -> dict | None:
-        """What ground truth this stage's radiance is measured against, or None for the default.
-
-        The default (None) is the diffuse reference of :func:`warpshade.reference.shade` with
-        the scene's albedo. A stage whose output is something else returns keyword arguments
-        for :func:`warpshade.reference.shade_glossy` (``brdf``, ``eye``, ``color``), from its own
-        parameters and inputs (known after ``setup``).
-        """
-        return None
-
-    #: True when the stage shades toward the state's eye (the camera, or ``set_eye``): its
-    #: reference then follows the eye of each frame (an animated camera).
-    follows_state_eye: bool = False
-
-    def reference_model_at(self, frame: float, materials, eye=None) -> dict | None:
-        """:meth:`reference_model` for time code ``frame``, with the run's material assignment
-        of that frame (a :class:`~warpshade.scene.state.MaterialAssignment`) and its eye (3,).
-        The default replaces the model's eye when the stage :attr:`follows_state_eye`; stages
-        whose BRDFs change over a run override this. A model may hold ``groups``: a list of
-        ``{"vertices": indices, "brdf": BRDF}`` for meshes with BRDFs of their own."""
-        model = self.reference_model()
-        if model is not None and "eye" in model and eye is not None and self.follows_state_eye:
-            model = {**model, "eye": np.asarray(eye, np.float64)}
-        return model
 
 
 _REGISTRY: dict[str, type[Stage]] = {}

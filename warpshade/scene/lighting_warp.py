@@ -37,7 +37,7 @@ import functools
 
 import numpy as np
 
-from .._wp import HostInput, resolve_device, wp
+from .._wp import HostFields, HostInput, resolve_device, wp
 from ..basis import quadrature
 from ..basis.sh_warp import MAX_KERNEL_ORDER, SHTables, sh_kernels
 
@@ -421,8 +421,8 @@ class FrameLighting:
     Args:
         source: the lighting description (host, float64).
         frames: the scene's time codes, (T,).
-        frame_input: the evaluator's :class:`~warpshade._wp.HostInput` (int32, at least 2
-            entries): ``[frame index, SH override on]``.
+        frame_input: the evaluator's :class:`~warpshade._wp.HostFields` (read only):
+            ``frame_index`` and ``sh_override`` (then the coefficients of :meth:`set_override`).
         device: the Warp device.
 
     Attributes:
@@ -435,7 +435,7 @@ class FrameLighting:
         environment_to_world: (E,) mat33, the map-to-world rotation of each Environment.
     """
 
-    def __init__(self, source, frames, frame_input: HostInput, device=None):
+    def __init__(self, source, frames, frame_input: HostFields, device=None):
         from .lighting import DistantLight, Environment
 
         dev = resolve_device(device)
@@ -523,9 +523,10 @@ class FrameLighting:
 
     # ---- overrides (host writes, read by the next frame) --------------------------------
     def set_override(self, coeffs) -> None:
-        """Use these world-frame SH coefficients (3, n*n), n >= every asked order, instead of the
-        lights' for the next frames, until :meth:`clear_override`. Only the SH lighting is
-        overridden; stages that sample the lights themselves keep the source's lights."""
+        """The world-frame SH coefficients (3, n*n), n >= every asked order, used instead of the
+        lights' while the frame input ``sh_override`` is set (by the evaluator's
+        ``set_lighting_override``). Only the SH lighting is overridden; stages that sample the
+        lights themselves keep the source's lights."""
         c = np.asarray(coeffs, np.float64)
         need = self._max_order * self._max_order
         if c.ndim != 2 or c.shape[0] != 3 or c.shape[1] < need or int(round(np.sqrt(c.shape[1]))) ** 2 != c.shape[1]:
@@ -535,10 +536,6 @@ class FrameLighting:
             raise ValueError("lighting override contains NaN or infinite coefficients")
         if need:
             self._override.host[...] = c[:, :need]
-        self._input.host[1] = 1
-
-    def clear_override(self) -> None:
-        self._input.host[1] = 0
 
     # ---- per frame ----------------------------------------------------------------------
     def launch(self) -> None:

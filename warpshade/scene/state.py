@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from .._wp import HostInput, resolve_device, wp
+from .._wp import HostFields, resolve_device, wp
 
 __all__ = ["Change", "FrameState", "FrameEvaluator", "MaterialAssignment", "DEVICE_SAMPLE_BYTES", "CPU_REFIT_NOTE"]
 
@@ -248,7 +248,10 @@ class FrameEvaluator:
         self.device = dev
         data = _static_data(scene, dev)
         self._data = data
-        self.input = HostInput((4,), wp.int32, dev)  # [frame index, SH override on, eye set by the host, -]
+        #: the frame's host inputs, written only by this evaluator: the frame index, whether the
+        #: SH lighting is overridden (``set_lighting_override``), whether the host set the eye
+        #: (``set_eye``); kernels read them as ``frame[0]``, ``frame[1]``, ``frame[2]``
+        self.input = HostFields(("frame_index", "sh_override", "eye_from_host"), dev)
         self.uncaptured: list[str] = []
 
         # per-mesh transform tables (skeleton-to-world for skinned meshes), row t = frame index t
@@ -348,7 +351,7 @@ class FrameEvaluator:
             ValueError: naming the valid range when ``frame`` is not a time code of the scene.
         """
         t = self.scene.frame_index(frame)
-        self.input.host[0] = t
+        self.input.write(frame_index=t)
         self.state.frame = float(self.scene.frames[t])
         self.state.frame_index = t
         return t
@@ -360,8 +363,24 @@ class FrameEvaluator:
             raise ValueError(f"eye: expected three finite numbers, got {position!r}")
         self.state.eye.assign(np.asarray([p], np.float32))
         self.state.has_eye = True
-        self.input.host[2] = 1  # the camera path (if any) stops driving the eye
+        self.input.write(eye_from_host=1)  # the camera path (if any) stops driving the eye
         self._eye_set = p.copy()
+
+    def set_lighting(self, source) -> None:
+        """Light the next frames with ``source`` (a :class:`~warpshade.scene.LightingSource`):
+        a new ``state.lighting`` (stages bound to the old one must be set up again); no override."""
+        from .lighting_warp import FrameLighting
+
+        self.lighting_source = source
+        self.state.lighting = FrameLighting(source, self.scene.frames, self.input, self.device)
+        self.input.write(sh_override=0)
+
+    def set_lighting_override(self, coeffs) -> None:
+        """Use world-frame SH coefficients (3, n*n) instead of the lights' SH for the next
+        frames (:meth:`~warpshade.scene.lighting_warp.FrameLighting.set_override`), or the lights' again when ``coeffs`` is None."""
+        if coeffs is not None:
+            self.state.lighting.set_override(coeffs)
+        self.input.write(sh_override=int(coeffs is not None))
 
     def eye_at(self, frame) -> np.ndarray:
         """The eye at time code ``frame``: the position set by :meth:`set_eye`, else the
@@ -491,7 +510,7 @@ class FrameEvaluator:
         from ..geometry.skinning import launch_transform_points
 
         def upload():
-            t = int(self.input.host[0])
+            t = self.input["frame_index"]
             src = wp.array(np.asarray(mesh.point_samples[t], np.float32), dtype=wp.vec3, device=self.device)
             launch_transform_points(src, 0, mesh.vertex_count, self.state.mesh_transforms, self.state.points,
                                     mesh.vertex_offset, matrix_index=k)

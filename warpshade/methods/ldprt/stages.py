@@ -369,9 +369,9 @@ class LdprtGlossyShadeStage(FrameStage):
         self._radiance = wp.zeros((v, 3), dtype=wp.float32, device=ctx.device)
         return {"radiance": self._radiance}
 
-    def reference_model(self):
+    def reference_model(self, materials=None):
         """Glossy ground truth with the fit's BRDF (its ``brdf`` input), the current eye and
-        this stage's specular colour."""
+        this stage's specular colour (:class:`warpshade.measure.protocols.MeasuredStage`)."""
         from .glossy import brdf_from_arrays
 
         return {

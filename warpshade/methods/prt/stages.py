@@ -79,8 +79,9 @@ class PrtShadeStage(FrameStage):
             transfer = {"transfer": Port("float32", ("V", "C"), "diffuse transfer vectors, world frame")}
         return {**transfer, "albedo": Port("float32", ("V", 3)), "lighting": Port("lighting")}
 
-    def reference_model(self):
-        """Interreflected transfer is measured against the reference with the same bounces."""
+    def reference_model(self, materials=None):
+        """Interreflected transfer is measured against the reference with the same bounces
+        (:class:`warpshade.measure.protocols.MeasuredStage`)."""
         return {"bounces": self.params["bounces"]} if self.params["bounces"] else None
 
     def output_ports(self):

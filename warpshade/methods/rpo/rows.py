@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from ..harness import HarnessRow
+from ..rows import HarnessRow
 
 __all__ = ["harness_rows", "rpo_stages"]
 

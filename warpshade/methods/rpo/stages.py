@@ -114,14 +114,13 @@ class GlossyStage(FrameStage):
         self.follows_state_eye = p["eye"] is None
         self._brdf = _stage_brdf(self, ctx)
 
-    def reference_model(self):
-        """Glossy ground truth with the BRDF of the meshes, the eye and the specular colour."""
-        return self.reference_model_at(None, self._state.materials)
-
-    def reference_model_at(self, frame, materials_at, eye=None):
-        per_mesh = [materials_at.brdf_of(m.path, self._brdf) for m in self._scene.meshes]
-        if eye is None or not self.follows_state_eye:
-            eye = self._eye.numpy()[0]
+    def reference_model(self, materials=None):
+        """Glossy ground truth with the BRDF of the meshes (of ``materials``, a
+        :class:`~warpshade.scene.state.MaterialAssignment`; default the run's current one), the
+        stage's eye and the specular colour (:class:`warpshade.measure.protocols.MeasuredStage`)."""
+        materials = self._state.materials if materials is None else materials
+        per_mesh = [materials.brdf_of(m.path, self._brdf) for m in self._scene.meshes]
+        eye = self._eye.numpy()[0]
         model = {"brdf": per_mesh[0], "eye": np.asarray(eye, np.float64),
                  "color": np.array([self._specular[0], self._specular[1], self._specular[2]], np.float64)}
         descs = [b.describe() for b in per_mesh]
@@ -257,7 +256,7 @@ class RpoShadeStage(GlossyStage):
         self._zh_axes0.assign(self.zh.axes.astype(np.float32))
         self._zh_coeffs.assign(self.zh.coeffs.astype(np.float32))
 
-    def notify_changed(self, flags) -> bool:
+    def notify_changed(self, flags, keys=frozenset()) -> bool:
         from ...scene.state import Change
 
         if flags & Change.PARAMETERS:

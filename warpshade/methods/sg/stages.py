@@ -389,7 +389,7 @@ class SgShadeStage(FrameStage):
                           f"on {first['count']} frame(s) (from frame index {first['frames'][0]}): precomputed visibility is "
                           "for distant light, its shadows there are wrong", RuntimeWarning, stacklevel=2)
 
-    def notify_changed(self, flags) -> bool:
+    def notify_changed(self, flags, keys=frozenset()) -> bool:
         from ...scene.state import Change
 
         if flags & Change.PARAMETERS:
@@ -486,14 +486,20 @@ class SgShadeStage(FrameStage):
         return out
 
     # ---- measuring --------------------------------------------------------------------
-    def reference_model(self):
-        return self.reference_model_at(None, self._state.materials)
-
-    def reference_model_at(self, frame, materials_at, eye=None, per_pixel: bool = False):
+    def reference_model(self, materials=None):
         """The ground truth this output is measured against: the glossy reference (specular
-        term, Beckmann or Blinn-Phong BRDF, this stage's eye and colour), or the diffuse one.
-        ``per_pixel``: for a per-pixel reference that takes the textured roughness and colours
-        per pixel (textured materials cannot be measured per vertex)."""
+        term, Beckmann or Blinn-Phong BRDF, this stage's eye and colour), or the diffuse one
+        (:class:`warpshade.measure.protocols.MeasuredStage`)."""
+        return self._reference_model(per_pixel=False)
+
+    def pixel_reference_model(self, materials=None):
+        """:meth:`reference_model` for a per-pixel reference, which takes the textured roughness
+        and colours per pixel (:class:`warpshade.measure.protocols.PixelStage`)."""
+        return self._reference_model(per_pixel=True)
+
+    def _reference_model(self, per_pixel: bool):
+        """The glossy reference model; ``per_pixel``: textured materials are measured per pixel
+        (per vertex only with brdf = 'beckmann', whose reference takes a roughness per vertex)."""
         p = self.params
         if p["component"] == "diffuse":
             return None
@@ -511,9 +517,7 @@ class SgShadeStage(FrameStage):
             brdf = materials.Microfacet(roughness=p["roughness"], distribution="beckmann", f0=p["f0"])
         else:
             brdf = materials.BlinnPhong(exponent=p["roughness"])
-        if eye is None or not self.follows_state_eye:
-            eye = self._eye.numpy()[0]
-        model = {"brdf": brdf, "eye": np.asarray(eye, np.float64), "color": self._specular_rgb.copy()}
+        model = {"brdf": brdf, "eye": self._eye.numpy()[0].astype(np.float64), "color": self._specular_rgb.copy()}
         if textured:
             # the materials the vertices were shaded with: roughness and specular colour per vertex
             model["color"] = self._spec.numpy().astype(np.float64)
