@@ -6,7 +6,7 @@ water, ``--scenes bundled:ripples``.
 
 from __future__ import annotations
 
-from ..harness import HarnessRow
+from ..rows import HarnessRow
 
 __all__ = ["HEIGHT_FIELD_SCENES", "harness_rows", "heightfield_stages"]
 

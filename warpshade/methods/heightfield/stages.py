@@ -205,7 +205,7 @@ class HeightFieldShadeStage(GlossyStage):
         self.table = view_table(op, p["view_table"], p["factors"], brdf)
         self._ftable.assign(self.table.astype(np.float32))
 
-    def notify_changed(self, flags) -> bool:
+    def notify_changed(self, flags, keys=frozenset()) -> bool:
         from ...scene.state import Change
 
         if flags & Change.PARAMETERS:
