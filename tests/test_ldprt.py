@@ -27,14 +27,13 @@ from warpshade.methods.ldprt.reference import rotate_stored
 from warpshade.scene import Environment, Mesh, Scene
 from warpshade.transfer import compute
 
+from tolerances import RTOL_TABLE
+
 ROOT = Path(__file__).resolve().parent.parent
 ORDER = 3
 # float32 kernels vs float64 reference: SH recurrences of order 3 and sums of a few lobes,
 # relative to the largest radiance.
 RTOL_FLOAT32 = 5e-5
-# Table look-ups (bilinear, 65 x 128 grid, order 3) vs direct SH evaluation, relative to the
-# largest radiance (see tests/test_zh.py: interpolation error ~5e-4 of the lighting norm).
-RTOL_TABLE = 3e-3
 # zxzxz SH rotation in float32 vs float64 rotation: a few hundred products.
 RTOL_ROTATION = 1e-4
 

@@ -19,8 +19,8 @@ from warpshade.methods.ldprt.wrinkle import (
 )
 from warpshade.scene import Environment, Mesh, Scene
 
-# Quadrature projection of the membrane function (kinked at the horizon), Gauss-Legendre degree 400.
-ATOL_QUADRATURE = 2e-4
+from tolerances import ATOL_QUADRATURE
+
 # float32 kernels vs float64 reference (SH order 4 recurrences, sums over 3 lobes), relative to
 # the largest radiance.
 RTOL_FLOAT32 = 1e-4

@@ -13,8 +13,8 @@ import pytest
 from warpshade._wp import wp
 from warpshade.basis import sg, sg_warp
 
-#: float32 kernels against the float64 functions (a few ulp of exp/erf at O(1) magnitudes).
-RTOL_FLOAT32 = 2e-5
+from tolerances import RTOL_FLOAT32
+
 #: the issue's goal for the inner product against quadrature.
 INNER_PRODUCT_TOL = 1e-3
 #: the issue's goal for f_h (erf form), as a fraction of f_h(pi/2, lambda), for lambda in [1, 400].
