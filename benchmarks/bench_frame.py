@@ -38,14 +38,9 @@ from pathlib import Path
 
 import numpy as np
 
+from warpshade._wp import wp
+
 ROOT = Path(__file__).resolve().parent.parent
-try:  # an earlier version on PYTHONPATH (--before) must win over this checkout
-    import warpshade  # noqa: F401
-except ImportError:  # pragma: no cover - run from a bare checkout
-    sys.path.insert(0, str(ROOT))
-
-from warpshade._wp import wp  # noqa: E402
-
 GRAPHS = ("demo", "figure_ldprt", "figure_shexp")
 RESULTS = ROOT / "benchmarks" / "results"
 
@@ -194,7 +189,10 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default=str(RESULTS))
     ap.add_argument("--cache", default=None, help="artifact cache directory (default: a temporary one)")
     ap.add_argument("--inner", default=None, help=argparse.SUPPRESS)  # child process: write rows here
+    ap.add_argument("--quick", action="store_true", help="smoke profile: 3 frames per graph, no variants")
     args = ap.parse_args(argv)
+    if args.quick:
+        args.frames, args.no_variants = 3, True
     own_cache = tempfile.TemporaryDirectory(prefix="warpshade-frame-") if args.cache is None else None
     cache_dir = args.cache or own_cache.name
     if args.inner:

@@ -35,7 +35,6 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
 
 DATE = "2026-12-01"
 
@@ -86,7 +85,10 @@ def main(argv=None) -> int:
     ap.add_argument("--vertices", type=int, default=4096, help="random vertices measured against the reference")
     ap.add_argument("--frames", type=int, default=24, help="frames timed (the clip from 0)")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results"))
+    ap.add_argument("--quick", action="store_true", help="smoke profile: 16 samples, 128 vertices, 2 frames")
     args = ap.parse_args(argv)
+    if args.quick:
+        args.spp, args.vertices, args.frames = 16, 128, 2
 
     import warpshade.methods.ldprt.stages  # noqa: F401  (ldprt.frames)
     import warpshade.methods.heightfield  # noqa: F401  (the height-field stages)

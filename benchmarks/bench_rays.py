@@ -35,7 +35,6 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 
 from warpshade._fileio import write_json_atomic  # noqa: E402
 from warpshade._wp import cpu_workers, launch_parallel, resolve_device, wp  # noqa: E402
@@ -155,7 +154,11 @@ def main(argv=None):
     parser.add_argument("--no-mitsuba", action="store_true")
     parser.add_argument("--no-convergence", action="store_true")
     parser.add_argument("--out", default=str(ROOT / "benchmarks" / "results"))
+    parser.add_argument("--quick", action="store_true",
+                        help="smoke profile: 256 receivers x 16 samples, one repeat, no Mitsuba, no convergence study")
     args = parser.parse_args(argv)
+    if args.quick:
+        args.receivers, args.samples, args.repeats, args.no_mitsuba, args.no_convergence = 256, 16, 1, True, True
 
     dev = resolve_device(args.device)
     scene, scene_name = load_scene(args.scene)

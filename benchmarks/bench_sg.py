@@ -60,7 +60,6 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
 
 RESULTS = ROOT / "benchmarks" / "results"
 #: The material of every row: Beckmann microfacets (the BRDF of stages/sunlit_sg.toml).

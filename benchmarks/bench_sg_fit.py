@@ -27,14 +27,12 @@ import datetime
 import math
 import os
 import platform
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
 
 from warpshade._fileio import atomic_path, write_json_atomic
 from warpshade.methods.sg import brdf, slices

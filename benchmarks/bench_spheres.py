@@ -42,7 +42,6 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 
 from warpshade._fileio import atomic_path, write_json_atomic
 from warpshade._wp import launch_parallel, resolve_device, wp

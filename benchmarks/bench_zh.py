@@ -33,7 +33,6 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
 
 from warpshade._fileio import atomic_path, write_json_atomic
 from warpshade.basis import zh

@@ -28,7 +28,7 @@ def test_stage_folder_is_not_empty():
 
 
 @pytest.mark.parametrize("graph_file", STAGES, ids=[p.stem for p in STAGES])
-def test_stage_graph_runs(graph_file, tmp_path, update_goldens):
+def test_stage_graph_runs(device, graph_file, tmp_path, update_goldens):
     spec = load(graph_file)
     for st in spec.stages:
         if st.type == "datadriven.data":
@@ -52,8 +52,8 @@ def test_stage_graph_runs(graph_file, tmp_path, update_goldens):
             lamps = []
         lighting = LightingSource.fixed([Environment.sky(height=16, width=32, to_world=up_rotation(scene.up_axis)), *lamps],
                                         scene.up_axis)
-    rt = spec.compile(scene, device="cpu", progress=False, scheduler="serial", lighting=lighting) if lighting else \
-        spec.compile(device="cpu", progress=False, scheduler="serial")
+    rt = spec.compile(scene, device=device, progress=False, scheduler="serial", lighting=lighting) if lighting else \
+        spec.compile(device=device, progress=False, scheduler="serial")
     frames = rt.scene.frames[:2]
     rt.run(list(frames), warmup=False)
     for f in frames:
@@ -79,8 +79,8 @@ def test_stage_graph_runs(graph_file, tmp_path, update_goldens):
     assert len(colored) == len(rt.scene.meshes)
 
 
-def test_demo_writes_usd_png_and_report(tmp_path, capsys):
-    assert cli.main(["demo", "--device", "cpu", "--out", str(tmp_path)]) == 0
+def test_demo_writes_usd_png_and_report(device, tmp_path, capsys):
+    assert cli.main(["demo", "--device", device, "--out", str(tmp_path)]) == 0
     printed = capsys.readouterr().out
     assert "USD" in printed and "PNG" in printed and "report" in printed
     report = json.loads((tmp_path / "demo.json").read_text())

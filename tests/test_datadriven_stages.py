@@ -40,14 +40,14 @@ def _transfer_stage(rt):
 
 
 @pytest.mark.parametrize("model", ["reduced", "full"])
-def test_held_out_frames_beat_the_rest_pose_bake(bend, model, tmp_path):
-    rt = _graph(model).compile(bend, device="cpu", cache_dir=tmp_path, progress=False, scheduler="serial")
+def test_held_out_frames_beat_the_rest_pose_bake(device, bend, model, tmp_path):
+    rt = _graph(model).compile(bend, device=device, cache_dir=tmp_path, progress=False, scheduler="serial")
     st = _transfer_stage(rt)
-    static = compute(bend, 0.0, 3, TRUTH_RAYS, seed=5).transfer
+    static = compute(bend, 0.0, 3, TRUTH_RAYS, device=device, seed=5).transfer
     for frame in (15.0, 45.0):
         rt.step(frame)
         got = st._transfer.numpy()
-        truth = compute(bend, frame, 3, TRUTH_RAYS, seed=5).transfer
+        truth = compute(bend, frame, 3, TRUTH_RAYS, device=device, seed=5).transfer
         err = np.linalg.norm(got - truth) / np.linalg.norm(truth)
         err_static = np.linalg.norm(static - truth) / np.linalg.norm(truth)
         assert err < MAX_ERROR_RATIO_TO_STATIC * err_static, (frame, err, err_static)
@@ -67,9 +67,9 @@ def test_held_out_frames_beat_the_rest_pose_bake(bend, model, tmp_path):
     assert np.all(np.isfinite(out)) and out.min() >= 0.0
 
 
-def test_recorded_frame_replays_the_unrecorded_one(bend, tmp_path):
-    recorded = _graph().compile(bend, device="cpu", cache_dir=tmp_path, progress=False, scheduler="serial")
-    plain = _graph().compile(bend, device="cpu", cache_dir=tmp_path, progress=False, capture=False, scheduler="serial")
+def test_recorded_frame_replays_the_unrecorded_one(device, bend, tmp_path):
+    recorded = _graph().compile(bend, device=device, cache_dir=tmp_path, progress=False, scheduler="serial")
+    plain = _graph().compile(bend, device=device, cache_dir=tmp_path, progress=False, capture=False, scheduler="serial")
     assert plain.timings["data"].cache == "hit", "the second graph reuses the cached training data"
     for frame in (3.0, 27.0, 3.0):
         recorded.step(frame)
@@ -95,12 +95,12 @@ def _serial():
     return SerialExecutor()
 
 
-def test_out_of_range_poses_are_reported_not_hidden(bend, tmp_path):
+def test_out_of_range_poses_are_reported_not_hidden(device, bend, tmp_path):
     """Trained on the first third of the bend cycle only: the middle of the cycle (frames
     28-41) holds novel poses; the novelty score says so, the error grows with it, and the output
     stays finite."""
     rt = _graph(data={"frames": "0:20"}, fit={"validation": 0.0, "ka": 2, "kv": 16}).compile(
-        bend, device="cpu", cache_dir=tmp_path, progress=False, scheduler="serial")
+        bend, device=device, cache_dir=tmp_path, progress=False, scheduler="serial")
     st = _transfer_stage(rt)
     nov = st.novelty()
     inside = nov["nearest"][:20]
@@ -111,34 +111,34 @@ def test_out_of_range_poses_are_reported_not_hidden(bend, tmp_path):
         rt.step(frame)
         got = st._transfer.numpy()
         assert np.all(np.isfinite(got))
-        truth = compute(bend, frame, 3, TRUTH_RAYS, seed=5).transfer
+        truth = compute(bend, frame, 3, TRUTH_RAYS, device=device, seed=5).transfer
         errors.append(np.linalg.norm(got - truth) / np.linalg.norm(truth))
     assert errors[1] > errors[0]
     assert st.diagnostics()["novelty_max"] == pytest.approx(nov["nearest"].max())
 
 
-def test_bad_training_input_names_the_stage(bend, tmp_path):
+def test_bad_training_input_names_the_stage(device, bend, tmp_path):
     with pytest.raises(StageError, match=r"stage 'data' \(datadriven.data\): parameter 'training': no such file"):
-        _graph(training=str(tmp_path / "missing.usda")).compile(bend, device="cpu", cache_dir=None, progress=False)
+        _graph(training=str(tmp_path / "missing.usda")).compile(bend, device=device, cache_dir=None, progress=False)
     with pytest.raises((StageError, GraphError), match="training scene .*figure.usda has .* vertices.*bend.usda"):
-        _graph(training="bundled:figure").compile(bend, device="cpu", cache_dir=None, progress=False)
+        _graph(training="bundled:figure").compile(bend, device=device, cache_dir=None, progress=False)
     with pytest.raises(StageError, match="frames '5:5' select none"):
-        _graph(data={"frames": "5:5"}).compile(bend, device="cpu", cache_dir=None, progress=False)
+        _graph(data={"frames": "5:5"}).compile(bend, device=device, cache_dir=None, progress=False)
     # local-frame training data would be shaded as world-frame transfer: refused, not shaded wrong
     with pytest.raises(StageError, match=r"stage 'fit' \(datadriven.fit\): .*space = 'local'"):
-        _graph(data={"space": "local", "frames": "0:60:20"}).compile(bend, device="cpu", cache_dir=None, progress=False,
+        _graph(data={"space": "local", "frames": "0:60:20"}).compile(bend, device=device, cache_dir=None, progress=False,
                                                                      scheduler="serial")
 
 
-def test_model_order_must_match_the_transfer_stage(bend, tmp_path):
+def test_model_order_must_match_the_transfer_stage(device, bend, tmp_path):
     spec = _graph()
     spec.stages[2] = StageSpec("transfer", "datadriven.transfer", {"order": 4}, {"model": "fit.model"})
     spec.stages[3] = StageSpec("shade", "prt.shade", {"order": 4}, {"transfer": "transfer.transfer"})
     with pytest.raises(StageError, match="trained at order 3 .* the stage has order 4"):
-        spec.compile(bend, device="cpu", cache_dir=tmp_path, progress=False, scheduler="serial")
+        spec.compile(bend, device=device, cache_dir=tmp_path, progress=False, scheduler="serial")
 
 
-def test_interreflected_training_feeds_per_channel_shading(bend, tmp_path):
+def test_interreflected_training_feeds_per_channel_shading(device, bend, tmp_path):
     """bounces = 1: per-channel transfer (V, 3, C) from the model, shaded per channel, measured
     against the reference with one bounce."""
     from warpshade.methods.datadriven.pose import pose_features
@@ -148,7 +148,7 @@ def test_interreflected_training_feeds_per_channel_shading(bend, tmp_path):
               StageSpec("fit", "datadriven.fit", {"model": "reduced", "validation": 0.0, "ka": 3, "kv": 8}, {"data": "data.data"}),
               StageSpec("transfer", "datadriven.transfer", {"order": 2, "color": True}, {"model": "fit.model"}),
               StageSpec("shade", "prt.shade", {"order": 2, "color": True, "bounces": 1}, {"transfer_rgb": "transfer.transfer_rgb"})]
-    rt = GraphSpec(stages, "shade.radiance", name="dd_rgb").compile(bend, device="cpu", cache_dir=tmp_path, progress=False,
+    rt = GraphSpec(stages, "shade.radiance", name="dd_rgb").compile(bend, device=device, cache_dir=tmp_path, progress=False,
                                                                     scheduler="serial")
     st = _transfer_stage(rt)
     out = rt.step(21.0).numpy()

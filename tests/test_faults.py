@@ -82,12 +82,12 @@ def test_graph_names_that_could_leave_the_output_directory_are_refused(tmp_path,
         load(g)
 
 
-def test_a_run_writes_only_into_out(tmp_path, capsys):
+def test_a_run_writes_only_into_out(device, tmp_path, capsys):
     precious = tmp_path / "precious.usda"
     precious.write_text("keep me")
     g = _graph(tmp_path / "g.toml", _cube(tmp_path / "cube.usda"))
     out = tmp_path / "out"
-    rc, printed, err = _run(capsys, "run", str(g), "--out", str(out), "--device", "cpu")
+    rc, printed, err = _run(capsys, "run", str(g), "--out", str(out), "--device", device)
     assert rc == 0, err
     assert precious.read_text() == "keep me"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cube.usda", "g.toml", "out", "precious.usda"]
@@ -95,10 +95,10 @@ def test_a_run_writes_only_into_out(tmp_path, capsys):
 
 
 # ---- 3/6. [validate] frames are decided before any work ---------------------------------------
-def test_validate_frames_outside_the_run_are_left_out_and_reported(tmp_path, capsys):
+def test_validate_frames_outside_the_run_are_left_out_and_reported(device, tmp_path, capsys):
     g = _graph(tmp_path / "g.toml", _cube(tmp_path / "cube.usda"), "frame_count = 8", "[validate]\nframes = [0, 6]\nsamples = 16")
     rc, printed, err = _run(capsys, "run", str(g), "--frames", "0:4", "--validate", "--out", str(tmp_path / "o"),
-                            "--device", "cpu", "--no-previews")
+                            "--device", device, "--no-previews")
     assert rc == 0, err
     assert "[6.0] are outside the frames run" in printed
     report = json.loads((tmp_path / "o" / "g.json").read_text())
@@ -176,11 +176,11 @@ class _nothing:
         return False
 
 
-def test_step_refuses_frames_that_are_not_time_codes():
+def test_step_refuses_frames_that_are_not_time_codes(device):
     box = Mesh("/box", [[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]])
     scene = Scene.from_meshes([box], frames=range(3), lights=[Environment.constant()])
     rt = GraphSpec([StageSpec("shade", "prt.unshadowed", {"order": 2})], "shade.radiance").compile(
-        scene, device="cpu", cache_dir=None, progress=False)
+        scene, device=device, cache_dir=None, progress=False)
     for bad, error, message in [(float("nan"), ValueError, "finite"), (True, TypeError, "number"), ("3", TypeError, "number"),
                                 (1.5, ValueError, "not one of the sampled time codes")]:
         with pytest.raises(error, match=message):
@@ -268,7 +268,7 @@ def test_binary_junk_as_toml_is_named(tmp_path):
 
 
 # ---- 8. leftovers of killed writers -------------------------------------------------------------
-def test_temporary_files_of_dead_writers_are_removed(tmp_path, capsys):
+def test_temporary_files_of_dead_writers_are_removed(device, tmp_path, capsys):
     g = _graph(tmp_path / "g.toml", _cube(tmp_path / "cube.usda"))
     out = tmp_path / "o"
     out.mkdir()
@@ -280,7 +280,7 @@ def test_temporary_files_of_dead_writers_are_removed(tmp_path, capsys):
         stale.write_bytes(b"x" * 1000)
         live = out / f".g-{child.pid}-def456.usda"
         live.write_bytes(b"x")
-        rc, printed, err = _run(capsys, "run", str(g), "--out", str(out), "--device", "cpu", "--no-previews")
+        rc, printed, err = _run(capsys, "run", str(g), "--out", str(out), "--device", device, "--no-previews")
         assert rc == 0, err
         assert not stale.exists(), "a dead writer's temporary file is removed"
         assert live.exists(), "a running writer's temporary file is kept"
@@ -311,18 +311,18 @@ def test_no_cuda_driver_note_unless_cuda_is_asked_for():
     assert res.returncode == 0 and "CUDA" not in res.stderr, res.stderr
 
 
-def test_the_readme_python_loop_writes_usd(tmp_path):
+def test_the_readme_python_loop_writes_usd(device, tmp_path):
     from warpshade.measure import write_usd
 
     box = Mesh("/box", [[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]])
     scene = Scene.from_meshes([box], frames=range(3), lights=[Environment.constant()])
     rt = GraphSpec([StageSpec("shade", "prt.unshadowed", {"order": 2})], "shade.radiance").compile(
-        scene, device="cpu", cache_dir=None, progress=False)
+        scene, device=device, cache_dir=None, progress=False)
     for frame in rt.scene.frames:
         rt.step(frame, record=True)
     assert write_usd(rt, tmp_path / "loop.usda").exists()
     bare = GraphSpec([StageSpec("shade", "prt.unshadowed", {"order": 2})], "shade.radiance").compile(
-        scene, device="cpu", cache_dir=None, progress=False)
+        scene, device=device, cache_dir=None, progress=False)
     bare.step(0.0)
     with pytest.raises(ValueError, match=r"record=True"):
         write_usd(bare, tmp_path / "none.usda")

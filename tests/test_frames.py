@@ -10,8 +10,8 @@ from warpshade._wp import wp
 from warpshade.geometry.frames import DEGENERATE_STRETCH, TangentFrames, frame_rule, tangent_frames_reference
 from warpshade.geometry.normals import vertex_normals_reference
 
-# float32 kernel vs float64 reference: a sum of ~6 weighted edge terms and two normalisations.
-ATOL_FLOAT32 = 2e-5
+from tolerances import ATOL_FLOAT32
+
 # Orthonormality of float32 frames (three normalised/cross-product rows).
 ORTHO_FLOAT32 = 1e-5
 

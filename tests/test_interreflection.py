@@ -23,6 +23,8 @@ from warpshade.reference import ReferenceShader, shade
 from warpshade.scene import Environment, Mesh, Scene
 from warpshade.transfer import MAX_BOUNCES, InterreflectionTracer, compute, sample_rays
 
+from tolerances import ATOL_FLOAT32
+
 ROOT = Path(__file__).resolve().parents[1]
 Y00 = 0.5 / np.sqrt(np.pi)
 RHO = np.array([0.9, 0.6, 0.3])
@@ -45,8 +47,6 @@ MEAN_Z_SCORE = 4.0
 UNIFORM_WALL_SLACK = 3.0e-4
 # float32 accumulation vs an exactly representable value.
 RTOL_FLOAT32 = 2e-6
-# float32 sums of up to 64 terms of size <= 4 / S * |t| (|t| <= ~2) vs the same sum in float64.
-ATOL_FLOAT32 = 2e-5
 # The same rays through two BVHs over the same non-degenerate triangles (one with zero-area
 # triangles added): the hits agree, the sums may round differently.
 ATOL_SAME_RAYS = 1e-5

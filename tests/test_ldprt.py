@@ -27,14 +27,13 @@ from warpshade.methods.ldprt.reference import rotate_stored
 from warpshade.scene import Environment, Mesh, Scene
 from warpshade.transfer import compute
 
+from tolerances import RTOL_TABLE
+
 ROOT = Path(__file__).resolve().parent.parent
 ORDER = 3
 # float32 kernels vs float64 reference: SH recurrences of order 3 and sums of a few lobes,
 # relative to the largest radiance.
 RTOL_FLOAT32 = 5e-5
-# Table look-ups (bilinear, 65 x 128 grid, order 3) vs direct SH evaluation, relative to the
-# largest radiance (see tests/test_zh.py: interpolation error ~5e-4 of the lighting norm).
-RTOL_TABLE = 3e-3
 # zxzxz SH rotation in float32 vs float64 rotation: a few hundred products.
 RTOL_ROTATION = 1e-4
 
@@ -88,13 +87,13 @@ def _frames(scene, frame, device):
     return tf.compute(state.points, state.normals)
 
 
-def test_local_transfer_is_world_transfer_in_tangent_frames(scene):
+def test_local_transfer_is_world_transfer_in_tangent_frames(device, scene):
     """transfer.compute(space="local") == the world transfer rotated by the same frames the
     frame stage computes (F w for world w)."""
     frame = 1.0
-    world = compute(scene, frame, ORDER, 64, space="world", device="cpu", seed=5).transfer
-    local = compute(scene, frame, ORDER, 64, space="local", device="cpu", seed=5).transfer
-    f = _frames(scene, frame, "cpu").numpy().astype(np.float64)
+    world = compute(scene, frame, ORDER, 64, space="world", device=device, seed=5).transfer
+    local = compute(scene, frame, ORDER, 64, space="local", device=device, seed=5).transfer
+    f = _frames(scene, frame, device).numpy().astype(np.float64)
     u, _, vt = np.linalg.svd(np.swapaxes(f, 1, 2))
     np.testing.assert_allclose(sh.rotate(local.astype(np.float64), u @ vt), world, atol=RTOL_ROTATION * np.abs(world).max())
 
@@ -166,9 +165,9 @@ def test_stored_linear_band_rotates_like_sh(rng):
     np.testing.assert_allclose(rotate_stored(stored, rot, 3), sh.rotate(full, rot), atol=1e-12)
 
 
-def test_rigid_motion_with_lighting_is_invariant(model, scene, sky):
+def test_rigid_motion_with_lighting_is_invariant(device, model, scene, sky):
     """Rotating a frame's geometry and the lighting together leaves LDPRT shading unchanged."""
-    f0 = _frames(scene, 1.0, "cpu").numpy().astype(np.float64)
+    f0 = _frames(scene, 1.0, device).numpy().astype(np.float64)
     rot = Rotation.from_rotvec([0.3, -1.1, 0.5]).as_matrix()
     light = sky.to_sh(ORDER)
     albedo = np.full((scene.vertex_count, 3), 0.7)
@@ -177,31 +176,31 @@ def test_rigid_motion_with_lighting_is_invariant(model, scene, sky):
     np.testing.assert_allclose(a, b, atol=1e-9 * np.abs(a).max())
 
 
-def _graph(stages, scene, sky):
+def _graph(device, stages, scene, sky):
     spec = GraphSpec(stages=[StageSpec(*s) for s in stages], output="shade.radiance", name="ldprt-test")
-    return spec.compile(scene, device="cpu", cache_dir=None, progress=False,
+    return spec.compile(scene, device=device, cache_dir=None, progress=False,
                         lighting=LightingSource([sky], scene.up_axis))
 
 
-def test_stages_run_and_beat_undeformed_prt(scene, sky):
+def test_stages_run_and_beat_undeformed_prt(device, scene, sky):
     """Through the runtime: at the bake frame LDPRT == static PRT; on the bent frame LDPRT is
     closer to freshly traced PRT of that frame than the undeformed PRT is (local groove)."""
     fit = {"order": ORDER, "lobes": 3, "samples": 128, "seed": 3, "restarts": 0}
-    ld = _graph([("fit", "ldprt.fit", fit, {}), ("frames", "ldprt.frames", {}, {}),
-                 ("shade", "ldprt.shade", {"order": ORDER, "lobes": 3}, {})], scene, sky)
-    direct = _graph([("fit", "ldprt.fit", fit, {}), ("frames", "ldprt.frames", {}, {}),
-                     ("shade", "ldprt.shade", {"order": ORDER, "lobes": 3, "evaluation": "direct"}, {})], scene, sky)
-    rot = _graph([("bake", "ldprt.transfer", {"order": ORDER, "samples": 128, "seed": 3}, {}),
-                  ("frames", "ldprt.frames", {}, {}), ("shade", "ldprt.shade_rotated", {"order": ORDER}, {})], scene, sky)
-    prt = _graph([("bake", "prt.transfer", {"order": ORDER, "samples": 128, "seed": 3}, {}),
-                  ("shade", "prt.shade", {"order": ORDER}, {"transfer": "bake.transfer"})], scene, sky)
+    ld = _graph(device, [("fit", "ldprt.fit", fit, {}), ("frames", "ldprt.frames", {}, {}),
+                         ("shade", "ldprt.shade", {"order": ORDER, "lobes": 3}, {})], scene, sky)
+    direct = _graph(device, [("fit", "ldprt.fit", fit, {}), ("frames", "ldprt.frames", {}, {}),
+                             ("shade", "ldprt.shade", {"order": ORDER, "lobes": 3, "evaluation": "direct"}, {})], scene, sky)
+    rot = _graph(device, [("bake", "ldprt.transfer", {"order": ORDER, "samples": 128, "seed": 3}, {}),
+                          ("frames", "ldprt.frames", {}, {}), ("shade", "ldprt.shade_rotated", {"order": ORDER}, {})], scene, sky)
+    prt = _graph(device, [("bake", "prt.transfer", {"order": ORDER, "samples": 128, "seed": 3}, {}),
+                          ("shade", "prt.shade", {"order": ORDER}, {"transfer": "bake.transfer"})], scene, sky)
     light = sky.to_sh(ORDER)
     albedo = scene.albedo.astype(np.float64)
     for frame in (0.0, 2.0):
         est = {name: g.step(frame).numpy().copy() for name, g in
                (("table", ld), ("direct", direct), ("rotated", rot), ("prt", prt))}
         assert all(np.all(np.isfinite(v)) for v in est.values())
-        truth = albedo / np.pi * (compute(scene, frame, ORDER, 128, space="world", device="cpu", seed=3).transfer @ light.T)
+        truth = albedo / np.pi * (compute(scene, frame, ORDER, 128, space="world", device=device, seed=3).transfer @ light.T)
         scale = np.abs(truth).max()
         np.testing.assert_allclose(est["table"], est["direct"], atol=RTOL_TABLE * scale)
         if frame == 0.0:
@@ -212,7 +211,7 @@ def test_stages_run_and_beat_undeformed_prt(scene, sky):
             assert err["rotated"] < 0.5 * err["prt"] and err["table"] < 0.5 * err["prt"], err
 
 
-def test_degenerate_frames_give_finite_smooth_shading(model, sky):
+def test_degenerate_frames_give_finite_smooth_shading(device, model, sky):
     """Zero-area triangles, a pole fan, flipped normals and an isolated vertex: no NaN, and the
     shading changes continuously when the degenerate geometry is perturbed slightly."""
     ring = 8
@@ -228,19 +227,19 @@ def test_degenerate_frames_give_finite_smooth_shading(model, sky):
     picked = np.arange(v) % model.axes.shape[0]
     m = type(model)(model.axes[picked], model.coeffs[picked], model.counts[picked], model.stored[picked],
                     model.fit_error[picked], model.scale, model.total_error, model.restarted[picked], model.seconds)
-    tf = TangentFrames.from_scene(deg, device="cpu")
-    light = wp.array(sky.to_sh(ORDER).astype(np.float32), device="cpu")
+    tf = TangentFrames.from_scene(deg, device=device)
+    light = wp.array(sky.to_sh(ORDER).astype(np.float32), device=device)
     table_k, shade_table, _, _ = kernels.shade_kernels(ORDER)
-    table = wp.zeros((65, 128, 3, ORDER), dtype=wp.float32, device="cpu")
-    wp.launch(table_k, dim=(65, 128), inputs=[light, wp.ones(1, dtype=wp.int32, device="cpu"), table], device="cpu")
-    axes, coeffs, counts, stored = _model_arrays(m, "cpu")
-    albedo = wp.array(np.full((v, 3), 0.8, np.float32), device="cpu")
+    table = wp.zeros((65, 128, 3, ORDER), dtype=wp.float32, device=device)
+    wp.launch(table_k, dim=(65, 128), inputs=[light, wp.ones(1, dtype=wp.int32, device=device), table], device=device)
+    axes, coeffs, counts, stored = _model_arrays(m, device)
+    albedo = wp.array(np.full((v, 3), 0.8, np.float32), device=device)
 
     def shade(pts, normals):
-        frames = tf.compute(wp.array(pts.astype(np.float32), dtype=wp.vec3, device="cpu"),
-                            wp.array(normals.astype(np.float32), dtype=wp.vec3, device="cpu"))
-        out = wp.zeros((v, 3), dtype=wp.float32, device="cpu")
-        wp.launch(shade_table, dim=v, inputs=[frames, axes, coeffs, counts, stored, table, light, albedo, out], device="cpu")
+        frames = tf.compute(wp.array(pts.astype(np.float32), dtype=wp.vec3, device=device),
+                            wp.array(normals.astype(np.float32), dtype=wp.vec3, device=device))
+        out = wp.zeros((v, 3), dtype=wp.float32, device=device)
+        wp.launch(shade_table, dim=v, inputs=[frames, axes, coeffs, counts, stored, table, light, albedo, out], device=device)
         return frames.numpy(), out.numpy()
 
     normals = tf.rule.rest_normals.copy()
@@ -272,8 +271,8 @@ def test_bad_parameters_are_reported():
         GraphSpec(stages=[StageSpec("s", "ldprt.shade", {"evaluation": "fast"})], output="s.radiance").build()
 
 
-def test_world_transfer_reference_is_consistent(model, scene):
-    f = _frames(scene, 1.0, "cpu").numpy().astype(np.float64)
+def test_world_transfer_reference_is_consistent(device, model, scene):
+    f = _frames(scene, 1.0, device).numpy().astype(np.float64)
     t = world_transfer_reference(model, f)
     u, _, vt = np.linalg.svd(np.swapaxes(f, 1, 2))
     np.testing.assert_allclose(t, sh.rotate(model.to_sh(), u @ vt), atol=1e-4 * np.abs(t).max())

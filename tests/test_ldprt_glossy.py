@@ -58,7 +58,7 @@ def test_rows_of_an_unoccluded_point_are_the_brdf_rows(factorization):
     np.testing.assert_allclose(rows, np.broadcast_to(factorization.rows, rows.shape), atol=1e-10)
 
 
-def test_glossy_kernel_and_unshadowed_case(sheet, factorization):
+def test_glossy_kernel_and_unshadowed_case(device, sheet, factorization):
     vis = np.zeros((sheet.vertex_count, ORDER * ORDER))
     vis[:, 0] = np.sqrt(4.0 * np.pi)
     model = fit_glossy(vis, factorization, 3, restarts=0)
@@ -66,8 +66,8 @@ def test_glossy_kernel_and_unshadowed_case(sheet, factorization):
     sky = Environment.sky()
     light = sky.to_sh(ORDER)
     eye = np.array([0.4, -1.5, 2.5])
-    state = sheet.evaluate(0.0, device="cpu")
-    tf = TangentFrames.from_scene(sheet, device="cpu")
+    state = sheet.evaluate(0.0, device=device)
+    tf = TangentFrames.from_scene(sheet, device=device)
     frames = tf.compute(state.points, state.normals)
     f64 = frames.numpy().astype(np.float64)
     points = state.points.numpy().astype(np.float64)
@@ -76,16 +76,16 @@ def test_glossy_kernel_and_unshadowed_case(sheet, factorization):
     ref = shade_glossy_reference(model, f64, view, light)
 
     v = sheet.vertex_count
-    table = wp.zeros((65, 128, 3, ORDER), dtype=wp.float32, device="cpu")
-    light_wp = wp.array(light.astype(np.float32), device="cpu")
+    table = wp.zeros((65, 128, 3, ORDER), dtype=wp.float32, device=device)
+    light_wp = wp.array(light.astype(np.float32), device=device)
     wp.launch(kernels.shade_kernels(ORDER)[0], dim=(65, 128),
-              inputs=[light_wp, wp.ones(1, dtype=wp.int32, device="cpu"), table], device="cpu")
-    out = wp.zeros((v, 3), dtype=wp.float32, device="cpu")
+              inputs=[light_wp, wp.ones(1, dtype=wp.int32, device=device), table], device=device)
+    out = wp.zeros((v, 3), dtype=wp.float32, device=device)
     wp.launch(kernels.glossy_kernel(ORDER), dim=v, inputs=[
-        frames, state.points, wp.array([wp.vec3(*eye)], dtype=wp.vec3, device="cpu"), wp.array(model.axes.reshape(v, -1, 3), dtype=wp.vec3, device="cpu"),
-        wp.array(model.coeffs.reshape(v, -1, ORDER), device="cpu"), wp.array(model.stored, device="cpu"),
-        model.lobe_count, wp.array(factorization.view_factors.astype(np.float32), device="cpu"), table, light_wp,
-        wp.vec3(1.0, 1.0, 1.0), out], device="cpu")
+        frames, state.points, wp.array([wp.vec3(*eye)], dtype=wp.vec3, device=device), wp.array(model.axes.reshape(v, -1, 3), dtype=wp.vec3, device=device),
+        wp.array(model.coeffs.reshape(v, -1, ORDER), device=device), wp.array(model.stored, device=device),
+        model.lobe_count, wp.array(factorization.view_factors.astype(np.float32), device=device), table, light_wp,
+        wp.vec3(1.0, 1.0, 1.0), out], device=device)
     np.testing.assert_allclose(out.numpy(), ref, atol=RTOL_KERNEL * np.abs(ref).max())
 
     # brute force: integral_H b(v_local, s_local) L(F^T s_local) s_z ds, per vertex
@@ -98,7 +98,7 @@ def test_glossy_kernel_and_unshadowed_case(sheet, factorization):
     assert err < RTOL_UNSHADOWED, err
 
 
-def test_glossy_stages_run(sheet):
+def test_glossy_stages_run(device, sheet):
     spec = GraphSpec(stages=[
         StageSpec("fit", "ldprt.glossy_fit", {"order": ORDER, "lobes": 2, "rank": 3, "samples": 32, "view_resolution": 8,
                                               "restarts": 0}),
@@ -106,24 +106,24 @@ def test_glossy_stages_run(sheet):
         StageSpec("shade", "ldprt.glossy_shade", {"order": ORDER, "lobes": 2, "rank": 3, "view_resolution": 8,
                                                   "eye": (0.0, -2.0, 2.0)}),
     ], output="shade.radiance", name="glossy-test")
-    rt = spec.compile(sheet, device="cpu", cache_dir=None, progress=False,
+    rt = spec.compile(sheet, device=device, cache_dir=None, progress=False,
                       lighting=LightingSource([Environment.sky()], sheet.up_axis))
     out = rt.step(0.0).numpy()
     assert out.shape == (sheet.vertex_count, 3) and np.all(np.isfinite(out)) and out.max() > 0.0
 
 
-def test_glossy_stage_without_camera_or_eye_is_an_error(sheet):
+def test_glossy_stage_without_camera_or_eye_is_an_error(device, sheet):
     spec = GraphSpec(stages=[
         StageSpec("fit", "ldprt.glossy_fit", {"order": 2, "lobes": 1, "rank": 2, "samples": 16, "view_resolution": 4}),
         StageSpec("frames", "ldprt.frames"),
         StageSpec("shade", "ldprt.glossy_shade", {"order": 2, "lobes": 1, "rank": 2, "view_resolution": 4}),
     ], output="shade.radiance")
     with pytest.raises(ValueError, match="camera"):
-        spec.compile(sheet, device="cpu", cache_dir=None, progress=False,
+        spec.compile(sheet, device=device, cache_dir=None, progress=False,
                      lighting=LightingSource([Environment.sky()], sheet.up_axis))
 
 
-def _glossy_validation_runtime(sheet, eye, below_horizon="visible"):
+def _glossy_validation_runtime(device, sheet, eye, below_horizon="visible"):
     spec = GraphSpec(stages=[
         StageSpec("fit", "ldprt.glossy_fit", {"order": ORDER, "lobes": 3, "rank": 9, "samples": 64,
                                               "view_resolution": 16, "brdf": "phong", "exponent": 10.0,
@@ -132,15 +132,15 @@ def _glossy_validation_runtime(sheet, eye, below_horizon="visible"):
         StageSpec("shade", "ldprt.glossy_shade", {"order": ORDER, "lobes": 3, "rank": 9, "view_resolution": 16,
                                                   "eye": eye, "specular": (1.0, 0.5, 0.25)}),
     ], output="shade.radiance", name="glossy-validate")
-    rt = spec.compile(sheet, device="cpu", cache_dir=None, progress=False,
+    rt = spec.compile(sheet, device=device, cache_dir=None, progress=False,
                       lighting=LightingSource([Environment.constant((1.0, 1.0, 1.0))], sheet.up_axis))
     rt.run([0.0], warmup=False)
     return rt
 
 
-def test_validation_uses_the_glossy_reference_and_back_faces_send_nothing(sheet):
+def test_validation_uses_the_glossy_reference_and_back_faces_send_nothing(device, sheet):
     eye = (0.0, -2.0, 0.05)  # grazing: part of the curved sheet faces away from the viewer
-    rt = _glossy_validation_runtime(sheet, eye)
+    rt = _glossy_validation_runtime(device, sheet, eye)
     measured = measure_error(rt, [0.0], samples=256, cache_dir=None)
     err = measured.error
     assert err["reference"].startswith("glossy") and "phong" in err["reference"]
@@ -151,10 +151,10 @@ def test_validation_uses_the_glossy_reference_and_back_faces_send_nothing(sheet)
     np.testing.assert_allclose(out[facing, 1] / out[facing, 0], 0.5, rtol=1e-5)  # the specular colour
 
 
-def test_open_horizon_visibility_removes_the_horizon_ringing(sheet):
+def test_open_horizon_visibility_removes_the_horizon_ringing(device, sheet):
     eye = (0.3, -0.5, 2.0)
     errors = {bh: measure_error(rt, [0.0], samples=2048, cache_dir=None).error["mean"]["rel_rms"]
-              for bh in ("visible", "traced") for rt in [_glossy_validation_runtime(sheet, eye, bh)]}
+              for bh in ("visible", "traced") for rt in [_glossy_validation_runtime(device, sheet, eye, bh)]}
     assert errors["visible"] < RTOL_VS_GLOSSY_REFERENCE
     # the paper's V (0 below the horizon) times the BRDF rows, truncated at order 3, rings
     assert errors["traced"] > 2.0 * errors["visible"], errors

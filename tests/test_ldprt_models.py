@@ -19,8 +19,8 @@ from warpshade.methods.ldprt.wrinkle import (
 )
 from warpshade.scene import Environment, Mesh, Scene
 
-# Quadrature projection of the membrane function (kinked at the horizon), Gauss-Legendre degree 400.
-ATOL_QUADRATURE = 2e-4
+from tolerances import ATOL_QUADRATURE
+
 # float32 kernels vs float64 reference (SH order 4 recurrences, sums over 3 lobes), relative to
 # the largest radiance.
 RTOL_FLOAT32 = 1e-4
@@ -54,18 +54,18 @@ def sphere_scene():
     return Scene.from_meshes([Mesh("/ball", np.asarray(m.vertices), np.asarray(m.faces))])
 
 
-def test_thickness_of_a_sphere_is_its_diameter(sphere_scene):
-    d = thickness(sphere_scene, 0.0, device="cpu")
+def test_thickness_of_a_sphere_is_its_diameter(device, sphere_scene):
+    d = thickness(sphere_scene, 0.0, device=device)
     np.testing.assert_allclose(d, 1.0, atol=0.02)  # chord through a faceted sphere
 
 
-def test_opaque_membrane_is_unshadowed_irradiance(sphere_scene):
+def test_opaque_membrane_is_unshadowed_irradiance(device, sphere_scene):
     """alpha = 0 through ldprt.membrane + ldprt.shade == prt.unshadowed (independent kernels)."""
     light = LightingSource([Environment.sky()], "Z")
 
     def run(stages):
         spec = GraphSpec(stages=[StageSpec(*s) for s in stages], output="shade.radiance")
-        return spec.compile(sphere_scene, device="cpu", cache_dir=None, progress=False, lighting=light).step(0.0).numpy()
+        return spec.compile(sphere_scene, device=device, cache_dir=None, progress=False, lighting=light).step(0.0).numpy()
 
     mem = run([("m", "ldprt.membrane", {"order": 3, "translucency": 0.0}, {}), ("frames", "ldprt.frames", {}, {}),
                ("shade", "ldprt.shade", {"order": 3, "lobes": 1, "evaluation": "direct"}, {})])
@@ -113,7 +113,7 @@ def test_wrinkle_fit_reports_and_improves(groove):
     assert err == pytest.approx(table.sample_error, rel=1e-6)
 
 
-def test_wrinkle_kernel_matches_float64(groove):
+def test_wrinkle_kernel_matches_float64(device, groove):
     _, table, _ = groove
     rng = np.random.default_rng(4)
     count = 40
@@ -129,24 +129,24 @@ def test_wrinkle_kernel_matches_float64(groove):
     t_world = sh.rotate(t_groove, np.swapaxes(frames, 1, 2) @ rz)
     ref = albedo / np.pi * (t_world @ light.T)
     depth_k, shade = kernels.wrinkle_kernels(4)
-    out = wp.zeros((count, 3), dtype=wp.float32, device="cpu")
-    f32 = lambda a: wp.array(np.asarray(a, np.float32), device="cpu")
+    out = wp.zeros((count, 3), dtype=wp.float32, device=device)
+    f32 = lambda a: wp.array(np.asarray(a, np.float32), device=device)
     wp.launch(shade, dim=count, inputs=[
-        wp.array(frames.astype(np.float32), dtype=wp.mat33, device="cpu"), f32(phase), f32(angle),
+        wp.array(frames.astype(np.float32), dtype=wp.mat33, device=device), f32(phase), f32(angle),
         f32(np.clip(depth, 0.0, table.max_depth)),
-        wp.array(table.axes.astype(np.float32), dtype=wp.vec3, device="cpu"), f32(table.coeffs), f32(table.stored),
-        table.max_depth, f32(light), f32(albedo), out], device="cpu")
+        wp.array(table.axes.astype(np.float32), dtype=wp.vec3, device=device), f32(table.coeffs), f32(table.stored),
+        table.max_depth, f32(light), f32(albedo), out], device=device)
     np.testing.assert_allclose(out.numpy(), ref, atol=RTOL_FLOAT32 * np.abs(ref).max())
     # depth from compression along the axis
     pts = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 0.8], [1.0, 0.0, 0.0]])
-    depth_out = wp.zeros(3, dtype=wp.float32, device="cpu")
-    wp.launch(depth_k, dim=3, inputs=[wp.array(pts.astype(np.float32), dtype=wp.vec3, device="cpu"),
-                                      wp.array(np.array([1, 0, -1], np.int32), device="cpu"), f32([1.0, 0.8, 1.0]),
-                                      f32([0.1, 0.1, 0.2]), 2.0, 0.5, depth_out], device="cpu")
+    depth_out = wp.zeros(3, dtype=wp.float32, device=device)
+    wp.launch(depth_k, dim=3, inputs=[wp.array(pts.astype(np.float32), dtype=wp.vec3, device=device),
+                                      wp.array(np.array([1, 0, -1], np.int32), device=device), f32([1.0, 0.8, 1.0]),
+                                      f32([0.1, 0.1, 0.2]), 2.0, 0.5, depth_out], device=device)
     np.testing.assert_allclose(depth_out.numpy(), [0.1 + 2.0 * 0.2, 0.1, 0.2], atol=1e-6)
 
 
-def test_wrinkle_stages_on_a_bending_tube():
+def test_wrinkle_stages_on_a_bending_tube(device):
     """Table + frames + wrinkle shading through the runtime on a small tube that bends: finite,
     grooves visible (shading varies with phase where deep), depth grows where compressed."""
     m = trimesh.creation.cylinder(radius=0.2, height=2.0, sections=24, segment=np.array([[0, 0, 0], [0, 0, 2.0]]))
@@ -167,7 +167,7 @@ def test_wrinkle_stages_on_a_bending_tube():
                                                    "max_depth": 0.4, "grooves": 4, "depth_range": (0.0, 0.4),
                                                    "compression_gain": 3.0}),
     ], output="shade.radiance")
-    rt = spec.compile(scene, device="cpu", cache_dir=None, progress=False,
+    rt = spec.compile(scene, device=device, cache_dir=None, progress=False,
                       lighting=LightingSource([Environment.constant()], "Z"))
     rest = rt.step(0.0).numpy().copy()
     depth_rest = rt.frame_outputs["shade"]["depth"].numpy().copy()

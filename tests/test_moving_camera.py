@@ -27,12 +27,12 @@ def test_bundled_orbit_camera_moves():
     assert not still.camera.moving
 
 
-def test_eye_follows_the_camera_in_the_recorded_frame_until_set():
+def test_eye_follows_the_camera_in_the_recorded_frame_until_set(device):
     scene, path = _sheet_with_camera()
     spec = GraphSpec(stages=[StageSpec("vis", "rpo.visibility_traced", {"order": 3, "samples": 32}),
                              StageSpec("shade", "rpo.shade", {"order": 3, "rank": 4, "view_order": 4})],
                      output="shade.radiance")
-    rt = spec.compile(scene, device="cpu", cache_dir=None, progress=False,
+    rt = spec.compile(scene, device=device, cache_dir=None, progress=False,
                       lighting=LightingSource.fixed([Environment.sky()], "Z"))
     outs = []
     for f in (0.0, 1.0, 0.0, 1.0, 2.0, 3.0):  # the frame is recorded after the first two steps

@@ -14,8 +14,8 @@ from warpshade.reference import shade, shade_glossy
 from warpshade.scene import DistantLight, Environment, Mesh, Scene, SphereLight, materials
 from warpshade.scene.materials_warp import BRDFParams, brdf_eval, brdf_pdf, brdf_sample, upload_brdf
 
-#: An estimate must lie within this many reported standard errors (plus a float32 floor) of the oracle.
-STDERR_SIGMAS = 5.0
+from tolerances import STDERR_SIGMAS, assert_within_stderr
+
 #: float32 evaluation of the BRDFs vs the float64 models, relative to the largest value.
 BRDF_RTOL_FLOAT32 = 1e-4
 #: Quadrature (48 x 96 nodes) of a discontinuous visibility: its own error, relative.
@@ -116,8 +116,7 @@ def test_unoccluded_matches_quadrature(device, name):
     res = shade_glossy(scene, 0.0, MODELS[name], eye=EYE, samples=2048, color=(1.0, 0.5, 0.25), device=device)
     views = _unit(EYE - scene.points_at(0.0))
     ref = materials.shade_unshadowed(MODELS[name], views, env.radiance) * np.array([1.0, 0.5, 0.25])
-    err = np.abs(res.radiance - ref)
-    assert np.all(err <= STDERR_SIGMAS * res.stderr + 1e-4 * ref.max()), (err / np.maximum(res.stderr, 1e-12)).max()
+    assert_within_stderr(res.radiance, ref, res.stderr, floor=1e-4 * ref.max(), what=f"{name} radiance vs quadrature")
 
 
 @pytest.mark.parametrize("method", ["brdf", "light", "mis"])
@@ -127,7 +126,7 @@ def test_estimators_agree_and_report_their_noise(device, method):
     brdf = MODELS["phong"]
     res = shade_glossy(scene, 0.0, brdf, eye=EYE, samples=4096, method=method, device=device)
     ref = materials.shade_unshadowed(brdf, _unit(EYE - scene.points_at(0.0)), env.radiance)
-    assert np.all(np.abs(res.radiance - ref) <= STDERR_SIGMAS * res.stderr + 1e-4 * ref.max())
+    assert_within_stderr(res.radiance, ref, res.stderr, floor=1e-4 * ref.max(), what=f"{method} estimate vs quadrature")
     assert np.all(res.stderr > 0)
 
 
@@ -161,7 +160,7 @@ def test_lambert_equals_the_diffuse_reference(device):
     diffuse = shade(scene, 0.0, samples=2048, device=device, seed=3)  # albedo 0.8 (the scene default)
     seen = np.einsum("ij,ij->i", EYE - scene.points_at(0.0), scene.normals_at(0.0)) > 0
     both = np.hypot(glossy.stderr, diffuse.stderr)[seen]
-    assert np.all(np.abs(glossy.radiance - diffuse.radiance)[seen] <= STDERR_SIGMAS * both + 1e-4)
+    assert_within_stderr(glossy.radiance[seen], diffuse.radiance[seen], both, floor=1e-4, what="Lambert vs diffuse reference")
     assert np.all(glossy.radiance[~seen] == 0.0), "receivers facing away from the viewer send it nothing"
 
 

@@ -15,10 +15,8 @@ from warpshade.reference import GlossyReferenceShader, pixel_hits, reference_ima
 from warpshade.reference.pixels import _box_filter_kernel, _coverage_kernel, box_filter_reference
 from warpshade.scene import Camera, Environment, Mesh, Scene, materials
 
-#: A Monte Carlo estimate must lie within this many reported standard errors of its oracle.
-STDERR_SIGMAS = 5.0
-#: float32 accumulation in the kernels against float64 oracles, relative.
-RTOL_FLOAT32 = 2e-5
+from tolerances import RTOL_FLOAT32, STDERR_SIGMAS, assert_within_stderr
+
 #: Hemisphere quadrature (Gauss-Legendre 160 x 320) of the directional albedo: its own error for
 #: alpha >= 0.15 (measured against 320 x 640 nodes: below 2e-4), relative.
 QUADRATURE_RTOL = 1e-3
@@ -90,11 +88,11 @@ def test_pixel_centre_on_a_vertex_matches_the_per_vertex_references(device):
     for part, vertex_result in (("specular", spec), ("diffuse", diff)):
         pixel = getattr(ref, part)[centre]
         sigma = np.hypot(getattr(ref, part + "_stderr")[centre], vertex_result.stderr[0])
-        assert np.all(np.abs(pixel - vertex_result.radiance[0]) <= STDERR_SIGMAS * sigma + RTOL_FLOAT32 * pixel), part
+        assert_within_stderr(pixel, vertex_result.radiance[0], sigma, floor=RTOL_FLOAT32 * pixel, what=f"{part} pixel vs vertex")
         assert pixel.min() > 0.0
     total = spec.radiance[0] + diff.radiance[0]
     sigma = np.sqrt(ref.stderr[centre] ** 2 + spec.stderr[0] ** 2 + diff.stderr[0] ** 2)
-    assert np.all(np.abs(ref.radiance[centre] - total) <= STDERR_SIGMAS * sigma + RTOL_FLOAT32 * total)
+    assert_within_stderr(ref.radiance[centre], total, sigma, floor=RTOL_FLOAT32 * total, what="pixel vs vertex total")
 
 
 def test_specular_part_is_shade_points_at_the_hits(device):
@@ -178,11 +176,11 @@ def test_glossy_plane_under_a_constant_sky_is_its_directional_albedo(device, dis
         sel = rough.reshape(-1) == alpha
         expected[sel] = _directional_albedo(materials.Microfacet(alpha, distribution, 0.5, 0.8), cos_view[sel])
     expected = (expected[:, None] * radiance).reshape(height, width, 3)
-    err = np.abs(ref.specular - expected)
-    assert np.all(err <= STDERR_SIGMAS * ref.specular_stderr + (QUADRATURE_RTOL + RTOL_FLOAT32) * expected)
+    assert_within_stderr(ref.specular, expected, ref.specular_stderr, floor=(QUADRATURE_RTOL + RTOL_FLOAT32) * expected,
+                         what="specular pixels vs directional albedo")
     assert np.median(ref.specular_stderr / expected) < 0.05, "the check has power"
     diffuse = scene.albedo[0] * radiance
-    assert np.all(np.abs(ref.diffuse - diffuse) <= STDERR_SIGMAS * ref.diffuse_stderr + RTOL_FLOAT32 * diffuse)
+    assert_within_stderr(ref.diffuse, diffuse, ref.diffuse_stderr, floor=RTOL_FLOAT32 * diffuse, what="diffuse pixels")
 
 
 def test_directional_albedo_quadrature_has_converged():

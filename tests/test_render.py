@@ -15,8 +15,8 @@ from warpshade.render import camera_basis, frame_camera, render, tonemap_referen
 from warpshade.render.image import tonemap
 from warpshade.scene import Camera, Environment, Mesh, Scene
 
-# Barycentric interpolation of a linear field is exact; float32 hit points and weights.
-ATOL_FLOAT32 = 2e-5
+from tolerances import ATOL_FLOAT32
+
 # Tone-mapped 8-bit values may differ by one level where float32 rounding crosses a .5 step.
 MAX_LEVEL_DIFFERENCE = 1
 # Pixels closer than this (in plane units) to the plane's border are not compared (the

@@ -131,7 +131,7 @@ def test_exact_brdf_oracle_agrees_with_full_rank_operators_on_shadowed_points(rn
     ("rotate", "brdf", "local", "gaunt"), ("rotate", "brdf", "world", "matrices"),
     ("zh", "product", "local", "gaunt"), ("zh", "brdf", "world", "gaunt"),
 ])
-def test_kernel_matches_the_float64_reference(rng, lighting, cosine, space, evaluation):
+def test_kernel_matches_the_float64_reference(device, rng, lighting, cosine, space, evaluation):
     v = 64
     ops = [build_operator(M.Microfacet(0.4), N, 6, cosine=cosine), build_operator(M.Phong(8.0), N, 6, cosine=cosine)]
     frames = _random_frames(rng, v)
@@ -145,7 +145,7 @@ def test_kernel_matches_the_float64_reference(rng, lighting, cosine, space, eval
     zh = fit_zh_lighting(light, 3) if lighting == "zh" else None
     want, stats = shade_reference(frames, points, eye, vis, ops, material, light, (1.0, 0.8, 0.6), zh, space, evaluation)
 
-    dev = "cpu"
+    dev = device
     k, nv2 = 6, ops[0].view_sh.shape[1]
     f32 = np.float32
     kern = kernels.shade_kernel(N, ops[0].view_order, lighting, cosine, space, evaluation)
@@ -213,13 +213,13 @@ def _spec(shade=None, vis=None, materials=()):
     ], output="shade.radiance", materials=list(materials))
 
 
-def _compile(spec, scene, **kw):
-    return spec.compile(scene, device="cpu", cache_dir=None, progress=False,
+def _compile(device, spec, scene, **kw):
+    return spec.compile(scene, device=device, cache_dir=None, progress=False,
                         lighting=LightingSource.fixed([Environment.sky()], "Z"), **kw)
 
 
-def test_stage_matches_the_reference_and_is_recordable(two_sheets):
-    rt = _compile(_spec(), two_sheets)
+def test_stage_matches_the_reference_and_is_recordable(device, two_sheets):
+    rt = _compile(device, _spec(), two_sheets)
     rt.step(0.0)
     rt.step(0.0)  # recorded
     out = rt.step(0.0).numpy().copy()
@@ -230,13 +230,13 @@ def test_stage_matches_the_reference_and_is_recordable(two_sheets):
     want, stats = shade_reference(frames, rt.state.points.numpy(), [0.4, -0.6, 3.0], vis, st.operators,
                                   st.material_of_vertex, light)
     np.testing.assert_allclose(out, want, atol=RTOL_KERNEL * want.max())
-    unrec = _compile(_spec(), two_sheets, capture=False)
+    unrec = _compile(device, _spec(), two_sheets, capture=False)
     np.testing.assert_array_equal(unrec.step(0.0).numpy(), out)
     assert rt.output_stage().diagnostics()["below_horizon"] == stats["below_horizon"]
 
 
-def test_set_material_is_the_next_frame_and_swapping_back_is_exact(two_sheets):
-    rt = _compile(_spec(), two_sheets)
+def test_set_material_is_the_next_frame_and_swapping_back_is_exact(device, two_sheets):
+    rt = _compile(device, _spec(), two_sheets)
     for _ in range(3):
         first = rt.step(0.0).numpy().copy()
     phong = M.Phong(6.0)
@@ -244,7 +244,7 @@ def test_set_material_is_the_next_frame_and_swapping_back_is_exact(two_sheets):
     rt.set_material(phong)
     swap_s = time.perf_counter() - t0
     swapped = rt.step(0.0).numpy().copy()
-    fresh = _compile(_spec({"brdf": "phong", "exponent": 6.0}), two_sheets).step(0.0).numpy()
+    fresh = _compile(device, _spec({"brdf": "phong", "exponent": 6.0}), two_sheets).step(0.0).numpy()
     np.testing.assert_allclose(swapped, fresh, rtol=1e-6, atol=1e-7)
     assert not np.allclose(swapped, first)
     assert swap_s < BUILD_SECONDS
@@ -264,12 +264,12 @@ def test_set_material_is_the_next_frame_and_swapping_back_is_exact(two_sheets):
         rt.set_material("ggx")
 
 
-def test_material_track(two_sheets):
+def test_material_track(device, two_sheets):
     extended = Scene.from_meshes(two_sheets.meshes, frames=np.arange(6.0))
     track = [{"frames": "2:4", "prims": None, "brdf": M.Phong(6.0), "where": "test [[material]] #1"}]
-    rt = _compile(_spec(materials=track), extended)
-    plain = _compile(_spec(), extended)
-    phong = _compile(_spec({"brdf": "phong", "exponent": 6.0}), extended)
+    rt = _compile(device, _spec(materials=track), extended)
+    plain = _compile(device, _spec(), extended)
+    phong = _compile(device, _spec({"brdf": "phong", "exponent": 6.0}), extended)
     for f in range(6):
         got = rt.step(float(f)).numpy().copy()
         want = (phong if 2 <= f < 4 else plain).step(float(f)).numpy()
@@ -314,9 +314,9 @@ def test_very_specular_lobes_are_where_low_order_sh_stops(rng):
     assert errs[0.05] > 3 * errs[0.3]  # the failure is visible, not silent
 
 
-def test_grazing_views_and_negative_radiance_are_clamped_and_counted(two_sheets):
+def test_grazing_views_and_negative_radiance_are_clamped_and_counted(device, two_sheets):
     # an eye in the sheet's plane: many views at or below the horizon
-    rt = _compile(_spec({"eye": [5.0, 0.0, 0.0]}), two_sheets)
+    rt = _compile(device, _spec({"eye": [5.0, 0.0, 0.0]}), two_sheets)
     out = rt.step(0.0).numpy()
     d = rt.output_stage().diagnostics()
     assert d["below_horizon"] > 0
@@ -330,35 +330,35 @@ def test_grazing_views_and_negative_radiance_are_clamped_and_counted(two_sheets)
     assert np.all(out >= 0) and np.all(np.isfinite(out))
 
 
-def test_bad_brdf_files_name_the_file(two_sheets, tmp_path):
+def test_bad_brdf_files_name_the_file(device, two_sheets, tmp_path):
     bad = tmp_path / "short.binary"
     bad.write_bytes(b"\x01\x00")
     with pytest.raises(StageError, match="short.binary"):
-        _compile(_spec({"brdf": "tabulated", "file": str(bad)}), two_sheets)
+        _compile(device, _spec({"brdf": "tabulated", "file": str(bad)}), two_sheets)
     nan = tmp_path / "nan.binary"
     write_merl(nan, M.Microfacet(0.5), dims=(8, 8, 16))
     raw = bytearray(nan.read_bytes())
     raw[12 + 8 * 5: 12 + 8 * 6] = np.array([np.nan]).tobytes()
     nan.write_bytes(bytes(raw))
     with pytest.raises(StageError, match="nan.binary"):
-        _compile(_spec({"brdf": "tabulated", "file": str(nan)}), two_sheets)
+        _compile(device, _spec({"brdf": "tabulated", "file": str(nan)}), two_sheets)
     good = tmp_path / "ggx.binary"
     write_merl(good, M.Microfacet(0.5), dims=(30, 30, 60))
-    rt = _compile(_spec({"brdf": "tabulated", "file": str(good)}), two_sheets)
+    rt = _compile(device, _spec({"brdf": "tabulated", "file": str(good)}), two_sheets)
     tab = rt.step(0.0).numpy()
-    ana = _compile(_spec(), two_sheets).step(0.0).numpy()
+    ana = _compile(device, _spec(), two_sheets).step(0.0).numpy()
     # nearest lookup at (30, 30, 60) against the analytic lobe it was written from
     assert np.sqrt(np.mean((tab - ana) ** 2) / np.mean(ana**2)) < 0.15
     with pytest.raises(StageError, match="rank"):
-        _compile(_spec({"rank": 10}), two_sheets)
+        _compile(device, _spec({"rank": 10}), two_sheets)
 
 
-def test_zh_lighting_turns_with_the_environment(two_sheets):
+def test_zh_lighting_turns_with_the_environment(device, two_sheets):
     """Under a turning sky the 3 ZH lobes are fitted once and turned per frame: within the fit's
     error of the full rotation at every frame."""
     extended = Scene.from_meshes(two_sheets.meshes, frames=np.arange(4.0))
     turning = LightingSource([Environment.sky()], "Z", 25.0, 0.0)
-    kw = dict(device="cpu", cache_dir=None, progress=False, lighting=turning)
+    kw = dict(device=device, cache_dir=None, progress=False, lighting=turning)
     zh = _spec({"lighting": "zh"}).compile(extended, **kw)
     full = _spec().compile(extended, **kw)
     for f in range(4):

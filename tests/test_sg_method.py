@@ -90,8 +90,8 @@ def _spec(shade=None, ssdf=None, env=None):
     ], output="shade.radiance", name="sg-test")
 
 
-def _compile(scene, lights, shade=None, cache_dir=None, **kw):
-    return _spec(shade, **kw).compile(scene, device="cpu", cache_dir=cache_dir, progress=False,
+def _compile(device, scene, lights, shade=None, cache_dir=None, **kw):
+    return _spec(shade, **kw).compile(scene, device=device, cache_dir=cache_dir, progress=False,
                                       lighting=LightingSource.fixed(list(lights), "Z"))
 
 
@@ -145,9 +145,9 @@ MATERIALS = {"beckmann": 0.3, "blinn-phong": 20.0}
 @pytest.mark.parametrize("brdf", list(MATERIALS))
 @pytest.mark.parametrize("component", ["specular", "diffuse", "both"])
 @pytest.mark.parametrize("lights", list(LIGHTS))
-def test_vertex_kernel_matches_the_float64_mirror(blocked, mirror, lights, component, brdf, horizon):
-    rt = _compile(blocked, LIGHTS[lights], {"component": component, "brdf": brdf, "roughness": MATERIALS[brdf],
-                                            "horizon": horizon})
+def test_vertex_kernel_matches_the_float64_mirror(device, blocked, mirror, lights, component, brdf, horizon):
+    rt = _compile(device, blocked, LIGHTS[lights], {"component": component, "brdf": brdf, "roughness": MATERIALS[brdf],
+                                                    "horizon": horizon})
     out = rt.step(0.0).numpy()
     want = mirror(rt)
     assert np.all(np.isfinite(out)) and np.abs(want).max() > 0.0
@@ -155,20 +155,20 @@ def test_vertex_kernel_matches_the_float64_mirror(blocked, mirror, lights, compo
 
 
 @pytest.mark.parametrize("component", ["specular", "diffuse"])
-def test_sharp_distant_light_is_float32_rounding_of_the_lobe_product(blocked, mirror, component):
-    rt = _compile(blocked, [DistantLight([0.3, 0.2, 1.0], [2.0, 2.0, 2.0])], {"component": component})
+def test_sharp_distant_light_is_float32_rounding_of_the_lobe_product(device, blocked, mirror, component):
+    rt = _compile(device, blocked, [DistantLight([0.3, 0.2, 1.0], [2.0, 2.0, 2.0])], {"component": component})
     out = rt.step(0.0).numpy()
     err = _max_rel(out, mirror(rt))
     assert np.all(np.isfinite(out)) and err < RTOL_SHARP_LOBE, err
 
 
-def test_every_light_at_once_and_a_moving_sphere_light(blocked, mirror):
+def test_every_light_at_once_and_a_moving_sphere_light(device, blocked, mirror):
     # the lamp moves from (0.8, 0.8, 0.8) to (-0.8, 0.5, 0.9) over frames 0..2
     tr = np.tile(np.eye(4), (3, 1, 1))
     tr[:, 3, :3] = [[0.8, 0.8, 0.8], [0.0, 0.7, 0.85], [-0.8, 0.5, 0.9]]  # the centre follows the origin
     lamp = SphereLight([0.8, 0.8, 0.8], 0.1, [5.0, 4.0, 3.0], track=LightTrack(np.arange(3.0), tr))
-    rt = _compile(blocked, [SKY, lamp, DistantLight([0.3, 0.2, 1.0], [1.0, 1.0, 1.0], angle_deg=5.0)],
-                  {"component": "both"})
+    rt = _compile(device, blocked, [SKY, lamp, DistantLight([0.3, 0.2, 1.0], [1.0, 1.0, 1.0], angle_deg=5.0)],
+                          {"component": "both"})
     previous = None
     for frame in (0.0, 1.0, 2.0):
         out = rt.step(frame).numpy().copy()
@@ -179,15 +179,15 @@ def test_every_light_at_once_and_a_moving_sphere_light(blocked, mirror):
         previous = out
 
 
-def test_pca_lookups_equal_the_decoded_maps(blocked):
+def test_pca_lookups_equal_the_decoded_maps(device, blocked):
     lights = [SKY, SphereLight([0.8, 0.8, 0.8], 0.1, [5.0, 4.0, 3.0])]
-    maps = _compile(blocked, lights, {"component": "both", "ssdf": "maps"}).step(0.0).numpy()
-    pca = _compile(blocked, lights, {"component": "both", "ssdf": "pca"}).step(0.0).numpy()
+    maps = _compile(device, blocked, lights, {"component": "both", "ssdf": "maps"}).step(0.0).numpy()
+    pca = _compile(device, blocked, lights, {"component": "both", "ssdf": "pca"}).step(0.0).numpy()
     assert _max_rel(pca, maps) < RTOL_PCA_VS_MAPS, _max_rel(pca, maps)
 
 
-def test_float64_mirror_shades_blinn_phong_as_called_by_the_stage(blocked):
-    rt = _compile(blocked, [SKY], {"brdf": "blinn-phong", "roughness": 20.0})
+def test_float64_mirror_shades_blinn_phong_as_called_by_the_stage(device, blocked):
+    rt = _compile(device, blocked, [SKY], {"brdf": "blinn-phong", "roughness": 20.0})
     out = rt.step(0.0).numpy()
     assert _max_rel(out, _reference(rt)) < RTOL_FLOAT32
 
@@ -198,10 +198,10 @@ def _gbuffer_at_vertices(rt, vertices):
     """A G-buffer whose pixel k hits vertex ``vertices[k]`` exactly (weight 1 on it, Warp's
     barycentrics (u, v) weight the triangle's first two corners)."""
     scene = rt.scene
-    bvh = Visibility.from_scene(scene, device="cpu")
+    bvh = Visibility.from_scene(scene, device=rt.device)
     faces = np.asarray(bvh.faces)
     n = len(vertices)
-    gb = GBuffer(n, 1, "cpu", bvh)
+    gb = GBuffer(n, 1, rt.device, bvh)
     face, bary = np.zeros(n, np.int32), np.zeros((n, 2), np.float32)
     for k, v in enumerate(vertices):
         f, corner = np.argwhere(faces == v)[0]
@@ -216,22 +216,22 @@ def _gbuffer_at_vertices(rt, vertices):
 
 
 def _camera_gbuffer(rt, width=12, height=10):
-    bvh = Visibility.from_scene(rt.scene, device="cpu")
+    bvh = Visibility.from_scene(rt.scene, device=rt.device)
     bvh.update(rt.state.points)
     cam = Camera(np.asarray(EYE, np.float64), np.array([0.0, 0.0, 0.2]), np.array([0.0, 0.0, 1.0]), vertical_fov=50.0)
     return render_gbuffer(bvh, rt.state.normals, cam, width, height)
 
 
-def test_pixels_at_vertices_reproduce_the_vertex_shading(blocked):
-    rt = _compile(blocked, [SKY, SphereLight([0.8, 0.8, 0.8], 0.1, [5.0, 4.0, 3.0])], {"component": "both"})
+def test_pixels_at_vertices_reproduce_the_vertex_shading(device, blocked):
+    rt = _compile(device, blocked, [SKY, SphereLight([0.8, 0.8, 0.8], 0.1, [5.0, 4.0, 3.0])], {"component": "both"})
     per_vertex = rt.step(0.0).numpy().copy()
     vertices = np.arange(0, blocked.vertex_count, 3)
     px = rt.output_stage().render_pixels(_gbuffer_at_vertices(rt, vertices)).numpy()
     assert _max_rel(px, per_vertex[vertices]) < RTOL_PIXEL_AT_VERTEX, _max_rel(px, per_vertex[vertices])
 
 
-def test_pixels_match_the_mirror_and_explicit_materials_equal_the_interpolated_ones(blocked, mirror):
-    rt = _compile(blocked, [SKY, SphereLight([0.8, 0.8, 0.8], 0.1, [5.0, 4.0, 3.0])], {"component": "both"})
+def test_pixels_match_the_mirror_and_explicit_materials_equal_the_interpolated_ones(device, blocked, mirror):
+    rt = _compile(device, blocked, [SKY, SphereLight([0.8, 0.8, 0.8], 0.1, [5.0, 4.0, 3.0])], {"component": "both"})
     rt.step(0.0)
     st = rt.output_stage()
     rng = np.random.default_rng(7)
@@ -266,11 +266,11 @@ def test_pixels_match_the_mirror_and_explicit_materials_equal_the_interpolated_o
     assert not np.allclose(st.render_pixels(gb, roughness=rough).numpy()[hit], default[hit])
 
 
-def test_normal_map_replaces_the_shading_normals(blocked, mirror):
+def test_normal_map_replaces_the_shading_normals(device, blocked, mirror):
     """A per-pixel normal map: the interpolated normals given explicitly change nothing; tilted
     normals shade as the float64 mirror does with those normals (the clamped cosine and the BRDF
     slice turned per pixel), with the vertices' visibility."""
-    rt = _compile(blocked, [SKY, SphereLight([0.8, 0.8, 0.8], 0.1, [5.0, 4.0, 3.0])], {"component": "both"})
+    rt = _compile(device, blocked, [SKY, SphereLight([0.8, 0.8, 0.8], 0.1, [5.0, 4.0, 3.0])], {"component": "both"})
     rt.step(0.0)
     st = rt.output_stage()
     gb = _camera_gbuffer(rt)
@@ -295,8 +295,8 @@ def test_normal_map_replaces_the_shading_normals(blocked, mirror):
 
 @pytest.mark.parametrize("name, value", [("albedo", np.ones((5, 3))), ("specular", np.ones(7)), ("roughness", np.ones((7, 3))),
                                          ("albedo", "negative"), ("roughness", "nan")])
-def test_render_pixels_refuses_bad_material_arrays(blocked, name, value):
-    rt = _compile(blocked, [SKY])
+def test_render_pixels_refuses_bad_material_arrays(device, blocked, name, value):
+    rt = _compile(device, blocked, [SKY])
     rt.step(0.0)
     gb = _camera_gbuffer(rt, 4, 3)
     n = gb.pixel_count
@@ -308,9 +308,9 @@ def test_render_pixels_refuses_bad_material_arrays(blocked, name, value):
 
 # ---- 3. physics against independent values ---------------------------------------------------
 
-def test_unoccluded_plane_diffuse_is_the_sg_cosine_hemisphere_integral(plane):
+def test_unoccluded_plane_diffuse_is_the_sg_cosine_hemisphere_integral(device, plane):
     radiance = np.array([0.7, 1.0, 1.3])
-    rt = _compile(plane, [Environment.constant(radiance, height=8, width=16)], {"component": "diffuse"})
+    rt = _compile(device, plane, [Environment.constant(radiance, height=8, width=16)], {"component": "diffuse"})
     out = rt.step(0.0).numpy()
     st = rt.output_stage()
     np.testing.assert_array_equal(decode_maps(st.model), np.float32(np.pi / 2))  # no boundary: +pi/2 everywhere
@@ -329,22 +329,22 @@ def enclosure():
     return Scene.from_meshes([Mesh("/inner", inner, faces), Mesh("/box", _box((-0.5, -0.5, -0.2), (0.5, 0.5, 0.6)), BOX_FACES)])
 
 
-def _enclosed_diffuse(enclosure, lights):
-    rt = _compile(enclosure, lights, {"component": "diffuse", "eye": (0.0, -0.2, 0.4)})
+def _enclosed_diffuse(device, enclosure, lights):
+    rt = _compile(device, enclosure, lights, {"component": "diffuse", "eye": (0.0, -0.2, 0.4)})
     out = rt.step(0.0).numpy()[:9]
     st = rt.output_stage()
     np.testing.assert_array_equal(decode_maps(st.model)[:9], np.float32(-np.pi / 2))  # fully blocked
     return out, st._albedo.numpy()[:9]
 
 
-def test_enclosed_receiver_diffuse_is_bounded_by_the_cosine_lobe_leak(enclosure):
+def test_enclosed_receiver_diffuse_is_bounded_by_the_cosine_lobe_leak(device, enclosure):
     """Fully blocked (SSDF -pi/2): a sharp light gives 0; a constant sky leaves what eq. 30 puts in
     the hemisphere opposite the product lobe, f_h(-pi/2, lambda) / f_h(pi/2, lambda) = 11.8 % of
     the open value for the cosine lobe (lambda 2.133): the SG cosine's tail below the horizon."""
-    out, _ = _enclosed_diffuse(enclosure, [DistantLight([0.2, 0.1, 1.0], [3.0, 3.0, 3.0], angle_deg=5.0)])
+    out, _ = _enclosed_diffuse(device, enclosure, [DistantLight([0.2, 0.1, 1.0], [3.0, 3.0, 3.0], angle_deg=5.0)])
     assert np.all(out == 0.0) or np.abs(out).max() < 1e-12
     radiance = np.array([0.7, 1.0, 1.3])
-    out, albedo = _enclosed_diffuse(enclosure, [Environment.constant(radiance, height=8, width=16)])
+    out, albedo = _enclosed_diffuse(device, enclosure, [Environment.constant(radiance, height=8, width=16)])
     _, lam, mu = sg.clamped_cosine(np.array([0.0, 0.0, 1.0]), "paper")
     leak = float(mu) * float(sg.hemisphere_integral(-np.pi / 2, lam)) / np.pi
     np.testing.assert_allclose(out / (albedo * radiance), leak, rtol=5e-3)
@@ -354,20 +354,20 @@ def test_enclosed_receiver_diffuse_is_bounded_by_the_cosine_lobe_leak(enclosure)
 @pytest.mark.xfail(strict=True, reason="method limitation, not a code slip: eq. 30 at theta_d = -pi/2 integrates "
                    "the product lobe over the opposite hemisphere; for the broad cosine lobe that is 11.8 % of the "
                    "unoccluded diffuse where a receiver inside a closed box should get ~0")
-def test_enclosed_receiver_under_a_sky_is_dark(enclosure):
+def test_enclosed_receiver_under_a_sky_is_dark(device, enclosure):
     radiance = np.array([0.7, 1.0, 1.3])
-    out, albedo = _enclosed_diffuse(enclosure, [Environment.constant(radiance, height=8, width=16)])
+    out, albedo = _enclosed_diffuse(device, enclosure, [Environment.constant(radiance, height=8, width=16)])
     assert np.all(out / (albedo * radiance) < 0.02)
 
 
-def _specular_vs_glossy(plane, eye, roughness):
+def _specular_vs_glossy(device, plane, eye, roughness):
     env = Environment.constant((1.0, 1.0, 1.0), height=8, width=16)
-    rt = _compile(plane, [env], {"eye": eye, "roughness": roughness, "f0": 0.04})
+    rt = _compile(device, plane, [env], {"eye": eye, "roughness": roughness, "f0": 0.04})
     out = rt.step(0.0).numpy()
     ref = reference_model(rt)
     assert ref["brdf"].distribution == "beckmann" and ref["brdf"].roughness == roughness
     truth = shade_glossy(plane, 0.0, ref["brdf"], eye=ref["eye"], lighting=[env], samples=2048, color=ref["color"],
-                         device="cpu")
+                         device=device)
     view = np.asarray(eye) - plane.points_at(0.0)
     cos = view[:, 2] / np.linalg.norm(view, axis=1)
     return out, truth.radiance.astype(np.float64), truth.stderr, cos
@@ -375,8 +375,8 @@ def _specular_vs_glossy(plane, eye, roughness):
 
 @pytest.mark.parametrize("roughness", [0.1, 0.2, 0.4])
 @pytest.mark.parametrize("eye", [(0.0, -0.5, 2.0), (0.0, -1.5, 1.5)])
-def test_specular_of_an_open_plane_against_the_glossy_reference(plane, eye, roughness):
-    out, truth, stderr, cos = _specular_vs_glossy(plane, eye, roughness)
+def test_specular_of_an_open_plane_against_the_glossy_reference(device, plane, eye, roughness):
+    out, truth, stderr, cos = _specular_vs_glossy(device, plane, eye, roughness)
     assert cos.min() > 0.45
     assert np.all(stderr < 0.015 * truth)
     ratio = out / truth
@@ -386,10 +386,10 @@ def test_specular_of_an_open_plane_against_the_glossy_reference(plane, eye, roug
 
 
 @pytest.mark.parametrize("roughness", [0.1, 0.4])
-def test_specular_at_grazing_views_is_bounded_and_worse(plane, roughness):
-    out, truth, _, cos = _specular_vs_glossy(plane, (0.0, -4.0, 0.15), roughness)
+def test_specular_at_grazing_views_is_bounded_and_worse(device, plane, roughness):
+    out, truth, _, cos = _specular_vs_glossy(device, plane, (0.0, -4.0, 0.15), roughness)
     assert cos.max() < 0.06
-    near, _, _, _ = _specular_vs_glossy(plane, (0.0, -0.5, 2.0), roughness)
+    near, _, _, _ = _specular_vs_glossy(device, plane, (0.0, -0.5, 2.0), roughness)
     ratio = out / truth
     assert np.all(np.isfinite(out)) and np.all(out >= 0.0)
     assert ratio.max() < SPECULAR_GRAZING_MAX_RATIO, ratio.max()
@@ -398,59 +398,59 @@ def test_specular_at_grazing_views_is_bounded_and_worse(plane, roughness):
 
 # ---- 4. failure modes -------------------------------------------------------------------------
 
-def test_sphere_light_inside_a_hull_is_reported(blocked):
+def test_sphere_light_inside_a_hull_is_reported(device, blocked):
     tr = np.tile(np.eye(4), (3, 1, 1))
     tr[:, 3, :3] = [[0.8, 0.8, 0.8], [0.0, 0.0, 0.45], [0.8, 0.8, 0.8]]  # frame 1: at the box's centre
     lamp = SphereLight([0.8, 0.8, 0.8], 0.05, [5.0, 4.0, 3.0], track=LightTrack(np.arange(3.0), tr))
-    rt = _compile(blocked, [SKY, lamp], {"component": "both"})
+    rt = _compile(device, blocked, [SKY, lamp], {"component": "both"})
     report = rt.output_stage().diagnostics()["lights_inside_hull"]
     assert report == [{"mesh": "/box", "light": 0, "frames": [1], "count": 1}]
     for frame in (0.0, 1.0, 2.0):
         assert np.all(np.isfinite(rt.step(frame).numpy()))
-    outside = _compile(blocked, [SKY, SphereLight([0.8, 0.8, 0.8], 0.05, [5.0, 4.0, 3.0])])
+    outside = _compile(device, blocked, [SKY, SphereLight([0.8, 0.8, 0.8], 0.05, [5.0, 4.0, 3.0])])
     assert outside.output_stage().diagnostics()["lights_inside_hull"] == []
 
 
-def test_sphere_light_inside_a_hull_at_the_bake_pose_is_reported_with_a_warning(blocked):
+def test_sphere_light_inside_a_hull_at_the_bake_pose_is_reported_with_a_warning(device, blocked):
     with pytest.warns(RuntimeWarning, match="inside the convex hull"):
-        rt = _compile(blocked, [SKY, SphereLight([0.0, 0.0, 0.45], 0.05, [5.0, 4.0, 3.0])], {"component": "both"})
+        rt = _compile(device, blocked, [SKY, SphereLight([0.0, 0.0, 0.45], 0.05, [5.0, 4.0, 3.0])], {"component": "both"})
     assert rt.output_stage().diagnostics()["lights_inside_hull"][0]["frames"] == [0]
     assert np.all(np.isfinite(rt.step(0.0).numpy()))
 
 
 @pytest.mark.parametrize("roughness", [1e-3, 2.0])
-def test_extreme_roughness_is_finite(blocked, roughness):
+def test_extreme_roughness_is_finite(device, blocked, roughness):
     lights = [SKY, SphereLight([0.8, 0.8, 0.8], 0.1, [5.0, 4.0, 3.0]), DistantLight([0.3, 0.2, 1.0], [1.0, 1.0, 1.0])]
-    rt = _compile(blocked, lights, {"component": "both", "roughness": roughness})
+    rt = _compile(device, blocked, lights, {"component": "both", "roughness": roughness})
     out = rt.step(0.0).numpy()
     assert np.all(np.isfinite(out)) and np.all(out >= 0.0) and out.max() < 1e4
 
 
-def test_validation_refusals(blocked):
+def test_validation_refusals(device, blocked):
     with pytest.raises(StageError, match="'both' has no single reference"):
-        reference_model(_compile(blocked, [SKY], {"component": "both"}))
-    assert reference_model(_compile(blocked, [SKY], {"component": "diffuse"})) is None
-    ward = _compile(blocked, [SKY], {"brdf": "ward", "roughness": 0.3})
+        reference_model(_compile(device, blocked, [SKY], {"component": "both"}))
+    assert reference_model(_compile(device, blocked, [SKY], {"component": "diffuse"})) is None
+    ward = _compile(device, blocked, [SKY], {"brdf": "ward", "roughness": 0.3})
     assert np.all(np.isfinite(ward.step(0.0).numpy()))
     with pytest.raises(StageError, match="ward.*cannot be validated"):
         reference_model(ward)
     with pytest.raises(StageError, match="exponent"):
-        _compile(blocked, [SKY], {"brdf": "blinn-phong", "roughness": 0.5})
+        _compile(device, blocked, [SKY], {"brdf": "blinn-phong", "roughness": 0.5})
 
 
-def test_ssdf_of_another_scene_is_refused(blocked, plane, monkeypatch):
-    other = sg_model.bake_ssdf_model(plane, 0.0, 8, 2, 0.02, 64, "cpu")
+def test_ssdf_of_another_scene_is_refused(device, blocked, plane, monkeypatch):
+    other = sg_model.bake_ssdf_model(plane, 0.0, 8, 2, 0.02, 64, device)
 
     def wrong(self, ctx, inputs):
         return {"ssdf": other.arrays()}
 
     monkeypatch.setattr(sg_stages.SgSsdfStage, "precompute", wrong)
     with pytest.raises(StageError, match=f"SSDFs of {plane.vertex_count} vertices for a scene of {blocked.vertex_count}"):
-        _compile(blocked, [SKY])
+        _compile(device, blocked, [SKY])
 
 
-def test_set_surface_checks_and_takes_effect_next_frame(blocked):
-    rt = _compile(blocked, [SKY], {"component": "both"})
+def test_set_surface_checks_and_takes_effect_next_frame(device, blocked):
+    rt = _compile(device, blocked, [SKY], {"component": "both"})
     st = rt.output_stage()
     count = blocked.vertex_count
     before = rt.step(0.0).numpy().copy()
@@ -462,17 +462,17 @@ def test_set_surface_checks_and_takes_effect_next_frame(blocked):
     st.set_surface(roughness=np.full(count, 0.15), albedo=np.full((count, 3), 0.2))
     edited = rt.step(0.0).numpy().copy()
     assert not np.allclose(edited, before)
-    fresh = _compile(blocked, [SKY], {"component": "both", "roughness": 0.15})
+    fresh = _compile(device, blocked, [SKY], {"component": "both", "roughness": 0.15})
     fresh.output_stage().set_surface(albedo=np.full((count, 3), 0.2))
     np.testing.assert_allclose(edited, fresh.step(0.0).numpy(), rtol=1e-6, atol=1e-7)
 
 
-def test_set_material_beckmann_is_used_and_ggx_refused(blocked):
-    rt = _compile(blocked, [SKY], {"roughness": 0.3})
+def test_set_material_beckmann_is_used_and_ggx_refused(device, blocked):
+    rt = _compile(device, blocked, [SKY], {"roughness": 0.3})
     first = rt.step(0.0).numpy().copy()
     rt.set_material(M.Microfacet(roughness=0.15, distribution="beckmann"))
     swapped = rt.step(0.0).numpy().copy()
-    want = _compile(blocked, [SKY], {"roughness": 0.15}).step(0.0).numpy()
+    want = _compile(device, blocked, [SKY], {"roughness": 0.15}).step(0.0).numpy()
     np.testing.assert_allclose(swapped, want, rtol=1e-6, atol=1e-7)
     assert not np.allclose(swapped, first)
     with pytest.raises(ValueError, match="beckmann"):
@@ -481,7 +481,7 @@ def test_set_material_beckmann_is_used_and_ggx_refused(blocked):
 
 # ---- 5. the environment artifact --------------------------------------------------------------
 
-def test_environment_artifact_is_read_back_from_the_cache(blocked, tmp_path, monkeypatch):
+def test_environment_artifact_is_read_back_from_the_cache(device, blocked, tmp_path, monkeypatch):
     builds = []
     original = PrefilteredEnvironment.build.__func__
 
@@ -492,18 +492,18 @@ def test_environment_artifact_is_read_back_from_the_cache(blocked, tmp_path, mon
     monkeypatch.setattr(PrefilteredEnvironment, "build", classmethod(counting))
     env = Environment.sky(height=16, width=24)  # not built earlier in this process
     monkeypatch.setattr(sg_model, "_CACHE", {})
-    first = _compile(blocked, [env], {"component": "both"}, cache_dir=tmp_path)
+    first = _compile(device, blocked, [env], {"component": "both"}, cache_dir=tmp_path)
     assert first.timings["environment"].cache == "miss" and len(builds) == 1
     out = first.step(0.0).numpy().copy()
     monkeypatch.setattr(sg_model, "_CACHE", {})  # nothing in process: only the disk can answer
-    second = _compile(blocked, [env], {"component": "both"}, cache_dir=tmp_path)
+    second = _compile(device, blocked, [env], {"component": "both"}, cache_dir=tmp_path)
     assert second.timings["environment"].cache == "hit" and second.timings["ssdf"].cache == "hit"
     assert len(builds) == 1, "the second compile must read the table, not build it"
     np.testing.assert_array_equal(second.step(0.0).numpy(), out)
 
 
-def test_environment_lighting_round_trip():
-    lighting = sg_model.environment_lighting(SKY, 3, None, "lbfgsb", "cpu")
+def test_environment_lighting_round_trip(device):
+    lighting = sg_model.environment_lighting(SKY, 3, None, "lbfgsb", device)
     back = EnvironmentLighting.from_arrays(lighting.arrays())
     assert back.image_hash == lighting.image_hash == sg_model.environment_hash(SKY)
     np.testing.assert_array_equal(back.mixture.axes, lighting.mixture.axes)
@@ -548,18 +548,18 @@ def test_split_sun_conserves_energy_and_leaves_soft_skies_alone():
     assert sg_model.split_sun(SKY)[1] is None  # the soft procedural sun stays in the sky
 
 
-def test_separated_sun_is_shaded_as_a_distant_lobe(blocked, mirror):
+def test_separated_sun_is_shaded_as_a_distant_lobe(device, blocked, mirror):
     sky = _sun_sky()
     for component in ("specular", "diffuse"):
-        rt = _compile(blocked, [sky], {"component": component}, env={"sun": "separate"})
+        rt = _compile(device, blocked, [sky], {"component": component}, env={"sun": "separate"})
         out = rt.step(0.0).numpy()
         assert rt.output_stage().diagnostics()["environment_suns"] == 1
         assert _max_rel(out, mirror(rt)) < RTOL_SHARP_LOBE, _max_rel(out, mirror(rt))
-        keep = _compile(blocked, [sky], {"component": component}, env={"sun": "keep"}).step(0.0).numpy()
+        keep = _compile(device, blocked, [sky], {"component": component}, env={"sun": "keep"}).step(0.0).numpy()
         assert np.all(np.isfinite(out)) and not np.allclose(out, keep)
 
 
-def test_textured_materials_are_validated_per_vertex_and_per_pixel(tmp_path):
+def test_textured_materials_are_validated_per_vertex_and_per_pixel(device, tmp_path):
     """The bundled sunlit scene's UsdPreviewSurface roughness reaches the vertices and the
     per-vertex reference (a roughness and colour per vertex), and the per-pixel reference."""
     from warpshade.io import load_scene
@@ -575,7 +575,7 @@ def test_textured_materials_are_validated_per_vertex_and_per_pixel(tmp_path):
         StageSpec("frames", "ldprt.frames"),
         StageSpec("shade", "sg.shade", {"textures": True, "roughness": 0.3}),
     ], output="shade.radiance", name="sg-textured")
-    rt = spec.compile(scene, device="cpu", cache_dir=tmp_path, progress=False, lighting=LightingSource.fixed([sky], "Z"))
+    rt = spec.compile(scene, device=device, cache_dir=tmp_path, progress=False, lighting=LightingSource.fixed([sky], "Z"))
     rt.run([0.0])
     model = rt.output_stage().reference_model()
     rough = model["roughness"]

@@ -6,6 +6,8 @@ from scipy.special import sph_harm_y
 
 from warpshade.basis import quadrature, sh
 
+from tolerances import ATOL_FLOAT64
+
 # float64 Gram matrix by an exact product rule: rounding of ~n^2 products over a few hundred nodes.
 ORTHO_TOL_FLOAT64 = 1e-12
 # float32 kernel values (relative error ~1e-7 each, recurrences over <= 10 bands) accumulated in
@@ -13,8 +15,6 @@ ORTHO_TOL_FLOAT64 = 1e-12
 ORTHO_TOL_FLOAT32 = 1e-5
 # Kernel vs reference per value: float32 recurrences to band 9, |y| up to ~2.7.
 ATOL_BASIS_FLOAT32 = 2e-6
-# Analytic comparisons in float64 (closed forms and scipy evaluated independently).
-ATOL_FLOAT64 = 1e-12
 
 Y1 = np.sqrt(3.0 / (4.0 * np.pi))  # 0.488603
 

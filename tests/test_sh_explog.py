@@ -15,6 +15,8 @@ from warpshade.basis import sh
 from warpshade.basis import sh as _shexp  # scaling_power
 from warpshade.basis.sh_warp import SHExpTables, sh_kernels
 
+from tolerances import ATOL_ZH_FLOAT32
+
 # float64 series vs its eigen-decomposition limit on small inputs (||f|| < 1): the degree-40
 # remainder is ~1e-48, so only rounding of ~40 products of O(1) vectors remains.
 ATOL_SERIES_LIMIT = 1e-10
@@ -49,8 +51,6 @@ PS_STAR_BOUND = 0.2
 # Linear interpolation of the 512-sample log-cap table between nodes (spacing 0.18 degrees):
 # second-derivative bound ~ 10 per rad^2 times h^2/8 ~ 1e-5.
 ATOL_LOG_TABLE = 1e-4
-# float32 ZH accumulate / closed-form cap vs float64: O(1) values, n*n <= 36 terms.
-ATOL_ZH_FLOAT32 = 5e-6
 
 
 def zonal(zh: np.ndarray, order: int) -> np.ndarray:

@@ -7,13 +7,10 @@ from scipy.special import eval_legendre
 
 from warpshade.basis import quadrature, sh
 
-# Closed forms vs exact quadrature / adaptive integration in float64.
-ATOL_FLOAT64 = 1e-12
+from tolerances import ATOL_FLOAT64, ATOL_ZH_FLOAT32
+
 # scipy.integrate.quad on a smooth polynomial: its own error estimate is ~1e-14.
 ATOL_QUAD = 1e-10
-# float32 kernel vs float64: |y_lm| <= 2.7 and sqrt(4pi/(2l+1)) <= 3.6 times O(1) inputs,
-# a sum of <= 19 float32 terms per band.
-ATOL_ZH_FLOAT32 = 5e-6
 
 
 def zonal_values(axis: np.ndarray, g: np.ndarray, dirs: np.ndarray) -> np.ndarray:

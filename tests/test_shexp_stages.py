@@ -42,7 +42,7 @@ def scene():
     return moving_ball_scene()
 
 
-def compile_graph(scene, shade_params=None, blocker_params=None, device="cpu"):
+def compile_graph(scene, shade_params=None, blocker_params=None, *, device):
     stages = [
         StageSpec("tables", "shexp.tables", {"order": ORDER}),
         StageSpec("blockers", "shexp.blockers", {"budget": 4, **FIT, **(blocker_params or {})}),
@@ -97,10 +97,10 @@ def test_static_bake_reduces_to_prt(device):
     np.testing.assert_allclose(out, want, atol=RTOL_BAKE * want.max())
 
 
-def test_blocker_model_arrays_roundtrip(scene, tmp_path):
+def test_blocker_model_arrays_roundtrip(device, scene, tmp_path):
     from warpshade.methods.shexp.model import build_blocker_model
 
-    model = build_blocker_model(scene, 3, hierarchy=True, vertices_per_cluster=40, device="cpu", **FIT)
+    model = build_blocker_model(scene, 3, hierarchy=True, vertices_per_cluster=40, device=device, **FIT)
     # through the on-disk artifact format: flattened "arrays" port entries in one .npz
     from warpshade.graph.cache import ArtifactCache
     from warpshade.graph.precompute import _flatten, _unflatten

@@ -30,15 +30,14 @@ from warpshade.scene import FrameEvaluator, Mesh, Scene
 
 from warpshade.methods.shexp import spheres as ss  # noqa: E402
 
+from tolerances import ATOL_FLOAT32, REPLAY_RTOL, assert_close
+
 #: Coarse construction settings for tests (a few hundred ms per fit).
 FAST_FIT = {"grid_cells": 8000, "iterations": 4, "teleports": 2, "samples_per_sphere": 256}
 
 #: float32 coverage tests: distances of ~1 scene unit carry ~1e-7 relative rounding; the fit
 #: pads radii by 2e-6 relative, so a covered sample is never further out than this.
 COVERAGE_ATOL = 1e-6
-
-#: float32 kernels vs float64 references on positions of magnitude ~1-3 (a few rounding steps).
-ATOL_FLOAT32 = 2e-5
 
 #: QMC estimates are compared with analytic values to this many standard errors (plus a
 #: relative floor of 0.5% for the fast-winding-number classification within float32 of the
@@ -56,10 +55,6 @@ SKINNED_GAP_FRACTION = 0.25
 
 #: Refit parents bound their children up to float32 rounding of the radius (pad 1e-6).
 REFIT_ATOL = 1e-5
-
-#: A recorded animator replays the same float32 kernels on the same inputs as an uncaptured
-#: launch: results agree to this fraction of the model's size (bounding-box diagonal).
-REPLAY_RTOL = 1e-6
 
 
 # ---- fixtures -------------------------------------------------------------------------------
@@ -350,8 +345,8 @@ def test_recorded_animator_replays_the_skinned_figure(figure_scene, figure_spher
         animator.centres.zero_()
         animator.radii.zero_()
         animator.launch(_frame(evaluator, f))
-        np.testing.assert_allclose(centres, animator.centres.numpy(), rtol=0, atol=tolerance)
-        np.testing.assert_allclose(radii, animator.radii.numpy(), rtol=0, atol=tolerance)
+        assert_close(centres, animator.centres.numpy(), atol=tolerance, what=f"replayed sphere centres at frame {f}")
+        assert_close(radii, animator.radii.numpy(), atol=tolerance, what=f"replayed sphere radii at frame {f}")
         # the replay follows the frame it was given (float64 reference of the attachment)
         np.testing.assert_allclose(centres, spheres.centres_at(scene, f), atol=ATOL_FLOAT32)
         np.testing.assert_allclose(radii, spheres.radii_at(scene, f), rtol=1e-6)
@@ -383,8 +378,9 @@ def test_recorded_blocker_frames_match_uncaptured_launches(figure_scene, device)
         for a in outputs:
             a.zero_()
         frames.launch(_frame(evaluator, f))
-        for got, a in zip(replayed, outputs):
-            np.testing.assert_allclose(got, a.numpy(), rtol=0, atol=tolerance)
+        names = ("node centres", "node radii", "cut nodes", "cut counts", "cut weights")
+        for got, a, name in zip(replayed, outputs, names):
+            assert_close(got, a.numpy(), atol=tolerance, what=f"replayed {name} at frame {f}")
         # the refit tree bounds the frame's leaf spheres; every cut covers every leaf once
         nc, nr = replayed[0], replayed[1]
         spheres_c, spheres_r = model.spheres.centres_at(scene, f), model.spheres.radii_at(scene, f)

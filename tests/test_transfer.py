@@ -12,9 +12,9 @@ from warpshade.geometry.bvh import Visibility, trace_occlusion_reference
 from warpshade.scene import Mesh, Scene
 from warpshade.transfer import TransferTracer, compute, sample_rays
 
+from tolerances import ATOL_FLOAT32
+
 ORDER = 3
-# float32 accumulation of up to 1024 terms of size <= 4 pi / S * |y| vs a float64 sum.
-ATOL_FLOAT32 = 2e-5
 # Brute-force float64 Moller-Trumbore vs Warp's float32 watertight test on the same rays: rays
 # grazing an edge may differ; allow one per thousand.
 MAX_RAY_DISAGREEMENT = 1e-3

@@ -14,13 +14,8 @@ from warpshade.basis import quadrature, sh, zh
 from warpshade.basis.zh import basis_and_gradient, table_directions
 from warpshade.basis.zh import fitting as _zh_fit
 
-# float64 identities (sums of a few dozen products of O(1) numbers).
-ATOL_FLOAT64 = 1e-12
-# Quadrature projection of the clamped cosine (a kink at the horizon) with Gauss-Legendre of
-# degree 400: the error of the product rule on the kink is far below this.
-ATOL_QUADRATURE = 2e-4
-# float32 Warp kernels vs float64: SH recurrences and sums over 3 lobes of order <= 4.
-ATOL_FLOAT32 = 2e-5
+from tolerances import ATOL_FLOAT32, ATOL_FLOAT64, ATOL_QUADRATURE
+
 # Relative error of an exact fit (BFGS stops at |grad| <= 1e-9 |t|; the reached error is far lower).
 EXACT_FIT_REL = 1e-5
 # Analytic vs finite-difference gradient (check_grad, step 1.5e-8), relative to the gradient norm.
