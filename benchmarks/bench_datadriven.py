@@ -49,12 +49,12 @@ from warpshade._wp import wp  # noqa: E402
 from warpshade.graph import GraphSpec, StageSpec  # noqa: E402
 from warpshade.io import load_scene  # noqa: E402
 from warpshade.measure import combine_metrics, error_metrics, ground_truth  # noqa: E402
-from warpshade.measure.truth import VALIDATE_SEED  # noqa: E402
-from warpshade.methods.prt.reference import shade_transfer_reference  # noqa: E402
+from warpshade.measure import VALIDATE_SEED
+from warpshade.methods.prt import shade_transfer_reference
 from warpshade.scene import LightingSource  # noqa: E402
 from warpshade.methods.datadriven import model as dd  # noqa: E402
-from warpshade.methods.datadriven.pose import PARAMETERISATIONS, pose_features, pose_layout  # noqa: E402
-from warpshade.methods.datadriven.reference import hemisphere_transfer_error  # noqa: E402
+from warpshade.methods.datadriven import PARAMETERISATIONS, pose_features, pose_layout
+from warpshade.methods.datadriven import hemisphere_transfer_error
 from warpshade.methods.datadriven.rows import TRAINING_CLIPS, stages_for  # noqa: E402
 from warpshade.transfer import compute  # noqa: E402
 

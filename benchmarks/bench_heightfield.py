@@ -56,7 +56,7 @@ def _graph(vis=None, shade=None, generic=False):
 
 
 def _measure(name, spec, scene, truth, idx, frames, timing_frames):
-    from warpshade.measure.metrics import error_metrics
+    from warpshade.measure import error_metrics
 
     t0 = time.perf_counter()
     rt = spec.compile(scene, device="cpu", progress=False)
@@ -94,7 +94,7 @@ def main(argv=None) -> int:
     import warpshade.methods.heightfield  # noqa: F401  (the height-field stages)
     import warpshade.methods.rpo.stages  # noqa: F401  (rpo.shade)
     from warpshade.reference import shade_glossy
-    from warpshade.render.raycast import render
+    from warpshade.render import render
 
     base = _graph()
     scene = base.load_scene()

@@ -221,7 +221,7 @@ def table_error(device, orders, widths) -> list[dict]:
     rebuild = wp.ones(1, dtype=wp.int32, device=device)
     for order in orders:
         table_k, shade_table, shade_direct, _ = kernels.shade_kernels(order)
-        from warpshade.scene.lighting import Environment, up_rotation
+        from warpshade.scene import Environment, up_rotation
 
         sky = Environment.sky(to_world=up_rotation("Z"))
         light = wp.array(sky.to_sh(order).astype(np.float32), device=device)

@@ -62,10 +62,10 @@ def array_scene():
 
 def load_scene(path):
     if path is not None or DEFAULT_SCENE.exists():
-        import warpshade
+        from warpshade.io import load_usd
 
         p = Path(path) if path is not None else DEFAULT_SCENE
-        return warpshade.load_usd(str(p)), p.name
+        return load_usd(str(p)), p.name
     return array_scene(), "arrays:ground+ball+box"
 
 

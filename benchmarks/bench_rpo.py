@@ -60,7 +60,7 @@ def _rel(est, truth, debiased: bool = False) -> float:
 
 
 def _lightings(scene):
-    from warpshade.graph.scene_inputs import lighting_from_spec
+    from warpshade.graph import lighting_from_spec
     from warpshade.scene import LightingSource
 
     return {"constant": lighting_from_spec({"source": "constant"}, scene, None),

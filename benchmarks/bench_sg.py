@@ -143,7 +143,7 @@ class PrecomputeLog:
     """Seconds each artifact took when it was computed, kept in the artifact cache directory."""
 
     def __init__(self):
-        from warpshade.graph.cache import default_cache_dir
+        from warpshade.graph import default_cache_dir
 
         self.path = Path(default_cache_dir()) / PRECOMPUTE_LOG
         try:
@@ -207,7 +207,7 @@ def _meshes(scene) -> list:
 def graph_rows(scene, lighting, quick, ssdf128, gt_samples, timing_frames, log):
     """Compile and run every graph row; their runtimes stay for the interleaved timing."""
     from warpshade.measure import ground_truth, reference_model, run_setting
-    from warpshade.measure.truth import GT_SEED
+    from warpshade.measure import GT_SEED
 
     rows, runtimes, truths = [], [], {}
     for method, setting, stages in settings(quick, ssdf128):
@@ -245,7 +245,7 @@ def graph_rows(scene, lighting, quick, ssdf128, gt_samples, timing_frames, log):
 
 def baseline_rows(scene, lighting, truth, spps):
     """Brute force: the glossy reference estimator itself each frame at low sample counts."""
-    from warpshade.reference.glossy import GlossyReferenceShader
+    from warpshade.reference import GlossyReferenceShader
     from warpshade.scene import materials as M
 
     brdf = M.Microfacet(ROUGHNESS, "beckmann", f0=F0)
@@ -354,7 +354,7 @@ def vertex_vs_pixel(rt, frames, width, height, samples):
     per-pixel glossy reference (same BRDF, eye, colour, sky); images for the strip."""
     from warpshade.measure import ground_truth_model
     from warpshade.measure.pixels import pixel_bvh, pixel_stage, render_frame
-    from warpshade.reference.pixels import reference_image
+    from warpshade.reference import reference_image
     from warpshade.render import interpolate_vertex_values, render_gbuffer
 
     st = pixel_stage(rt)
@@ -394,7 +394,7 @@ def textured_pixels(scene, env_only, stem, res, samples, width, height, frames):
     go to :func:`reference_image` as per-ray roughness and specular colour, with the stage's
     Beckmann BRDF, eye and the frame's lights; relative RMS over fully covered pixels."""
     from warpshade.measure.pixels import render_frame, write_pixel_images
-    from warpshade.reference.pixels import reference_image
+    from warpshade.reference import reference_image
     from warpshade.scene import LightingSource
     from warpshade.scene import materials as M
 
@@ -447,7 +447,7 @@ def strip(path, panels, ref):
 
     from warpshade._fileio import atomic_path
     from warpshade.measure.pixels import exposure_for
-    from warpshade.render.image import tonemap_reference
+    from warpshade.render import tonemap_reference
 
     ex = exposure_for(ref.reshape(-1, 3))
     fig, axes = plt.subplots(1, len(panels), figsize=(3.2 * len(panels), 2.9), squeeze=False)

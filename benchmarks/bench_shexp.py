@@ -95,7 +95,7 @@ def procedural_figure(count: int = 60, origin=(0.0, 0.0), seed: int = 0):
 
 
 def sky_light(order: int) -> np.ndarray:
-    from warpshade.scene.lighting import Environment
+    from warpshade.scene import Environment
 
     return Environment.sky().to_sh(order)
 
@@ -329,7 +329,7 @@ def scene_errors(quick: bool = False, orders=(3, 4, 5, 6), scenes=None, gt_sampl
     order-n SH lighting, which separates sphere approximation, lighting band limit, product
     truncation and log space (the paper's Figure 7)."""
     from warpshade.measure import error_frames, ground_truth, load_bench_scene, run_setting, setting_error
-    from warpshade.methods.shexp.rows import graph_stages
+    from warpshade.methods.shexp import graph_stages
 
     keys = list(scenes or (("blockers", "figure") if quick else tuple(SCENE_BUDGETS)))
     gt_samples = gt_samples or (512 if quick else 2048)

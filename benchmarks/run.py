@@ -36,7 +36,7 @@ ROOT = Path(__file__).resolve().parent.parent
 
 from warpshade._fileio import atomic_path, write_json_atomic, write_text_atomic  # noqa: E402
 from warpshade._wp import cpu_workers, wp  # noqa: E402
-from warpshade.graph.cache import ArtifactCache  # noqa: E402
+from warpshade.graph import ArtifactCache
 from warpshade.measure import (  # noqa: E402
     BENCH_SCENES,
     ground_truth,

@@ -92,7 +92,7 @@ from warpshade.geometry.bvh import RAY_MAX_DISTANCE, Visibility  # noqa: E402
 from warpshade.io import bundled_asset_directory  # noqa: E402
 from warpshade.reference import ReferenceShader, pixel_hits, reference_image  # noqa: E402
 from warpshade.render import camera_for, interpolate_vertex_values, render, write_png  # noqa: E402
-from warpshade.render.image import tonemap_reference  # noqa: E402
+from warpshade.render import tonemap_reference
 from warpshade.scene import DistantLight, Environment, SphereLight, materials  # noqa: E402
 from warpshade.transfer import sample_rays  # noqa: E402
 
@@ -145,10 +145,10 @@ def array_scene():
 
 def load_scene(path):
     if path is not None or DEFAULT_SCENE.exists():
-        import warpshade
+        from warpshade.io import load_usd
 
         p = Path(path) if path is not None else DEFAULT_SCENE
-        return warpshade.load_usd(str(p)), p.stem
+        return load_usd(str(p)), p.stem
     return array_scene(), "arrays"
 
 
@@ -550,7 +550,7 @@ def glossy_scenes(path):
 
 def run_glossy(args, mi, dev):
     """Part 4 (module docstring): every scene x distribution x light; returns the report."""
-    from warpshade.render.image import tonemap_reference as tonemap_np
+    from warpshade.render import tonemap_reference as tonemap_np
 
     out_dir = Path(args.out)
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -41,7 +41,7 @@ def test_stage_graph_runs(device, graph_file, tmp_path, update_goldens):
         # sky (minutes each): small SSDFs and a small procedural sky (plus the scene's lamp) run
         # the same stages here
         from warpshade.scene import Environment, LightingSource, SphereLight
-        from warpshade.scene.lighting import up_rotation
+        from warpshade.scene import up_rotation
 
         for st in spec.stages:
             if st.type == "sg.ssdf":

@@ -11,8 +11,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from warpshade.methods.datadriven import model as dd
-from warpshade.methods.datadriven.pose import PARAMETERISATIONS, pose_features, pose_layout
-from warpshade.methods.datadriven.reference import hemisphere_transfer_error
+from warpshade.methods.datadriven import PARAMETERISATIONS, pose_features, pose_layout
+from warpshade.methods.datadriven import hemisphere_transfer_error
 from warpshade.methods.datadriven.stages import model_from_arrays, model_to_arrays
 from warpshade.scene import Mesh, Scene, Skeleton, SkinBinding
 

@@ -12,7 +12,7 @@ from warpshade.graph import GraphError, GraphSpec, StageSpec
 from warpshade.io import load_scene
 from warpshade.methods.datadriven.rows import stages_for
 from warpshade.methods.datadriven.training import trace_training
-from warpshade.methods.stage import StageError
+from warpshade.graph import StageError
 from warpshade.transfer import compute
 
 #: rays of the transfer the held-out frames are compared with (its own noise ~0.05 at order 3)
@@ -52,7 +52,7 @@ def test_held_out_frames_beat_the_rest_pose_bake(device, bend, model, tmp_path):
         err_static = np.linalg.norm(static - truth) / np.linalg.norm(truth)
         assert err < MAX_ERROR_RATIO_TO_STATIC * err_static, (frame, err, err_static)
         # the kernels are the float64 model at the frame's pose
-        from warpshade.methods.datadriven.pose import pose_features
+        from warpshade.methods.datadriven import pose_features
 
         pose = pose_features(bend, [bend.frame_index(frame)], st.layout, st.meta["root_reference"])
         want = st.model.predict(pose)[0]
@@ -141,8 +141,8 @@ def test_model_order_must_match_the_transfer_stage(device, bend, tmp_path):
 def test_interreflected_training_feeds_per_channel_shading(device, bend, tmp_path):
     """bounces = 1: per-channel transfer (V, 3, C) from the model, shaded per channel, measured
     against the reference with one bounce."""
-    from warpshade.methods.datadriven.pose import pose_features
-    from warpshade.methods.prt.reference import shade_transfer_reference
+    from warpshade.methods.datadriven import pose_features
+    from warpshade.methods.prt import shade_transfer_reference
 
     stages = [StageSpec("data", "datadriven.data", {"order": 2, "samples": 32, "frames": "0:60:6", "bounces": 1}, {}),
               StageSpec("fit", "datadriven.fit", {"model": "reduced", "validation": 0.0, "ka": 3, "kv": 8}, {"data": "data.data"}),

@@ -15,7 +15,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from warpshade.graph import GraphError, load, stage_types
-from warpshade.graph.cache import ArtifactCache
+from warpshade.graph import ArtifactCache
 from warpshade.io import bundled_asset_directory, load_usd
 
 ASSETS = Path(bundled_asset_directory())

@@ -186,7 +186,7 @@ def test_cache_entry_not_matching_the_stage_is_recomputed(moving_scene, tmp_path
     """Well-formed entries (the digest matches) whose arrays do not fit the stage's ports, or
     fail the stage's own check: reported, discarded, recomputed; never a crash or a wrong
     (e.g. all-black) result."""
-    from warpshade.graph.cache import ArtifactCache
+    from warpshade.graph import ArtifactCache
 
     CALLS["const"] = 0
     rt = _spec(value=1.0).compile(moving_scene, device="cpu", cache_dir=tmp_path, progress=False)

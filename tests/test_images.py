@@ -5,7 +5,7 @@ import os
 import numpy as np
 import pytest
 
-from warpshade.io.images import read_exr, read_hdr, read_image, write_exr, write_hdr
+from warpshade.io import read_exr, read_hdr, read_image, write_exr, write_hdr
 
 #: RGBE keeps 8 mantissa bits for the largest channel; Radiance's (m + 0.5) decoding of our
 #: floor() encoding errs by at most half a quantum, i.e. 2**-8 of the pixel's largest channel.

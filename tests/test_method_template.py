@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 
 import warpshade.methods as methods
-from warpshade.methods import stage_types
+from warpshade.graph import stage_types
 
 ROOT = Path(__file__).resolve().parent.parent
 PACKAGE = ROOT / "warpshade"

@@ -10,7 +10,7 @@ import trimesh
 from grids import ground_grid
 
 from warpshade._wp import wp
-from warpshade.io.images import read_exr
+from warpshade.io import read_exr
 from warpshade.reference import GlossyReferenceShader, pixel_hits, reference_image, shade, shade_glossy
 from warpshade.reference.pixels import _box_filter_kernel, _coverage_kernel, box_filter_reference
 from warpshade.scene import Camera, Environment, Mesh, Scene, materials

@@ -10,9 +10,10 @@ from grids import ground_grid
 from PIL import Image
 
 from warpshade._wp import wp
-from warpshade.measure.pictures import ERROR_COLORMAP, comparison_figure, error_colors
+from warpshade.measure.pictures import ERROR_COLORMAP
+from warpshade.measure import comparison_figure, error_colors
 from warpshade.render import camera_basis, frame_camera, render, tonemap_reference, write_png
-from warpshade.render.image import tonemap
+from warpshade.render import tonemap
 from warpshade.scene import Camera, Environment, Mesh, Scene
 
 from tolerances import ATOL_FLOAT32

@@ -14,10 +14,11 @@ from warpshade.basis.sh_warp import sh_kernels
 from warpshade.graph import GraphError, GraphSpec, StageSpec
 from warpshade.measure import reference_model
 from warpshade.methods.rpo import kernels
-from warpshade.methods.rpo.lighting import fit_zh_lighting
-from warpshade.methods.rpo.model import OperatorCache, build_operator, cosine_sh
-from warpshade.methods.rpo.reference import shade_exact_brdf, shade_reference
-from warpshade.methods.stage import StageError
+from warpshade.methods.rpo import fit_zh_lighting
+from warpshade.methods.rpo import OperatorCache, build_operator
+from warpshade.methods.rpo.model import cosine_sh
+from warpshade.methods.rpo import shade_exact_brdf, shade_reference
+from warpshade.graph import StageError
 from warpshade.scene import Environment, LightingSource, Mesh, Scene
 from warpshade.scene import materials as M
 from warpshade.scene.tabulated import write_merl

@@ -18,7 +18,7 @@ from warpshade.io import bundled_asset_directory, load_scene
 from warpshade.methods.heightfield import kernels as hfk
 from warpshade.methods.heightfield import model as hf
 from warpshade.methods.heightfield import reference as ref
-from warpshade.methods.stage import StageError
+from warpshade.graph import StageError
 from warpshade.scene import Camera, Environment, LightingSource, Mesh, Scene
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from warpshade._wp import resolve_device
-from warpshade.io.usd import load_scene, load_usd
+from warpshade.io import load_scene, load_usd
 from warpshade.scene import FrameEvaluator, Mesh, Scene, SkinBinding, Skeleton, ground_plane
 
 #: float32 positions of scenes a few metres across: a few ulps of the largest coordinate.

@@ -15,7 +15,7 @@ import pytest
 from warpshade.basis import quadrature, sg
 from warpshade.io import bundled_asset_directory, read_hdr
 from warpshade.methods.sg import envfit, envmap, lights, prefilter
-from warpshade.scene.lighting import DistantLight, Environment, SphereLight, sky_radiance
+from warpshade.scene import DistantLight, Environment, SphereLight, sky_radiance
 
 #: 3-lobe recovery: the environment is float32 texels of the mixture, L-BFGS-B stops at ftol 1e-15.
 RECOVERY_RADIANCE_TOL = 1e-5

@@ -15,10 +15,10 @@ from warpshade.methods.sg import EnvironmentLighting, decode_maps, shade_referen
 from warpshade.methods.sg import model as sg_model
 from warpshade.methods.sg import stages as sg_stages
 from warpshade.methods.sg.lights import directional_light_lobe
-from warpshade.methods.sg.prefilter import PrefilteredEnvironment
-from warpshade.methods.stage import StageError
+from warpshade.methods.sg import PrefilteredEnvironment
+from warpshade.graph import StageError
 from warpshade.reference import shade_glossy
-from warpshade.render.raycast import GBuffer, render_gbuffer
+from warpshade.render import GBuffer, render_gbuffer
 from warpshade.scene import Camera, DistantLight, Environment, LightingSource, LightTrack, Mesh, Scene, SphereLight
 from warpshade.scene import materials as M
 
@@ -565,7 +565,7 @@ def test_textured_materials_are_validated_per_vertex_and_per_pixel(device, tmp_p
     from warpshade.io import load_scene
     from warpshade.measure import measure_error
     from warpshade.measure.pixels import measure_pixels
-    from warpshade.scene.lighting import up_rotation
+    from warpshade.scene import up_rotation
 
     scene = load_scene("bundled:sunlit")
     sky = Environment.sky(height=16, width=32, to_world=up_rotation(scene.up_axis))

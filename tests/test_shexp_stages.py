@@ -13,7 +13,7 @@ from warpshade.scene import LightingSource
 from warpshade.methods.shexp import reference
 from warpshade.methods.shexp.model import BlockerModel, plane_blockers
 from warpshade.scene import Environment, Mesh, Scene
-from warpshade.scene.scene import ground_plane
+from warpshade.scene import ground_plane
 
 ORDER = 4
 # float32 pipeline (skinning/transform kernels, ~10 blockers, exp, product) vs float64.
@@ -102,9 +102,9 @@ def test_blocker_model_arrays_roundtrip(device, scene, tmp_path):
 
     model = build_blocker_model(scene, 3, hierarchy=True, vertices_per_cluster=40, device=device, **FIT)
     # through the on-disk artifact format: flattened "arrays" port entries in one .npz
-    from warpshade.graph.cache import ArtifactCache
+    from warpshade.graph import ArtifactCache
     from warpshade.graph.precompute import _flatten, _unflatten
-    from warpshade.methods.stage import Port
+    from warpshade.graph import Port
 
     ports = {"model": Port("arrays")}
     cache = ArtifactCache(tmp_path)
@@ -153,7 +153,7 @@ def test_sphere_trace_stage_and_bad_inputs(device, scene):
 
 
 def test_error_budget_picks_cheapest_setting_meeting_target(scene, tmp_path):
-    from warpshade.measure.budget import choose
+    from warpshade.measure import choose
     from warpshade.methods.shexp.budget import candidates
 
     lighting = LightingSource(scene.lights, scene.up_axis, 0.0, 0.0)

@@ -10,7 +10,7 @@ from scipy.spatial import ConvexHull
 from warpshade.basis import quadrature
 from warpshade.io import bundled_asset_directory, load_usd
 from warpshade.scene import Environment, SphereLight
-from warpshade.scene.textures import Texture
+from warpshade.scene import Texture
 from warpshade.usd_assets import generator
 from warpshade.usd_assets.generator import sunlit
 

@@ -6,17 +6,10 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from warpshade.io.usd import load_usd
-from warpshade.scene.scene import Mesh
-from warpshade.scene.textures import (
-    WRAP_MODES,
-    SurfaceMaps,
-    Texture,
-    linear_to_srgb,
-    sample_surface_warp,
-    sample_texture_warp,
-    srgb_to_linear,
-)
+from warpshade.io import load_usd
+from warpshade.scene import Mesh
+from warpshade.scene.textures import WRAP_MODES, linear_to_srgb, sample_surface_warp, sample_texture_warp, srgb_to_linear
+from warpshade.scene import SurfaceMaps, Texture
 
 #: float32 texel arithmetic (bilinear weights and 4 products) against float64: a few ulps of
 #: values of order 1.

@@ -9,7 +9,7 @@ import pytest
 
 from warpshade.cli import main
 from warpshade.io import bundled_asset_directory, load_usd
-from warpshade.scene.scene import Scene
+from warpshade.scene import Scene
 from warpshade.usd_assets import generator
 from warpshade.usd_assets.generator import figure, motions, wanderer
 from warpshade.usd_assets.generator.bend import bend_joint_rotations

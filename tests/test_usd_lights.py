@@ -10,7 +10,7 @@ import math
 import numpy as np
 import pytest
 
-from warpshade.io.images import write_exr, write_hdr
+from warpshade.io import write_exr, write_hdr
 from warpshade.io import load_usd
 from warpshade.scene import DistantLight, Environment, SphereLight, usd_dome_texel_directions
 

@@ -27,20 +27,12 @@ there is no import cycle)::
   (``python -m warpshade.usd_assets.generator``), a tool at the top like ``cli`` that writes USD
   and so imports ``pxr``; nothing in warpshade imports it.
 
-The top-level ``warpshade`` module itself is a facade (``load_usd``, ``load_scene``).
+The top-level ``warpshade`` module holds only ``__version__``: every public name has one import path, in
+the package of its layer (``warpshade.io.load_usd``, ``warpshade.graph.load``, ...; ``tests/test_public_surface.py``).
 """
 
 from __future__ import annotations
 
 __version__ = "0.1.0"
 
-__all__ = ["__version__", "load_usd", "load_scene"]
-
-
-def __getattr__(name):
-    # Loading USD pulls in pxr and Warp; keep ``import warpshade`` light until it is used.
-    if name in ("load_usd", "load_scene"):
-        from .io import usd
-
-        return getattr(usd, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__all__ = ["__version__"]

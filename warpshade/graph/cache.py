@@ -24,7 +24,9 @@ import numpy as np
 
 from .._fileio import atomic_path
 
-__all__ = ["ArtifactCache", "default_cache_dir", "DIGEST_LENGTH"]
+__all__ = [
+    "DIGEST_LENGTH",
+]
 
 #: Hex digits of the SHA-256 digest in a cache file's name.
 DIGEST_LENGTH = 16

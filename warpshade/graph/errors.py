@@ -2,7 +2,7 @@
 
 from ..methods.stage import StageError
 
-__all__ = ["GraphError"]
+__all__: list[str] = []
 
 
 class GraphError(StageError):

@@ -20,7 +20,11 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover - Python 3.10
     import tomli as tomllib
 
-__all__ = ["SCENE_OPTIONS", "check_frames_spec", "check_name", "load"]
+__all__ = [
+    "SCENE_OPTIONS",
+    "check_frames_spec",
+    "check_name",
+]
 
 
 _GRAPH_KEYS = {"name", "description", "scene", "frames", "output"}

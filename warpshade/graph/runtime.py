@@ -35,7 +35,7 @@ from .frame import FrameGraph
 from .precompute import StageTiming, precompute
 from .scene_inputs import parse_frames
 
-__all__ = ["Runtime"]
+__all__: list[str] = []
 
 
 class Runtime(RunChanges):

@@ -15,7 +15,7 @@ import numpy as np
 from ..scene.lighting import Environment, LightingSource, SphereLight, scaled_light, up_rotation
 from .errors import GraphError
 
-__all__ = ["extend_static_frames", "lighting_from_spec", "parse_frames"]
+__all__: list[str] = []
 
 
 def parse_frames(spec, scene) -> np.ndarray:

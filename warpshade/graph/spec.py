@@ -68,7 +68,9 @@ from .errors import GraphError
 from .runtime import Runtime
 from .scene_inputs import extend_static_frames, lighting_from_spec, parse_frames
 
-__all__ = ["SCENE_PORTS", "GraphSpec", "StageSpec", "Wire"]
+__all__ = [
+    "Wire",
+]
 
 
 SCENE_PORTS: dict[str, Port] = {

@@ -28,7 +28,9 @@ import numpy as np
 
 from .._fileio import atomic_path
 
-__all__ = ["read_image", "read_exr", "read_hdr", "write_hdr", "write_exr", "IMAGE_EXTENSIONS"]
+__all__ = [
+    "IMAGE_EXTENSIONS",
+]
 
 #: File extensions :func:`read_image` understands (lower case).
 IMAGE_EXTENSIONS = (".exr", ".hdr", ".pic", ".rgbe")

@@ -10,7 +10,7 @@ from __future__ import annotations
 import os
 from importlib import resources
 
-__all__ = ["SCENE_SPEC_PREFIXES", "bundled_asset_directory", "resolve_scene_path"]
+__all__: list[str] = []
 
 #: The scene spec prefixes :func:`resolve_scene_path` understands.
 SCENE_SPEC_PREFIXES = ("warp-example:", "bundled:")

@@ -54,7 +54,10 @@ import numpy as np
 
 from ..scene.textures import SurfaceMaps, Texture, srgb_to_linear
 
-__all__ = ["SurfaceReader", "read_texture_file", "TEXTURE_FILE_EXTENSIONS_FLOAT"]
+__all__ = [
+    "SurfaceReader",
+    "TEXTURE_FILE_EXTENSIONS_FLOAT",
+]
 
 #: Files read as linear float images by :mod:`warpshade.io.images`.
 TEXTURE_FILE_EXTENSIONS_FLOAT = (".exr", ".hdr", ".pic", ".rgbe")

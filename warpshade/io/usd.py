@@ -101,7 +101,7 @@ from .usd_lights import read_camera, read_light, with_track
 from .usd_mesh import read_mesh, read_point_instancer
 from .usd_skel import read_skinning
 
-__all__ = ["load_usd", "load_scene"]
+__all__: list[str] = []
 
 
 def load_scene(spec, ground_plane: bool = False, sky: bool = True, ground_resolution: int = 40) -> Scene:

@@ -24,7 +24,9 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-__all__ = ["Candidate", "BudgetChoice", "choose", "pick", "method_candidates", "main"]
+__all__ = [
+    "main",
+]
 
 
 @dataclass

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import time
 
-__all__ = ["run_setting", "setting_error"]
+__all__: list[str] = []
 
 
 def run_setting(scene, lighting, stages, frames, output: str = "shade.radiance", timing_frames=None, device="cpu",

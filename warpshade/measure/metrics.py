@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["error_metrics", "combine_metrics"]
+__all__: list[str] = []
 
 
 def error_metrics(estimate, reference, reference_stderr=None) -> dict:

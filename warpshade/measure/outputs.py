@@ -8,7 +8,7 @@ import numpy as np
 
 from .._fileio import write_json_atomic
 
-__all__ = ["write_usd", "write_report", "report"]
+__all__: list[str] = []
 
 
 def write_usd(runtime, path, extra_primvars: dict | None = None) -> Path:

@@ -20,8 +20,11 @@ import numpy as np
 
 from .._fileio import atomic_path
 
-__all__ = ["ERROR_COLORMAP", "ERROR_LIMIT", "comparison_figure", "error_colors", "luminance", "render_previews",
-           "render_comparisons"]
+__all__ = [
+    "ERROR_COLORMAP",
+    "ERROR_LIMIT",
+    "luminance",
+]
 
 #: Rec. 709 luminance weights of linear RGB.
 LUMA = np.array([0.2126, 0.7152, 0.0722])

@@ -21,7 +21,11 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-__all__ = ["MeasuredStage", "PixelStage", "ViewerStage", "ground_truth_model"]
+__all__ = [
+    "MeasuredStage",
+    "PixelStage",
+    "ViewerStage",
+]
 
 
 @runtime_checkable

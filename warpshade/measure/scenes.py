@@ -10,8 +10,10 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["BENCH_SCENES", "STATIC_FRAME_COUNT", "ROTATE_DEGREES_PER_FRAME", "load_bench_scene", "pick_frames",
-           "error_frames", "scene_kinds"]
+__all__ = [
+    "STATIC_FRAME_COUNT",
+    "ROTATE_DEGREES_PER_FRAME",
+]
 
 #: Bundled scenes: scene spec and load options.
 BENCH_SCENES = {

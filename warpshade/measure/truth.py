@@ -21,7 +21,7 @@ from .._hashing import hash_json
 from .metrics import combine_metrics, error_metrics
 from .protocols import ground_truth_model
 
-__all__ = ["GT_SEED", "VALIDATE_SEED", "Measurement", "ground_truth", "reference_model", "measure_error", "truth_cache"]
+__all__: list[str] = []
 
 #: Seed of the cached ground truth of the harness and the error budgets.
 GT_SEED = 12345

@@ -9,7 +9,6 @@ Subpackages are discovered, so adding a method needs no edit here.
 import importlib
 import pkgutil
 
-from .stage import Param, Port, Stage, StageError, get_stage_type, register_stage, stage_types
 
 #: Method subpackages, discovered at import (each registers its stages).
 METHOD_PACKAGES = tuple(
@@ -18,4 +17,4 @@ METHOD_PACKAGES = tuple(
 for _name in METHOD_PACKAGES:
     importlib.import_module(f"{__name__}.{_name}")
 
-__all__ = ["METHOD_PACKAGES", "Param", "Port", "Stage", "StageError", "get_stage_type", "register_stage", "stage_types"]
+__all__ = ["METHOD_PACKAGES"]

@@ -38,19 +38,7 @@ from typing import Any, ClassVar
 
 from ..scene.state import Change
 
-__all__ = [
-    "Change",
-    "FrameStage",
-    "Port",
-    "Param",
-    "PrecomputeStage",
-    "Stage",
-    "StageContext",
-    "StageError",
-    "register_stage",
-    "stage_types",
-    "get_stage_type",
-]
+__all__: list[str] = []
 
 #: dtypes a port may carry. Array ports carry Warp arrays per frame and NumPy arrays as
 #: precompute artifacts; "arrays" carries a named set of NumPy arrays (a structured model such

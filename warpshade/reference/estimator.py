@@ -87,9 +87,7 @@ __all__ = [
     "DeviceLighting",
     "DiffuseSurfaces",
     "MonteCarloShader",
-    "ShadingResult",
     "strategy_index",
-    "upload_lighting",
 ]
 
 wp.set_module_options({"enable_backward": False})

@@ -29,7 +29,7 @@ import numpy as np
 from .._wp import wp
 from .estimator import MonteCarloShader, ShadingResult, _vec3, strategy_index
 
-__all__ = ["GLOSSY_METHODS", "GlossyReferenceShader", "shade_glossy"]
+__all__: list[str] = []
 
 #: Environment estimators: BRDF, light and MIS sampling, in the order of the kernel's ``method``.
 GLOSSY_METHODS = ("brdf", "light", "mis")

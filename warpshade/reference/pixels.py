@@ -48,7 +48,10 @@ from ..render import camera_for, interpolate_vertex_values, render_gbuffer, tone
 from .glossy import GLOSSY_METHODS, GlossyReferenceShader
 from .shading import METHODS, ReferenceShader
 
-__all__ = ["PARTS", "PixelHits", "PixelReference", "box_filter_reference", "pixel_hits", "reference_image"]
+__all__ = [
+    "PARTS",
+    "box_filter_reference",
+]
 
 wp.set_module_options({"enable_backward": False})
 

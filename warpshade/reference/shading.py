@@ -47,17 +47,7 @@ from .estimator import (
     upload_lighting,
 )
 
-__all__ = [
-    "ESTIMATOR_VERSION",
-    "METHODS",
-    "REPLICATES",
-    "AnalyticLights",
-    "DeviceLighting",
-    "upload_lighting",
-    "ShadingResult",
-    "ReferenceShader",
-    "shade",
-]
+__all__: list[str] = []
 
 #: Environment estimators: BRDF (cosine), light and MIS sampling, in the order of the kernel's ``method``.
 METHODS = ("cosine", "light", "mis")

@@ -14,7 +14,7 @@ import numpy as np
 
 from ..scene.scene import Camera
 
-__all__ = ["frame_camera", "camera_for", "camera_basis"]
+__all__: list[str] = []
 
 # Direction from the target toward the eye for the automatic 3/4 view, in a z-up world:
 # 40 degrees of azimuth off the -y axis toward +x, 28 degrees of elevation.

@@ -17,7 +17,7 @@ import numpy as np
 from .._fileio import atomic_path
 from .._wp import wp
 
-__all__ = ["GREY_BACKGROUND", "TONEMAP_MODES", "tonemap", "tonemap_reference", "write_png"]
+__all__: list[str] = []
 
 wp.set_module_options({"enable_backward": False})
 

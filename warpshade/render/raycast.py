@@ -26,13 +26,7 @@ from ..scene.lighting_warp import EnvironmentMap, env_radiance, upload_environme
 from .camera import camera_basis, camera_for
 from .image import tonemap, write_png
 
-__all__ = [
-    "GBuffer",
-    "RenderResult",
-    "render_gbuffer",
-    "interpolate_vertex_values",
-    "render",
-]
+__all__: list[str] = []
 
 wp.set_module_options({"enable_backward": False})
 

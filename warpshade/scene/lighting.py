@@ -32,17 +32,7 @@ import numpy as np
 from ..basis import quadrature, sh
 
 __all__ = [
-    "LightTrack",
-    "Environment",
-    "DistantLight",
-    "SphereLight",
-    "LightingSource",
     "scaled_light",
-    "up_rotation",
-    "lights_to_sh",
-    "sky_radiance",
-    "USD_DOME_FROM_MAP",
-    "usd_dome_texel_directions",
 ]
 
 #: Rotation taking map-frame directions of a column-flipped USD dome texture to the dome's local

@@ -2,7 +2,7 @@
 
 :class:`Scene` holds everything that does not change per frame: meshes (rest pose, topology,
 UVs, albedo), skeletons and skin bindings, lights, camera and the time range. It is built by
-:func:`warpshade.load_usd` (or directly from arrays with :meth:`Scene.from_meshes`, which is
+:func:`warpshade.io.load_usd` (or directly from arrays with :meth:`Scene.from_meshes`, which is
 what tests and generators use) and contains only NumPy data, so it never depends on pxr.
 
 :meth:`Scene.evaluate` produces a :class:`~warpshade.scene.state.FrameState`: what changes per
@@ -22,7 +22,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-__all__ = ["Mesh", "Skeleton", "SkinBinding", "Camera", "Scene", "ANIMATION_KINDS", "ground_plane"]
+__all__: list[str] = []
 
 #: How a mesh moves: not at all, by a per-frame rigid transform, by per-frame points, by skinning.
 ANIMATION_KINDS = ("static", "rigid", "deforming", "skinned")

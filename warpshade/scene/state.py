@@ -33,7 +33,10 @@ import numpy as np
 
 from .._wp import HostFields, resolve_device, wp
 
-__all__ = ["Change", "FrameState", "FrameEvaluator", "MaterialAssignment", "DEVICE_SAMPLE_BYTES", "CPU_REFIT_NOTE"]
+__all__ = [
+    "DEVICE_SAMPLE_BYTES",
+    "CPU_REFIT_NOTE",
+]
 
 wp.set_module_options({"enable_backward": False})
 

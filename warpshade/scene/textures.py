@@ -51,8 +51,6 @@ wp.set_module_options({"enable_backward": False})
 __all__ = [
     "WRAP_MODES",
     "DIELECTRIC_IOR",
-    "Texture",
-    "SurfaceMaps",
     "SurfaceMapsArrays",
     "SurfaceSample",
     "srgb_to_linear",

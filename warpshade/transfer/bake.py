@@ -9,7 +9,7 @@ and, with ``bounces > 0``, of :class:`~warpshade.transfer.interreflection.Interr
 from .interreflection import InterreflectionTracer, check_bounces
 from .raytrace import TransferResult, TransferTracer
 
-__all__ = ["compute"]
+__all__: list[str] = []
 
 
 def compute(

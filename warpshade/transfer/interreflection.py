@@ -47,7 +47,13 @@ from ..basis.sh_warp import sh_kernels
 from ..geometry.bvh import RAY_MAX_DISTANCE, Visibility
 from .raytrace import CHUNK_MIN_RAYS, PROGRESS_BATCH_RAYS, TransferTracer, random_rotation, receiver_indices
 
-__all__ = ["MAX_BOUNCES", "InterreflectionTracer", "check_albedo", "check_bounces", "hit_corners", "hit_weights", "interpolate_vec3"]
+__all__ = [
+    "check_albedo",
+    "check_bounces",
+    "hit_corners",
+    "hit_weights",
+    "interpolate_vec3",
+]
 
 wp.set_module_options({"enable_backward": False})
 

@@ -37,11 +37,7 @@ from ..geometry.bvh import RAY_MAX_DISTANCE, Visibility
 from ..geometry.frames import TangentFrames
 
 __all__ = [
-    "SPACES",
     "CHUNK_MIN_RAYS",
-    "TransferResult",
-    "TransferTracer",
-    "sample_rays",
     "random_rotation",
     "receiver_indices",
 ]

@@ -71,15 +71,10 @@ from .raytrace import receiver_indices
 
 __all__ = [
     "DISTANCE_METHODS",
-    "SSDF_LIMIT",
-    "bake_ssdf",
-    "bake_visibility",
     "boundary_points",
     "check_resolution",
-    "signed_distance",
     "texel_directions",
     "texel_diameter",
-    "trace_lobe_visibility",
 ]
 
 #: |SSDF| is clamped to this (radians): the range the hemisphere product of eq. 30 uses.

@@ -12,7 +12,12 @@ import numpy as np
 
 from .raytrace import receiver_indices
 
-__all__ = ["PCA_EXACT_MAX_ENTRIES", "PCA_OVERSAMPLE", "PCA_POWER_ITERATIONS", "SSDFModel", "as_maps", "compress_ssdf"]
+__all__ = [
+    "PCA_EXACT_MAX_ENTRIES",
+    "PCA_OVERSAMPLE",
+    "PCA_POWER_ITERATIONS",
+    "as_maps",
+]
 
 #: Randomised SVD above this many matrix entries (V * R^2), exact SVD below. Measured on two CPU
 #: cores (``benchmarks/bench_ssdf.py``): 64 x 64^2 maps, exact 2.6 s vs randomised 4.6 s;

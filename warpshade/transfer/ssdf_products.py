@@ -17,12 +17,6 @@ from .ssdf_pca import SSDFModel, as_maps
 
 __all__ = [
     "bilinear_taps",
-    "evaluate_ssdf_warp",
-    "product_warp",
-    "sample_maps",
-    "ssdf_integral",
-    "ssdf_lookup",
-    "ssdf_product",
 ]
 
 

@@ -32,12 +32,10 @@ wp.set_module_options({"enable_backward": False})
 
 __all__ = [
     "boundary_distance_kernel",
-    "local_to_concentric",
     "lobe_visibility_kernel",
     "ssdf_eval",
     "ssdf_eval_kernel",
     "ssdf_product_kernel",
-    "ssdf_visible_fraction",
     "trace_hemisphere_kernel",
 ]
 

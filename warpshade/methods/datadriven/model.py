@@ -43,15 +43,10 @@ __all__ = [
     "ALPHA_GRID",
     "PoseSpace",
     "RidgeSolver",
-    "DataDrivenModel",
     "pose_space",
     "coefficient_basis",
     "lighting_weights",
-    "fit_full",
-    "fit_reduced",
-    "choose_sizes",
     "validation_split",
-    "novelty",
 ]
 
 #: Relative singular-value cut-off of every pseudo-inverse.

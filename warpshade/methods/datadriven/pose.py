@@ -31,7 +31,11 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-__all__ = ["PARAMETERISATIONS", "ROOT_MODES", "PoseLayout", "pose_layout", "pose_features", "features_from_rotations"]
+__all__ = [
+    "ROOT_MODES",
+    "PoseLayout",
+    "features_from_rotations",
+]
 
 #: Pose parameterisations and the numbers per joint.
 PARAMETERISATIONS = {"rotvec": 3, "quaternion": 4, "matrix": 9}

@@ -6,7 +6,7 @@ import numpy as np
 
 from ...basis import quadrature, sh
 
-__all__ = ["transfer_reference", "hemisphere_transfer_error"]
+__all__: list[str] = []
 
 
 def transfer_reference(model, poses) -> np.ndarray:

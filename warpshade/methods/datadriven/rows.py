@@ -4,7 +4,10 @@ from __future__ import annotations
 
 from ..rows import HarnessRow
 
-__all__ = ["TRAINING_CLIPS", "harness_rows", "stages_for"]
+__all__ = [
+    "TRAINING_CLIPS",
+    "stages_for",
+]
 
 #: Held-out test scene -> its training clip (the same character in a range-of-motion clip) and
 #: the training frames (as in the graphs in stages/, so that the cached training data is shared).

@@ -29,7 +29,10 @@ from .model import (DataDrivenModel, PoseSpace, choose_sizes, fit_full, fit_redu
 from .pose import PARAMETERISATIONS, ROOT_MODES, pose_features, pose_layout, root_references
 from .training import check_same_character, parse_frame_selection, topology_key, trace_training
 
-__all__ = ["DataDrivenDataStage", "DataDrivenFitStage", "DataDrivenTransferStage", "model_to_arrays", "model_from_arrays"]
+__all__ = [
+    "model_to_arrays",
+    "model_from_arrays",
+]
 
 _ORDER = order_param(6, minimum=1, maximum=8)
 _SPACES = {"world": 0, "local": 1}

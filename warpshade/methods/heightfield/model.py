@@ -18,14 +18,8 @@ from ...basis import sh
 
 __all__ = [
     "GRID_TOLERANCE",
-    "GridLayout",
     "WEDGE_ENTRIES",
     "WEDGE_NODES",
-    "grid_layout",
-    "march_plan",
-    "pyramid_levels",
-    "view_table",
-    "wedge_table",
 ]
 
 #: Entries of the canonical wedge table over z0 = sin(horizon elevation) in [-1, 1].

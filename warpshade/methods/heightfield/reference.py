@@ -28,9 +28,7 @@ __all__ = [
     "horizon_march_reference",
     "horizon_reference",
     "pyramid_reference",
-    "shade_reference",
     "texel_coordinates",
-    "visibility_reference",
     "wedge_reference",
     "wedge_exact",
 ]

@@ -8,7 +8,10 @@ from __future__ import annotations
 
 from ..rows import HarnessRow
 
-__all__ = ["HEIGHT_FIELD_SCENES", "harness_rows", "heightfield_stages"]
+__all__ = [
+    "HEIGHT_FIELD_SCENES",
+    "heightfield_stages",
+]
 
 #: The scene keys the rows apply to.
 HEIGHT_FIELD_SCENES = ("bundled:ripples",)

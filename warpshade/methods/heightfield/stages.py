@@ -15,7 +15,7 @@ from .kernels import (STAT_BELOW_HORIZON, STAT_NEGATIVE, heights_kernel, horizon
                       visibility_kernels)
 from .model import WEDGE_ENTRIES, GridLayout, grid_layout, march_plan, pyramid_levels, view_table, wedge_table
 
-__all__ = ["HeightFieldShadeStage", "HeightFieldVisibilityStage"]
+__all__: list[str] = []
 
 #: Items per CPU chunk below which a launch is not split over cores.
 CPU_CHUNK_MIN = 2048

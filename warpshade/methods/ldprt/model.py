@@ -24,9 +24,6 @@ from ...basis import zh
 
 __all__ = [
     "STORED_BANDS",
-    "LDPRTModel",
-    "fit_transfer",
-    "local_transfer",
     "stored_from_sh",
 ]
 

@@ -14,7 +14,10 @@ from ...basis import zh
 from .glossy import GlossyModel
 from .model import LDPRTModel
 
-__all__ = ["rotate_stored", "world_transfer_reference", "shade_reference", "shade_glossy_reference"]
+__all__ = [
+    "rotate_stored",
+    "shade_glossy_reference",
+]
 
 
 def rotate_stored(stored: np.ndarray, rotations: np.ndarray, order: int) -> np.ndarray:

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 from ..rows import HarnessRow
 
-__all__ = ["HARNESS_ORDER", "harness_rows"]
+__all__ = [
+    "HARNESS_ORDER",
+]
 
 #: SH order of the harness rows (the paper uses n = 6 for diffuse LDPRT).
 HARNESS_ORDER = 4

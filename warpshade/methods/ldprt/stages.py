@@ -41,14 +41,9 @@ from .glossy import BRDF_KINDS
 from .model import STORED_BANDS, fit_transfer, local_transfer
 
 __all__ = [
-    "LdprtFitStage",
-    "LdprtFramesStage",
     "LdprtGlossyFitStage",
     "LdprtGlossyShadeStage",
-    "LdprtTransferStage",
     "LdprtMembraneStage",
-    "LdprtShadeRotatedStage",
-    "LdprtShadeStage",
     "LdprtWrinkleShadeStage",
     "LdprtWrinkleTableStage",
 ]

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["TransferModel", "bake_transfer"]
+__all__: list[str] = []
 
 
 @dataclass

@@ -6,7 +6,7 @@ import numpy as np
 
 from ...basis import sh
 
-__all__ = ["shade_transfer_reference", "shade_unshadowed_reference"]
+__all__: list[str] = []
 
 
 def shade_transfer_reference(transfer, light, albedo) -> np.ndarray:

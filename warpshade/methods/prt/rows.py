@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from ..rows import HarnessRow
 
-__all__ = ["harness_rows"]
+__all__: list[str] = []
 
 
 def harness_rows(quick: bool = False) -> list:

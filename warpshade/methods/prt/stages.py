@@ -26,7 +26,9 @@ from ..stage import FrameStage, Param, Port, PrecomputeStage, register_stage
 from . import kernels
 from .model import TransferModel, bake_transfer
 
-__all__ = ["PrtTransferStage", "PrtShadeStage", "PrtTraceStage", "PrtUnshadowedStage"]
+__all__ = [
+    "PrtTraceStage",
+]
 
 _ORDER = order_param(4, minimum=1, maximum=10)
 _RADIANCE = Port("float32", ("V", 3), "outgoing radiance, linear RGB")

@@ -24,7 +24,7 @@ from scipy.optimize import minimize
 
 from ...basis import quadrature, sh
 
-__all__ = ["ZHLighting", "fit_zh_lighting"]
+__all__: list[str] = []
 
 
 @dataclass

@@ -41,9 +41,6 @@ from ...scene import materials
 __all__ = [
     "COSINE_MODES",
     "VIEW_ORDER",
-    "OperatorCache",
-    "ReflectanceOperator",
-    "build_operator",
     "cosine_sh",
     "fit_view_factors",
     "product_matrices",

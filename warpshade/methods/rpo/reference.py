@@ -14,7 +14,9 @@ import numpy as np
 
 from ...basis import quadrature, sh
 
-__all__ = ["local_views", "shade_exact_brdf", "shade_reference"]
+__all__ = [
+    "local_views",
+]
 
 
 def local_views(frames, points, eye) -> np.ndarray:

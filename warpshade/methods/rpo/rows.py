@@ -4,7 +4,9 @@ from __future__ import annotations
 
 from ..rows import HarnessRow
 
-__all__ = ["harness_rows", "rpo_stages"]
+__all__ = [
+    "rpo_stages",
+]
 
 #: The glossy material of every RPO row: the BRDF, eye and colour of the glossy LDPRT rows.
 BRDF = {"brdf": "ggx", "roughness": 0.5}

@@ -32,7 +32,7 @@ from ..stage import FrameStage, Param, Port, PrecomputeStage, StageError, regist
 from . import kernels
 from .model import COSINE_MODES, VIEW_ORDER, OperatorCache, cosine_sh
 
-__all__ = ["GlossyStage", "SHADE_PARAMS", "RpoShadeStage", "RpoVisibilityStaticStage", "RpoVisibilityTracedStage"]
+__all__: list[str] = []
 
 _ORDER = order_param(4, minimum=2, maximum=6)
 _FRAME = Param(None, float, "time code of the bake pose (default: the scene's first frame)")

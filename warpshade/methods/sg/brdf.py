@@ -47,7 +47,6 @@ __all__ = [
     "eta_from_f0",
     "fresnel_cook_torrance",
     "fresnel_schlick",
-    "microfacet_brdf",
     "ndf_exact",
     "remaining_factor",
     "shadowing_cook_torrance",

@@ -35,12 +35,10 @@ __all__ = [
     "CANDIDATE_BRIGHTEST",
     "CANDIDATE_FIBONACCI",
     "CANDIDATE_FIRST_SHARPNESS",
-    "EnvironmentSG",
     "FIT_HEIGHT",
     "FIT_METHODS",
     "FIT_NORMALS",
     "MAX_DIFFUSE_LOBES",
-    "fit_environment",
 ]
 
 #: "Fewer than 10" lobes for the diffuse environment (sec. 6).

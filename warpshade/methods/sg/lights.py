@@ -17,7 +17,11 @@ import numpy as np
 from ...basis import sg
 from ...scene.lighting import DistantLight, SphereLight
 
-__all__ = ["MIN_DISTANT_ANGLE_DEG", "directional_light_lobe", "inside_hull", "point_light_lobe"]
+__all__ = [
+    "MIN_DISTANT_ANGLE_DEG",
+    "directional_light_lobe",
+    "inside_hull",
+]
 
 #: Angular diameter (degrees) a DistantLight of ``angle_deg`` below it is given: a delta light has
 #: no finite SG. 0.53 deg is the sun's (and DistantLight's default); its sharpness ~1.2e5 keeps the

@@ -23,8 +23,13 @@ from ...transfer import SSDFModel, bake_ssdf, compress_ssdf
 from .envfit import fit_environment
 from .prefilter import PrefilteredEnvironment
 
-__all__ = ["SUN_MODES", "EnvironmentLighting", "split_sun", "bake_ssdf_model", "decode_maps", "empty_table", "environment_hash", "environment_lighting",
-           "remember"]
+__all__ = [
+    "SUN_MODES",
+    "split_sun",
+    "empty_table",
+    "environment_hash",
+    "remember",
+]
 
 
 def bake_ssdf_model(scene, frame, resolution: int, supersample: int, error_budget: float, max_terms: int, device=None,

@@ -39,7 +39,12 @@ from scipy.optimize import least_squares, minimize, nnls
 from ...basis.sg import SGMixture
 from .brdf import BECKMANN_FORMS, DEFAULT_LOBES, MAX_SHARPNESS, check_positive, microfacet_brdf, split_params
 
-__all__ = ["NDFFit", "beckmann_lobe", "fit_model_ndf", "fit_ndf", "ndf_lobes"]
+__all__ = [
+    "NDFFit",
+    "beckmann_lobe",
+    "fit_model_ndf",
+    "fit_ndf",
+]
 
 
 def _key(model: str, params: dict):

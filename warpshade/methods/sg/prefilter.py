@@ -45,7 +45,6 @@ from .envmap import bilinear_map, check_environment, environment_integral, row_w
 
 __all__ = [
     "OUTPUT_TEXELS_PER_SIGMA",
-    "PrefilteredEnvironment",
     "SOURCE_TEXELS_PER_SIGMA",
     "SUPPORT_THRESHOLD",
     "default_levels",

@@ -17,7 +17,9 @@ from .brdf_warp import slice_parameters
 from .lights import point_light_lobe
 from .slices import view_slice
 
-__all__ = ["shade_reference", "ssdf_value"]
+__all__ = [
+    "ssdf_value",
+]
 
 
 def _duff_basis(n: np.ndarray) -> np.ndarray:

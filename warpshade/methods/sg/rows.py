@@ -4,7 +4,9 @@ from __future__ import annotations
 
 from ..rows import HarnessRow
 
-__all__ = ["harness_rows", "sg_stages"]
+__all__ = [
+    "sg_stages",
+]
 
 #: The glossy material of every SG row: Beckmann microfacets (the NDF is one SG lobe).
 BRDF = {"brdf": "beckmann", "roughness": 0.3}

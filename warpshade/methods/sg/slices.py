@@ -26,7 +26,11 @@ from ...scene.materials import BRDF
 from .brdf import MAX_SHARPNESS, remaining_factor, split_params, unit_directions
 from .ndf import ndf_lobes
 
-__all__ = ["ViewSlice", "isotropic_warp_floor", "slice_error", "view_slice"]
+__all__ = [
+    "ViewSlice",
+    "isotropic_warp_floor",
+    "slice_error",
+]
 
 
 @dataclass

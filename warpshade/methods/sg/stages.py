@@ -30,7 +30,9 @@ from .lights import directional_light_lobe
 from .model import (SUN_MODES, EnvironmentLighting, bake_ssdf_model, decode_maps, empty_table, environment_hash,
                     environment_lighting, remember)
 
-__all__ = ["SgEnvironmentStage", "SgSsdfStage", "SgShadeStage"]
+__all__ = [
+    "SgEnvironmentStage",
+]
 
 #: Receivers per CPU chunk below which a launch is not split over cores.
 CPU_CHUNK_MIN = 2048

@@ -15,7 +15,6 @@ import numpy as np
 from ...basis import sh
 
 __all__ = [
-    "RULES",
     "effective_spheres",
     "sphere_directions",
     "plane_caps",

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 from ..rows import HarnessRow
 
-__all__ = ["HARNESS_SCENES", "graph_stages", "harness_rows"]
+__all__ = [
+    "HARNESS_SCENES",
+]
 
 #: Scenes the harness runs SHEXP on (closed occluder meshes; the cloth is an open sheet).
 HARNESS_SCENES = ("blockers", "figure", "figure_walk", "wanderer", "bunny", "bear", "bend")

@@ -34,7 +34,9 @@ from . import kernels
 from .model import BlockerFrames, BlockerModel, build_blocker_model, static_mesh_mask
 from .pipeline import ShexpShader, SphereTracer
 
-__all__ = ["ShexpTablesStage", "ShexpBlockersStage", "ShexpStaticBakeStage", "ShexpShadeStage", "ShexpSphereTraceStage", "ShexpVisibilityStage"]
+__all__ = [
+    "ShexpVisibilityStage",
+]
 
 _ORDER = order_param(4, minimum=2, maximum=8)
 
