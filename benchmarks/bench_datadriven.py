@@ -50,7 +50,7 @@ from warpshade.graph import GraphSpec, StageSpec  # noqa: E402
 from warpshade.io import load_scene  # noqa: E402
 from warpshade.measure import combine_metrics, error_metrics, ground_truth  # noqa: E402
 from warpshade.measure import VALIDATE_SEED
-from warpshade.methods.prt import shade_transfer_reference
+from warpshade.methods.prt import shade_transfer_f64
 from warpshade.scene import LightingSource  # noqa: E402
 from warpshade.methods.datadriven import model as dd  # noqa: E402
 from warpshade.methods.datadriven import PARAMETERISATIONS, pose_features, pose_layout
@@ -173,7 +173,7 @@ def main(argv=None) -> int:
             per = []
             for i, f in enumerate(frames):
                 t = local(s, f, pred[i]) if local is not None else pred[i]
-                rad = shade_transfer_reference(t, lights[s.source].sh(ORDER, f), s.albedo)
+                rad = shade_transfer_f64(t, lights[s.source].sh(ORDER, f), s.albedo)
                 per.append(error_metrics(rad, gt[s.source][f]["radiance"], gt[s.source][f]["stderr"]))
             out[Path(s.source).stem] = combine_metrics(per)["rel_rms"]
         return out
@@ -184,7 +184,7 @@ def main(argv=None) -> int:
         per = []
         for f in cfg["validate"][Path(s.source).stem]:
             t = compute(s, f, ORDER, TRUTH_RAYS, seed=3).transfer
-            rad = shade_transfer_reference(t, lights[s.source].sh(ORDER, f), s.albedo)
+            rad = shade_transfer_f64(t, lights[s.source].sh(ORDER, f), s.albedo)
             per.append(error_metrics(rad, gt[s.source][f]["radiance"], gt[s.source][f]["stderr"]))
         traced[Path(s.source).stem] = combine_metrics(per)["rel_rms"]
     result["traced_n6_s1024_shading_error"] = traced
@@ -336,7 +336,7 @@ def _local_frame(train_scene, world_data, tests, test_frames, truth, A_world, re
     """Fit the transfer in per-vertex tangent frames (the same training frames and seeds as the
     world-frame data), rotate predictions back to world per vertex."""
     from warpshade.basis import sh
-    from warpshade.geometry.frames import TangentFrames, tangent_frames_reference
+    from warpshade.geometry.frames import TangentFrames, tangent_frames_f64
     from warpshade.methods.datadriven.training import trace_training
 
     seed = int(np.asarray(world_data["settings"]).reshape(-1)[4])
@@ -352,14 +352,14 @@ def _local_frame(train_scene, world_data, tests, test_frames, truth, A_world, re
         e = []
         for i, f in enumerate(frames):
             # rows (t, b, n) map world to local: the world function is the local one carried by F^T
-            frames_v = tangent_frames_reference(s.points_at(f), s.normals_at(f), rule)
+            frames_v = tangent_frames_f64(s.points_at(f), s.normals_at(f), rule)
             world = sh.rotate(pred[i], np.transpose(frames_v, (0, 2, 1)))
             e.append(_rel(world, truth[s.source][f]))
         errs[Path(s.source).stem] = e
     rules = {s.source: TangentFrames.from_scene(s, device="cpu").rule for s in tests}
 
     def to_world(scene, f, t):
-        frames_v = tangent_frames_reference(scene.points_at(f), scene.normals_at(f), rules[scene.source])
+        frames_v = tangent_frames_f64(scene.points_at(f), scene.normals_at(f), rules[scene.source])
         return sh.rotate(t, np.transpose(frames_v, (0, 2, 1)))
 
     shading = shading_error(m, "quaternion", "include", local=to_world)
@@ -388,8 +388,8 @@ def _interreflection(cfg, scene, lighting, ref_rot, direct_model, bounces: int =
     per, per_direct = [], []
     for i, f in enumerate(frames):
         light = lighting.sh(ORDER, f)
-        per.append(error_metrics(shade_transfer_reference(pred[i], light, scene.albedo), gt[f]["radiance"], gt[f]["stderr"]))
-        per_direct.append(error_metrics(shade_transfer_reference(direct[i], light, scene.albedo), gt[f]["radiance"],
+        per.append(error_metrics(shade_transfer_f64(pred[i], light, scene.albedo), gt[f]["radiance"], gt[f]["stderr"]))
+        per_direct.append(error_metrics(shade_transfer_f64(direct[i], light, scene.albedo), gt[f]["radiance"],
                                         gt[f]["stderr"]))
     out = {"bounces": bounces, "shading_error": combine_metrics(per)["rel_rms"],
            "direct_model_vs_bounced_reference": combine_metrics(per_direct)["rel_rms"],

@@ -3,7 +3,7 @@
 Part 1 -- the operators' share of the error (k = 1..16 factors, n = 3..6) on the bend, the cloth
 and the figure, under a constant sky (no SH truncation of the lighting) and under the scenes' own
 sunny sky: SH visibility ray traced in the tangent frames (1024 rays, open below the horizon),
-shaded in float64 (:func:`warpshade.methods.rpo.shade_reference`) with the operators of each
+shaded in float64 (:func:`warpshade.methods.rpo.shade_f64`) with the operators of each
 (n, k), against the glossy ray-traced reference of the same BRDF, eye and colour; next to the
 exact BRDF under the same order-n visibility and lighting
 (:func:`~warpshade.methods.rpo.shade_exact_brdf`, quadrature): the issue's goal is RPO error
@@ -71,7 +71,7 @@ def sweep(key, frames, gt_samples, quick):
     """Part 1 on one scene: errors per (lighting, frame, n, k)."""
     from warpshade.geometry.frames import TangentFrames
     from warpshade.measure import ground_truth, load_bench_scene
-    from warpshade.methods.rpo import build_operator, fit_zh_lighting, shade_exact_brdf, shade_reference
+    from warpshade.methods.rpo import build_operator, fit_zh_lighting, shade_exact_brdf, shade_f64
     from warpshade.scene import materials as M
     from warpshade.transfer import compute
 
@@ -102,19 +102,19 @@ def sweep(key, frames, gt_samples, quick):
                 for k in ranks:
                     if k > n * n:
                         continue
-                    est, _ = shade_reference(fr, pts, eye, vis, [ops[(n, k)]], np.zeros(len(pts), int), light, COLOR)
+                    est, _ = shade_f64(fr, pts, eye, vis, [ops[(n, k)]], np.zeros(len(pts), int), light, COLOR)
                     entry["rpo"][str(k)] = _rel(est, truth[f])
                     entry["rpo_debiased"][str(k)] = _rel(est, truth[f], True)
                 if n == 4:
                     zh = fit_zh_lighting(light, 3)
-                    est, _ = shade_reference(fr, pts, eye, vis, [ops[(4, 8)]], np.zeros(len(pts), int), light, COLOR, zh=zh)
+                    est, _ = shade_f64(fr, pts, eye, vis, [ops[(4, 8)]], np.zeros(len(pts), int), light, COLOR, zh=zh)
                     entry["rpo_k8_zh3"] = _rel(est, truth[f])
                     entry["zh3_fit_error"] = zh.error
                     cos_op = build_operator(brdf, 4, 8, cosine="product")
-                    est, _ = shade_reference(fr, pts, eye, vis, [cos_op], np.zeros(len(pts), int), light, COLOR)
+                    est, _ = shade_f64(fr, pts, eye, vis, [cos_op], np.zeros(len(pts), int), light, COLOR)
                     entry["rpo_k8_cosine_product"] = _rel(est, truth[f])
                     paper_op = build_operator(brdf, 4, 8, view_order=4)
-                    est, _ = shade_reference(fr, pts, eye, vis, [paper_op], np.zeros(len(pts), int), light, COLOR)
+                    est, _ = shade_f64(fr, pts, eye, vis, [paper_op], np.zeros(len(pts), int), light, COLOR)
                     entry["rpo_k8_view_order_n"] = _rel(est, truth[f])
                     entry["ratio_k8_debiased"] = entry["rpo_debiased"]["8"] / max(entry["exact_brdf_debiased"], 1e-12)
                 row["orders"][str(n)] = entry

@@ -447,13 +447,13 @@ def strip(path, panels, ref):
 
     from warpshade._fileio import atomic_path
     from warpshade.measure.pixels import exposure_for
-    from warpshade.render import tonemap_reference
+    from warpshade.render import tonemap_f64
 
     ex = exposure_for(ref.reshape(-1, 3))
     fig, axes = plt.subplots(1, len(panels), figsize=(3.2 * len(panels), 2.9), squeeze=False)
     for ax, (title, img) in zip(axes[0], panels):
         diff = title.startswith("|")
-        ax.imshow(tonemap_reference(np.abs(img) if diff else img, exposure=ex + (2.0 if diff else 0.0)))
+        ax.imshow(tonemap_f64(np.abs(img) if diff else img, exposure=ex + (2.0 if diff else 0.0)))
         ax.set_title(title, fontsize=7)
         ax.axis("off")
     fig.tight_layout()

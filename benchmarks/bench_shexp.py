@@ -201,14 +201,14 @@ def part_battle(args) -> dict:
 
 
 def part_exp(args) -> dict:
-    from warpshade.methods.shexp import reference
+    from warpshade.methods.shexp import mirror
 
     res = 40
     points, normals = ground_grid(res, 6.0)
     centres, radii, source = figure_spheres(60)
     out = {"receivers": int(points.shape[0]), "spheres_source": source, "orders": {}}
     for order in args.orders:
-        f = reference.log_visibility(points, normals, centres, radii, order)
+        f = mirror.log_visibility(points, normals, centres, radii, order)
         fhat = f.copy()
         fhat[:, 0] = 0.0
         norms = np.linalg.norm(fhat, axis=1)
@@ -219,8 +219,8 @@ def part_exp(args) -> dict:
         for name, method, degree in (("PS-10", "ps", 10), ("PS-21", "ps", 21), ("PS*-2", "ps_star", 2), ("PS*-4", "ps_star", 4),
                                      ("OL", "ol", None), ("HYB", "hyb", None)):
             g = sh.exp(f, method, degree)
-            shaded = reference.shade(g, normals, light, np.ones((len(points), 3)))
-            shaded_ref = reference.shade(limit, normals, light, np.ones((len(points), 3)))
+            shaded = mirror.shade(g, normals, light, np.ones((len(points), 3)))
+            shaded_ref = mirror.shade(limit, normals, light, np.ones((len(points), 3)))
             scale = np.sqrt(np.mean(shaded_ref**2))
             rows[name] = {
                 "rel_err_vs_series_limit": float(np.median(np.linalg.norm(g - limit, axis=1) / np.linalg.norm(limit, axis=1))),

@@ -128,7 +128,7 @@ def frame_stats(spheres, scene, frames):
     out = []
     for f in frames:
         pts, _ = spheres.surface_samples_at(scene, f)
-        gap = sp.coverage_gap_reference(pts, spheres.centres_at(scene, f), spheres.radii_at(scene, f))
+        gap = sp.coverage_gap_f64(pts, spheres.centres_at(scene, f), spheres.radii_at(scene, f))
         out.append({"frame": float(f), "outside_fraction": float(np.mean(gap > 0)), "max_gap": float(max(gap.max(), 0.0))})
     return out
 

@@ -92,7 +92,7 @@ from warpshade.geometry.bvh import RAY_MAX_DISTANCE, Visibility  # noqa: E402
 from warpshade.io import bundled_asset_directory  # noqa: E402
 from warpshade.reference import ReferenceShader, pixel_hits, reference_image  # noqa: E402
 from warpshade.render import camera_for, interpolate_vertex_values, render, write_png  # noqa: E402
-from warpshade.render import tonemap_reference
+from warpshade.render import tonemap_f64
 from warpshade.scene import DistantLight, Environment, SphereLight, materials  # noqa: E402
 from warpshade.transfer import sample_rays  # noqa: E402
 
@@ -550,7 +550,7 @@ def glossy_scenes(path):
 
 def run_glossy(args, mi, dev):
     """Part 4 (module docstring): every scene x distribution x light; returns the report."""
-    from warpshade.render import tonemap_reference as tonemap_np
+    from warpshade.render import tonemap_f64 as tonemap_np
 
     out_dir = Path(args.out)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -699,7 +699,7 @@ def main(argv=None):
     stem = f"mitsuba-{date}-{scene_name}" + ("" if args.bounces is None else f"-bounces{args.bounces}") + ("-quick" if args.quick else "")
     exposure = 0.0
     diff = np.abs(ours.linear - mi_mean) * 4.0
-    panels = [ours.image, tonemap_reference(mi_mean, None, exposure), tonemap_reference(diff, None, exposure)]
+    panels = [ours.image, tonemap_f64(mi_mean, None, exposure), tonemap_f64(diff, None, exposure)]
     png = write_png(out_dir / f"{stem}.png", np.concatenate(panels, axis=1))
     report = {
         "date": date,

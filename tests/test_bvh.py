@@ -11,7 +11,7 @@ from warpshade.geometry.bvh import (
     RAY_OFFSET_RELATIVE,
     Visibility,
     ray_offset,
-    trace_occlusion_reference,
+    trace_occlusion_f64,
 )
 
 # Random rays may graze a shared edge or vertex, where a float32 watertight test and the float64
@@ -71,7 +71,7 @@ def test_anyhit_matches_float64_brute_force(device, rng):
     targets = points[rng.integers(0, len(points), 4000)] + rng.normal(scale=0.3, size=(4000, 3))
     dirs = np.where(rng.uniform(size=(4000, 1)) < 0.5, targets - origins, rng.normal(size=(4000, 3)))
     got = bvh.occluded(origins, dirs).numpy().astype(bool)
-    ref = trace_occlusion_reference(points, faces, origins, dirs)
+    ref = trace_occlusion_f64(points, faces, origins, dirs)
     assert 0.1 < ref.mean() < 0.9  # a meaningful mix of hits and misses
     assert np.mean(got != ref) <= MAX_EDGE_DISAGREEMENT
 

@@ -142,7 +142,7 @@ def test_interreflected_training_feeds_per_channel_shading(device, bend, tmp_pat
     """bounces = 1: per-channel transfer (V, 3, C) from the model, shaded per channel, measured
     against the reference with one bounce."""
     from warpshade.methods.datadriven import pose_features
-    from warpshade.methods.prt import shade_transfer_reference
+    from warpshade.methods.prt import shade_transfer_f64
 
     stages = [StageSpec("data", "datadriven.data", {"order": 2, "samples": 32, "frames": "0:60:6", "bounces": 1}, {}),
               StageSpec("fit", "datadriven.fit", {"model": "reduced", "validation": 0.0, "ka": 3, "kv": 8}, {"data": "data.data"}),
@@ -154,7 +154,7 @@ def test_interreflected_training_feeds_per_channel_shading(device, bend, tmp_pat
     out = rt.step(21.0).numpy()
     pose = pose_features(bend, [bend.frame_index(21.0)], st.layout, st.meta["root_reference"])
     t = st.model.predict(pose)[0].reshape(bend.vertex_count, 3, 4)
-    want = shade_transfer_reference(t, rt.lighting.sh(2, 21.0), bend.albedo)
+    want = shade_transfer_f64(t, rt.lighting.sh(2, 21.0), bend.albedo)
     np.testing.assert_allclose(out, want, atol=RTOL_FRAME * want.max())
     assert rt.output_stage().reference_model() == {"bounces": 1}
     assert rt.stages[0].report["coefficients"] == 12

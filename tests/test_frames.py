@@ -1,4 +1,4 @@
-"""Per-vertex tangent frames: Warp kernel vs float64 reference, rotation with the surface,
+"""Per-vertex tangent frames: Warp kernel vs float64 mirror, rotation with the surface,
 temporal coherence, and the degenerate-case fallback."""
 
 import numpy as np
@@ -7,8 +7,8 @@ import trimesh
 from scipy.spatial.transform import Rotation
 
 from warpshade._wp import wp
-from warpshade.geometry.frames import DEGENERATE_STRETCH, TangentFrames, frame_rule, tangent_frames_reference
-from warpshade.geometry.normals import vertex_normals_reference
+from warpshade.geometry.frames import DEGENERATE_STRETCH, TangentFrames, frame_rule, tangent_frames_f64
+from warpshade.geometry.normals import vertex_normals_f64
 
 from tolerances import ATOL_FLOAT32
 
@@ -60,9 +60,9 @@ def test_kernel_matches_reference(device, sphere, rng):
     points, faces = sphere
     tf = TangentFrames(points, faces, device=device)
     moved = points + 0.15 * np.sin(2.0 * points[:, [2, 0, 1]]) + 0.01 * rng.normal(size=points.shape)
-    normals = vertex_normals_reference(moved, faces)
+    normals = vertex_normals_f64(moved, faces)
     got = _frames(tf, moved, normals, device)
-    ref = tangent_frames_reference(moved, normals, tf.rule)
+    ref = tangent_frames_f64(moved, normals, tf.rule)
     np.testing.assert_allclose(got, ref, atol=ATOL_FLOAT32)
     _check_orthonormal(got, normals)
 
@@ -71,8 +71,8 @@ def test_rigid_motion_rotates_frames_exactly(device, sphere):
     points, faces = sphere
     tf = TangentFrames(points, faces, device=device)
     rot = Rotation.from_euler("zyx", [0.7, -1.1, 2.3]).as_matrix()
-    normals = vertex_normals_reference(points, faces)
-    before = tangent_frames_reference(points, normals, tf.rule)
+    normals = vertex_normals_f64(points, faces)
+    before = tangent_frames_f64(points, normals, tf.rule)
     after = _frames(tf, points @ rot.T + (3.0, -1.0, 2.0), normals @ rot.T, device)
     # rows are world vectors: every row turns with the surface, F' = F R^T
     np.testing.assert_allclose(after, before @ rot.T, atol=ATOL_FLOAT32)
@@ -85,7 +85,7 @@ def test_frames_change_smoothly_over_a_deformation(sheet):
 
     def frames_at(amount):
         moved = _bend(points, amount)
-        return tangent_frames_reference(moved, vertex_normals_reference(moved, faces), rule)
+        return tangent_frames_f64(moved, vertex_normals_f64(moved, faces), rule)
 
     steps = np.linspace(0.0, 1.5, 16)
     change = [np.abs(frames_at(b) - frames_at(a)).max() for a, b in zip(steps[:-1], steps[1:])]
@@ -103,7 +103,7 @@ def test_degenerate_neighbourhoods_never_nan(device):
     points = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0], [0.5, 0.5, 0.0], [5, 5, 5]], float)
     faces = np.array([[0, 1, 4], [1, 3, 4], [3, 2, 4], [2, 0, 4]])  # vertex 5 is isolated
     tf = TangentFrames(points, faces, device=device)
-    normals = vertex_normals_reference(points, faces)
+    normals = vertex_normals_f64(points, faces)
     rest = _frames(tf, points, normals, device)
     _check_orthonormal(rest, normals)
     # Collapse the whole mesh to one point: every edge has zero length.
@@ -112,8 +112,8 @@ def test_degenerate_neighbourhoods_never_nan(device):
     got = _frames(tf, collapsed, zero_normals, device)
     assert np.all(np.isfinite(got))
     # zero normals fall back to the rest normals; zero edges to the rest tangents
-    np.testing.assert_allclose(got, tangent_frames_reference(points, normals, tf.rule), atol=ATOL_FLOAT32)
-    np.testing.assert_allclose(got, tangent_frames_reference(collapsed, zero_normals, tf.rule), atol=ATOL_FLOAT32)
+    np.testing.assert_allclose(got, tangent_frames_f64(points, normals, tf.rule), atol=ATOL_FLOAT32)
+    np.testing.assert_allclose(got, tangent_frames_f64(collapsed, zero_normals, tf.rule), atol=ATOL_FLOAT32)
     # A normal opposite to the rest normal (the transport's singular case) stays finite.
     flipped = _frames(tf, collapsed, -normals, device)
     _check_orthonormal(flipped, -normals)
@@ -125,13 +125,13 @@ def test_fallback_blend_is_continuous(device):
     points = np.concatenate([[[0.0, 0.0, 0.0]], ring])
     faces = np.array([[0, 1 + k, 1 + (k + 1) % 6] for k in range(6)])
     tf = TangentFrames(points, faces, device=device)
-    normals = vertex_normals_reference(points, faces)
+    normals = vertex_normals_f64(points, faces)
     twist = Rotation.from_rotvec([0.0, 0.0, 0.9]).as_matrix()  # rotate the ring about the normal
 
     def tangent(scale):
         moved = points.copy()
         moved[1:] = scale * ring @ twist.T
-        return tangent_frames_reference(moved, normals, tf.rule)[0, 0]
+        return tangent_frames_f64(moved, normals, tf.rule)[0, 0]
 
     eps = 1e-4
     # the centre's |t_raw| equals the scale times its rest value (>= 1): scan across the threshold

@@ -1,4 +1,4 @@
-"""Local, deformable PRT: kernels vs float64 references, frame conventions, stages, failure modes.
+"""Local, deformable PRT: kernels vs float64 mirrors, frame conventions, stages, failure modes.
 
 Scenes are tiny synthetic sheets with a groove (local self-occlusion) that bend over a few
 frames, so ray tracing and fitting take well under a second.
@@ -20,10 +20,10 @@ from warpshade.methods.ldprt import (
     fit_transfer,
     kernels,
     local_transfer,
-    shade_reference,
-    world_transfer_reference,
+    shade_f64,
+    world_transfer_f64,
 )
-from warpshade.methods.ldprt.reference import rotate_stored
+from warpshade.methods.ldprt.mirror import rotate_stored
 from warpshade.scene import Environment, Mesh, Scene
 from warpshade.transfer import compute
 
@@ -31,7 +31,7 @@ from tolerances import RTOL_TABLE
 
 ROOT = Path(__file__).resolve().parent.parent
 ORDER = 3
-# float32 kernels vs float64 reference: SH recurrences of order 3 and sums of a few lobes,
+# float32 kernels vs float64 mirror: SH recurrences of order 3 and sums of a few lobes,
 # relative to the largest radiance.
 RTOL_FLOAT32 = 5e-5
 # zxzxz SH rotation in float32 vs float64 rotation: a few hundred products.
@@ -121,7 +121,7 @@ def test_shade_kernels_match_float64_reference(device, scene, model, sky):
     f64 = frames.numpy().astype(np.float64)
     light = sky.to_sh(ORDER)
     albedo = np.random.default_rng(1).uniform(0.2, 0.9, size=(scene.vertex_count, 3))
-    ref = shade_reference(model, f64, light, albedo)
+    ref = shade_f64(model, f64, light, albedo)
     axes, coeffs, counts, stored = _model_arrays(model, device)
     light_wp = wp.array(light.astype(np.float32), device=device)
     albedo_wp = wp.array(albedo.astype(np.float32), device=device)
@@ -171,8 +171,8 @@ def test_rigid_motion_with_lighting_is_invariant(device, model, scene, sky):
     rot = Rotation.from_rotvec([0.3, -1.1, 0.5]).as_matrix()
     light = sky.to_sh(ORDER)
     albedo = np.full((scene.vertex_count, 3), 0.7)
-    a = shade_reference(model, f0, light, albedo)
-    b = shade_reference(model, f0 @ rot.T, sh.rotate(light, rot), albedo)
+    a = shade_f64(model, f0, light, albedo)
+    b = shade_f64(model, f0 @ rot.T, sh.rotate(light, rot), albedo)
     np.testing.assert_allclose(a, b, atol=1e-9 * np.abs(a).max())
 
 
@@ -273,6 +273,6 @@ def test_bad_parameters_are_reported():
 
 def test_world_transfer_reference_is_consistent(device, model, scene):
     f = _frames(scene, 1.0, device).numpy().astype(np.float64)
-    t = world_transfer_reference(model, f)
+    t = world_transfer_f64(model, f)
     u, _, vt = np.linalg.svd(np.swapaxes(f, 1, 2))
     np.testing.assert_allclose(t, sh.rotate(model.to_sh(), u @ vt), atol=1e-4 * np.abs(t).max())

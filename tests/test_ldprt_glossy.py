@@ -12,12 +12,12 @@ from warpshade.measure import measure_error
 from warpshade.scene import LightingSource
 from warpshade.methods.ldprt import kernels
 from warpshade.methods.ldprt.glossy import fit_glossy, glossy_rows
-from warpshade.methods.ldprt.reference import shade_glossy_reference
+from warpshade.methods.ldprt.mirror import shade_glossy_f64
 from warpshade.scene import Environment, Mesh, Scene
 from warpshade.scene import materials as M
 
 ORDER = 3
-# float32 kernel vs float64 reference (table look-ups, 65 x 128, order 3, against exact SH in
+# float32 kernel vs float64 mirror (table look-ups, 65 x 128, order 3, against exact SH in
 # the reference; view-factor interpolation in float32), relative to the largest radiance:
 # measured 2.3e-4.
 RTOL_KERNEL = 1e-3
@@ -73,7 +73,7 @@ def test_glossy_kernel_and_unshadowed_case(device, sheet, factorization):
     points = state.points.numpy().astype(np.float64)
     view = eye - points
     view /= np.linalg.norm(view, axis=1, keepdims=True)
-    ref = shade_glossy_reference(model, f64, view, light)
+    ref = shade_glossy_f64(model, f64, view, light)
 
     v = sheet.vertex_count
     table = wp.zeros((65, 128, 3, ORDER), dtype=wp.float32, device=device)

@@ -21,7 +21,7 @@ from warpshade.scene import Environment, Mesh, Scene
 
 from tolerances import ATOL_QUADRATURE
 
-# float32 kernels vs float64 reference (SH order 4 recurrences, sums over 3 lobes), relative to
+# float32 kernels vs float64 mirror (SH order 4 recurrences, sums over 3 lobes), relative to
 # the largest radiance.
 RTOL_FLOAT32 = 1e-4
 # Transfer of a flat groove (depth 0) = the clamped cosine; 256 Fibonacci rays per receiver

@@ -11,7 +11,7 @@ from warpshade.scene import Environment
 from warpshade.scene.lighting_warp import (
     LUMINANCE_FLOOR,
     disabled_environment,
-    env_texel_pdf_reference,
+    env_texel_pdf_f64,
     lookup_environment,
     sample_environment,
     upload_environment,
@@ -60,7 +60,7 @@ def test_lookup_matches_float64_reference(device, sky, rng):
 def test_sampler_histogram_matches_its_pdf(device, sky):
     env_map = upload_environment(sky, device)
     dirs, pdf, pdf_lookup = sample_environment(env_map, SAMPLE_COUNT, seed=3, device=device)
-    prob, texel_pdf = env_texel_pdf_reference(sky)
+    prob, texel_pdf = env_texel_pdf_f64(sky)
     np.testing.assert_allclose(prob.sum(), 1.0, rtol=1e-12)
     # the pdf integrates to one over the sphere (texel pdf times exact texel solid angle)
     solid = quadrature.latlong(sky.height, sky.width).weights.reshape(prob.shape)
@@ -105,7 +105,7 @@ def test_black_map_samples_uniformly_and_disabled_is_zero(device):
 def test_floor_keeps_every_texel_reachable():
     img = np.zeros((8, 16, 3), np.float32)
     img[2, 5] = 100.0
-    prob, pdf = env_texel_pdf_reference(Environment(img))
+    prob, pdf = env_texel_pdf_f64(Environment(img))
     assert prob.min() > 0.0
     # density = luminance (or 1/2 an edge neighbour's, 1/4 a corner's) + LUMINANCE_FLOOR * (its mean)
     lum = 100.0  # Rec. 709 weights sum to 1

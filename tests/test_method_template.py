@@ -22,7 +22,7 @@ ROOT = Path(__file__).resolve().parent.parent
 PACKAGE = ROOT / "warpshade"
 
 #: The modules every method package has (docs/adding-a-method.md).
-TEMPLATE_MODULES = ("__init__", "model", "kernels", "reference", "stages", "rows", "budget")
+TEMPLATE_MODULES = ("__init__", "model", "kernels", "mirror", "stages", "rows", "budget")
 #: Class-name prefix of each method package's stage types.
 CLASS_PREFIX = {
     "datadriven": "DataDriven",

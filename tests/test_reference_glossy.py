@@ -9,7 +9,7 @@ import trimesh
 from grids import ground_grid
 
 from warpshade._wp import wp
-from warpshade.geometry.bvh import trace_occlusion_reference
+from warpshade.geometry.bvh import trace_occlusion_f64
 from warpshade.reference import shade, shade_glossy
 from warpshade.scene import DistantLight, Environment, Mesh, Scene, SphereLight, materials
 from warpshade.scene.materials_warp import BRDFParams, brdf_eval, brdf_pdf, brdf_sample, upload_brdf
@@ -148,7 +148,7 @@ def test_occluded_matches_float64_visibility_quadrature(device):
     for row, vtx in enumerate(floor):
         view = _unit(EYE - pts[vtx])
         origins = np.tile(pts[vtx] + [0.0, 0.0, 1e-4], (len(dirs), 1))
-        visible = ~trace_occlusion_reference(pts, scene.faces, origins, dirs)
+        visible = ~trace_occlusion_f64(pts, scene.faces, origins, dirs)
         ref = np.sum(brdf.evaluate(view, dirs) * dirs[:, 2] * w * visible)
         assert res.radiance[row, 0] == pytest.approx(ref, rel=QUADRATURE_RTOL_OCCLUDED, abs=STDERR_SIGMAS * float(res.stderr[row, 0]))
     assert res.radiance[:, 0].min() < 0.9 * res.radiance[:, 0].max(), "the ball must shadow some receivers"

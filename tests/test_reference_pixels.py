@@ -1,7 +1,7 @@
 """Per-pixel ground truth (warpshade.reference.pixels): against the per-vertex references at a
 vertex hit by a pixel centre, as the same estimator as shade_points, per-pixel roughness and
 colour maps against uniform runs, a glossy plane under a constant sky against the BRDF's
-directional albedo (hemisphere quadrature), the box filter against its float64 reference, the
+directional albedo (hemisphere quadrature), the box filter against its float64 mirror, the
 exposed hits, extreme roughness and bad input."""
 
 import numpy as np
@@ -12,7 +12,7 @@ from grids import ground_grid
 from warpshade._wp import wp
 from warpshade.io import read_exr
 from warpshade.reference import GlossyReferenceShader, pixel_hits, reference_image, shade, shade_glossy
-from warpshade.reference.pixels import _box_filter_kernel, _coverage_kernel, box_filter_reference
+from warpshade.reference.pixels import _box_filter_kernel, _coverage_kernel, box_filter_f64
 from warpshade.scene import Camera, Environment, Mesh, Scene, materials
 
 from tolerances import RTOL_FLOAT32, STDERR_SIGMAS, assert_within_stderr
@@ -65,7 +65,7 @@ def test_box_filter_and_coverage_kernels_match_their_reference(device, rng):
         out = wp.empty(width * height, dtype=wp.vec3, device=device)
         wp.launch(_box_filter_kernel, dim=(height, width), inputs=[wp.array(values, dtype=wp.vec3, device=device), factor,
                                                                   width, rss, out], device=device)
-        ref = box_filter_reference(values, width, height, factor, root_sum_square=bool(rss))
+        ref = box_filter_f64(values, width, height, factor, root_sum_square=bool(rss))
         np.testing.assert_allclose(out.numpy().reshape(height, width, 3), ref, rtol=RTOL_FLOAT32, atol=1e-6)
     cov = wp.empty(width * height, dtype=wp.float32, device=device)
     wp.launch(_coverage_kernel, dim=(height, width), inputs=[wp.array(hit, dtype=wp.int32, device=device), factor, width, cov],

@@ -12,7 +12,7 @@ from PIL import Image
 from warpshade._wp import wp
 from warpshade.measure.pictures import ERROR_COLORMAP
 from warpshade.measure import comparison_figure, error_colors
-from warpshade.render import camera_basis, frame_camera, render, tonemap_reference, write_png
+from warpshade.render import camera_basis, frame_camera, render, tonemap_f64, write_png
 from warpshade.render import tonemap
 from warpshade.scene import Camera, Environment, Mesh, Scene
 
@@ -63,7 +63,7 @@ def test_vertex_colours_match_ray_plane_oracle(device, plane_scene):
     np.testing.assert_allclose(res.linear[inside], _field(hit_point[inside]), atol=ATOL_FLOAT32)
     assert np.all(res.coverage[inside] == 1.0) and np.all(res.coverage[outside] == 0.0)
     assert np.all(res.image[outside] == 128)  # neutral grey background
-    expected = tonemap_reference(res.linear, 1.0 - res.coverage)
+    expected = tonemap_f64(res.linear, 1.0 - res.coverage)
     assert np.abs(res.image.astype(int) - expected.astype(int)).max() <= MAX_LEVEL_DIFFERENCE
 
 
@@ -97,10 +97,10 @@ def test_tonemap_kernel_matches_reference(device, rng):
             wp.array(grey.ravel(), dtype=wp.float32, device=device),
             7, 9, exposure=-1.5, mode=mode,
         )
-        ref = tonemap_reference(linear, grey, exposure=-1.5, mode=mode)
+        ref = tonemap_f64(linear, grey, exposure=-1.5, mode=mode)
         assert np.abs(got.astype(int) - ref.astype(int)).max() <= MAX_LEVEL_DIFFERENCE
     with pytest.raises(ValueError, match="mode"):
-        tonemap_reference(linear, mode="filmic")
+        tonemap_f64(linear, mode="filmic")
 
 
 def test_frame_camera_keeps_the_bounds_in_view():

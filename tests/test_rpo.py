@@ -17,7 +17,7 @@ from warpshade.methods.rpo import kernels
 from warpshade.methods.rpo import fit_zh_lighting
 from warpshade.methods.rpo import OperatorCache, build_operator
 from warpshade.methods.rpo.model import cosine_sh
-from warpshade.methods.rpo import shade_exact_brdf, shade_reference
+from warpshade.methods.rpo import shade_exact_brdf, shade_f64
 from warpshade.graph import StageError
 from warpshade.scene import Environment, LightingSource, Mesh, Scene
 from warpshade.scene import materials as M
@@ -122,7 +122,7 @@ def test_exact_brdf_oracle_agrees_with_full_rank_operators_on_shadowed_points(rn
     light = np.zeros((3, N * N))
     light[:, 0] = 3.0
     light[:, 2] = 1.0
-    got, _ = shade_reference(frames, points, eye, vis, [op], np.zeros(len(points), int), light)
+    got, _ = shade_f64(frames, points, eye, vis, [op], np.zeros(len(points), int), light)
     want = shade_exact_brdf(frames, points, eye, vis, light, brdf)
     err = np.sqrt(np.mean((got - want) ** 2) / np.mean(want**2))
     assert err < RTOL_UNSHADOWED, err
@@ -144,7 +144,7 @@ def test_kernel_matches_the_float64_reference(device, rng, lighting, cosine, spa
     light[:, 0] += 3.0
     material = np.arange(v) % 2
     zh = fit_zh_lighting(light, 3) if lighting == "zh" else None
-    want, stats = shade_reference(frames, points, eye, vis, ops, material, light, (1.0, 0.8, 0.6), zh, space, evaluation)
+    want, stats = shade_f64(frames, points, eye, vis, ops, material, light, (1.0, 0.8, 0.6), zh, space, evaluation)
 
     dev = device
     k, nv2 = 6, ops[0].view_sh.shape[1]
@@ -228,7 +228,7 @@ def test_stage_matches_the_reference_and_is_recordable(device, two_sheets):
     vis = rt.frame_outputs["vis"]["visibility"].numpy()
     frames = rt.frame_outputs["vis"]["frames"].numpy()
     light = rt.state.lighting.sh(3).numpy()
-    want, stats = shade_reference(frames, rt.state.points.numpy(), [0.4, -0.6, 3.0], vis, st.operators,
+    want, stats = shade_f64(frames, rt.state.points.numpy(), [0.4, -0.6, 3.0], vis, st.operators,
                                   st.material_of_vertex, light)
     np.testing.assert_allclose(out, want, atol=RTOL_KERNEL * want.max())
     unrec = _compile(device, _spec(), two_sheets, capture=False)

@@ -17,7 +17,7 @@ from warpshade.io import heightfield as hfio
 from warpshade.io import bundled_asset_directory, load_scene
 from warpshade.methods.heightfield import kernels as hfk
 from warpshade.methods.heightfield import model as hf
-from warpshade.methods.heightfield import reference as ref
+from warpshade.methods.heightfield import mirror as ref
 from warpshade.graph import StageError
 from warpshade.scene import Camera, Environment, LightingSource, Mesh, Scene
 
@@ -99,11 +99,11 @@ def test_wedge_table_matches_direct_quadrature(order, azimuths):
     table = hf.wedge_table(order, azimuths, 33)
     z0 = np.linspace(-1.0, 1.0, 33)
     for i in (0, 5, 16, 27, 32):
-        want = ref.wedge_reference(order, 0.0, 2 * np.pi / azimuths, z0[i])
+        want = ref.wedge_f64(order, 0.0, 2 * np.pi / azimuths, z0[i])
         assert np.abs(table[i] - want).max() < ATOL_WEDGE_TABLE * 1e3
     # placed by a z-rotation: the wedge about phi = 1.1
     rz = Rotation.from_euler("z", 1.1).as_matrix()
-    assert np.abs(sh.rotate(table[12], rz) - ref.wedge_reference(order, 1.1, 2 * np.pi / azimuths, z0[12])).max() < 1e-9
+    assert np.abs(sh.rotate(table[12], rz) - ref.wedge_f64(order, 1.1, 2 * np.pi / azimuths, z0[12])).max() < 1e-9
     # all wedges at z0 = -1 tile the sphere: V = 1
     full = sum(sh.rotate(table[0], Rotation.from_euler("z", 2 * np.pi * k / azimuths).as_matrix()) for k in range(azimuths))
     assert abs(full[0] - math.sqrt(4 * math.pi)) < 1e-9 and np.abs(full[1:]).max() < 1e-9
@@ -118,7 +118,7 @@ def test_step_gives_the_analytic_horizon():
     cols = np.array([10.0, 14.0, 17.0, 18.0, 19.0])
     rows = np.full_like(cols, 16.0)
     analytic = height / ((wall - cols) * dx)
-    bf = ref.horizon_reference(h, dx, dx, cols, rows, 4)
+    bf = ref.horizon_f64(h, dx, dx, cols, rows, 4)
     assert np.allclose(bf[:, 0], analytic, rtol=1e-12)
     assert np.all(bf[:, 2] == 0.0)  # looking away from the wall: flat ground
     rt = _run(_grid_scene(h, size), {"resolution": g, "azimuths": 4, "samples_per_octave": 4, "footprint": 0.05})
@@ -141,11 +141,11 @@ def test_march_kernel_matches_its_float64_mirror_and_brute_force():
     uv = np.random.default_rng(0).uniform(0, 63, size=(200, 2))
     kernel = vis.horizons(uv)
     d, lev = vis.march
-    mirror = ref.horizon_march_reference(h, lay.dx, lay.dy, uv[:, 0], uv[:, 1], 16, d, lev)
+    mirror = ref.horizon_march_f64(h, lay.dx, lay.dy, uv[:, 0], uv[:, 1], 16, d, lev)
     both = np.isfinite(mirror)
     assert np.array_equal(both, kernel > -1e29)
     assert np.abs(kernel[both] - mirror[both]).max() < 1e-4
-    bf = ref.horizon_reference(h, lay.dx, lay.dy, uv[:, 0], uv[:, 1], 16)
+    bf = ref.horizon_f64(h, lay.dx, lay.dy, uv[:, 0], uv[:, 1], 16)
     err = np.degrees(np.arctan(mirror[both]) - np.arctan(bf[both]))
     assert abs(err.mean()) < 2.0 and np.abs(err).mean() < 3.0  # degrees of horizon elevation
 
@@ -187,7 +187,7 @@ def test_texel_visibility_matches_exact_wedges(below):
         hy = (ref.bilinear(h, u, v + 1) - ref.bilinear(h, u, v - 1)) / ((np.minimum(v + 1, 47) - np.maximum(v - 1, 0)) * lay.dy)
         phi = 2 * np.pi * np.arange(16) / 16
         tangent = hx[:, None] * np.cos(phi)[None] + hy[:, None] * np.sin(phi)[None]
-    want = ref.visibility_reference(slopes, 4, tangent)
+    want = ref.visibility_f64(slopes, 4, tangent)
     assert np.abs(texels - want).max() < ATOL_TEXEL_VISIBILITY
 
 
@@ -221,7 +221,7 @@ def test_shade_kernel_matches_float64_mirror():
     g = (1 - tu) * (1 - tv) * g_texel[t00] + tu * (1 - tv) * g_texel[t00 + 1] + (1 - tu) * tv * g_texel[t00 + 16] + \
         tu * tv * g_texel[t00 + 17]
     st = rt.state
-    want = ref.shade_reference(st.points.numpy(), st.normals.numpy(), st.eye.numpy()[0], g, shade.table, (0.9, 0.7, 0.5))
+    want = ref.shade_f64(st.points.numpy(), st.normals.numpy(), st.eye.numpy()[0], g, shade.table, (0.9, 0.7, 0.5))
     assert np.abs(out - want).max() < RTOL_SHADE * want.max()
     assert out.max() > 0.0
 

@@ -1,4 +1,4 @@
-"""Scene.evaluate (Warp, float32) against the float64 reference path, ground planes, validation."""
+"""Scene.evaluate (Warp, float32) against the float64 mirror, ground planes, validation."""
 
 import numpy as np
 import pytest

@@ -1,7 +1,7 @@
 """SG lighting (Wang et al. 2009, sec. 6): diffuse SG fit, prefiltered environment, light lobes.
 
 Oracles: a synthetic environment that is an SG mixture (the fit must recover it), exact
-quadrature of the irradiance, :func:`gamma_reference` (direct quadrature of the bilinear
+quadrature of the irradiance, :func:`gamma_f64` (direct quadrature of the bilinear
 environment over every texel, sub-divided finer than the kernel, no truncation), closed forms of
 the sphere light's solid angle and irradiance.
 """
@@ -152,7 +152,7 @@ def test_nan_and_negative_environments_rejected():
     bad = Environment.constant((1.0, 1.0, 1.0), 8, 16)
     bad.image[2, 3, 1] = -0.5
     for call in (lambda: envfit.fit_environment(bad), lambda: prefilter.PrefilteredEnvironment.build(bad, device="cpu"),
-                 lambda: prefilter.gamma_reference(bad, [[0.0, 0.0, 1.0]], 1.0)):
+                 lambda: prefilter.gamma_f64(bad, [[0.0, 0.0, 1.0]], 1.0)):
         with pytest.raises(ValueError, match="negative radiance"):
             call()
     nan = Environment.constant((1.0, 1.0, 1.0), 8, 16)
@@ -170,7 +170,7 @@ LAMBDAS = [0.5, 0.7, 3.0, 20.0, 100.0, 700.0, 4096.0]
 def test_gamma_smooth_sky_vs_reference(smooth_env, smooth_table):
     p = _dirs(24, 1)
     for lam in LAMBDAS:
-        ref = prefilter.gamma_reference(smooth_env, p, lam)
+        ref = prefilter.gamma_f64(smooth_env, p, lam)
         got = smooth_table.lookup(p, lam)
         if lam <= 100.0:
             rel = np.linalg.norm(got - ref, axis=1) / np.linalg.norm(ref, axis=1)
@@ -185,7 +185,7 @@ def test_gamma_sharp_sun_vs_reference(sun_case):
     near = s + 0.05 * np.random.default_rng(2).normal(size=(8, 3))
     p = np.concatenate([_dirs(16, 3), near / np.linalg.norm(near, axis=1, keepdims=True), s[None]])
     for lam in LAMBDAS:
-        ref = prefilter.gamma_reference(env, p, lam)
+        ref = prefilter.gamma_f64(env, p, lam)
         got = table.lookup(p, lam)
         err = np.abs(got - ref).max() / np.abs(ref).max()
         tol = GAMMA_RTOL_SUN_RESOLVED if lam <= 100.0 else GAMMA_RTOL_SUN_SUBTEXEL
@@ -233,7 +233,7 @@ def test_turning_sky_is_a_rotated_lookup(smooth_env, smooth_table, device):
     for lam in (2.0, 60.0):
         got = smooth_table.lookup(p, lam, world_to_map=rot.T)
         np.testing.assert_allclose(got, smooth_table.lookup(p @ rot, lam), rtol=1e-12)
-        ref = prefilter.gamma_reference(turned, p, lam)
+        ref = prefilter.gamma_f64(turned, p, lam)
         assert (np.linalg.norm(got - ref, axis=1) / np.linalg.norm(ref, axis=1)).max() < GAMMA_RTOL_RESOLVED
         dev = smooth_table.lookup_device(p, lam, world_to_map=rot.T, device=device)
         assert np.abs(dev - got).max() <= RTOL_FLOAT32 * np.abs(got).max()

@@ -11,7 +11,7 @@ from warpshade.basis import sg
 from warpshade.geometry.bvh import Visibility
 from warpshade.graph import GraphSpec, StageSpec
 from warpshade.measure import reference_model
-from warpshade.methods.sg import EnvironmentLighting, decode_maps, shade_reference
+from warpshade.methods.sg import EnvironmentLighting, decode_maps, shade_f64
 from warpshade.methods.sg import model as sg_model
 from warpshade.methods.sg import stages as sg_stages
 from warpshade.methods.sg.lights import directional_light_lobe
@@ -111,7 +111,7 @@ def _reference(rt, corners=None, weights=None, points=None, normals=None, eye=No
     if env is not None:  # suns taken out of the sky are distant-light lobes turned with it
         axes, lams, amps = env.sun_lobes
         distant += [(e2w @ a, float(lam), amp) for a, lam, amp in zip(axes, lams, amps)]
-    return shade_reference(
+    return shade_f64(
         rt.state.points.numpy() if points is None else points, rt.state.normals.numpy() if normals is None else normals,
         st._eye.numpy()[0] if eye is None else eye, st._albedo.numpy() if albedo is None else albedo,
         st._spec.numpy() if specular is None else specular, st._rough.numpy() if roughness is None else roughness,

@@ -3,7 +3,7 @@
 Oracles: the closed-form exponential of a constant; the infinite product series
 ``exp*(f) = 1 + R^T q(D) R f`` by a float64 eigendecomposition (eq. 28), which PS-p must
 converge to; the projection of ``exp(f(s))`` by quadrature (eq. 10); the naive sampled log
-(eq. 25) the eigen-inversion is claimed to beat; and the float64 reference paths, which the
+(eq. 25) the eigen-inversion is claimed to beat; and the float64 mirrors, which the
 float32 Warp functions are compared with.
 """
 
@@ -23,7 +23,7 @@ ATOL_SERIES_LIMIT = 1e-10
 # Scaling/squaring vs the plain series on inputs of norm 0.6-1.2 (2-3 squarings): the
 # truncation of the squared products, measured 3e-5 (n = 3) to 3e-4 (n = 6).
 ATOL_SCALING_SQUARING = 1e-3
-# float32 Warp exp vs float64 reference: each SH product rounds at ~1e-7 relative; PS*-2 and HYB
+# float32 Warp exp vs float64 mirror: each SH product rounds at ~1e-7 relative; PS*-2 and HYB
 # chain up to ~6 squarings (errors double per squaring) of O(4) vectors -> a few 1e-5.
 ATOL_EXP_FLOAT32 = 1e-4
 # ... and on absurd inputs (accumulated logs of ~3000 blockers, 12 squarings, relative errors

@@ -1,7 +1,7 @@
-"""SHEXP per-receiver kernels against float64 references, analytic oracles and failure cases.
+"""SHEXP per-receiver kernels against float64 mirrors, analytic oracles and failure cases.
 
 Blocker spheres are placed by hand here (the sphere-set construction has its own tests); the
-oracles are :mod:`warpshade.methods.shexp.reference` (an independent float64 implementation),
+oracles are :mod:`warpshade.methods.shexp.mirror` (an independent float64 implementation),
 the exact projection of a blocking cap (:func:`sh.cap_zh`), the unshadowed irradiance of
 :mod:`warpshade.methods.prt`, and the analytic cosine-weighted solid angle of a cap.
 """
@@ -11,13 +11,13 @@ import pytest
 
 from warpshade._wp import wp
 from warpshade.basis import sh
-from warpshade.methods.shexp import kernels, pipeline, reference
+from warpshade.methods.shexp import kernels, mirror, pipeline
 from warpshade.methods.shexp.tables import sphere_light_lobes
 
 ORDER = 4
 N2 = ORDER * ORDER
 
-# float32 kernel vs float64 reference on the same inputs: ~60 blockers accumulate O(1) log
+# float32 kernel vs float64 mirror on the same inputs: ~60 blockers accumulate O(1) log
 # terms (float32 ~1e-7 each), then exp (<= 6 squarings, errors double) and one product.
 ATOL_G_FLOAT32 = 2e-4
 # Radiance relative to its maximum (O(1) lighting, dot of 16 terms after the above).
@@ -74,25 +74,25 @@ def assert_radiance_close(got, want, rtol=RTOL_RADIANCE_FLOAT32):
     np.testing.assert_allclose(got, want, atol=rtol * np.abs(want).max())
 
 
-# ---- kernel vs float64 reference --------------------------------------------------------------
+# ---- kernel vs float64 mirror --------------------------------------------------------------
 @pytest.mark.parametrize("method,degree", [("hyb", None), ("ps_star", 2)])
 def test_receiver_kernel_matches_reference(device, scene, method, degree):
     rad, g = run(scene, method=method, degree=degree, device=device)
-    g_ref = reference.visibility(scene["points"], scene["normals"], scene["centres"], scene["radii"], ORDER, method, degree)
+    g_ref = mirror.visibility(scene["points"], scene["normals"], scene["centres"], scene["radii"], ORDER, method, degree)
     np.testing.assert_allclose(g, g_ref, atol=ATOL_G_FLOAT32)
-    assert_radiance_close(rad, reference.shade(g_ref, scene["normals"], scene["light"], scene["albedo"]))
+    assert_radiance_close(rad, mirror.shade(g_ref, scene["normals"], scene["light"], scene["albedo"]))
 
 
 def test_product_baseline_matches_reference(device, scene):
     rad, g = run(scene, accumulate="product", device=device)
-    g_ref = reference.product_visibility(scene["points"], scene["normals"], scene["centres"], scene["radii"], ORDER)
+    g_ref = mirror.product_visibility(scene["points"], scene["normals"], scene["centres"], scene["radii"], ORDER)
     np.testing.assert_allclose(g, g_ref, atol=ATOL_G_FLOAT32)
-    assert_radiance_close(rad, reference.shade(g_ref, scene["normals"], scene["light"], scene["albedo"]))
+    assert_radiance_close(rad, mirror.shade(g_ref, scene["normals"], scene["light"], scene["albedo"]))
 
 
 def test_order6_matches_reference(device, scene):
     _, g = run(scene, order=6, method="hyb", device=device)
-    g_ref = reference.visibility(scene["points"], scene["normals"], scene["centres"], scene["radii"], 6, "hyb")
+    g_ref = mirror.visibility(scene["points"], scene["normals"], scene["centres"], scene["radii"], 6, "hyb")
     np.testing.assert_allclose(g, g_ref, atol=ATOL_G_FLOAT32)
 
 
@@ -160,7 +160,7 @@ def test_rules_match_reference(device):
             wp.array(p.astype(np.float32), dtype=wp.vec3, device=device), wp.array(n.astype(np.float32), dtype=wp.vec3, device=device),
             wp.array(c.astype(np.float32), dtype=wp.vec3, device=device), wp.array(r.astype(np.float32), device=device), rule_id, out])
         got = out.numpy()
-        ec, er = reference.effective_spheres(p, n, c, r, rule)
+        ec, er = mirror.effective_spheres(p, n, c, r, rule)
         keep = er > 0.0
         np.testing.assert_array_equal(got[:, 3] > 0.0, keep)
         np.testing.assert_allclose(got[keep, 3], er[keep], atol=1e-5)
@@ -173,7 +173,7 @@ def test_rule_cases():
     r = 0.5
 
     def eff(centre, rule="paper", point=p):
-        c, rr = reference.effective_spheres(point, n, np.asarray(centre, float), r, rule)
+        c, rr = mirror.effective_spheres(point, n, np.asarray(centre, float), r, rule)
         return c, float(rr)
 
     assert eff([0.3, 0, -0.6])[1] <= 0  # entirely behind the tangent plane
@@ -226,7 +226,7 @@ def test_receiver_inside_several_and_straddling_spheres(device):
     light[:, 0] = np.sqrt(4 * np.pi)
     for rule in kernels.RULES:
         rad, g = pipeline.shade_receivers(p, n, np.ones((1, 3)), centres, radii, light, order=ORDER, rule=rule, device=device)
-        g_ref = reference.visibility(p, n, centres, radii, ORDER, "hyb", rule=rule)
+        g_ref = mirror.visibility(p, n, centres, radii, ORDER, "hyb", rule=rule)
         assert np.all(np.isfinite(rad)) and 0.0 <= rad.min() and rad.max() <= 1.0 + 1e-3
         np.testing.assert_allclose(g, g_ref, atol=ATOL_G_FLOAT32)
 
@@ -296,11 +296,11 @@ def test_static_bake_combines_with_dynamic_blockers(device, scene):
     static[:4] = True
     rad, g = run(scene, static=static, baked=baked, bake=bake, device=device)
     skip = np.broadcast_to(static, (count, len(static))) & baked[:, None]
-    g_ref = reference.visibility(scene["points"], scene["normals"], scene["centres"], scene["radii"], ORDER, "hyb", skip=skip)
+    g_ref = mirror.visibility(scene["points"], scene["normals"], scene["centres"], scene["radii"], ORDER, "hyb", skip=skip)
     np.testing.assert_allclose(g, g_ref, atol=ATOL_G_FLOAT32)
     want = np.where(baked[:, None],
-                    reference.shade(g_ref, scene["normals"], scene["light"], scene["albedo"], transfer=bake),
-                    reference.shade(g_ref, scene["normals"], scene["light"], scene["albedo"]))
+                    mirror.shade(g_ref, scene["normals"], scene["light"], scene["albedo"], transfer=bake),
+                    mirror.shade(g_ref, scene["normals"], scene["light"], scene["albedo"]))
     assert_radiance_close(rad, want)
 
 
@@ -316,7 +316,7 @@ def test_sphere_lights_exact_and_lobe_fit(device, scene):
     dark = np.zeros((3, N2))
     s = dict(scene, light=dark)
     direct, g = run(s, sphere_lights=lights, device=device)
-    want = reference.shade(g.astype(np.float64), scene["normals"], dark, scene["albedo"], sphere_lights=lights,
+    want = mirror.shade(g.astype(np.float64), scene["normals"], dark, scene["albedo"], sphere_lights=lights,
                            points=scene["points"])
     assert_radiance_close(direct, want)
     fitted, _ = run(s, sphere_lights=lights, shade="table", device=device)
@@ -364,10 +364,10 @@ def test_ratio_vectors_match_float64(device):
     w = out.numpy()[0]
     table = sh.log_cap_table(ORDER)
     for e, node in enumerate(cut[0]):
-        s, th = reference.sphere_directions(rep, centres[node][None], radii[node])
+        s, th = mirror.sphere_directions(rep, centres[node][None], radii[node])
         fb = sh.zh_to_sh(s[0], table.lookup(th[0]))
         members = leaf_index[leaf_first[node]: leaf_first[node] + leaf_count[node]]
-        s_l, th_l = reference.sphere_directions(rep, centres[members], radii[members])
+        s_l, th_l = mirror.sphere_directions(rep, centres[members], radii[members])
         fd = sh.zh_to_sh(s_l, table.lookup(th_l)).sum(0)
         band = sh.band_of(ORDER)
         num = np.bincount(band, fb * fd)
@@ -414,7 +414,7 @@ def test_shade_order_truncates_like_lower_order_shading(device, scene):
     light6 = np.pad(scene["light"], ((0, 0), (0, 36 - N2)))
     rad, g6 = pipeline.shade_receivers(scene["points"], scene["normals"], scene["albedo"], scene["centres"], scene["radii"],
                                        light6, order=6, shade_order=ORDER, device=device)
-    g_ref = reference.visibility(scene["points"], scene["normals"], scene["centres"], scene["radii"], 6, "hyb")
+    g_ref = mirror.visibility(scene["points"], scene["normals"], scene["centres"], scene["radii"], 6, "hyb")
     np.testing.assert_allclose(g6[:, :N2], g_ref[:, :N2], atol=ATOL_G_FLOAT32)
     assert np.all(g6[:, N2:] == 0.0)
-    assert_radiance_close(rad, reference.shade(g_ref[:, :N2], scene["normals"], scene["light"], scene["albedo"]))
+    assert_radiance_close(rad, mirror.shade(g_ref[:, :N2], scene["normals"], scene["light"], scene["albedo"]))

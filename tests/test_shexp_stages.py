@@ -1,4 +1,4 @@
-"""SHEXP graph stages on small scenes: against the float64 reference pipeline, PRT and itself.
+"""SHEXP graph stages on small scenes: against the float64 mirror pipeline, PRT and itself.
 
 Scenes are built from arrays (an icosphere moving over a ground grid) so sphere fitting takes a
 second or two; the sphere construction itself is tested with :mod:`warpshade.geometry.spheres`.
@@ -10,7 +10,7 @@ import trimesh
 
 from warpshade.graph import GraphSpec, StageSpec
 from warpshade.scene import LightingSource
-from warpshade.methods.shexp import reference
+from warpshade.methods.shexp import mirror
 from warpshade.methods.shexp.model import BlockerModel, plane_blockers
 from warpshade.scene import Environment, Mesh, Scene
 from warpshade.scene import ground_plane
@@ -60,10 +60,10 @@ def test_shade_stage_matches_reference_pipeline(device, scene):
     model = BlockerModel.from_arrays(rt.artifacts["blockers"]["model"])
     assert model.planes.shape == (1, 7)  # the ground
     pts, nrm = scene.points_at(frame), scene.normals_at(frame)
-    g = reference.visibility(pts, nrm, model.spheres.centres_at(scene, frame), model.spheres.radii_at(scene, frame), ORDER,
+    g = mirror.visibility(pts, nrm, model.spheres.centres_at(scene, frame), model.spheres.radii_at(scene, frame), ORDER,
                              "hyb", planes=model.planes)
     light = rt.lighting.sh(ORDER, frame)  # the float64 oracle of the frame's lighting
-    want = reference.shade(g, nrm, light, scene.albedo)
+    want = mirror.shade(g, nrm, light, scene.albedo)
     np.testing.assert_allclose(out, want, atol=RTOL_STAGE * want.max())
 
 
@@ -132,10 +132,10 @@ def test_plane_blockers_and_kernel(device, scene):
     light = Environment.sky().to_sh(ORDER)
     _, g = shade_receivers(pts, nrm, np.ones((4, 3)), np.zeros((0, 3)), np.zeros(0), light, order=ORDER, planes=planes,
                            device=device)
-    want = reference.visibility(pts, nrm, np.zeros((0, 3)), np.zeros(0), ORDER, "hyb", planes=planes)
+    want = mirror.visibility(pts, nrm, np.zeros((0, 3)), np.zeros(0), ORDER, "hyb", planes=planes)
     np.testing.assert_allclose(g, want, atol=2e-4)
     assert np.allclose(g[1, 1:], 0.0) and g[1, 0] == pytest.approx(np.sqrt(4 * np.pi), rel=1e-6)  # on the plane: nothing
-    axes, theta = reference.plane_caps(pts, planes)
+    axes, theta = mirror.plane_caps(pts, planes)
     assert theta[0, 0] == pytest.approx(np.arctan(planes[0, 6] / 0.5)) and np.allclose(axes[0, 0], [0, 0, -1])
     assert np.allclose(axes[2, 0], [0, 0, 1])  # below the plane it blocks upwards
 

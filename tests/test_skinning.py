@@ -1,4 +1,4 @@
-"""Linear-blend skinning and rigid transform kernels against float64 references."""
+"""Linear-blend skinning and rigid transform kernels against float64 mirrors."""
 
 import numpy as np
 import pytest
@@ -9,7 +9,7 @@ from warpshade.geometry.skinning import (
     launch_transform_normals,
     launch_transform_points,
     skin_points,
-    skin_points_reference,
+    skin_points_f64,
 )
 from warpshade.scene import SkinBinding
 
@@ -39,7 +39,7 @@ def skin_case(rng):
 
 def test_reference_matches_per_vertex_formula(skin_case):
     points, skin, xfs = skin_case
-    out = skin_points_reference(points, skin, xfs)
+    out = skin_points_f64(points, skin, xfs)
     # The definition, one vertex at a time: sum_k w_k [p, 1] @ bind @ X_jk.
     for v in (0, 17, 399):
         hom = np.append(points[v], 1.0) @ skin.geom_bind_transform
@@ -52,14 +52,14 @@ def test_equal_joint_transforms_act_rigidly(skin_case, rng):
     rigid = _row_transform(rng)
     xfs = np.repeat(rigid[None], 7, axis=0)
     expected = (points @ skin.geom_bind_transform[:3, :3] + skin.geom_bind_transform[3, :3]) @ rigid[:3, :3] + rigid[3, :3]
-    np.testing.assert_allclose(skin_points_reference(points, skin, xfs), expected, rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(skin_points_f64(points, skin, xfs), expected, rtol=1e-6, atol=1e-6)
 
 
 def test_warp_skinning_matches_reference(skin_case, device, rng):
     points, skin, xfs = skin_case
     post = _row_transform(rng)
     got = skin_points(points, skin, xfs, post_transform=post, device=device)
-    ref = skin_points_reference(points, skin, xfs)
+    ref = skin_points_f64(points, skin, xfs)
     ref = ref @ post[:3, :3] + post[3, :3]
     np.testing.assert_allclose(got, ref, atol=ATOL_FLOAT32 * 4)
 

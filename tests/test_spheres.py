@@ -111,7 +111,7 @@ def test_every_sample_is_bounded(shape, box, capsule, box_set, capsule_sets, dev
     samples = _all_samples(sphere_set, mesh.vertices, mesh.faces)
     gap = sp.coverage_gap(samples, sphere_set.centres, sphere_set.radii, device=device)
     assert gap.max() <= COVERAGE_ATOL, f"{shape}: a sample lies {gap.max():.3g} outside every sphere"
-    np.testing.assert_allclose(gap, sp.coverage_gap_reference(samples, sphere_set.centres, sphere_set.radii), atol=ATOL_FLOAT32)
+    np.testing.assert_allclose(gap, sp.coverage_gap_f64(samples, sphere_set.centres, sphere_set.radii), atol=ATOL_FLOAT32)
     # every sample is in the sphere of its own cluster
     own = np.linalg.norm(sphere_set.surface_samples(mesh.vertices, mesh.faces) - sphere_set.centres[sphere_set.sample_sphere], axis=1)
     assert np.all(own <= sphere_set.radii[sphere_set.sample_sphere] * (1 + 1e-9))
@@ -246,7 +246,7 @@ def test_rigid_attachment_follows_the_transform_exactly(box, device):
         np.testing.assert_allclose(animator.radii.numpy(), spheres.radii_at(scene, f), rtol=1e-6)
         # bounded on every frame
         pts, _ = spheres.surface_samples_at(scene, f)
-        assert sp.coverage_gap_reference(pts, expected, spheres.radii_at(scene, f)).max() <= COVERAGE_ATOL
+        assert sp.coverage_gap_f64(pts, expected, spheres.radii_at(scene, f)).max() <= COVERAGE_ATOL
 
 
 def test_skinned_attachment_is_mvc_of_the_deformed_mesh_and_tracks_a_bend(device):
@@ -268,13 +268,13 @@ def test_skinned_attachment_is_mvc_of_the_deformed_mesh_and_tracks_a_bend(device
         animator.launch(_frame(evaluator, f))
         np.testing.assert_allclose(animator.centres.numpy(), centres, atol=ATOL_FLOAT32)
         pts, _ = spheres.surface_samples_at(scene, f)
-        worst_gap = max(worst_gap, sp.coverage_gap_reference(pts, centres, spheres.radii_at(scene, f)).max())
+        worst_gap = max(worst_gap, sp.coverage_gap_f64(pts, centres, spheres.radii_at(scene, f)).max())
     assert worst_gap <= SKINNED_GAP_FRACTION * mean_radius, (worst_gap, mean_radius)
     # calibrated radii bound every frame by construction
     spheres.calibrate_radii(scene)
     for f in scene.frames[::6]:
         pts, _ = spheres.surface_samples_at(scene, f)
-        assert sp.coverage_gap_reference(pts, spheres.centres_at(scene, f), spheres.radii_at(scene, f)).max() <= COVERAGE_ATOL
+        assert sp.coverage_gap_f64(pts, spheres.centres_at(scene, f), spheres.radii_at(scene, f)).max() <= COVERAGE_ATOL
 
 
 def test_skin_weight_attachment_reproduces_the_fit_pose(device):
@@ -347,7 +347,7 @@ def test_recorded_animator_replays_the_skinned_figure(figure_scene, figure_spher
         animator.launch(_frame(evaluator, f))
         assert_close(centres, animator.centres.numpy(), atol=tolerance, what=f"replayed sphere centres at frame {f}")
         assert_close(radii, animator.radii.numpy(), atol=tolerance, what=f"replayed sphere radii at frame {f}")
-        # the replay follows the frame it was given (float64 reference of the attachment)
+        # the replay follows the frame it was given (float64 mirror of the attachment)
         np.testing.assert_allclose(centres, spheres.centres_at(scene, f), atol=ATOL_FLOAT32)
         np.testing.assert_allclose(radii, spheres.radii_at(scene, f), rtol=1e-6)
 
@@ -436,13 +436,13 @@ def test_tree_stays_valid_on_every_frame_of_the_figure(figure_scene, figure_sphe
                 kids = tree.children(node)
                 excess = np.linalg.norm(nc[kids] - nc[node], axis=1) + nr[kids] - nr[node]
                 assert excess.max() <= REFIT_ATOL, (mode, f, node, excess.max())
-        _, ref_r = sp.refit_reference(tree, animator.centres.numpy(), animator.radii.numpy(), mode="min")
+        _, ref_r = sp.refit_f64(tree, animator.centres.numpy(), animator.radii.numpy(), mode="min")
         np.testing.assert_allclose(refits["min"].node_radii.numpy(), ref_r, rtol=1e-5, atol=ATOL_FLOAT32)
-        ref_c, ref_r = sp.refit_reference(tree, animator.centres.numpy(), animator.radii.numpy(), mode="anchored")
+        ref_c, ref_r = sp.refit_f64(tree, animator.centres.numpy(), animator.radii.numpy(), mode="anchored")
         np.testing.assert_allclose(refits["anchored"].node_centres.numpy(), ref_c, atol=ATOL_FLOAT32)
         np.testing.assert_allclose(refits["anchored"].node_radii.numpy(), ref_r, rtol=1e-5, atol=ATOL_FLOAT32)
     # the rest tree is what the build's Powell produced
-    _, ref_r = sp.refit_reference(tree, spheres.centres, spheres.rest_radii, mode="anchored")
+    _, ref_r = sp.refit_f64(tree, spheres.centres, spheres.rest_radii, mode="anchored")
     np.testing.assert_allclose(ref_r, tree.node_radius, rtol=1e-9)
 
 
@@ -460,7 +460,7 @@ def test_cut_matches_brute_force_eq36(device):
     cut = sp.HierarchyCut(refit, 25, theta_max_degrees=25.0)
     cut.launch(wp.array(cluster_c.astype(np.float32), dtype=wp.vec3, device=device), wp.array(cluster_r.astype(np.float32), dtype=wp.float32, device=device))
     nc, nr = refit.node_centres.numpy().astype(np.float64), refit.node_radii.numpy().astype(np.float64)
-    reference = sp.cut_reference(tree, nc, nr, cluster_c, cluster_r, 25.0)
+    reference = sp.cut_f64(tree, nc, nr, cluster_c, cluster_r, 25.0)
     nodes, counts = cut.cut_nodes.numpy(), cut.cut_count.numpy()
     s = math.sin(math.radians(25.0))
     compared = 0
@@ -489,7 +489,7 @@ def test_receiver_clusters_and_bounds(figure_scene, device):
     for f in figure_scene.frames[::20]:
         fs = figure_scene.evaluate(f, device=device)
         bounds.launch(fs.points)
-        c, r, rep = clusters.bounds_reference(fs.points.numpy())
+        c, r, rep = clusters.bounds_f64(fs.points.numpy())
         np.testing.assert_allclose(bounds.centres.numpy(), c, atol=ATOL_FLOAT32)
         np.testing.assert_allclose(bounds.radii.numpy(), r, rtol=1e-5, atol=ATOL_FLOAT32)
         np.testing.assert_allclose(bounds.representative_points.numpy(), rep, atol=0)

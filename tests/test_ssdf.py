@@ -9,7 +9,7 @@ import trimesh
 from grids import ground_grid
 
 from warpshade.basis import sg
-from warpshade.geometry.bvh import Visibility, trace_occlusion_reference
+from warpshade.geometry.bvh import Visibility, trace_occlusion_f64
 from warpshade.geometry.frames import TangentFrames
 from warpshade.scene import Mesh, Scene
 from warpshade.transfer import ssdf, ssdf_pca, ssdf_products
@@ -107,7 +107,7 @@ def test_visibility_matches_float64_ray_caster(device):
     for k, v in enumerate(verts):
         dirs = local @ frames[v]
         origins = np.broadcast_to(points[v] + offset * normals[v], dirs.shape)
-        blocked = trace_occlusion_reference(points, scene.faces, origins, dirs)
+        blocked = trace_occlusion_f64(points, scene.faces, origins, dirs)
         disagree = np.mean(blocked == (vis[k].ravel() == 1))
         assert disagree <= MAX_RAY_DISAGREEMENT
     assert 0 < vis.sum() < vis.size  # the ball shadows some of them

@@ -8,7 +8,7 @@ import trimesh
 from grids import ground_grid
 
 from warpshade.basis import sh
-from warpshade.geometry.bvh import Visibility, trace_occlusion_reference
+from warpshade.geometry.bvh import Visibility, trace_occlusion_f64
 from warpshade.scene import Mesh, Scene
 from warpshade.transfer import TransferTracer, compute, sample_rays
 
@@ -90,7 +90,7 @@ def test_kernel_matches_brute_force_on_the_same_rays(device, small_scene):
     origins, dirs = sample_rays(scene, 0.0, samples, device=device, seed=7)
     bvh = Visibility.from_scene(scene, device=device)
     warp_hit = bvh.occluded(origins.reshape(-1, 3), dirs.reshape(-1, 3)).numpy().reshape(origins.shape[:2]).astype(bool)
-    ref_hit = trace_occlusion_reference(scene.points_at(0.0), scene.faces, origins.reshape(-1, 3), dirs.reshape(-1, 3))
+    ref_hit = trace_occlusion_f64(scene.points_at(0.0), scene.faces, origins.reshape(-1, 3), dirs.reshape(-1, 3))
     ref_hit = ref_hit.reshape(origins.shape[:2])
     assert 0.2 < ref_hit.mean() < 0.8
     assert np.mean(warp_hit != ref_hit) <= MAX_RAY_DISAGREEMENT

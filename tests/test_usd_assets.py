@@ -94,11 +94,11 @@ def test_figure_structure_and_arms_cross_in_front_of_the_torso(clips):
     forearm = np.isin(body.skin.joint_indices[:, 0], [names.index("LElbow"), names.index("RElbow")]) & (
         body.skin.joint_weights[:, 0] > 0.99
     )
-    from warpshade.geometry.skinning import skin_points_reference
+    from warpshade.geometry.skinning import skin_points_f64
 
     in_front = []
     for t in range(len(scene.frames)):
-        p = skin_points_reference(body.points, body.skin, skel.skinning_transforms(t))[forearm]
+        p = skin_points_f64(body.points, body.skin, skel.skinning_transforms(t))[forearm]
         # skeleton space: the torso is the capsule of radius 0.15 around the z axis, front is -y
         in_front.append(np.mean((np.abs(p[:, 0]) < 0.15) & (p[:, 1] < -0.15) & (p[:, 2] > 1.0) & (p[:, 2] < 1.5)))
     assert max(in_front) > 0.2  # at some frames a good part of a forearm is right in front of the chest

@@ -395,9 +395,9 @@ def test_warp_examples_load_with_ground_and_sky(name, vertices, triangles):
     assert (mesh.vertex_count, mesh.triangle_count) == (vertices, triangles)
     assert plain.up_axis == "Y" and len(plain.frames) == 1 and mesh.normals is not None
     # smooth faceVarying normals become per-vertex normals that agree with the geometry
-    from warpshade.geometry.normals import vertex_normals_reference
+    from warpshade.geometry.normals import vertex_normals_f64
 
-    area_weighted = vertex_normals_reference(mesh.points, mesh.faces)
+    area_weighted = vertex_normals_f64(mesh.points, mesh.faces)
     assert np.median(np.sum(area_weighted * mesh.normals, axis=1)) > 0.99
 
     scene = load_scene(f"warp-example:{name}", ground_plane=True)

@@ -16,7 +16,7 @@ from warpshade.usd_assets.generator import figure
 #: Issue 3 asks the Warp skinning to agree with UsdSkel to 1e-4 of the model's size; float32
 #: skinning of a ~2 m figure is good to ~1e-7 of its size, so this bound has a wide margin.
 SKIN_RTOL_MODEL = 1e-4
-#: The float64 reference path against USD's own (float32-stored) baked points.
+#: The float64 mirror against USD's own (float32-stored) baked points.
 SKIN_RTOL_REFERENCE = 1e-6
 #: The generator rounds quaternion components to 1e-4 before writing them, so recovered joint
 #: angles differ from the authored rotation vectors by up to a few 1e-4 rad.

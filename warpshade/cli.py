@@ -19,7 +19,7 @@ __all__ = ["main"]
 
 
 def _cmd_selfcheck(args) -> int:
-    """Evaluate the SH basis on the Warp device and check it against the float64 reference."""
+    """Evaluate the SH basis on the Warp device and check it against the float64 mirror."""
     import numpy as np
 
     from .basis import quadrature, sh
@@ -31,7 +31,7 @@ def _cmd_selfcheck(args) -> int:
     ortho = float(np.abs(gram - np.eye(args.order**2)).max())
     agree = float(np.abs(y_wp - y_ref).max())
     print(f"warpshade SH self-check (order {args.order}, device {args.device}):")
-    print(f"  kernel vs float64 reference, max |diff|     = {agree:.3e}")
+    print(f"  kernel vs float64 mirror, max |diff|     = {agree:.3e}")
     print(f"  orthonormality by exact quadrature, max err = {ortho:.3e}")
     ok = agree < 1e-5 and ortho < 1e-5
     print("  OK" if ok else "  FAILED")
@@ -344,8 +344,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="warpshade", description=__doc__, parents=[common],
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    p = sub.add_parser("selfcheck", parents=[common], help="check the Warp SH kernels against the float64 reference",
-                       description="Evaluate the SH basis with the Warp kernels and check it against the float64 reference.")
+    p = sub.add_parser("selfcheck", parents=[common], help="check the Warp SH kernels against the float64 mirror",
+                       description="Evaluate the SH basis with the Warp kernels and check it against the float64 mirror.")
     p.add_argument("--order", type=_order, default=6, help="SH order n (n*n coefficients), 1..12 (default 6)")
     p.add_argument("--device", default="cpu", help="Warp device (default: cpu)")
     p.set_defaults(func=_cmd_selfcheck)

@@ -4,7 +4,7 @@ Imports no other module of :mod:`warpshade.basis`: :mod:`~warpshade.basis._gaunt
 :mod:`~warpshade.basis._rotation`, :mod:`~warpshade.basis._shexp`, :mod:`~warpshade.basis._zh_fit`
 and the public facades :mod:`~warpshade.basis.sh` / :mod:`~warpshade.basis.zh` build on it. The
 public names (``MAX_ORDER``, ``coeff_count``, ``index``, ``band_of``, ``cap_zh``) are re-exported
-by :mod:`warpshade.basis.sh`; :func:`basis` here is the float64 reference behind
+by :mod:`warpshade.basis.sh`; :func:`basis` here is the float64 mirror behind
 :func:`warpshade.basis.sh.basis` (which adds the Warp path).
 
 Convention (see :mod:`warpshade.basis.sh`): real, orthonormal SH in Sloan's sign convention,
@@ -31,10 +31,10 @@ __all__ = [
     "cap_zh",
 ]
 
-#: Highest SH order supported by the float64 reference path.
+#: Highest SH order supported by the float64 mirror.
 MAX_ORDER = 16
 
-# Rows processed at once by the float64 reference paths (bounds temporaries to ~32 MB).
+# Rows processed at once by the float64 mirrors (bounds temporaries to ~32 MB).
 _REFERENCE_CHUNK_BYTES = 32 * 1024 * 1024
 
 
@@ -97,12 +97,12 @@ def band_scale(order: int) -> np.ndarray:
 
 
 def chunk_rows(row_bytes: int) -> int:
-    """Rows per chunk of a float64 reference loop whose temporaries take ``row_bytes`` per row."""
+    """Rows per chunk of a float64 mirror loop whose temporaries take ``row_bytes`` per row."""
     return max(1, _REFERENCE_CHUNK_BYTES // max(1, row_bytes))
 
 
 def basis(dirs, order: int) -> np.ndarray:
-    """All real SH of an order at directions, float64 reference.
+    """All real SH of an order at directions, float64 mirror.
 
     Args:
         dirs: directions, shape (..., 3); normalised before evaluation.

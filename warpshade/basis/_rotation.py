@@ -1,12 +1,12 @@
 """SH rotation matrices (private; see :func:`warpshade.basis.sh.rotate`).
 
 Builds on :mod:`warpshade.basis._core` and :mod:`warpshade.basis.quadrature`;
-:mod:`warpshade.basis.sh` (float64 reference) and :mod:`warpshade.basis.sh_warp` (the x90
+:mod:`warpshade.basis.sh` (float64 mirror) and :mod:`warpshade.basis.sh_warp` (the x90
 blocks of the Warp kernel) build on it.
 
 Two independent constructions:
 
-* :func:`ivanic_ruedenberg_bands` -- the float64 reference. Ivanic & Ruedenberg's recurrences
+* :func:`ivanic_ruedenberg_bands` -- the float64 mirror. Ivanic & Ruedenberg's recurrences
   (J. Phys. Chem. 1996, with the 1998 erratum) build the band-l block from band l-1 and the
   3x3 rotation itself. They are written for real SH *without* the Condon-Shortley phase, whose
   band-1 functions are proportional to (y, z, x); Sloan's real SH equal

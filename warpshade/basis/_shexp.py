@@ -1,4 +1,4 @@
-"""SH exponential and logarithm: float64 reference paths and per-order tables (private).
+"""SH exponential and logarithm: float64 mirrors and per-order tables (private).
 
 Public entry points are :func:`warpshade.basis.sh.exp`, :func:`warpshade.basis.sh.log`,
 :func:`warpshade.basis.sh.ol_table` and :func:`warpshade.basis.sh.log_cap_table` (which also
@@ -57,10 +57,10 @@ __all__ = [
     "one_vector",
     "scaling_power",
     "check_degree",
-    "exp_reference",
+    "exp_f64",
     "exp_series_limit",
     "exp_volterra",
-    "log_reference",
+    "log_f64",
     "ol_table",
     "log_cap_table",
 ]
@@ -209,7 +209,7 @@ def _exp_hyb(f: np.ndarray) -> np.ndarray:
     return dc[:, None] * h
 
 
-def exp_reference(f: np.ndarray, method: str, degree=None) -> np.ndarray:
+def exp_f64(f: np.ndarray, method: str, degree=None) -> np.ndarray:
     """float64 SH exponential of rows ``f`` (shape (B, n*n)) by one of :data:`EXP_METHODS`."""
     degree = check_degree(method, degree)
     if method == "ps":
@@ -251,7 +251,7 @@ def exp_volterra(f: np.ndarray, quadrature_degree: int | None = None) -> np.ndar
     return (np.exp(f @ y.T) * q.weights) @ y
 
 
-def log_reference(g: np.ndarray, eps_rel: float = LOG_EPS_REL) -> np.ndarray:
+def log_f64(g: np.ndarray, eps_rel: float = LOG_EPS_REL) -> np.ndarray:
     """float64 SH logarithm of rows ``g`` (B, n*n) by eigen-inversion of ``M_g`` (eqs. 30-32)."""
     if not (np.isfinite(eps_rel) and 0.0 < eps_rel < 1.0):
         raise ValueError(f"log: eps_rel must be in (0, 1), got {eps_rel!r}")
@@ -361,7 +361,7 @@ def log_cap_table(order: int, samples: int = TABLE_SAMPLES, eps_rel: float = LOG
     samples = _check_samples(samples)
     theta = np.linspace(0.0, CAP_THETA_MAX, samples)
     g = _zonal_full(cap_zh(theta, order, blocked=True), order)
-    f = log_reference(g, eps_rel)
+    f = log_f64(g, eps_rel)
     zh = f[:, [l * l + l for l in range(order)]]
     zh[0] = 0.0  # log of the unblocked sphere is exactly 0
     theta.setflags(write=False)
@@ -382,7 +382,7 @@ def ol_table(order: int, samples: int = TABLE_SAMPLES, eps_rel: float = LOG_EPS_
     samples = _check_samples(samples)
     theta = np.linspace(0.0, CAP_THETA_MAX, _OL_BUILD_SAMPLES + 1)[1:]
     g = _zonal_full(cap_zh(theta, order, blocked=True), order)
-    f = log_reference(g, eps_rel)
+    f = log_f64(g, eps_rel)
     fhat = f.copy()
     fhat[:, 0] = 0.0
     norm = np.linalg.norm(fhat, axis=1)

@@ -23,7 +23,7 @@ rule :func:`scaling_power`, the per-order tables :func:`ol_table` and :func:`log
 ``LOG_EPS_REL``, ``CAP_THETA_MAX``).
 
 Host functions accept NumPy arrays with any leading batch shape and return NumPy arrays. By
-default they run the float64 reference path (the oracle); functions with a ``device`` argument
+default they run the float64 mirror (the oracle); functions with a ``device`` argument
 run the float32 Warp kernel on that device instead (``device="cpu"`` or ``"cuda:0"``). The same
 operations exist as ``@wp.func`` for use inside other kernels: see
 :func:`warpshade.basis.sh_warp.sh_kernels`.
@@ -245,7 +245,7 @@ def product(f, g, device=None) -> np.ndarray:
     Args:
         f: SH coefficients, shape (..., n*n).
         g: SH coefficients, shape (..., n*n); batch shapes broadcast against ``f``.
-        device: None for the float64 reference; a Warp device to run the float32 kernel.
+        device: None for the float64 mirror; a Warp device to run the float32 kernel.
 
     Returns:
         Coefficients of the product, shape (broadcast batch, n*n); float64 or float32 (Warp).
@@ -279,7 +279,7 @@ def product_matrix(f, device=None) -> np.ndarray:
 
     Args:
         f: SH coefficients, shape (..., n*n).
-        device: None for the float64 reference; a Warp device to run the float32 kernel.
+        device: None for the float64 mirror; a Warp device to run the float32 kernel.
 
     Returns:
         Product matrices, shape (..., n*n, n*n); float64 or float32 (Warp).
@@ -353,7 +353,7 @@ def rotate(f, rotation, device=None) -> np.ndarray:
         f: SH coefficients, shape (..., n*n).
         rotation: proper rotation matrices, shape (..., 3, 3); batch shapes broadcast against f
             (one rotation for many functions, many rotations of one function, or pairs).
-        device: None for the float64 reference; a Warp device to run the float32 kernel.
+        device: None for the float64 mirror; a Warp device to run the float32 kernel.
 
     Returns:
         Rotated coefficients, shape (broadcast batch, n*n); float64 or float32 (Warp).
@@ -411,7 +411,7 @@ def zh_to_sh(axis, zh_coeffs, device=None) -> np.ndarray:
     Args:
         axis: lobe axes, shape (..., 3); normalised here (zero length is an error).
         zh_coeffs: ZH coefficients ``g_l``, shape (..., n); batch shapes broadcast against axis.
-        device: None for the float64 reference; a Warp device to run the float32 kernel.
+        device: None for the float64 mirror; a Warp device to run the float32 kernel.
 
     Returns:
         Shape (broadcast batch, n*n); float64 or float32 (Warp).
@@ -453,7 +453,7 @@ def zh_from_sh_about_axis(f, axis, device=None) -> np.ndarray:
     Args:
         f: SH coefficients, shape (..., n*n).
         axis: unit axes, shape (..., 3) (normalised here); batch shapes broadcast against f.
-        device: None for the float64 reference; a Warp device to run the float32 kernel.
+        device: None for the float64 mirror; a Warp device to run the float32 kernel.
 
     Returns:
         ZH coefficients, shape (broadcast batch, n); float64 or float32 (Warp).
@@ -666,7 +666,7 @@ def exp(f, method: str = "ps_star", degree: int | None = None, device=None) -> n
         method: one of :data:`EXP_METHODS`.
         degree: series degree p for ``"ps"`` (default 10) and ``"ps_star"`` (default 2),
             1..40; ignored by ``"ol"``/``"hyb"``.
-        device: None for the float64 reference; a Warp device to run the float32 kernel.
+        device: None for the float64 mirror; a Warp device to run the float32 kernel.
 
     Returns:
         exp(f), shape (..., n*n); float64 or float32 (Warp).
@@ -686,7 +686,7 @@ def exp(f, method: str = "ps_star", degree: int | None = None, device=None) -> n
             [_wp_rows(flat, dev), degree, k.tables(dev), k.exp_tables(dev), out], {0, 4}, dev,
         )
         return out.numpy().reshape(batch + (n2,))
-    return _shexp.exp_reference(flat, method, degree).reshape(batch + (n2,))
+    return _shexp.exp_f64(flat, method, degree).reshape(batch + (n2,))
 
 
 def log(g, eps_rel: float = LOG_EPS_REL, device=None) -> np.ndarray:
@@ -701,7 +701,7 @@ def log(g, eps_rel: float = LOG_EPS_REL, device=None) -> np.ndarray:
     Args:
         g: SH coefficients of a positive-ish function (visibility), shape (..., n*n), finite.
         eps_rel: clipping threshold relative to the largest eigenvalue, in (0, 1).
-        device: None for the float64 reference (``numpy.linalg.eigh``); a Warp device to run
+        device: None for the float64 mirror (``numpy.linalg.eigh``); a Warp device to run
             the float32 kernel (cyclic Jacobi; ``O(n^6)`` per row, for tables and checks).
 
     Returns:
@@ -727,7 +727,7 @@ def log(g, eps_rel: float = LOG_EPS_REL, device=None) -> np.ndarray:
             [_wp_rows(flat, dev), float(eps_rel), k.tables(dev), out], {0, 3}, dev,
         )
         return out.numpy().reshape(batch + (n2,))
-    return _shexp.log_reference(flat, float(eps_rel)).reshape(batch + (n2,))
+    return _shexp.log_f64(flat, float(eps_rel)).reshape(batch + (n2,))
 
 
 def exp_series_limit(f) -> np.ndarray:

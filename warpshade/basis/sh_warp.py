@@ -38,7 +38,7 @@ Functions that need constant tables (the Gaunt tensor, the x-rotation blocks) ta
 :class:`SHTables` struct of device arrays, obtained once per order and device with
 ``bundle.tables(device)`` and passed to kernels as an argument.
 
-SH exponential and logarithm (SHEXP paper, secs. 4-5; maths and float64 references in
+SH exponential and logarithm (SHEXP paper, secs. 4-5; maths and float64 mirrors in
 :mod:`warpshade.basis._shexp`, Warp code in :mod:`warpshade.basis._shexp_warp`):
 
 * ``one() -> vec`` -- the constant function 1, ``(sqrt(4 pi), 0, ...)``;

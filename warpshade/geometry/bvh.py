@@ -44,7 +44,7 @@ __all__ = [
     "ray_offset",
     "Visibility",
     "offset_origin",
-    "trace_occlusion_reference",
+    "trace_occlusion_f64",
 ]
 
 wp.set_module_options({"enable_backward": False})
@@ -335,7 +335,7 @@ class Visibility:
         return {"distance": distance.numpy(), "face": face.numpy(), "bary": bary.numpy(), "cosine": cosine.numpy()}
 
 
-def trace_occlusion_reference(points, faces, origins, directions, max_distance: float = np.inf) -> np.ndarray:
+def trace_occlusion_f64(points, faces, origins, directions, max_distance: float = np.inf) -> np.ndarray:
     """Float64 brute-force any-hit test (Moller-Trumbore against every triangle), for tests.
 
     Args:

@@ -36,21 +36,21 @@ Definition. ``F`` is a 3x3 rotation whose rows are (tangent, bitangent, normal):
   when ``n`` is (almost) opposite to the rest normal. Finally ``t`` is re-projected onto the
   plane of ``n`` and ``b = n x t``. No step can produce NaN: every normalisation is guarded.
 
-The Warp kernel (float32) is :meth:`TangentFrames.compute`; :func:`tangent_frames_reference` is
+The Warp kernel (float32) is :meth:`TangentFrames.compute`; :func:`tangent_frames_f64` is
 the float64 NumPy reference with the same definition.
 """
 
 import numpy as np
 
 from .._wp import resolve_device, wp
-from .normals import vertex_normals_reference
+from .normals import vertex_normals_f64
 
 __all__ = [
     "DEGENERATE_STRETCH",
     "TangentFrames",
     "FrameRule",
     "frame_rule",
-    "tangent_frames_reference",
+    "tangent_frames_f64",
 ]
 
 wp.set_module_options({"enable_backward": False})
@@ -130,7 +130,7 @@ def frame_rule(rest_points, faces, rest_normals=None) -> FrameRule:
     vertex_count = p.shape[0]
     if faces.size and (faces.min() < 0 or faces.max() >= vertex_count):
         raise ValueError(f"frame_rule: faces index vertices outside 0..{vertex_count - 1}")
-    n = vertex_normals_reference(p, faces) if rest_normals is None else np.asarray(rest_normals, np.float64)
+    n = vertex_normals_f64(p, faces) if rest_normals is None else np.asarray(rest_normals, np.float64)
     n = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
     offsets, nbrs = _one_ring(faces, vertex_count)
     counts = np.diff(offsets)
@@ -159,8 +159,8 @@ def frame_rule(rest_points, faces, rest_normals=None) -> FrameRule:
     return FrameRule(offsets, nbrs, weights, n, tangents)
 
 
-def tangent_frames_reference(points, normals, rule: FrameRule) -> np.ndarray:
-    """Float64 reference of the per-vertex frames, shape (vertex_count, 3, 3), rows (t, b, n)."""
+def tangent_frames_f64(points, normals, rule: FrameRule) -> np.ndarray:
+    """Float64 mirror of the per-vertex frames, shape (vertex_count, 3, 3), rows (t, b, n)."""
     p = np.asarray(points, np.float64).reshape(-1, 3)
     n = np.asarray(normals, np.float64).reshape(-1, 3)
     nlen = np.linalg.norm(n, axis=1, keepdims=True)

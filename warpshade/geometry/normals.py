@@ -4,7 +4,7 @@ import numpy as np
 
 from .._wp import resolve_device, wp
 
-__all__ = ["vertex_normals", "vertex_normals_reference", "vertex_normal_sums_reference", "compute_vertex_normals"]
+__all__ = ["vertex_normals", "vertex_normals_f64", "vertex_normal_sums_f64", "compute_vertex_normals"]
 
 wp.set_module_options({"enable_backward": False})
 
@@ -81,9 +81,9 @@ def compute_vertex_normals(points: wp.array, faces: wp.array, normals: wp.array,
         wp.launch(_normalise_selected, dim=vertices.shape[0], inputs=[normals, vertices, fallback], device=device)
 
 
-def vertex_normal_sums_reference(points, faces) -> np.ndarray:
+def vertex_normal_sums_f64(points, faces) -> np.ndarray:
     """Unnormalised area-weighted normal sums (twice the incident areas times the face
-    normals), float64, shape (vertex_count, 3); :func:`vertex_normals_reference` normalises them."""
+    normals), float64, shape (vertex_count, 3); :func:`vertex_normals_f64` normalises them."""
     p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     n = np.cross(p[f[:, 1]] - p[f[:, 0]], p[f[:, 2]] - p[f[:, 0]])
@@ -103,9 +103,9 @@ def vertex_normals(points, faces, device=None) -> np.ndarray:
     return out.numpy()
 
 
-def vertex_normals_reference(points, faces) -> np.ndarray:
+def vertex_normals_f64(points, faces) -> np.ndarray:
     """Float64 NumPy reference of :func:`vertex_normals`."""
-    acc = vertex_normal_sums_reference(points, faces)
+    acc = vertex_normal_sums_f64(points, faces)
     length = np.linalg.norm(acc, axis=1, keepdims=True)
     out = np.tile([0.0, 0.0, 1.0], (acc.shape[0], 1))
     ok = length[:, 0] > 1e-30

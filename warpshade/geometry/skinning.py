@@ -1,4 +1,4 @@
-"""Linear-blend skinning (LBS) and rigid point/normal transforms on Warp, with float64 references.
+"""Linear-blend skinning (LBS) and rigid point/normal transforms on Warp, with float64 mirrors.
 
 Matrices follow USD's row-vector convention (``p' = [p, 1] @ M``). A skinned point is
 
@@ -24,7 +24,7 @@ import numpy as np
 from .._wp import resolve_device, wp
 
 __all__ = [
-    "skin_points_reference",
+    "skin_points_f64",
     "skin_points",
     "launch_skin_points",
     "joint_matrices_for_warp",
@@ -249,7 +249,7 @@ def launch_skin_points(
     )
 
 
-def skin_points_reference(points, skin, skinning_transforms) -> np.ndarray:
+def skin_points_f64(points, skin, skinning_transforms) -> np.ndarray:
     """Float64 linear-blend skinning of one mesh (the oracle for the Warp kernel).
 
     Args:

@@ -170,7 +170,7 @@ def write_pixel_images(runtime, out_dir, frames=None, width: int = 640, height: 
     (linear) for the pixel stage of the run; returns the paths (empty without such a stage)."""
     from ..io.images import write_exr
     from ..render import write_png
-    from ..render.image import tonemap_reference
+    from ..render.image import tonemap_f64
 
     if pixel_stage(runtime) is None:
         return []
@@ -183,7 +183,7 @@ def write_pixel_images(runtime, out_dir, frames=None, width: int = 640, height: 
     paths = []
     for im in images:
         stem = Path(out_dir) / f"{runtime.spec.name}_px_{int(round(im.frame)):04d}"
-        write_png(stem.with_suffix(".png"), tonemap_reference(im.linear, exposure=exposure))
+        write_png(stem.with_suffix(".png"), tonemap_f64(im.linear, exposure=exposure))
         write_exr(stem.with_suffix(".exr"), im.linear)
         paths += [stem.with_suffix(".png"), stem.with_suffix(".exr")]
     return paths
@@ -203,7 +203,7 @@ def measure_pixels(runtime, out_dir, frames, width: int = 160, height: int = 120
     """
     from ..reference.pixels import reference_image
     from ..render import write_png
-    from ..render.image import tonemap_reference
+    from ..render.image import tonemap_f64
 
     st = pixel_stage(runtime)
     if st is None:
@@ -228,8 +228,8 @@ def measure_pixels(runtime, out_dir, frames, width: int = 160, height: int = 120
         path = Path(out_dir) / f"{runtime.spec.name}_px_{int(round(float(f))):04d}_vs_reference.png"
         exposure = exposure_for(ref.radiance.reshape(-1, 3))
         err = np.abs(im.linear - ref.radiance)
-        strip = np.concatenate([tonemap_reference(im.linear, exposure=exposure), tonemap_reference(ref.radiance, exposure=exposure),
-                                tonemap_reference(err, exposure=exposure + 2.0)], axis=1)
+        strip = np.concatenate([tonemap_f64(im.linear, exposure=exposure), tonemap_f64(ref.radiance, exposure=exposure),
+                                tonemap_f64(err, exposure=exposure + 2.0)], axis=1)
         write_png(path, strip)
         report["frames"][float(f)] = {"rel_rms": rel, "noise": noise, "pixels": int(mask.sum()), "image": str(path)}
     return report

@@ -27,7 +27,7 @@ the top), or image-shaped ``(height * supersample, width * supersample[, 3])``;
 :func:`pixel_hits` returns the hits (points, normals, UVs, triangles, barycentrics) a caller
 evaluates its textures at. Values at rays that miss are ignored.
 
-Sub-pixel results are box-filtered (a Warp kernel, :func:`box_filter_reference` is its float64
+Sub-pixel results are box-filtered (a Warp kernel, :func:`box_filter_f64` is its float64
 reference): the pixel's radiance is the mean over its rays (a miss contributes 0, so a partly
 covered pixel is darkened by its coverage, as :func:`warpshade.render.render` does without an
 environment) and its standard error ``sqrt(sum se_k^2) / supersample^2`` (independent rays).
@@ -50,7 +50,7 @@ from .shading import METHODS, ReferenceShader
 
 __all__ = [
     "PARTS",
-    "box_filter_reference",
+    "box_filter_f64",
 ]
 
 wp.set_module_options({"enable_backward": False})
@@ -109,8 +109,8 @@ def _coverage_kernel(hit: wp.array(dtype=wp.int32), factor: int, width: int, dst
     dst[row * width + col] = float(count) / float(factor * factor)
 
 
-def box_filter_reference(values, width: int, height: int, factor: int, root_sum_square: bool = False) -> np.ndarray:
-    """Float64 reference of the box filter: (ray_count, 3) at ``factor`` times the resolution ->
+def box_filter_f64(values, width: int, height: int, factor: int, root_sum_square: bool = False) -> np.ndarray:
+    """Float64 mirror of the box filter: (ray_count, 3) at ``factor`` times the resolution ->
     (height, width, 3): the mean over each pixel's rays, or ``sqrt(sum x^2) / factor^2``."""
     x = np.asarray(values, np.float64).reshape(height, factor, width, factor, 3)
     if root_sum_square:

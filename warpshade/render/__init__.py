@@ -7,7 +7,7 @@ a method against ground truth are the measuring layer's (:mod:`warpshade.measure
 """
 
 from .camera import camera_basis, camera_for, frame_camera
-from .image import GREY_BACKGROUND, TONEMAP_MODES, tonemap, tonemap_reference, write_png
+from .image import GREY_BACKGROUND, TONEMAP_MODES, tonemap, tonemap_f64, write_png
 from .raycast import GBuffer, RenderResult, interpolate_vertex_values, render, render_gbuffer
 
 __all__ = [
@@ -22,6 +22,6 @@ __all__ = [
     "render",
     "render_gbuffer",
     "tonemap",
-    "tonemap_reference",
+    "tonemap_f64",
     "write_png",
 ]

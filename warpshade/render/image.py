@@ -1,4 +1,4 @@
-"""Tone mapping (Warp kernel with a float64 reference) and atomic PNG output.
+"""Tone mapping (Warp kernel with a float64 mirror) and atomic PNG output.
 
 Tone mapping of a linear RGB value ``c`` with exposure ``e`` stops:
 
@@ -91,8 +91,8 @@ def tonemap(linear, grey, width: int, height: int, exposure: float = 0.0, mode: 
     return out.numpy()
 
 
-def tonemap_reference(linear, grey=None, exposure: float = 0.0, mode: str = "srgb") -> np.ndarray:
-    """Float64 reference of :func:`tonemap`: (H, W, 3) linear -> (H, W, 3) uint8."""
+def tonemap_f64(linear, grey=None, exposure: float = 0.0, mode: str = "srgb") -> np.ndarray:
+    """Float64 mirror of :func:`tonemap`: (H, W, 3) linear -> (H, W, 3) uint8."""
     c = np.asarray(linear, np.float64)
     g = np.zeros(c.shape[:2]) if grey is None else np.clip(np.asarray(grey, np.float64).reshape(c.shape[:2]), 0, 1)
     cover = (1.0 - g)[..., None]

@@ -239,7 +239,7 @@ class Environment:
             return self
         return replace(self, to_world=self.track.rotation(time) @ self.to_world, track=None)
 
-    # ---- queries (float64 reference path) -----------------------------------------------
+    # ---- queries (float64 mirror) -----------------------------------------------
     @property
     def height(self) -> int:
         return int(self.image.shape[0])

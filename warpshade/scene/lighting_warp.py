@@ -51,7 +51,7 @@ __all__ = [
     "env_radiance",
     "env_sample",
     "env_pdf",
-    "env_texel_pdf_reference",
+    "env_texel_pdf_f64",
     "lookup_environment",
     "sample_environment",
     "FrameLighting",
@@ -94,7 +94,7 @@ class EnvironmentMap:
     enabled: int
 
 
-def env_texel_pdf_reference(env) -> tuple[np.ndarray, np.ndarray]:
+def env_texel_pdf_f64(env) -> tuple[np.ndarray, np.ndarray]:
     """Float64 sampling distribution of an environment.
 
     Returns:
@@ -134,7 +134,7 @@ def upload_environment(env, device=None, to_world=None) -> EnvironmentMap:
     """
     dev = resolve_device(device)
     h, w = env.height, env.width
-    prob, pdf = env_texel_pdf_reference(env)
+    prob, pdf = env_texel_pdf_f64(env)
     row_p = prob.sum(axis=1)
     row_cdf = np.concatenate([[0.0], np.cumsum(row_p)])
     row_cdf /= row_cdf[-1]

@@ -1,4 +1,4 @@
-"""BRDF models and their view/light factorisation in the SH lighting basis (float64 references).
+"""BRDF models and their view/light factorisation in the SH lighting basis (float64 mirrors).
 
 Frame and conventions: BRDFs are evaluated in a local shading frame whose +z is the surface
 normal; ``view`` (towards the viewer) and ``light`` (towards the light) are unit vectors, and

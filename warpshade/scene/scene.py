@@ -428,10 +428,10 @@ class Scene:
             if mesh.animation == "deforming":
                 local = mesh.point_samples[t]
             elif mesh.animation == "skinned":
-                from ..geometry.skinning import skin_points_reference
+                from ..geometry.skinning import skin_points_f64
 
                 skel = self.skeletons[mesh.skin.skeleton]
-                local = skin_points_reference(
+                local = skin_points_f64(
                     mesh.points, mesh.skin, skel.skinning_transforms(min(t, skel.local_transforms.shape[0] - 1))
                 )
             else:
@@ -445,10 +445,10 @@ class Scene:
         Area-weighted normals of :meth:`points_at`, except static/rigid meshes with authored
         normals, whose normals are transformed by the inverse transpose of their transform.
         """
-        from ..geometry.normals import vertex_normals_reference
+        from ..geometry.normals import vertex_normals_f64
 
         t = self.frame_index(frame)
-        normals = vertex_normals_reference(self.points_at(frame), self._faces)
+        normals = vertex_normals_f64(self.points_at(frame), self._faces)
         for mesh in self.meshes:
             if mesh.normals is not None and mesh.animation in ("static", "rigid"):
                 xf = self._mesh_transform(mesh, t)

@@ -188,7 +188,7 @@ def _static_data(scene, dev) -> dict:
     cache = scene._device_cache
     if key in cache:
         return cache[key]
-    from ..geometry.normals import vertex_normal_sums_reference
+    from ..geometry.normals import vertex_normal_sums_f64
 
     data = {"faces": wp.array(scene.faces, dtype=wp.int32, device=dev), "meshes": []}
     for mesh in scene.meshes:
@@ -209,7 +209,7 @@ def _static_data(scene, dev) -> dict:
                 entry["rest_normals"] = wp.array(np.asarray(mesh.normals, np.float32), dtype=wp.vec3, device=dev)
                 entry["area_sums"] = False
             else:  # area-weighted sums of the rest pose; transformed by the cofactor they stay exact
-                sums = vertex_normal_sums_reference(mesh.points, mesh.faces)
+                sums = vertex_normal_sums_f64(mesh.points, mesh.faces)
                 scale = np.maximum(np.linalg.norm(sums, axis=1, keepdims=True), 1e-300)
                 degenerate = np.linalg.norm(sums, axis=1) <= 1e-30
                 unit = np.where(degenerate[:, None], 0.0, sums / scale)  # direction is what the cofactor keeps

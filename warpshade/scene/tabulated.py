@@ -1,4 +1,4 @@
-"""Tabulated (measured) isotropic BRDFs in the MERL binary layout (float64 references).
+"""Tabulated (measured) isotropic BRDFs in the MERL binary layout (float64 mirrors).
 
 Conventions as in :mod:`warpshade.scene.materials`: local shading frame with +z the normal,
 ``evaluate(view, light)`` returns ``b(v, s)`` in 1/sr without the cosine, 0 below the horizon.

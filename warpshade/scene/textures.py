@@ -188,7 +188,7 @@ class Texture:
         except that ``"black"`` wrapping can blend towards 0)."""
         return float(self.image.min()), float(self.image.max())
 
-    # ---- float64 reference ----------------------------------------------------------------
+    # ---- float64 mirror ----------------------------------------------------------------
     def sample(self, uv) -> np.ndarray:
         """Bilinearly filtered texel values at texture coordinates.
 
@@ -433,7 +433,7 @@ class SurfaceMaps:
         return np.broadcast_to(value, (n, 3) if rgb else (n,)).astype(np.float64)
 
     def sample(self, uv=None, count: int | None = None) -> dict[str, np.ndarray]:
-        """Shading parameters at texture coordinates (float64 reference path).
+        """Shading parameters at texture coordinates (float64 mirror).
 
         Args:
             uv: texture coordinates (N, 2); may be None when no map is textured (then

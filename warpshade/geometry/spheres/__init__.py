@@ -51,7 +51,7 @@ clusters of receiver vertices with per-frame bounding spheres and representative
 the per-cluster cut of eq. 36 as flat arrays the shading kernel loops over.
 
 Every kernel has a float64 NumPy reference (``*_reference``,
-:meth:`ReceiverClusters.bounds_reference`) that the tests compare with.
+:meth:`ReceiverClusters.bounds_f64`) that the tests compare with.
 
 Typical use (precompute once, cache the ``to_arrays()`` dicts; then per frame)::
 
@@ -73,7 +73,7 @@ from .core import (
     OutsideVolume,
     SphereSet,
     coverage_gap,
-    coverage_gap_reference,
+    coverage_gap_f64,
     fit_spheres,
     outside_volume,
     solid_volume,
@@ -90,8 +90,8 @@ from .tree import (
     SphereTreeRefit,
     build_sphere_tree,
     cluster_receivers,
-    cut_reference,
-    refit_reference,
+    cut_f64,
+    refit_f64,
 )
 
 __all__ = [
@@ -110,13 +110,13 @@ __all__ = [
     "build_sphere_tree",
     "cluster_receivers",
     "coverage_gap",
-    "coverage_gap_reference",
+    "coverage_gap_f64",
     "cut_accept",
-    "cut_reference",
+    "cut_f64",
     "fit_spheres",
     "make_solid",
     "merge_sphere_pair",
     "outside_volume",
-    "refit_reference",
+    "refit_f64",
     "solid_volume",
 ]

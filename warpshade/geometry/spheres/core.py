@@ -298,10 +298,10 @@ def coverage_gap(points, centres, radii, device=None) -> np.ndarray:
     return out.numpy()
 
 
-def coverage_gap_reference(points, centres, radii) -> np.ndarray:
-    """Float64 reference of :func:`coverage_gap`."""
+def coverage_gap_f64(points, centres, radii) -> np.ndarray:
+    """Float64 mirror of :func:`coverage_gap`."""
     p = np.asarray(points, np.float64).reshape(-1, 3)
-    c, r = _check_spheres(centres, radii, "coverage_gap_reference")
+    c, r = _check_spheres(centres, radii, "coverage_gap_f64")
     out = np.empty(p.shape[0])
     for start in range(0, p.shape[0], 4096):
         d = np.linalg.norm(p[start : start + 4096, None, :] - c[None], axis=2) - r[None]

@@ -456,7 +456,7 @@ def hull_points(points: np.ndarray) -> np.ndarray:
 
 
 def update_centre(disc: Discretisation, points: np.ndarray, centre: np.ndarray, max_evaluations: int = 400) -> tuple[np.ndarray, float, float]:
-    """Float64 reference of one centre update: scipy's Powell on the NumPy grid estimator.
+    """Float64 mirror of one centre update: scipy's Powell on the NumPy grid estimator.
 
     Minimises the outside volume of the smallest sphere about the centre that bounds
     ``points``. Returns (centre (3,), radius, outside volume), never worse than the start.

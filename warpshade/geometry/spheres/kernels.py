@@ -13,7 +13,7 @@ Grouped by concern:
 * hierarchy: leaf copy and bottom-up refit of a sphere tree;
 * receiver clusters: per-frame bounding spheres, and the hierarchy cut of eq. 36.
 
-All kernels compute in float32; the float64 references live beside their callers.
+All kernels compute in float32; the float64 mirrors live beside their callers.
 Matrices are Warp column-vector ``mat44`` (the transposes of USD's row-vector matrices).
 """
 

@@ -15,7 +15,7 @@ from .core import _check_spheres
 #: Angular radius threshold of the hierarchy cut (the paper uses 20-30 degrees).
 DEFAULT_THETA_MAX_DEGREES = 25.0
 
-#: Refit bounds of :func:`refit_reference` / :class:`SphereTreeRefit`.
+#: Refit bounds of :func:`refit_f64` / :class:`SphereTreeRefit`.
 REFIT_MODES = ("min", "anchored", "pair")
 
 #: Relative growth applied to refit parent radii (and cluster radii) in float32 kernels so the
@@ -206,7 +206,7 @@ def build_sphere_tree(centres, radii, groups=None, branching: int = 4, iteration
 
     Returns:
         :class:`SphereTree`; its rest node spheres bound their children exactly (anchored
-        centres, see :func:`refit_reference`).
+        centres, see :func:`refit_f64`).
     """
     c, r = _check_spheres(centres, radii, "build_sphere_tree")
     if c.shape[0] == 0:
@@ -316,8 +316,8 @@ def build_sphere_tree(centres, radii, groups=None, branching: int = 4, iteration
     )
 
 
-def refit_reference(tree: SphereTree, centres, radii, mode: str = "min") -> tuple[np.ndarray, np.ndarray]:
-    """Float64 reference of the per-frame refit: node spheres for new leaf spheres.
+def refit_f64(tree: SphereTree, centres, radii, mode: str = "min") -> tuple[np.ndarray, np.ndarray]:
+    """Float64 mirror of the per-frame refit: node spheres for new leaf spheres.
 
     Args:
         tree: the hierarchy.
@@ -333,7 +333,7 @@ def refit_reference(tree: SphereTree, centres, radii, mode: str = "min") -> tupl
     """
     if mode not in REFIT_MODES:
         raise ValueError(f"refit: mode must be one of {REFIT_MODES}, got {mode!r}")
-    c, r = _check_spheres(centres, radii, "refit_reference")
+    c, r = _check_spheres(centres, radii, "refit_f64")
     nc = np.zeros((tree.node_count, 3))
     nr = np.zeros(tree.node_count)
     nc[tree.leaf_node] = c[tree.leaf_sphere]
@@ -458,8 +458,8 @@ class ReceiverClusters:
     def vertices(self, cluster: int) -> np.ndarray:
         return self.cluster_vertices[self.cluster_start[cluster] : self.cluster_start[cluster + 1]]
 
-    def bounds_reference(self, points) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Float64 reference of :class:`ReceiverBounds`: (centres (C, 3), radii (C,), p* (C, 3))."""
+    def bounds_f64(self, points) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Float64 mirror of :class:`ReceiverBounds`: (centres (C, 3), radii (C,), p* (C, 3))."""
         p = np.asarray(points, np.float64).reshape(-1, 3)
         centres = np.zeros((self.cluster_count, 3))
         radii = np.zeros(self.cluster_count)
@@ -637,7 +637,7 @@ class HierarchyCut:
         return bool(np.any(self.cut_overflow.numpy() > 0))
 
 
-def cut_reference(tree: SphereTree, node_centres, node_radii, cluster_centres, cluster_radii, theta_max_degrees: float = DEFAULT_THETA_MAX_DEGREES) -> list[list[int]]:
+def cut_f64(tree: SphereTree, node_centres, node_radii, cluster_centres, cluster_radii, theta_max_degrees: float = DEFAULT_THETA_MAX_DEGREES) -> list[list[int]]:
     """Float64 brute-force reference of :class:`HierarchyCut`: recursive eq. 36 per cluster.
 
     Returns:

@@ -6,14 +6,14 @@ a training clip: full, or reduced by PCA of the pose vectors and of the per-vert
 * :mod:`.pose` -- pose vectors from UsdSkel joint transforms (three parameterisations, root apart);
 * :mod:`.training` -- the training data, one task per few frames for an executor;
 * :mod:`.model` -- Tikhonov fits with closed-form leave-one-out alpha, PCA, the error budget;
-* :mod:`.kernels` / :mod:`.reference` -- the per-frame products and their float64 mirror;
+* :mod:`.kernels` / :mod:`.mirror` -- the per-frame products and their float64 mirror;
 * :mod:`.stages` -- ``datadriven.data``, ``datadriven.fit``, ``datadriven.transfer``;
 * :mod:`.rows` / :mod:`.budget` -- harness rows and error-budget candidates.
 """
 
 from .model import DataDrivenModel, choose_sizes, fit_full, fit_reduced, novelty
 from .pose import PARAMETERISATIONS, pose_features, pose_layout
-from .reference import hemisphere_transfer_error, transfer_reference
+from .mirror import hemisphere_transfer_error, transfer_f64
 from .rows import harness_rows
 from .stages import DataDrivenDataStage, DataDrivenFitStage, DataDrivenTransferStage
 
@@ -31,5 +31,5 @@ __all__ = [
     "novelty",
     "pose_features",
     "pose_layout",
-    "transfer_reference",
+    "transfer_f64",
 ]

@@ -1,4 +1,4 @@
-"""Warp kernels of the data-driven transfer model (float64 mirrors: :mod:`.reference`).
+"""Warp kernels of the data-driven transfer model (float64 mirrors: :mod:`.mirror`).
 
 A frame is four launches on fixed buffers, recorded with the rest of the frame:
 

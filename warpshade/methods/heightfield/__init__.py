@@ -61,13 +61,13 @@ Modules, as in every method (``docs/adding-a-method.md``):
 * :mod:`.kernels` -- the Warp kernels;
 * :mod:`.model` -- what the stages build at set-up: the checked grid layout, the march, the
   wedge and view tables (a height field has no artifact that outlives a run);
-* :mod:`.reference` -- the float64 mirror of the kernels, the tests' oracle;
+* :mod:`.mirror` -- the float64 mirror of the kernels, the tests' oracle;
 * :mod:`.rows` -- the settings the speed-vs-accuracy harness runs;
 * :mod:`.budget` -- the candidate settings an error budget chooses from.
 """
 
 from .model import GridLayout, grid_layout, march_plan, pyramid_levels, view_table, wedge_table
-from .reference import shade_reference, visibility_reference
+from .mirror import shade_f64, visibility_f64
 from .rows import harness_rows
 from .stages import HeightFieldShadeStage, HeightFieldVisibilityStage
 
@@ -79,8 +79,8 @@ __all__ = [
     "harness_rows",
     "march_plan",
     "pyramid_levels",
-    "shade_reference",
+    "shade_f64",
     "view_table",
-    "visibility_reference",
+    "visibility_f64",
     "wedge_table",
 ]

@@ -1,5 +1,5 @@
 """Warp kernels of the height field: the max pyramid, the horizon march, the wedge sums and the
-shading (float32). Their float64 mirrors are in :mod:`.reference`.
+shading (float32). Their float64 mirrors are in :mod:`.mirror`.
 
 * :data:`heights_kernel`, :data:`reduce_kernel` -- the frame's heights and the max pyramid;
 * :func:`horizon_slope`, :data:`horizon_kernel` -- the march's horizon slopes;

@@ -7,13 +7,13 @@ lobes. Captures local shadowing that moves with the surface; distant occlusion t
 with the pose (an arm over the torso) is not modelled.
 
 Modules, in the shape of every method (see :mod:`warpshade.methods.prt`): :mod:`.stages`,
-:mod:`.kernels`, :mod:`.model` (the fitted lobes), :mod:`.reference` (float64 mirrors),
+:mod:`.kernels`, :mod:`.model` (the fitted lobes), :mod:`.mirror` (float64 mirrors),
 :mod:`.rows` (harness settings), :mod:`.budget` (candidate settings); and the variants
 :mod:`.glossy`, :mod:`.membrane`, :mod:`.wrinkle`.
 """
 
 from .model import LDPRTModel, fit_transfer, local_transfer
-from .reference import shade_reference, world_transfer_reference
+from .mirror import shade_f64, world_transfer_f64
 from .rows import harness_rows
 from .stages import LdprtFitStage, LdprtFramesStage, LdprtTransferStage, LdprtShadeRotatedStage, LdprtShadeStage
 
@@ -27,6 +27,6 @@ __all__ = [
     "fit_transfer",
     "harness_rows",
     "local_transfer",
-    "shade_reference",
-    "world_transfer_reference",
+    "shade_f64",
+    "world_transfer_f64",
 ]

@@ -1,4 +1,4 @@
-"""The LDPRT per-vertex model: ZH lobes fitted to local-frame transfer, and its float64 reference.
+"""The LDPRT per-vertex model: ZH lobes fitted to local-frame transfer, and its float64 mirror.
 
 Local frame: the per-vertex tangent frame ``F`` of :mod:`warpshade.geometry.frames` (rows
 tangent, bitangent, normal), the same frame ``warpshade.transfer.compute(space="local")`` uses

@@ -6,13 +6,13 @@ the same modules:
 * :mod:`.stages` -- the graph stages: ports, parameters, binding buffers (thin);
 * :mod:`.kernels` -- the Warp kernels;
 * :mod:`.model` -- the precomputed artifact (a dataclass with its check) and how it is made;
-* :mod:`.reference` -- the float64 mirror of the kernels, the tests' oracle;
+* :mod:`.mirror` -- the float64 mirror of the kernels, the tests' oracle;
 * :mod:`.rows` -- the settings the speed-vs-accuracy harness runs;
 * :mod:`.budget` -- the candidate settings an error budget chooses from.
 """
 
 from .model import TransferModel, bake_transfer
-from .reference import shade_transfer_reference, shade_unshadowed_reference
+from .mirror import shade_transfer_f64, shade_unshadowed_f64
 from .rows import harness_rows
 from .stages import PrtShadeStage, PrtTransferStage, PrtUnshadowedStage
 
@@ -23,6 +23,6 @@ __all__ = [
     "PrtUnshadowedStage",
     "bake_transfer",
     "harness_rows",
-    "shade_transfer_reference",
-    "shade_unshadowed_reference",
+    "shade_transfer_f64",
+    "shade_unshadowed_f64",
 ]

@@ -1,4 +1,4 @@
-"""Warp kernels of static PRT and unshadowed irradiance (float64 mirrors: :mod:`.reference`)."""
+"""Warp kernels of static PRT and unshadowed irradiance (float64 mirrors: :mod:`.mirror`)."""
 
 import functools
 

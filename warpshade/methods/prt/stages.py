@@ -14,7 +14,7 @@
 
 Both clamp negative radiance (SH truncation rings below zero in deep shadow) to zero. The
 stages only declare ports and parameters and bind buffers; the maths is in :mod:`.kernels`,
-its float64 mirror in :mod:`.reference`, the artifact in :mod:`.model`.
+its float64 mirror in :mod:`.mirror`, the artifact in :mod:`.model`.
 """
 
 from __future__ import annotations

@@ -9,13 +9,13 @@ ZH approximation (:mod:`.lighting`). Visibility generators: per-frame ray tracin
 (:mod:`.stages`), SHEXP's blocker spheres (``shexp.visibility``) and dynamic height fields
 (:mod:`warpshade.methods.heightfield`, whose shading stage shares :class:`GlossyStage`).
 
-Modules: :mod:`.model` (the operators), :mod:`.kernels`, :mod:`.reference` (float64 mirrors and
+Modules: :mod:`.model` (the operators), :mod:`.kernels`, :mod:`.mirror` (float64 mirrors and
 the exact-BRDF oracle), :mod:`.stages`, :mod:`.rows`, :mod:`.budget`, :mod:`.lighting`.
 """
 
 from .lighting import ZHLighting, fit_zh_lighting
 from .model import OperatorCache, ReflectanceOperator, build_operator
-from .reference import shade_exact_brdf, shade_reference
+from .mirror import shade_exact_brdf, shade_f64
 from .rows import harness_rows
 from .stages import OPERATORS, SHADE_PARAMS, GlossyStage, RpoShadeStage, RpoVisibilityStaticStage, RpoVisibilityTracedStage
 
@@ -33,5 +33,5 @@ __all__ = [
     "fit_zh_lighting",
     "harness_rows",
     "shade_exact_brdf",
-    "shade_reference",
+    "shade_f64",
 ]

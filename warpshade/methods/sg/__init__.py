@@ -10,7 +10,7 @@ The environment is an SG mixture for the diffuse term and a prefiltered table fo
 term; sphere and distant lights are SG lobes (:mod:`.lighting`, :mod:`.lighting_warp`).
 
 Modules, in the shape of :mod:`warpshade.methods.prt`: :mod:`.stages` (``sg.ssdf``, ``sg.shade``),
-:mod:`.kernels`, :mod:`.model`, :mod:`.reference` (float64 mirror of the kernels), :mod:`.rows`,
+:mod:`.kernels`, :mod:`.model`, :mod:`.mirror` (float64 mirror of the kernels), :mod:`.rows`,
 :mod:`.budget`, plus :mod:`.brdf`, :mod:`.brdf_warp`, :mod:`.lighting`, :mod:`.lighting_warp`.
 """
 
@@ -20,7 +20,7 @@ from .lights import point_light_lobe
 from .model import EnvironmentLighting, bake_ssdf_model, decode_maps, environment_lighting
 from .ndf import ndf_lobes
 from .prefilter import PrefilteredEnvironment
-from .reference import shade_reference
+from .mirror import shade_f64
 from .rows import harness_rows
 from .slices import view_slice
 from .stages import SgSsdfStage, SgShadeStage
@@ -39,6 +39,6 @@ __all__ = [
     "microfacet_brdf",
     "ndf_lobes",
     "point_light_lobe",
-    "shade_reference",
+    "shade_f64",
     "view_slice",
 ]

@@ -21,7 +21,7 @@ shading frame (+z the normal), ``view_local`` towards the viewer.
   alpha)`` (the separable Smith term of :class:`~warpshade.scene.materials.Microfacet`, through
   :mod:`warpshade.scene.materials_warp`'s ``Lambda``).
 
-The float64 oracle is :func:`.slices.view_slice` on the same models (:func:`reference_slices`
+The float64 oracle is :func:`.slices.view_slice` on the same models (:func:`specular_slices_f64`
 runs it for arrays of views); :func:`specular_slices` launches :data:`specular_slice_kernel`.
 """
 
@@ -44,7 +44,7 @@ __all__ = [
     "fresnel_schlick",
     "model_id",
     "ndf_lobe",
-    "reference_slices",
+    "specular_slices_f64",
     "remaining_factor",
     "shadowing_cook_torrance",
     "slice_parameters",
@@ -247,7 +247,7 @@ def slice_parameters(name: str, roughness: float, f0: float) -> dict:
     return {"alpha_x": roughness}
 
 
-def reference_slices(views, models, roughness, f0=0.04):
+def specular_slices_f64(views, models, roughness, f0=0.04):
     """The float64 oracle of :func:`specular_slices`: :func:`.slices.view_slice` per view with the
     same parameters (Cook-Torrance with ``f0 = 0`` uses the default eta 1.33 there, while the
     kernel maps f0 = 0 to eta 1: pass f0 > 0 to compare).

@@ -48,7 +48,7 @@ __all__ = [
     "SOURCE_TEXELS_PER_SIGMA",
     "SUPPORT_THRESHOLD",
     "default_levels",
-    "gamma_reference",
+    "gamma_f64",
 ]
 
 #: Truncation of a prefilter lobe, relative to its peak: a 1-degree sun 10^4 times brighter than
@@ -72,7 +72,7 @@ MAX_OUTPUT_SCALE = 2
 LEVEL_FIRST = 0.5
 LEVEL_FACTOR = math.sqrt(2.0)
 LEVEL_CAP = 8192.0
-#: Sub-cells per lobe width of :func:`gamma_reference` (finer than the kernel's).
+#: Sub-cells per lobe width of :func:`gamma_f64` (finer than the kernel's).
 REFERENCE_CELLS_PER_SIGMA = 5.0
 REFERENCE_MAX_SUBDIVISION = 24
 
@@ -387,7 +387,7 @@ class PrefilteredEnvironment:
         return out.numpy()
 
 
-def gamma_reference(env, p, lam) -> np.ndarray:
+def gamma_f64(env, p, lam) -> np.ndarray:
     """Float64 oracle of ``Gamma_L(p, lambda)`` by direct quadrature over every texel (no
     truncation): each texel is split into ``n x n`` cells of exact solid angle (n even, at least 2,
     such that a cell is at most 1/5 of the lobe width, at most 24) and ``Environment.radiance``
@@ -402,7 +402,7 @@ def gamma_reference(env, p, lam) -> np.ndarray:
     Returns:
         (N, 3) float64.
     """
-    check_environment(env, "gamma_reference")
+    check_environment(env, "gamma_f64")
     p = np.asarray(p, np.float64).reshape(-1, 3)
     p = p / np.linalg.norm(p, axis=1, keepdims=True)
     lam = np.broadcast_to(np.asarray(lam, np.float64), (p.shape[0],))

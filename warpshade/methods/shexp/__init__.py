@@ -4,7 +4,7 @@ Modules, in the shape of every method (see :mod:`warpshade.methods.prt`): :mod:`
 (``shexp.tables``, ``shexp.blockers``, ``shexp.static_bake``, ``shexp.shade``,
 ``shexp.sphere_trace``), :mod:`.kernels` (the per-receiver Warp pass and its helpers),
 :mod:`.model` (the blocker model artifact -- sphere sets, hierarchy, receiver clusters --
-and its per-frame animation), :mod:`.reference` (float64 oracle), :mod:`.rows` (harness
+and its per-frame animation), :mod:`.mirror` (float64 oracle), :mod:`.rows` (harness
 settings), :mod:`.budget` (candidate settings of an error budget); SHEXP's own parts:
 :mod:`.pipeline` (the shader's fixed buffers and launches, also usable on host arrays),
 :mod:`.spheres` (sphere sets attached to the scene's animation), :mod:`.tables` (sphere-light

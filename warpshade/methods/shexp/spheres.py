@@ -16,7 +16,7 @@ and how they follow it, reading the scene only through its public interface
   optionally grown until they bound every frame of the scene's own animation:
   :meth:`SceneSpheres.calibrate_radii`).
 * :class:`SceneSpheres` holds the sets and attachments (artifact form ``to_arrays``) and the
-  float64 reference of the animation (:meth:`SceneSpheres.centres_at`,
+  float64 mirror of the animation (:meth:`SceneSpheres.centres_at`,
   :meth:`SceneSpheres.radii_at`).
 * :class:`SphereAnimator` evaluates centres and radii per frame with kernels only, reading a
   :class:`~warpshade.scene.state.FrameState` (``mesh_transforms``, ``mesh_scales``,
@@ -134,7 +134,7 @@ class SceneSpheres:
         """Fit radii (world units at the fit frame, before safety factor), (S,) float64."""
         return np.concatenate([s.radii for s in self.sets]) if self.sets else np.zeros(0)
 
-    # -- float64 reference of the per-frame animation --
+    # -- float64 mirror of the per-frame animation --
     def centres_at(self, scene, frame: float) -> np.ndarray:
         """World-space sphere centres at a time code, (S, 3) float64 (reference path)."""
         t = scene.frame_index(frame)

@@ -9,7 +9,7 @@ from ...basis import quadrature, sh
 __all__: list[str] = []
 
 
-def transfer_reference(model, poses) -> np.ndarray:
+def transfer_f64(model, poses) -> np.ndarray:
     """The model's transfer at raw pose vectors (n, a) (or one (a,)), float64 (n, V, M): the
     mirror of :mod:`.kernels` (pose projection, maps, basis)."""
     return model.predict(np.atleast_2d(np.asarray(poses, np.float64)))

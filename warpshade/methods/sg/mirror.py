@@ -1,6 +1,6 @@
 """Float64 mirror of the SG/SSDF shading kernels (:mod:`.kernels`): the tests' oracle.
 
-:func:`shade_reference` evaluates eq. 39, 41, 42 and 43 at receivers with NumPy from the same
+:func:`shade_f64` evaluates eq. 39, 41, 42 and 43 at receivers with NumPy from the same
 inputs the kernel reads (decoded SSDF maps, tangent frames, the environment's SG mixture and
 prefiltered table, sphere lights and distant-light lobes), one receiver at a time. Visibility is
 looked up per vertex in that vertex's frame and blended with the barycentric weights, as the
@@ -62,7 +62,7 @@ def ssdf_value(maps: np.ndarray, v: int, frame: np.ndarray, d_world: np.ndarray)
     return float((1 - fx) * top + fx * bottom)
 
 
-def shade_reference(points, normals, eye, albedo, specular, roughness, maps, frames, model: str, f0: float,
+def shade_f64(points, normals, eye, albedo, specular, roughness, maps, frames, model: str, f0: float,
                     env_mixture=None, table=None, env_to_world=np.eye(3), sphere_lights=(), distant_lobes=(),
                     component: str = "specular", cosine: str = "paper", corners=None, weights=None,
                     horizon: bool = True, narrow_lights: str = "brdf", narrow_ratio: float = 8.0) -> np.ndarray:

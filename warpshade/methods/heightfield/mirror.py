@@ -1,16 +1,16 @@
 """Float64 oracles of the height-field kernels (:mod:`.kernels`).
 
-* :func:`horizon_reference` -- horizon slopes by brute force: every half vertex spacing along
+* :func:`horizon_f64` -- horizon slopes by brute force: every half vertex spacing along
   each azimuth, bilinear heights of the full-resolution grid, to the grid's edge;
-* :func:`wedge_reference` -- the SH of one azimuthal wedge open above an elevation, by direct
+* :func:`wedge_f64` -- the SH of one azimuthal wedge open above an elevation, by direct
   quadrature of its indicator over the region (2-D Gauss-Legendre in phi and z, SH evaluated
   at the directions: independent of the separable, closed-form-in-phi table of
   :func:`.model.wedge_table`);
-* :func:`visibility_reference` -- eq. 4-5 in float64 from given horizon slopes: the sum of exact
+* :func:`visibility_f64` -- eq. 4-5 in float64 from given horizon slopes: the sum of exact
   wedges (no table interpolation) turned by exact z-rotations;
-* :func:`pyramid_reference`, :func:`horizon_march_reference` -- the max pyramid and the
+* :func:`pyramid_f64`, :func:`horizon_march_f64` -- the max pyramid and the
   kernel's march (same samples and levels) in float64: what the kernel computes;
-* :func:`shade_reference` -- the shading of :class:`.stages.HeightFieldShadeStage` in
+* :func:`shade_f64` -- the shading of :class:`.stages.HeightFieldShadeStage` in
   float64 (frame about the normal with the view in its x-z plane, the F table, full SH rotation
   and product of :mod:`warpshade.basis.sh`).
 """
@@ -25,11 +25,11 @@ from ...basis import sh
 
 __all__ = [
     "bilinear",
-    "horizon_march_reference",
-    "horizon_reference",
-    "pyramid_reference",
+    "horizon_march_f64",
+    "horizon_f64",
+    "pyramid_f64",
     "texel_coordinates",
-    "wedge_reference",
+    "wedge_f64",
     "wedge_exact",
 ]
 
@@ -52,7 +52,7 @@ def bilinear(h: np.ndarray, u, v) -> np.ndarray:
     return (1 - tv) * ((1 - tu) * h[r0, c0] + tu * h[r0, c0 + 1]) + tv * ((1 - tu) * h[r0 + 1, c0] + tu * h[r0 + 1, c0 + 1])
 
 
-def horizon_reference(h, dx: float, dy: float, u, v, azimuths: int, step: float = 0.5) -> np.ndarray:
+def horizon_f64(h, dx: float, dy: float, u, v, azimuths: int, step: float = 0.5) -> np.ndarray:
     """Largest slope ``(h(p + d a) - h(p)) / d`` along each azimuth ``phi_i = 2 pi i / A`` from
     points (u, v) (vertex units), every ``step`` of the smaller spacing, to the grid's edge:
     (P, A) float64, ``-inf`` where no sample is inside."""
@@ -75,7 +75,7 @@ def horizon_reference(h, dx: float, dy: float, u, v, azimuths: int, step: float 
     return out
 
 
-def pyramid_reference(h) -> list[np.ndarray]:
+def pyramid_f64(h) -> list[np.ndarray]:
     """The max pyramid of a (G, G) grid: level k is the maximum over 2^k x 2^k vertices."""
     levels = [np.asarray(h, np.float64)]
     while levels[-1].shape[0] > 1:
@@ -88,10 +88,10 @@ def pyramid_reference(h) -> list[np.ndarray]:
     return levels
 
 
-def horizon_march_reference(h, dx, dy, u, v, azimuths: int, distances, levels) -> np.ndarray:
+def horizon_march_f64(h, dx, dy, u, v, azimuths: int, distances, levels) -> np.ndarray:
     """The kernel's horizon march in float64: sample j at distance ``distances[j]`` reads the
     maximum of pyramid level ``levels[j]`` in the cell holding the sample; (P, A) slopes."""
-    pyr = pyramid_reference(h)
+    pyr = pyramid_f64(h)
     u = np.asarray(u, np.float64)
     v = np.asarray(v, np.float64)
     h0 = bilinear(pyr[0], u, v)
@@ -110,7 +110,7 @@ def horizon_march_reference(h, dx, dy, u, v, azimuths: int, distances, levels) -
     return out
 
 
-def wedge_reference(order: int, center: float, width: float, z0: float, nodes: int = 64) -> np.ndarray:
+def wedge_f64(order: int, center: float, width: float, z0: float, nodes: int = 64) -> np.ndarray:
     """SH of the indicator ``{|phi - center| <= width / 2, z > z0}`` by direct quadrature over
     the region: Gauss-Legendre in phi over the wedge times Gauss-Legendre in z over ``[z0, 1]``,
     the SH evaluated at the 3-D directions (no separation, no symmetry assumed), (n*n,) float64."""
@@ -149,7 +149,7 @@ def _rotate_z(f: np.ndarray, angle: float) -> np.ndarray:
     return sh.rotate(f, r)
 
 
-def visibility_reference(slopes, order: int, tangent_slopes=None) -> np.ndarray:
+def visibility_f64(slopes, order: int, tangent_slopes=None) -> np.ndarray:
     """Eq. 4-5 in float64: ``sum_i Rz(phi_i) W(z_i)`` with ``z_i`` the sine of the horizon
     elevation (``-1`` for ``-inf``); with ``tangent_slopes`` (P, A) the region under the tangent
     plane is open (``below = "open"``). (P, n*n)."""
@@ -168,7 +168,7 @@ def visibility_reference(slopes, order: int, tangent_slopes=None) -> np.ndarray:
     return out
 
 
-def shade_reference(points, normals, eye, g_vertex, table, specular=(1.0, 1.0, 1.0)) -> np.ndarray:
+def shade_f64(points, normals, eye, g_vertex, table, specular=(1.0, 1.0, 1.0)) -> np.ndarray:
     """The height-field shading in float64: ``specular_c max(0, F_w(wo) . g_c)`` per vertex.
 
     Args:

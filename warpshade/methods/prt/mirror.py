@@ -9,7 +9,7 @@ from ...basis import sh
 __all__: list[str] = []
 
 
-def shade_transfer_reference(transfer, light, albedo) -> np.ndarray:
+def shade_transfer_f64(transfer, light, albedo) -> np.ndarray:
     """``albedo_c / pi * max(0, dot(L_c, t_v))``, shape (V, 3), float64.
 
     Args:
@@ -25,7 +25,7 @@ def shade_transfer_reference(transfer, light, albedo) -> np.ndarray:
     return np.asarray(albedo, np.float64) / np.pi * np.maximum(rgb, 0.0)
 
 
-def shade_unshadowed_reference(normals, light, albedo, order: int) -> np.ndarray:
+def shade_unshadowed_f64(normals, light, albedo, order: int) -> np.ndarray:
     """``albedo_c / pi * max(0, sum_lm A_l L_c,lm y_lm(n_v))`` (clamped-cosine irradiance), (V, 3).
 
     Args:

@@ -16,7 +16,7 @@ from .model import LDPRTModel
 
 __all__ = [
     "rotate_stored",
-    "shade_glossy_reference",
+    "shade_glossy_f64",
 ]
 
 
@@ -31,7 +31,7 @@ def rotate_stored(stored: np.ndarray, rotations: np.ndarray, order: int) -> np.n
     return out
 
 
-def world_transfer_reference(model: LDPRTModel, frames: np.ndarray) -> np.ndarray:
+def world_transfer_f64(model: LDPRTModel, frames: np.ndarray) -> np.ndarray:
     """World-frame transfer of the model under per-vertex frames (float64), (V, n*n).
 
     Args:
@@ -44,18 +44,18 @@ def world_transfer_reference(model: LDPRTModel, frames: np.ndarray) -> np.ndarra
     return t + rotate_stored(model.stored, rot, model.order)
 
 
-def shade_reference(model: LDPRTModel, frames: np.ndarray, light: np.ndarray, albedo: np.ndarray) -> np.ndarray:
-    """Float64 reference of the LDPRT shading kernels, (V, 3) linear RGB.
+def shade_f64(model: LDPRTModel, frames: np.ndarray, light: np.ndarray, albedo: np.ndarray) -> np.ndarray:
+    """Float64 mirror of the LDPRT shading kernels, (V, 3) linear RGB.
 
     ``radiance_c = albedo_c / pi * dot(L_c, t~_world)`` with ``L`` the world-frame lighting SH
     (3, n*n).
     """
-    t = world_transfer_reference(model, frames)
+    t = world_transfer_f64(model, frames)
     return np.asarray(albedo, np.float64) / np.pi * (t @ np.asarray(light, np.float64).T)
 
 
-def shade_glossy_reference(model: GlossyModel, frames, view_world, light) -> np.ndarray:
-    """Float64 reference of the glossy shading kernel: (V, C) exit radiance.
+def shade_glossy_f64(model: GlossyModel, frames, view_world, light) -> np.ndarray:
+    """Float64 mirror of the glossy shading kernel: (V, C) exit radiance.
 
     Args:
         frames: (V, 3, 3) tangent frames (rows t, b, n). view_world: (V, 3) unit directions

@@ -1,6 +1,6 @@
 """Float64 mirrors of the RPO kernels, and the exact-BRDF oracle they are measured against.
 
-* :func:`shade_reference` -- what :func:`.kernels.shade_kernel` computes, in float64 with the
+* :func:`shade_f64` -- what :func:`.kernels.shade_kernel` computes, in float64 with the
   float64 SH algebra (:mod:`warpshade.basis.sh`): the tests' oracle of the kernel.
 * :func:`shade_exact_brdf` -- the same integral with the BRDF itself in place of its factors,
   ``integral f(wo, s) max(0, s_z) v(s) l(s) ds`` over the sphere by quadrature, with the order-n
@@ -31,7 +31,7 @@ def _local_visibility(frames, visibility, visibility_space: str) -> np.ndarray:
     return sh.rotate(v, np.asarray(frames, np.float64)) if visibility_space == "world" else v
 
 
-def shade_reference(frames, points, eye, visibility, operators, material, light, specular=(1.0, 1.0, 1.0),
+def shade_f64(frames, points, eye, visibility, operators, material, light, specular=(1.0, 1.0, 1.0),
                     zh=None, visibility_space: str = "local", evaluation: str = "gaunt") -> tuple[np.ndarray, dict]:
     """Eq. 11 per receiver, float64.
 
