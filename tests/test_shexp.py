@@ -11,7 +11,7 @@ import pytest
 
 from warpshade._wp import wp
 from warpshade.basis import sh
-from warpshade.methods.shexp import kernels, mirror, pipeline
+from warpshade.methods.shexp import cut_kernels, kernels, mirror, pipeline
 from warpshade.methods.shexp.tables import sphere_light_lobes
 
 ORDER = 4
@@ -357,10 +357,18 @@ def test_ratio_vectors_match_float64(device):
     def arr(a, dt=wp.float32):
         return wp.array(a, dtype=dt, device=device)
 
-    wp.launch(kernels.ratio_kernel(ORDER), dim=(1, 3), device=device, inputs=[
-        arr(rep.astype(np.float32), wp.vec3), arr(centres.astype(np.float32), wp.vec3), arr(radii.astype(np.float32)),
-        arr(leaf_first, wp.int32), arr(leaf_count, wp.int32), arr(leaf_index, wp.int32), arr(cut, wp.int32),
-        arr(np.array([3], np.int32), wp.int32), 0.0, sh_kernels(ORDER).exp_tables(device), out])
+    a = cut_kernels.RatioArrays()
+    a.rep_points = arr(rep.astype(np.float32), wp.vec3)
+    a.node_centres = arr(centres.astype(np.float32), wp.vec3)
+    a.node_radii = arr(radii.astype(np.float32))
+    a.leaf_first = arr(leaf_first, wp.int32)
+    a.leaf_count = arr(leaf_count, wp.int32)
+    a.leaf_index = arr(leaf_index, wp.int32)
+    a.cut_nodes = arr(cut, wp.int32)
+    a.cut_count = arr(np.array([3], np.int32), wp.int32)
+    a.theta_min = 0.0
+    a.weights = out
+    wp.launch(cut_kernels.ratio_kernel(ORDER), dim=(1, 3), device=device, inputs=[a, sh_kernels(ORDER).exp_tables(device)])
     w = out.numpy()[0]
     table = sh.log_cap_table(ORDER)
     for e, node in enumerate(cut[0]):

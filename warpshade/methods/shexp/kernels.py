@@ -30,9 +30,10 @@ Conventions follow :mod:`warpshade.methods.prt`: H here has no 1/pi (it is the t
 unshadowed receiver, ``H_lm = A_l y_lm(N)``), so with no blockers the radiance equals
 ``prt.unshadowed`` exactly (paper eq. 9 puts the 1/pi into H instead).
 
-Also here: :func:`sphere_trace_kernel`, a ray-traced reference that intersects rays with the
-(replaced) blocker spheres instead of the mesh (the paper's Fig. 7b), and the small kernels for
-ratio vectors and lighting tables.
+Also here: the blocker geometry shared with the other SHEXP kernels (:func:`effective_sphere`,
+:func:`plane_cap`, :func:`sphere_angle`) and the lighting-table kernel. The ray-traced reference
+against the same spheres is :mod:`.trace_kernels`; the ratio vectors of the hierarchy cut are
+:mod:`.cut_kernels`.
 """
 
 # No "from __future__ import annotations": Warp resolves closure types in annotations.
@@ -45,8 +46,6 @@ import numpy as np
 from ..._wp import wp
 from ...basis import sh
 from ...basis.sh_warp import SHExpTables, SHTables, sh_kernels
-from ...geometry.frames import onb_tangent
-from ...scene.lighting_warp import EnvironmentMap, env_pdf, env_radiance, env_sample
 
 wp.set_module_options({"enable_backward": False})
 
@@ -58,14 +57,13 @@ __all__ = [
     "BlockerSet",
     "ReceiverSet",
     "ShadeInputs",
+    "ReceiverOutputs",
     "effective_sphere",
     "effective_sphere_kernel",
     "plane_cap",
     "PLANE_ON_SURFACE",
     "receiver_kernel",
     "lh_table_kernel",
-    "ratio_kernel",
-    "sphere_trace_kernel",
     "vec3_to_rows_kernel",
     "cosine_zh",
 ]
@@ -171,6 +169,24 @@ class ShadeInputs:
     sphere_radiance: wp.array(dtype=wp.vec3)
     lobe_axis_angle: wp.array2d(dtype=wp.float32)
     lobe_zh: wp.array3d(dtype=wp.float32)
+
+
+@wp.struct
+class ReceiverOutputs:
+    """Per-receiver outputs of :func:`receiver_kernel`.
+
+    Fields:
+        radiance: outgoing radiance, (V, 3) float32, linear RGB.
+        visibility: windowed visibility vector g, world frame, (V, n*n) float32 (written only
+            when ``store_visibility`` is 1; a (1, n*n) placeholder otherwise).
+        store_visibility: 1 to write ``visibility``.
+        fallbacks: (1,) int32, incremented once per receiver shaded with the scalar fallback.
+    """
+
+    radiance: wp.array2d(dtype=wp.float32)
+    visibility: wp.array2d(dtype=wp.float32)
+    store_visibility: int
+    fallbacks: wp.array(dtype=wp.int32)
 
 
 # ---- self-shadowing replacement rules (sec. 6.2) ----------------------------------------------
@@ -291,6 +307,31 @@ def sphere_angle(p: wp.vec3, sphere: wp.vec4) -> wp.vec4:
 
 
 @wp.func
+def blocker_cap(blockers: BlockerSet, p: wp.vec3, n: wp.vec3, cluster: int, count: int, baked: int, rule: int,
+                e: int) -> wp.vec4:
+    """(s, theta) of entry e of a receiver's blocker list; theta <= 0: nothing to accumulate.
+
+    Entries ``0 .. count - 1`` are the cut of the receiver's cluster (``count =
+    blockers.cut_count[cluster]``): the sphere after the self-shadowing ``rule``
+    (:func:`effective_sphere`), seen as the cap :func:`sphere_angle`; static spheres are
+    skipped for ``baked`` receivers. Entries from ``count`` on are the plane blockers
+    (:func:`plane_cap`), which only unbaked receivers walk.
+    """
+    if e < count:
+        node = blockers.cut_nodes[cluster, e]
+        if node < 0:
+            return wp.vec4(0.0, 0.0, 1.0, -1.0)
+        if baked != 0 and blockers.is_static[node] != 0:
+            return wp.vec4(0.0, 0.0, 1.0, -1.0)
+        sphere = effective_sphere(p, n, blockers.centres[node], blockers.radii[node], rule)
+        if sphere[3] <= 0.0:
+            return wp.vec4(0.0, 0.0, 1.0, -1.0)
+        return sphere_angle(p, sphere)
+    k = e - count
+    return plane_cap(p, blockers.plane_centre[k], blockers.plane_normal[k], blockers.plane_radius[k])
+
+
+@wp.func
 def latlong_lookup_pos(d: wp.vec3, rows: int, cols: int) -> wp.vec3:
     """(row, column) position of a unit direction on the vertex-centred z-up lat-long grid.
 
@@ -311,14 +352,18 @@ def receiver_kernel(order: int, method: str = "hyb", shade: str = "direct", accu
     """The per-receiver SHEXP kernel of one configuration (compiled once per configuration).
 
     Signature: ``(blockers: BlockerSet, receivers: ReceiverSet, shading: ShadeInputs,
-    tables: SHTables, exp_tables: SHExpTables, degree: int, rule: int, start: int,
-    radiance: array2d(float32) (V, 3), visibility: array2d(float32) (V, n*n),
-    store_visibility: int, fallbacks: array(int32) (1,))``; thread ``i`` handles receiver
-    ``start + i``. ``visibility`` gets the windowed visibility vector g when
-    ``store_visibility`` is 1. Receivers whose g leaves the bound of a visibility function
+    tables: SHTables, exp_tables: SHExpTables, out: ReceiverOutputs, degree: int, rule: int,
+    start: int)``; thread ``i`` handles receiver ``start + i`` (``rule``: index into
+    :data:`RULES`). ``out.visibility`` gets the windowed visibility vector g when
+    ``out.store_visibility`` is 1. Receivers whose g leaves the bound of a visibility function
     (norm > :data:`VISIBILITY_NORM_LIMIT`, or not finite -- the truncated series far outside
     its domain) are shaded with ``exp(mean log visibility) * 1`` instead and counted in
-    ``fallbacks[0]``.
+    ``out.fallbacks[0]``.
+
+    The kernel runs the phases of the module docstring as ``@wp.func`` helpers: gathering
+    (:func:`blocker_cap`, steps 1-2), accumulation (``accumulate_blockers``, step 3),
+    exponentiation, fallback and window (``visibility_vector``, step 4), and shading
+    (``shade_receiver``, step 5).
 
     Args:
         order: SH order n of accumulation, exponentiation and shading.
@@ -487,29 +532,14 @@ def receiver_kernel(order: int, method: str = "hyb", shade: str = "direct", accu
             total += shading.sphere_radiance[s] * value
         return total
 
-    @wp.kernel(enable_backward=False, module="unique", module_options=MODULE_OPTIONS)
-    def kernel(
-        blockers: BlockerSet,
-        receivers: ReceiverSet,
-        shading: ShadeInputs,
-        tables: SHTables,
-        exp_tables: SHExpTables,
-        degree: int,
-        rule: int,
-        start: int,
-        radiance: wp.array2d(dtype=wp.float32),
-        visibility: wp.array2d(dtype=wp.float32),
-        store_visibility: int,
-        fallbacks: wp.array(dtype=wp.int32),
-    ):
-        v = start + wp.tid()
-        p = receivers.points[v]
-        n = wp.normalize(receivers.normals[v])
-        baked = receivers.baked[v]
-        cluster = receivers.cluster[v]
+    @wp.func
+    def accumulate_blockers(blockers: BlockerSet, p: wp.vec3, n: wp.vec3, cluster: int, baked: int, rule: int,
+                            tables: SHTables, exp_tables: SHExpTables):
+        # step 3: (f, dc_log) -- the log visibility sum f (log) or the visibility product g
+        # (product, with dc_log the sum of the caps' log mean visibilities, its fallback)
         count = blockers.cut_count[cluster]
         acc = vec_t()
-        dc_log = float(0.0)  # product path: sum of log mean visibilities (the fallback)
+        dc_log = float(0.0)
         if wp.static(not LOG):
             acc = one()
         planes = 0
@@ -518,32 +548,14 @@ def receiver_kernel(order: int, method: str = "hyb", shade: str = "direct", accu
         # one loop over the cut's spheres, then the plane blockers, with a single accumulate
         # call site (the unrolled ZH rule is large; one copy keeps compile time down)
         for e in range(count + planes):
-            s = wp.vec3(0.0, 0.0, 1.0)
-            theta = float(-1.0)
-            weighted = int(0)
-            if e < count:
-                node = blockers.cut_nodes[cluster, e]
-                if node < 0:
-                    continue
-                if baked != 0 and blockers.is_static[node] != 0:
-                    continue
-                sphere = effective_sphere(p, n, blockers.centres[node], blockers.radii[node], rule)
-                if sphere[3] <= 0.0:
-                    continue
-                st = sphere_angle(p, sphere)
-                s = wp.vec3(st[0], st[1], st[2])
-                theta = st[3]
-                weighted = blockers.weighted
-            else:
-                k = e - count
-                pc = plane_cap(p, blockers.plane_centre[k], blockers.plane_normal[k], blockers.plane_radius[k])
-                s = wp.vec3(pc[0], pc[1], pc[2])
-                theta = pc[3]
+            cap = blocker_cap(blockers, p, n, cluster, count, baked, rule, e)
+            theta = cap[3]
             if theta <= 0.0:
                 continue
+            s = wp.vec3(cap[0], cap[1], cap[2])
             if wp.static(LOG):
                 zh = log_cap_zh(theta, exp_tables)
-                if weighted != 0:
+                if e < count and blockers.weighted != 0:
                     for l in range(ORDER):
                         zh[l] = zh[l] * blockers.cut_weights[cluster, e, l]
                 acc = zh_accumulate(acc, s, zh)
@@ -551,26 +563,34 @@ def receiver_kernel(order: int, method: str = "hyb", shade: str = "direct", accu
                 vis = cap_zh_blocked(theta)
                 dc_log += wp.log(wp.max(vis[0] * float(INV_SQRT_4PI), 1.0e-30))
                 acc = product(acc, zh_accumulate(vec_t(), s, vis), tables)
+        return acc, dc_log
+
+    @wp.func
+    def visibility_vector(acc: vec_t, dc_log: float, degree: int, shading: ShadeInputs, tables: SHTables,
+                          exp_tables: SHExpTables, fallbacks: wp.array(dtype=wp.int32)) -> vec_t:
+        # step 4: the windowed visibility vector g from the accumulated f (or product)
         g = acc
+        mean_log = dc_log
         if wp.static(LOG):
             g = exponentiate(acc, degree, tables, exp_tables)
-            dc_log = acc[0] * float(INV_SQRT_4PI)
+            mean_log = acc[0] * float(INV_SQRT_4PI)
         # A visibility function lies in [0, 1], so its projection has norm <= sqrt(4 pi)
         # (Bessel). Far outside the series' domain (thousands of overlapping blockers) the
         # truncated exp/product leaves that bound: fall back to the scalar estimate
         # exp(mean log visibility) * 1 and count the receiver.
         g_norm = wp.length(g)
         if not (g_norm <= float(VISIBILITY_NORM_LIMIT)):
-            g = one() * wp.exp(wp.min(dc_log, 0.0))
+            g = one() * wp.exp(wp.min(mean_log, 0.0))
             wp.atomic_add(fallbacks, 0, 1)
         window = bands_t()
         for l in range(ORDER):
             window[l] = shading.window[l]
-        g = scale_bands(g, window)
-        if store_visibility != 0:
-            for i in range(N):
-                visibility[v, i] = g[i]
+        return scale_bands(g, window)
 
+    @wp.func
+    def shade_receiver(receivers: ReceiverSet, shading: ShadeInputs, tables: SHTables, v: int, p: wp.vec3, n: wp.vec3,
+                       baked: int, g: vec_t) -> wp.vec3:
+        # step 5: (L_c, g, X) + sphere lights, per channel, before albedo / pi and the clamp
         x = vec_t()
         if baked != 0:
             for i in range(N):
@@ -597,11 +617,35 @@ def receiver_kernel(order: int, method: str = "hyb", shade: str = "direct", accu
             for c in range(3):
                 rgb[c] = dot(light_row(shading, c), t)
             rgb += sphere_lights(shading, p, n, g, t, 1)
+        return rgb
+
+    @wp.kernel(enable_backward=False, module="unique", module_options=MODULE_OPTIONS)
+    def kernel(
+        blockers: BlockerSet,
+        receivers: ReceiverSet,
+        shading: ShadeInputs,
+        tables: SHTables,
+        exp_tables: SHExpTables,
+        out: ReceiverOutputs,
+        degree: int,
+        rule: int,
+        start: int,
+    ):
+        v = start + wp.tid()
+        p = receivers.points[v]
+        n = wp.normalize(receivers.normals[v])
+        baked = receivers.baked[v]
+        acc, dc_log = accumulate_blockers(blockers, p, n, receivers.cluster[v], baked, rule, tables, exp_tables)
+        g = visibility_vector(acc, dc_log, degree, shading, tables, exp_tables, out.fallbacks)
+        if out.store_visibility != 0:
+            for i in range(N):
+                out.visibility[v, i] = g[i]
+        rgb = shade_receiver(receivers, shading, tables, v, p, n, baked, g)
         for c in range(3):
             value = receivers.albedo[v, c] * float(INV_PI) * wp.max(rgb[c], 0.0)
             if not wp.isfinite(value):
                 value = 0.0
-            radiance[v, c] = value
+            out.radiance[v, c] = value
 
     return kernel
 
@@ -643,180 +687,6 @@ def lh_table_kernel(order: int):
             lh = product(lc, h, tables)
             for q in range(N):
                 table[i, j, c, q] = lh[q]
-
-    return kernel
-
-
-@functools.lru_cache(maxsize=None)
-def ratio_kernel(order: int):
-    """Kernel computing the per-band ratio vectors of eq. 37 for every cut entry.
-
-    Thread (c, e): cut entry e of cluster c with node i. At the cluster's representative point
-    ``p*``, ``f_b = F(theta_i) y(s_i)`` of the node's bounding sphere and ``f_d`` = the sum of
-    the same over the leaves of i (``leaf_first[i] .. leaf_first[i] + leaf_count[i]`` of
-    ``leaf_index``) whose angular radius is at least ``theta_min``; then per band
-    ``w_l = sum_m f_b,lm f_d,lm / sum_m f_b,lm^2`` (1 for leaves and where ``f_b`` vanishes).
-
-    Signature ``(rep_points: array(vec3) (clusters,), node_centres, node_radii,
-    leaf_first: array(int32), leaf_count: array(int32), leaf_index: array(int32),
-    cut_nodes: array2d(int32), cut_count: array(int32), theta_min: float,
-    exp_tables: SHExpTables, out: array3d(float32) (clusters, capacity, n))``.
-    """
-    k = sh_kernels(order)
-    vec_t, log_cap_zh, zh_accumulate = k.vec, k.log_cap_zh, k.zh_accumulate
-    ORDER = order
-
-    @wp.kernel(enable_backward=False, module="unique", module_options=MODULE_OPTIONS)
-    def kernel(
-        rep_points: wp.array(dtype=wp.vec3),
-        node_centres: wp.array(dtype=wp.vec3),
-        node_radii: wp.array(dtype=wp.float32),
-        leaf_first: wp.array(dtype=wp.int32),
-        leaf_count: wp.array(dtype=wp.int32),
-        leaf_index: wp.array(dtype=wp.int32),
-        cut_nodes: wp.array2d(dtype=wp.int32),
-        cut_count: wp.array(dtype=wp.int32),
-        theta_min: float,
-        exp_tables: SHExpTables,
-        out: wp.array3d(dtype=wp.float32),
-    ):
-        c, e = wp.tid()
-        for l in range(ORDER):
-            out[c, e, l] = 1.0
-        if e >= cut_count[c]:
-            return
-        node = cut_nodes[c, e]
-        if node < 0:
-            return
-        if leaf_count[node] <= 1:
-            return
-        p = rep_points[c]
-        sb = sphere_angle(p, wp.vec4(node_centres[node][0], node_centres[node][1], node_centres[node][2], node_radii[node]))
-        fb = zh_accumulate(vec_t(), wp.vec3(sb[0], sb[1], sb[2]), log_cap_zh(sb[3], exp_tables))
-        fd = vec_t()
-        first = leaf_first[node]
-        for q in range(first, first + leaf_count[node]):
-            leaf = leaf_index[q]
-            sl = sphere_angle(p, wp.vec4(node_centres[leaf][0], node_centres[leaf][1], node_centres[leaf][2], node_radii[leaf]))
-            if sl[3] >= theta_min:
-                fd = zh_accumulate(fd, wp.vec3(sl[0], sl[1], sl[2]), log_cap_zh(sl[3], exp_tables))
-        for l in range(ORDER):
-            num = float(0.0)
-            den = float(0.0)
-            for m in range(-l, l + 1):
-                num += fb[l * l + l + m] * fd[l * l + l + m]
-                den += fb[l * l + l + m] * fb[l * l + l + m]
-            if den > 1.0e-20:
-                out[c, e, l] = num / den
-
-    return kernel
-
-
-@wp.func
-def sphere_occluded(origin: wp.vec3, d: wp.vec3, blockers: BlockerSet, cluster: int, n: wp.vec3, baked: int, rule: int) -> int:
-    # any-hit of the ray origin + t d (t > 0) against the receiver's replaced blocker spheres
-    for e in range(blockers.cut_count[cluster]):
-        node = blockers.cut_nodes[cluster, e]
-        if node < 0:
-            break
-        if baked != 0 and blockers.is_static[node] != 0:
-            continue
-        sphere = effective_sphere(origin, n, blockers.centres[node], blockers.radii[node], rule)
-        r = sphere[3]
-        if r <= 0.0:
-            continue
-        oc = wp.vec3(sphere[0], sphere[1], sphere[2]) - origin
-        b = wp.dot(oc, d)
-        c2 = wp.dot(oc, oc) - r * r
-        if b > 0.0 and b * b - c2 > 0.0:
-            return 1
-    if baked == 0:
-        for k in range(blockers.plane_radius.shape[0]):
-            pc = plane_cap(origin, blockers.plane_centre[k], blockers.plane_normal[k], blockers.plane_radius[k])
-            if pc[3] > 0.0 and wp.dot(d, wp.vec3(pc[0], pc[1], pc[2])) > wp.cos(pc[3]):
-                return 1
-    return 0
-
-
-@wp.func
-def _frame_dir(axis: wp.vec3, x: float, y: float, z: float) -> wp.vec3:
-    # (x, y, z) in the orthonormal basis (tangent, bitangent, axis) of a unit axis
-    t = onb_tangent(axis)
-    b = wp.cross(axis, t)
-    return wp.normalize(x * t + y * b + z * axis)
-
-
-@functools.lru_cache(maxsize=None)
-def sphere_trace_kernel(order: int):
-    """Ray-traced shading against the blocker spheres instead of the mesh (paper Fig. 7b).
-
-    Per receiver, ``iterations`` MIS iterations (one cosine-weighted and one environment
-    importance-sampled ray each, balance heuristic, as :mod:`warpshade.reference`) estimate
-    ``albedo / pi * integral L(s) V_spheres(s) max(0, N.s) ds`` with the environment itself,
-    and the same rays' cosine-weighted directions estimate the SH transfer
-    ``t = integral V_spheres(s) max(0, N.s) y(s) ds`` (no 1/pi), so the spheres can also be
-    shaded with the order-n SH lighting (``albedo / pi * dot(L_c, t)``) -- this separates the
-    sphere approximation from SH truncation. V uses the same replaced spheres as SHEXP.
-
-    Signature ``(blockers, receivers, env: EnvironmentMap, iterations: int, seed: int,
-    rule: int, start: int, radiance: array(vec3), stderr: array(vec3),
-    transfer: array2d(float32) (V, n*n))``.
-    """
-    k = sh_kernels(order)
-    sh_eval, vec_t = k.eval, k.vec
-    N = order * order
-
-    @wp.kernel(enable_backward=False, module="unique", module_options=MODULE_OPTIONS)
-    def kernel(
-        blockers: BlockerSet,
-        receivers: ReceiverSet,
-        env: EnvironmentMap,
-        iterations: int,
-        seed: int,
-        rule: int,
-        start: int,
-        radiance: wp.array(dtype=wp.vec3),
-        stderr: wp.array(dtype=wp.vec3),
-        transfer: wp.array2d(dtype=wp.float32),
-    ):
-        v = start + wp.tid()
-        p = receivers.points[v]
-        n = wp.normalize(receivers.normals[v])
-        cluster = receivers.cluster[v]
-        baked = receivers.baked[v]
-        rho = wp.vec3(receivers.albedo[v, 0], receivers.albedo[v, 1], receivers.albedo[v, 2])
-        base = int(wp.rand_init(seed, v))
-        mean = wp.vec3(0.0)
-        m2 = wp.vec3(0.0)
-        t_acc = vec_t()
-        for it in range(iterations):
-            state = wp.rand_init(base, it)
-            u1 = wp.randf(state)
-            u2 = wp.randf(state)
-            r = wp.sqrt(u1)
-            phi = 2.0 * wp.pi * u2
-            d = _frame_dir(n, r * wp.cos(phi), r * wp.sin(phi), wp.sqrt(wp.max(0.0, 1.0 - u1)))
-            x = wp.vec3(0.0)
-            if sphere_occluded(p, d, blockers, cluster, n, baked, rule) == 0:
-                # cosine-weighted pdf cos/pi: transfer sample = pi * y(d)
-                t_acc = t_acc + sh_eval(d) * wp.pi
-                c = wp.max(wp.dot(n, d), 0.0)
-                x += env_radiance(env, d) * (c / wp.pi) / (c / wp.pi + env_pdf(env, d))
-            s = env_sample(env, wp.randf(state), wp.randf(state), wp.randf(state), wp.randf(state))
-            d2 = wp.vec3(s[0], s[1], s[2])
-            c2 = wp.dot(n, d2)
-            if c2 > 0.0 and s[3] > 0.0:
-                if sphere_occluded(p, d2, blockers, cluster, n, baked, rule) == 0:
-                    x += env_radiance(env, d2) * (c2 / wp.pi) / (s[3] + c2 / wp.pi)
-            x = wp.cw_mul(rho, x)
-            delta = x - mean
-            mean += delta / float(it + 1)
-            m2 += wp.cw_mul(delta, x - mean)
-        radiance[v] = mean
-        var = m2 / float(wp.max((iterations - 1) * iterations, 1))
-        stderr[v] = wp.vec3(wp.sqrt(wp.max(var[0], 0.0)), wp.sqrt(wp.max(var[1], 0.0)), wp.sqrt(wp.max(var[2], 0.0)))
-        for i in range(N):
-            transfer[v, i] = t_acc[i] / float(iterations)
 
     return kernel
 

@@ -10,7 +10,7 @@ their animation from :mod:`.spheres` (:func:`.spheres.spheres_for_scene`,
   (:meth:`BlockerModel.from_arrays`);
 * drives them per frame on fixed device buffers (:class:`BlockerFrames`): sphere centres from
   the frame state, bottom-up refit, receiver-cluster bounds, the cut per cluster and the
-  per-band ratio vectors of eq. 37 (:func:`.kernels.ratio_kernel`), ready for
+  per-band ratio vectors of eq. 37 (:func:`.cut_kernels.ratio_kernel`), ready for
   :class:`.pipeline.ShexpShader` -- kernels only, so a recorded frame replays them.
 """
 
@@ -23,7 +23,7 @@ import numpy as np
 
 from ..._wp import resolve_device, wp
 from ...geometry import spheres as sph
-from . import kernels
+from . import cut_kernels
 from .spheres import SceneSpheres, SphereAnimator, scene_receiver_clusters, spheres_for_scene
 
 __all__ = ["BlockerModel", "build_blocker_model", "BlockerFrames", "static_mesh_mask", "plane_blockers", "PLANE_FLATNESS"]
@@ -277,7 +277,20 @@ class BlockerFrames:
             self.node_centres = self.refit.node_centres
             self.node_radii = self.refit.node_radii
             self.cut_weights = wp.ones((max(self.clusters, 1), self.capacity, self.order), dtype=wp.float32, device=dev)
-            self._ratio_kernel = kernels.ratio_kernel(self.order)
+            self._ratio_kernel = cut_kernels.ratio_kernel(self.order)
+            r = self.refit
+            a = cut_kernels.RatioArrays()
+            a.rep_points = self.bounds.representative_points
+            a.node_centres = r.node_centres
+            a.node_radii = r.node_radii
+            a.leaf_first = r.leaf_start
+            a.leaf_count = r.leaf_count
+            a.leaf_index = r.leaf_node
+            a.cut_nodes = self.cut.cut_nodes
+            a.cut_count = self.cut.cut_count
+            a.theta_min = self.theta_min
+            a.weights = self.cut_weights
+            self._ratio_arrays = a
 
     @property
     def hierarchical(self) -> bool:
@@ -306,10 +319,8 @@ class BlockerFrames:
         self.bounds.launch(state.points)
         self.cut.launch(self.bounds.centres, self.bounds.radii)
         if self.ratio:
-            r = self.refit
-            wp.launch(self._ratio_kernel, dim=(self.clusters, self.capacity), device=self.device, inputs=[
-                self.bounds.representative_points, r.node_centres, r.node_radii, r.leaf_start, r.leaf_count, r.leaf_node,
-                self.cut.cut_nodes, self.cut.cut_count, self.theta_min, self._exp_tables, self.cut_weights])
+            wp.launch(self._ratio_kernel, dim=(self.clusters, self.capacity), device=self.device,
+                      inputs=[self._ratio_arrays, self._exp_tables])
 
     def mean_cut_length(self) -> float:
         """Average entries per cluster of the current cut (host; synchronises)."""

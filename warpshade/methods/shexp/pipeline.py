@@ -26,7 +26,7 @@ import numpy as np
 from ..._wp import cpu_workers, launch_parallel, resolve_device, wp
 from ...basis.sh import DEFAULT_DEGREE
 from ...basis.sh_warp import sh_kernels
-from . import kernels, tables
+from . import kernels, tables, trace_kernels
 
 __all__ = ["ShexpShader", "SphereTracer", "shade_receivers", "CPU_CHUNK_MIN_RECEIVERS"]
 
@@ -170,6 +170,12 @@ class ShexpShader:
         self.store_visibility = bool(store_visibility)
         self.visibility = wp.zeros((max(vertex_count, 1) if store_visibility else 1, self.n2), dtype=wp.float32, device=dev)
         self.fallbacks = wp.zeros(1, dtype=wp.int32, device=dev)
+        o = kernels.ReceiverOutputs()
+        o.radiance = self.radiance
+        o.visibility = self.visibility
+        o.store_visibility = 1 if self.store_visibility else 0
+        o.fallbacks = self.fallbacks
+        self.outputs = o
 
     def set_exp_tables(self, log_cap, ol_a, ol_b, ol_norm_max: float) -> None:
         """Use these blocking-cap log and OL tables (device arrays, e.g. precompute artifacts)
@@ -345,8 +351,7 @@ class ShexpShader:
         self.fallbacks.zero_()
 
         def inputs(start, stop):
-            return [self.blockers, self.receivers, s, self.sh_tables, self.exp_tables, self.degree, rule, start,
-                    self.radiance, self.visibility, 1 if self.store_visibility else 0, self.fallbacks]
+            return [self.blockers, self.receivers, s, self.sh_tables, self.exp_tables, self.outputs, self.degree, rule, start]
 
         launch_parallel(self.kernel, self.vertex_count, inputs, dev, self.workers, min_count=CPU_CHUNK_MIN_RECEIVERS)
 
@@ -378,7 +383,7 @@ class ShexpShader:
 
 
 class SphereTracer:
-    """Ray-traced shading against blocker spheres (see :func:`.kernels.sphere_trace_kernel`).
+    """Ray-traced shading against blocker spheres (see :func:`.trace_kernels.sphere_trace_kernel`).
 
     Shares the blocker and receiver structs of a :class:`ShexpShader` (same spheres, same
     replacement rule). Outputs: ``radiance``/``stderr`` (V,) vec3 with the environment map,
@@ -400,15 +405,19 @@ class SphereTracer:
         self.radiance = wp.zeros(max(shader.vertex_count, 1), dtype=wp.vec3, device=dev)
         self.stderr = wp.zeros(max(shader.vertex_count, 1), dtype=wp.vec3, device=dev)
         self.transfer = wp.zeros((max(shader.vertex_count, 1), shader.n2), dtype=wp.float32, device=dev)
-        self.kernel = kernels.sphere_trace_kernel(shader.order)
+        o = trace_kernels.TraceOutputs()
+        o.radiance = self.radiance
+        o.stderr = self.stderr
+        o.transfer = self.transfer
+        self.outputs = o
+        self.kernel = trace_kernels.sphere_trace_kernel(shader.order)
 
     def launch(self) -> None:
         sh_ = self.shader
         rule = kernels.RULES.index(sh_.rule)
 
         def inputs(start, stop):
-            return [sh_.blockers, sh_.receivers, self.env, self.iterations, self.seed, rule, start,
-                    self.radiance, self.stderr, self.transfer]
+            return [sh_.blockers, sh_.receivers, self.env, self.outputs, self.iterations, self.seed, rule, start]
 
         launch_parallel(self.kernel, sh_.vertex_count, inputs, sh_.device, sh_.workers)
 
