@@ -16,9 +16,8 @@ from warpshade.io import load_scene
 from warpshade.scene import DistantLight, Environment, FrameEvaluator, LightingSource, LightTrack, SphereLight
 from warpshade.scene.state import CPU_REFIT_NOTE
 
-#: A replay runs the same float32 kernels on the same inputs as the cold launches; on the CPU
-#: they execute in the same order, so results agree to rounding of a few ulps at most.
-REPLAY_RTOL = 1e-6
+from tolerances import REPLAY_RTOL
+
 #: Warp zxzxz float32 SH rotation of a light's projection vs the float64 Ivanic-Ruedenberg
 #: rotation: a few float32 roundings per coefficient, relative to the largest coefficient.
 LIGHTING_RTOL = 2e-6

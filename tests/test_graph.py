@@ -104,8 +104,8 @@ def _spec(k_const=2, k_sum=2, value=1.0, extra=(), inputs=None):
     return GraphSpec(stages=stages, output="shade.radiance", name="t")
 
 
-def test_runs_and_steps(moving_scene, tmp_path):
-    rt = _spec(value=0.25).compile(moving_scene, device="cpu", cache_dir=tmp_path, progress=False)
+def test_runs_and_steps(moving_scene, tmp_path, device):
+    rt = _spec(value=0.25).compile(moving_scene, device=device, cache_dir=tmp_path, progress=False)
     out = rt.step(2.0).numpy()
     assert np.allclose(out[:, 0], 0.5)  # 2 columns of 0.25
     expected_z = moving_scene.points_at(2.0)[:, 2]
@@ -122,24 +122,24 @@ def test_runs_and_steps(moving_scene, tmp_path):
     assert rt.timing_summary()["stages"]["shade"]["median_frame_s"] is not None
 
 
-def test_cache_reuse_and_invalidation(moving_scene, tmp_path):
+def test_cache_reuse_and_invalidation(moving_scene, tmp_path, device):
     CALLS["const"] = 0
-    _spec(value=1.0).compile(moving_scene, device="cpu", cache_dir=tmp_path, progress=False)
+    _spec(value=1.0).compile(moving_scene, device=device, cache_dir=tmp_path, progress=False)
     assert CALLS["const"] == 1
-    rt = _spec(value=1.0).compile(moving_scene, device="cpu", cache_dir=tmp_path, progress=False)
+    rt = _spec(value=1.0).compile(moving_scene, device=device, cache_dir=tmp_path, progress=False)
     assert CALLS["const"] == 1, "unchanged inputs must reuse the cached artifact"
     assert rt.timings["bake"].cache == "hit"
     bake = next(s for s in rt.stages if s.name == "bake")
     assert bake.report == {"value": 1.0, "histogram": [3, 1]}, "a precompute report survives the cache"
     assert rt.describe()["stages"][0]["report"]["histogram"] == [3, 1]
-    _spec(value=2.0).compile(moving_scene, device="cpu", cache_dir=tmp_path, progress=False)
+    _spec(value=2.0).compile(moving_scene, device=device, cache_dir=tmp_path, progress=False)
     assert CALLS["const"] == 2, "a changed parameter must recompute"
     moved = Scene.from_meshes(
         [Mesh("/box", moving_scene.meshes[0].points * 2.0, moving_scene.meshes[0].faces, animation="rigid",
               transforms=moving_scene.meshes[0].transforms)],
         frames=moving_scene.frames, lights=moving_scene.lights,
     )
-    _spec(value=2.0).compile(moved, device="cpu", cache_dir=tmp_path, progress=False)
+    _spec(value=2.0).compile(moved, device=device, cache_dir=tmp_path, progress=False)
     assert CALLS["const"] == 3, "a changed scene must recompute"
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")], "no temporary files left behind"
 
@@ -161,17 +161,17 @@ def _flip_byte(data: bytes) -> bytes:
     (lambda data: b"", "does not match its digest"),
     (_flip_byte, "does not match its digest"),
 ])
-def test_damaged_cache_entry_is_reported_discarded_and_recomputed(moving_scene, tmp_path, damage, reported):
+def test_damaged_cache_entry_is_reported_discarded_and_recomputed(moving_scene, tmp_path, damage, reported, device):
     CALLS["const"] = 0
-    _spec(value=1.0).compile(moving_scene, device="cpu", cache_dir=tmp_path, progress=False)
+    _spec(value=1.0).compile(moving_scene, device=device, cache_dir=tmp_path, progress=False)
     artifact = _entry(tmp_path)
     artifact.write_bytes(damage(artifact.read_bytes()))
-    rt = _spec(value=1.0).compile(moving_scene, device="cpu", cache_dir=tmp_path, progress=False)
+    rt = _spec(value=1.0).compile(moving_scene, device=device, cache_dir=tmp_path, progress=False)
     assert CALLS["const"] == 2 and rt.timings["bake"].cache == "miss"
     assert len(rt.stale_artifacts) == 1 and reported in rt.stale_artifacts[0] and str(artifact) in rt.stale_artifacts[0]
     assert rt.describe()["stale_artifacts"] == rt.stale_artifacts
     assert np.allclose(rt.step(0.0).numpy()[:, 0], 2.0)
-    rt = _spec(value=1.0).compile(moving_scene, device="cpu", cache_dir=tmp_path, progress=False)
+    rt = _spec(value=1.0).compile(moving_scene, device=device, cache_dir=tmp_path, progress=False)
     assert rt.timings["bake"].cache == "hit" and not rt.stale_artifacts
 
 
@@ -182,32 +182,32 @@ def test_damaged_cache_entry_is_reported_discarded_and_recomputed(moving_scene, 
     (lambda v: v.astype(np.int64), "has dtype"),
     (lambda v: np.full_like(v, 1e7), "implausible"),
 ])
-def test_cache_entry_not_matching_the_stage_is_recomputed(moving_scene, tmp_path, contents, reported):
+def test_cache_entry_not_matching_the_stage_is_recomputed(moving_scene, tmp_path, contents, reported, device):
     """Well-formed entries (the digest matches) whose arrays do not fit the stage's ports, or
     fail the stage's own check: reported, discarded, recomputed; never a crash or a wrong
     (e.g. all-black) result."""
     from warpshade.graph import ArtifactCache
 
     CALLS["const"] = 0
-    rt = _spec(value=1.0).compile(moving_scene, device="cpu", cache_dir=tmp_path, progress=False)
+    rt = _spec(value=1.0).compile(moving_scene, device=device, cache_dir=tmp_path, progress=False)
     key = rt.artifact_keys["bake"]
     cache = ArtifactCache(tmp_path)
     arrays = cache.load(key)
     cache.store(key, {k: contents(v) if k == "values" else v for k, v in arrays.items()})
-    rt = _spec(value=1.0).compile(moving_scene, device="cpu", cache_dir=tmp_path, progress=False)
+    rt = _spec(value=1.0).compile(moving_scene, device=device, cache_dir=tmp_path, progress=False)
     assert CALLS["const"] == 2 and rt.timings["bake"].cache == "miss"
     assert rt.stale_artifacts and reported in rt.stale_artifacts[0], rt.stale_artifacts
     assert np.allclose(rt.step(0.0).numpy()[:, 0], 2.0)
-    rt = _spec(value=1.0).compile(moving_scene, device="cpu", cache_dir=tmp_path, progress=False)
+    rt = _spec(value=1.0).compile(moving_scene, device=device, cache_dir=tmp_path, progress=False)
     assert rt.timings["bake"].cache == "hit" and not rt.stale_artifacts, "the recomputed artifact replaced it"
 
 
 @pytest.mark.filterwarnings("ignore:overflow encountered in cast")
-def test_a_precompute_that_produces_nan_is_an_error_naming_the_stage(moving_scene, tmp_path):
+def test_a_precompute_that_produces_nan_is_an_error_naming_the_stage(moving_scene, tmp_path, device):
     # 1e300 is a finite parameter that overflows the float32 artifact
     with pytest.raises(GraphError, match=r"stage 'bake' \(test.const\): its precompute produced an invalid artifact: "
                                          r"output 'values' has 16 NaN or infinite values"):
-        _spec(value=1e300).compile(moving_scene, device="cpu", cache_dir=None, progress=False)
+        _spec(value=1e300).compile(moving_scene, device=device, cache_dir=None, progress=False)
     with pytest.raises(GraphError, match="parameter 'value' must be finite"):
         _spec(value=float("nan")).build()
 
@@ -249,7 +249,7 @@ def test_toml_loading_errors(tmp_path):
         load(no_out)
 
 
-def test_toml_roundtrip_and_outputs(moving_scene, tmp_path):
+def test_toml_roundtrip_and_outputs(moving_scene, tmp_path, device):
     path = tmp_path / "g.toml"
     path.write_text(
         '[graph]\nname = "toml-graph"\noutput = "shade.radiance"\nframes = "0:3"\n'
@@ -257,7 +257,7 @@ def test_toml_roundtrip_and_outputs(moving_scene, tmp_path):
         '[[stage]]\nname = "shade"\ntype = "test.sum"\ninputs = { values = "bake.values" }\n'
     )
     spec = load(path)
-    rt = spec.compile(moving_scene, device="cpu", cache_dir=None, progress=False)
+    rt = spec.compile(moving_scene, device=device, cache_dir=None, progress=False)
     assert rt.timings["bake"].cache == "off"
     rt.run()
     report = json.loads(write_report(rt, tmp_path / "report.json").read_text())
@@ -277,8 +277,8 @@ def test_toml_roundtrip_and_outputs(moving_scene, tmp_path):
     assert np.allclose(pts, moving_scene.points_at(2.0), atol=1e-6)
 
 
-def test_comparisons_need_a_measured_reference(moving_scene, tmp_path):
-    rt = _spec().compile(moving_scene, device="cpu", cache_dir=None, progress=False)
+def test_comparisons_need_a_measured_reference(moving_scene, tmp_path, device):
+    rt = _spec().compile(moving_scene, device=device, cache_dir=None, progress=False)
     rt.run([0.0, 1.0], warmup=False)
     measured = measure_error(rt, [0.0], samples=16, cache_dir=None)
     with pytest.raises(ValueError, match=r"frame\(s\) \[1.0\] were not measured"):
@@ -333,11 +333,11 @@ class _Gain(FrameStage):
         wp.launch(_scale_rows, dim=state.vertex_count, inputs=[self.gain, self.points, self.out], device=state.device)
 
 
-def test_a_stage_told_which_parameter_changed_absorbs_it_without_a_new_setup(moving_scene, tmp_path):
+def test_a_stage_told_which_parameter_changed_absorbs_it_without_a_new_setup(moving_scene, tmp_path, device):
     path = tmp_path / "g.toml"
     path.write_text('[graph]\noutput = "shade.radiance"\n[[stage]]\nname = "shade"\ntype = "test.gain"\n')
     before = _Gain.built
-    rt = load(path).compile(moving_scene, device="cpu", cache_dir=None, progress=False)
+    rt = load(path).compile(moving_scene, device=device, cache_dir=None, progress=False)
     assert _Gain.built == before + 1, "load checks the stages, compile runs the same ones: each built once"
     st = rt.output_stage()
     rt.step(2.0)

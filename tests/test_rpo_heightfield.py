@@ -64,14 +64,14 @@ def _sky(scene):
     return LightingSource([Environment.sky()], scene.up_axis)
 
 
-def _run(scene, vis_params=None, shade_params=None, frame=0.0, per_vertex=True):
+def _run(scene, vis_params=None, shade_params=None, frame=0.0, per_vertex=True, *, device):
     stages = [StageSpec("vis", "heightfield.visibility", {"order": 4, "resolution": 32, "per_vertex": per_vertex,
                                                               **(vis_params or {})})]
     if shade_params is not None:
         stages.append(StageSpec("shade", "heightfield.shade", {"order": 4, "rank": 8, "roughness": 0.3,
                                                                     **shade_params}))
     out = "shade.radiance" if shade_params is not None else ("vis.visibility" if per_vertex else "vis.texel_visibility")
-    rt = GraphSpec(stages=stages, output=out, name="hf-test").compile(scene, device="cpu", cache_dir=None, progress=False,
+    rt = GraphSpec(stages=stages, output=out, name="hf-test").compile(scene, device=device, cache_dir=None, progress=False,
                                                                        lighting=_sky(scene))
     rt.step(frame)
     return rt
@@ -79,18 +79,18 @@ def _run(scene, vis_params=None, shade_params=None, frame=0.0, per_vertex=True):
 
 # ---- SH algebra and tables ----------------------------------------------------------------------
 @pytest.mark.parametrize("order", [3, 4])
-def test_static_rotation_and_product_match_float64(order, rng):
+def test_static_rotation_and_product_match_float64(order, rng, device):
     _, _, rot_k, pair_k = hfk.shade_kernels(order)
     f = rng.normal(size=(64, order * order))
     g = rng.normal(size=(64, order * order))
     r = Rotation.random(64, random_state=3).as_matrix()
     r[0] = np.eye(3)
     r[1] = np.diag([1.0, -1.0, -1.0])  # the poles of the Euler angles
-    out = wp.zeros((64, order * order), dtype=wp.float32, device="cpu")
-    fa = wp.array(f.astype(np.float32), dtype=wp.float32, device="cpu")
-    wp.launch(rot_k, dim=64, inputs=[fa, wp.array(r.astype(np.float32), dtype=wp.mat33, device="cpu"), out], device="cpu")
+    out = wp.zeros((64, order * order), dtype=wp.float32, device=device)
+    fa = wp.array(f.astype(np.float32), dtype=wp.float32, device=device)
+    wp.launch(rot_k, dim=64, inputs=[fa, wp.array(r.astype(np.float32), dtype=wp.mat33, device=device), out], device=device)
     assert np.abs(out.numpy() - sh.rotate(f, r)).max() < ATOL_SH_ALGEBRA * 10
-    wp.launch(pair_k, dim=64, inputs=[fa, wp.array(g.astype(np.float32), dtype=wp.float32, device="cpu"), out], device="cpu")
+    wp.launch(pair_k, dim=64, inputs=[fa, wp.array(g.astype(np.float32), dtype=wp.float32, device=device), out], device=device)
     assert np.abs(out.numpy() - sh.product(f, g)).max() < ATOL_SH_ALGEBRA * 10
 
 
@@ -110,7 +110,7 @@ def test_wedge_table_matches_direct_quadrature(order, azimuths):
 
 
 # ---- horizons ----------------------------------------------------------------------------------
-def test_step_gives_the_analytic_horizon():
+def test_step_gives_the_analytic_horizon(device):
     g, size, wall, height = 33, 2.0, 20, 0.3
     h = np.zeros((g, g))
     h[:, wall:] = height
@@ -121,7 +121,7 @@ def test_step_gives_the_analytic_horizon():
     bf = ref.horizon_f64(h, dx, dx, cols, rows, 4)
     assert np.allclose(bf[:, 0], analytic, rtol=1e-12)
     assert np.all(bf[:, 2] == 0.0)  # looking away from the wall: flat ground
-    rt = _run(_grid_scene(h, size), {"resolution": g, "azimuths": 4, "samples_per_octave": 4, "footprint": 0.05})
+    rt = _run(_grid_scene(h, size), {"resolution": g, "azimuths": 4, "samples_per_octave": 4, "footprint": 0.05}, device=device)
     kernel = rt.stages[0].horizons(np.stack([cols, rows], 1))
     # the finest level's cells hold one vertex each: a sample at distance d reads the vertex
     # nearest to it, so the wall (D vertices away) is seen from d >= D - 1/2 on
@@ -132,9 +132,9 @@ def test_step_gives_the_analytic_horizon():
     assert np.allclose(kernel[:, 2], 0.0, atol=1e-6)
 
 
-def test_march_kernel_matches_its_float64_mirror_and_brute_force():
+def test_march_kernel_matches_its_float64_mirror_and_brute_force(device):
     scene = _ripples(64)
-    rt = _run(scene, {"samples_per_octave": 2, "footprint": 0.5})
+    rt = _run(scene, {"samples_per_octave": 2, "footprint": 0.5}, device=device)
     vis = rt.stages[0]
     h = scene.points_at(0.0)[:, 2].reshape(64, 64)
     lay = vis.layout
@@ -152,9 +152,9 @@ def test_march_kernel_matches_its_float64_mirror_and_brute_force():
 
 # ---- visibility --------------------------------------------------------------------------------
 @pytest.mark.parametrize("below", ["open", "blocked"])
-def test_flat_plane_gives_full_visibility(below):
+def test_flat_plane_gives_full_visibility(below, device):
     scene = _grid_scene(np.full((17, 17), 0.25))
-    rt = _run(scene, {"resolution": 9, "below": below})
+    rt = _run(scene, {"resolution": 9, "below": below}, device=device)
     v = rt.output.numpy()
     if below == "open":
         want = np.zeros(16)
@@ -171,9 +171,9 @@ def test_flat_plane_gives_full_visibility(below):
 
 
 @pytest.mark.parametrize("below", ["open", "blocked"])
-def test_texel_visibility_matches_exact_wedges(below):
+def test_texel_visibility_matches_exact_wedges(below, device):
     scene = _ripples(48)
-    rt = _run(scene, {"resolution": 16, "below": below}, per_vertex=False)
+    rt = _run(scene, {"resolution": 16, "below": below}, per_vertex=False, device=device)
     vis = rt.stages[0]
     texels = rt.output.numpy()
     h = scene.points_at(0.0)[:, 2].reshape(48, 48)
@@ -191,22 +191,22 @@ def test_texel_visibility_matches_exact_wedges(below):
     assert np.abs(texels - want).max() < ATOL_TEXEL_VISIBILITY
 
 
-def test_horizon_visibility_against_ray_traced():
+def test_horizon_visibility_against_ray_traced(device):
     from warpshade.transfer import compute
 
     scene = _ripples(64)
-    rt = _run(scene, {"resolution": 64, "samples_per_octave": 2})
+    rt = _run(scene, {"resolution": 64, "samples_per_octave": 2}, device=device)
     vis = rt.output.numpy()
     idx = np.random.default_rng(1).choice(scene.vertex_count, 300, replace=False)
-    traced = compute(scene, 0.0, 4, 4096, space="world", device="cpu", vertices=idx, below_horizon="visible").visibility
+    traced = compute(scene, 0.0, 4, 4096, space="world", device=device, vertices=idx, below_horizon="visible").visibility
     err = np.sqrt(np.mean(np.sum((vis[idx] - traced) ** 2, 1)) / np.mean(np.sum(traced**2, 1)))
     assert err < RTOL_VS_TRACED
 
 
 # ---- shading -----------------------------------------------------------------------------------
-def test_shade_kernel_matches_float64_mirror():
+def test_shade_kernel_matches_float64_mirror(device):
     scene = _ripples(48)
-    rt = _run(scene, {"resolution": 16, "per_vertex": False}, {"specular": (0.9, 0.7, 0.5)})
+    rt = _run(scene, {"resolution": 16, "per_vertex": False}, {"specular": (0.9, 0.7, 0.5)}, device=device)
     shade = rt.stages[1]
     out = rt.output.numpy()
     texels = rt.stages[0]._texels.numpy().astype(np.float64)
@@ -226,7 +226,7 @@ def test_shade_kernel_matches_float64_mirror():
     assert out.max() > 0.0
 
 
-def test_heightfield_shade_agrees_with_rpo_shade():
+def test_heightfield_shade_agrees_with_rpo_shade(device):
     import warpshade.methods.rpo.stages  # noqa: F401  (rpo.shade)
     import warpshade.methods.ldprt.stages  # noqa: F401  (ldprt.frames)
 
@@ -236,7 +236,7 @@ def test_heightfield_shade_agrees_with_rpo_shade():
               StageSpec("frames", "ldprt.frames"),
               StageSpec("rpo", "rpo.shade", {**common, "visibility_space": "world"}, {"visibility": "vis.visibility"}),
               StageSpec("shade", "heightfield.shade", common, {"texel_visibility": "vis.texel_visibility"})]
-    rt = GraphSpec(stages=stages, output="shade.radiance").compile(scene, device="cpu", cache_dir=None, progress=False,
+    rt = GraphSpec(stages=stages, output="shade.radiance").compile(scene, device=device, cache_dir=None, progress=False,
                                                                    lighting=_sky(scene))
     rt.step(0.0)
     a = rt.output.numpy()
@@ -246,40 +246,40 @@ def test_heightfield_shade_agrees_with_rpo_shade():
 
 
 # ---- failures ----------------------------------------------------------------------------------
-def test_grid_checks_and_bad_parameters_are_clear_errors():
+def test_grid_checks_and_bad_parameters_are_clear_errors(device):
     flat = np.zeros((9, 9))
     x, y = hfio.grid_xy(9, (2.0, 2.0))
     not_square = Scene.from_meshes([Mesh("/m", np.stack([x, y, 0 * x], 1)[:72], hfio.grid_faces(9)[:112])])
     with pytest.raises(StageError, match="heightfield.visibility.*square"):
-        _run(not_square)
+        _run(not_square, device=device)
     pts = np.stack([x, y, 0 * x], 1)[np.random.default_rng(0).permutation(81)]
     with pytest.raises(StageError, match="heightfield.visibility.*(regular 9 x 9 grid|row-major)"):
-        _run(Scene.from_meshes([Mesh("/m", pts, hfio.grid_faces(9))]))
+        _run(Scene.from_meshes([Mesh("/m", pts, hfio.grid_faces(9))]), device=device)
     samples = np.stack([np.stack([x, y, 0 * x], 1)] * 2).astype(np.float32)
     samples[1, :, 0] += 0.05
     sideways = Scene.from_meshes([Mesh("/m", samples[0], hfio.grid_faces(9), animation="deforming", point_samples=samples)],
                                  frames=[0, 1])
     with pytest.raises(StageError, match="sideways"):
-        _run(sideways)
+        _run(sideways, device=device)
     with pytest.raises(StageError, match="resolution 32 exceeds"):
-        _run(_grid_scene(flat))
+        _run(_grid_scene(flat), device=device)
     with pytest.raises(StageError, match="azimuths"):
-        _run(_grid_scene(flat), {"resolution": 9, "azimuths": 2})
+        _run(_grid_scene(flat), {"resolution": 9, "azimuths": 2}, device=device)
     with pytest.raises(StageError, match="below"):
-        _run(_grid_scene(flat), {"resolution": 9, "below": "maybe"})
+        _run(_grid_scene(flat), {"resolution": 9, "below": "maybe"}, device=device)
     with pytest.raises(StageError, match="camera"):
-        _run(_grid_scene(flat, camera=False), {"resolution": 9}, {})
+        _run(_grid_scene(flat, camera=False), {"resolution": 9}, {}, device=device)
     with pytest.raises(ValueError, match="resolution must be >= 2"):
         hfio.mesh_from_spec(hfio.HeightFieldSpec(1), [0.0])
     with pytest.raises(ValueError, match="MAX_SAMPLE_BYTES"):
         hfio.mesh_from_spec(hfio.HeightFieldSpec(8192), np.arange(48.0))
 
 
-def test_spiky_heights_stay_finite_and_bounded():
+def test_spiky_heights_stay_finite_and_bounded(device):
     h = np.random.default_rng(5).normal(size=(33, 33)) * 50.0
     h[10, 10] = 1e4
     h[20, 5:25] = -1e4
-    rt = _run(_grid_scene(h), {"resolution": 17}, {})
+    rt = _run(_grid_scene(h), {"resolution": 17}, {}, device=device)
     out = rt.output.numpy()
     assert np.all(np.isfinite(out)) and out.min() >= 0.0 and out.max() < 1e3
     vis = rt.stages[0]._vertex.numpy()
@@ -287,7 +287,7 @@ def test_spiky_heights_stay_finite_and_bounded():
 
 
 # ---- the asset and the graph -------------------------------------------------------------------
-def test_loader_expands_the_height_field(tmp_path):
+def test_loader_expands_the_height_field(tmp_path, device):
     from warpshade.usd_assets.generator.ripples import make_ripples
 
     path = make_ripples(str(tmp_path), resolution=64, frame_count=4, file_name="ripples64.usda")
@@ -310,7 +310,7 @@ def test_loader_expands_the_height_field(tmp_path):
     for st in graph.stages:  # the 128 x 128 texels of the graph as written exceed this 64 x 64 copy
         if st.type == "heightfield.visibility":
             st.params["resolution"] = 32
-    rt = graph.compile(scene, device="cpu", cache_dir=None, progress=False)
+    rt = graph.compile(scene, device=device, cache_dir=None, progress=False)
     rt.run([0.0, 1.0], warmup=False)
     for f in (0.0, 1.0):
         out = rt.results[f]

@@ -42,9 +42,11 @@ SHARP_FLOOR_RTOL = 5e-3
 # Independent quadratures of the same slice error agree to this (both converged to ~1e-4).
 QUADRATURE_ATOL = 2e-3
 # float32 kernel against float64: axes (unit vectors) absolute; sharpness and amplitude relative
-# (Schlick's (1 - c)^5 and the Smith rational in float32; measured 6e-6).
+# (Schlick's (1 - c)^5 and the Smith rational in float32; measured 6e-6). The relative bound is
+# looser than the shared tolerances.RTOL_FLOAT32 (2e-5): near grazing, 1 - c and the Smith
+# rational's small denominators lose float32 digits that O(1) kernels keep.
 ATOL_AXIS_FLOAT32 = 1e-6
-RTOL_FLOAT32 = 5e-5
+RTOL_BRDF_FLOAT32 = 5e-5
 
 
 def _view(theta_deg, phi_deg=0.0):
@@ -381,8 +383,8 @@ def test_kernel_slice_matches_float64(device, rng, model, roughness):
     axes, lam, amp = brdf_warp.specular_slices(views, model, roughness, f0=0.05, device=device)
     r_axes, r_lam, r_amp = brdf_warp.specular_slices_f64(views, model, roughness, f0=0.05)
     np.testing.assert_allclose(axes, r_axes, atol=ATOL_AXIS_FLOAT32)
-    np.testing.assert_allclose(lam, r_lam, rtol=RTOL_FLOAT32)
-    np.testing.assert_allclose(amp[:, 0], r_amp, rtol=RTOL_FLOAT32)
+    np.testing.assert_allclose(lam, r_lam, rtol=RTOL_BRDF_FLOAT32)
+    np.testing.assert_allclose(amp[:, 0], r_amp, rtol=RTOL_BRDF_FLOAT32)
     assert np.all(amp[:, 0] == amp[:, 1]) and np.all(amp[:, 1] == amp[:, 2])  # grey
 
 
@@ -408,6 +410,6 @@ def test_kernel_remaining_factor_and_fresnel(device, rng, model, params):
               inputs=[wp.array(o.astype(np.float32), dtype=wp.vec3, device=device),
                       wp.array(i.astype(np.float32), dtype=wp.vec3, device=device),
                       brdf_warp.MODEL_IDS[model], float(rough), float(f0)], outputs=[out, fres])
-    np.testing.assert_allclose(out.numpy(), brdf.remaining_factor(model, o, i, **params), rtol=RTOL_FLOAT32)
+    np.testing.assert_allclose(out.numpy(), brdf.remaining_factor(model, o, i, **params), rtol=RTOL_BRDF_FLOAT32)
     eta = float(brdf.eta_from_f0(f0))
-    np.testing.assert_allclose(fres.numpy(), brdf.fresnel_cook_torrance(o[:, 2], eta), rtol=RTOL_FLOAT32)
+    np.testing.assert_allclose(fres.numpy(), brdf.fresnel_cook_torrance(o[:, 2], eta), rtol=RTOL_BRDF_FLOAT32)

@@ -17,6 +17,8 @@ from warpshade.io import bundled_asset_directory, read_hdr
 from warpshade.methods.sg import envfit, envmap, lights, prefilter
 from warpshade.scene import DistantLight, Environment, SphereLight, sky_radiance
 
+from tolerances import RTOL_FLOAT32
+
 #: 3-lobe recovery: the environment is float32 texels of the mixture, L-BFGS-B stops at ftol 1e-15.
 RECOVERY_RADIANCE_TOL = 1e-5
 #: Bundled sky (64 x 128), 9 NNLS lobes: measured irradiance fit error 0.051 (exact cosine) and
@@ -42,8 +44,6 @@ LEVEL_ENERGY_RTOL = 0.01
 #: A constant sky through the table: the mid-point sums over 2 source texels per lobe width
 #: (measured 1.1e-3 at lambda = 2 on a 16 x 32 map).
 CONSTANT_RTOL = 2e-3
-#: Warp (float32) lookup vs the float64 lookup of the same table, relative to the sample's max.
-RTOL_FLOAT32 = 2e-5
 #: Sphere-light irradiance of the lobe vs pi L sin^2(alpha): the lobe's cos-weighted spread
 #: (1 - 1/lambda) and Omega vs pi sin^2 differ by O(sin^2 alpha) = 6e-4 at r/d = 0.025.
 SPHERE_IRRADIANCE_RTOL = 2e-3
@@ -71,6 +71,9 @@ def smooth_env():
     return Environment.sky(32, 64)
 
 
+# The two tables below are module-scoped (built once for the file), so they cannot take the
+# function-scoped ``device``: built on the CPU, they are host tables that the tests read in float64
+# or upload with ``to_device``; the build kernel runs per device in test_gamma_energy_and_limits.
 @pytest.fixture(scope="module")
 def smooth_table(smooth_env):
     return prefilter.PrefilteredEnvironment.build(smooth_env, device="cpu")
@@ -151,7 +154,7 @@ def test_bad_fit_arguments(smooth_env):
 def test_nan_and_negative_environments_rejected():
     bad = Environment.constant((1.0, 1.0, 1.0), 8, 16)
     bad.image[2, 3, 1] = -0.5
-    for call in (lambda: envfit.fit_environment(bad), lambda: prefilter.PrefilteredEnvironment.build(bad, device="cpu"),
+    for call in (lambda: envfit.fit_environment(bad), lambda: prefilter.PrefilteredEnvironment.build(bad),
                  lambda: prefilter.gamma_f64(bad, [[0.0, 0.0, 1.0]], 1.0)):
         with pytest.raises(ValueError, match="negative radiance"):
             call()
@@ -193,7 +196,7 @@ def test_gamma_sharp_sun_vs_reference(sun_case):
     assert np.all(np.isfinite(table.lookup(p, 1e30)))
 
 
-def test_gamma_energy_and_limits(sun_case):
+def test_gamma_energy_and_limits(sun_case, device):
     env, s, table = sun_case
     total = envmap.environment_integral(env)
     p = _dirs(6, 4)
@@ -208,7 +211,7 @@ def test_gamma_energy_and_limits(sun_case):
     np.testing.assert_allclose(table.lookup(p, lam), env.radiance(p) * sg.integral(lam), rtol=2e-3)
     # a constant sky is exact at every lambda
     const = Environment.constant((0.2, 0.5, 1.0), 16, 32)
-    ct = prefilter.PrefilteredEnvironment.build(const, levels=[0.5, 8.0, 200.0], device="cpu")
+    ct = prefilter.PrefilteredEnvironment.build(const, levels=[0.5, 8.0, 200.0], device=device)
     for lam in (0.0, 0.3, 2.0, 50.0, 1e4):
         np.testing.assert_allclose(ct.lookup(p, lam), np.outer(np.ones(6), [0.2, 0.5, 1.0]) * sg.integral(lam),
                                    rtol=CONSTANT_RTOL)
@@ -259,7 +262,7 @@ def test_table_arrays_round_trip_and_checks(smooth_table):
     with pytest.raises(ValueError, match="'levels'"):
         prefilter.PrefilteredEnvironment.from_arrays(dict(arrays, levels=arrays["levels"][::-1]))
     with pytest.raises(ValueError, match="levels"):
-        prefilter.PrefilteredEnvironment.build(Environment.constant(), levels=[1.0, 0.5], device="cpu")
+        prefilter.PrefilteredEnvironment.build(Environment.constant(), levels=[1.0, 0.5])  # rejected before any launch
     with pytest.raises(ValueError, match="lam"):
         smooth_table.lookup(p, -1.0)
 

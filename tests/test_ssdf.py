@@ -62,13 +62,14 @@ def wall_scene():
     return scene, receiver
 
 
-def _frame_of(scene, vertex):
-    state = scene.evaluate(scene.frames[0], device="cpu")
-    return TangentFrames.from_scene(scene, device="cpu").compute(state.points, state.normals).numpy()[vertex].astype(np.float64)
+def _frame_of(scene, vertex, device):
+    state = scene.evaluate(scene.frames[0], device=device)
+    frames = TangentFrames.from_scene(scene, device=device).compute(state.points, state.normals)
+    return frames.numpy()[vertex].astype(np.float64)
 
 
-def _wall_exact(scene, vertex, resolution):
-    world = ssdf.texel_directions(resolution) @ _frame_of(scene, vertex)  # rows: F^T d_local
+def _wall_exact(scene, vertex, resolution, device):
+    world = ssdf.texel_directions(resolution) @ _frame_of(scene, vertex, device)  # rows: F^T d_local
     return -np.arcsin(np.clip(world[:, 0], -1.0, 1.0)).reshape(resolution, resolution)
 
 
@@ -101,8 +102,8 @@ def test_visibility_matches_float64_ray_caster(device):
     points = scene.points_at(scene.frames[0])
     normals = scene.normals_at(scene.frames[0])
     offset = Visibility.from_scene(scene).offset
-    state = scene.evaluate(scene.frames[0], device="cpu")
-    frames = TangentFrames.from_scene(scene, device="cpu").compute(state.points, state.normals).numpy().astype(np.float64)
+    state = scene.evaluate(scene.frames[0], device=device)
+    frames = TangentFrames.from_scene(scene, device=device).compute(state.points, state.normals).numpy().astype(np.float64)
     local = ssdf.texel_directions(res)
     for k, v in enumerate(verts):
         dirs = local @ frames[v]
@@ -139,7 +140,7 @@ def test_wall_closed_form_and_sign(wall_scene, device):
     fine, out = 64, 16
     maps = ssdf.bake_ssdf(scene, None, resolution=out, supersample=fine // out, vertices=[v], device=device)
     assert maps.shape == (1, out, out) and maps.dtype == np.float32
-    exact = _wall_exact(scene, v, out)
+    exact = _wall_exact(scene, v, out, device)
     err = np.abs(maps[0] - exact)
     diameter = ssdf.texel_diameter(fine)
     assert err.max() <= STAIRCASE_FACTOR * diameter
@@ -336,34 +337,35 @@ def _visible_quarter_integral(axis_world, lam, nodes=200):
     return float(np.einsum("i,j,ij->", wz, wphi, g))
 
 
-def test_lobe_oracle_against_quadrature(wall_scene):
+def test_lobe_oracle_against_quadrature(wall_scene, device):
     scene, v = wall_scene
     lam = np.array([10.0, 50.0, 200.0])
-    frame = _frame_of(scene, v)
+    frame = _frame_of(scene, v, device)
     # lobes 45-90 degrees above the horizon, on both sides of the wall's plane
     world = _unit(np.array([[0.0, 0.0, 1.0], [-0.5, 0.2, 0.8], [0.4, -0.3, 0.85], [-0.7, 0.0, 0.72]]))
     axes_local = (world @ frame.T)[None]
-    traced = ssdf.trace_lobe_visibility(scene, None, axes_local, lam, samples=4096, vertices=[v])[0]
+    traced = ssdf.trace_lobe_visibility(scene, None, axes_local, lam, samples=4096, vertices=[v], device=device)[0]
     exact = np.array([[_visible_quarter_integral(p, l) for l in lam] for p in world])
     pole = sg.hemisphere_integral(HALF_PI, lam)
     assert np.all(np.abs(traced - exact) <= TOL_ORACLE_FRACTION * pole[None, :])
     # an open sky, axis along the normal: the upper hemisphere, f_h(pi/2, lambda)
     ground_p, ground_f = ground_grid(np.linspace(-1.0, 1.0, 3))
     sky = Scene.from_meshes([Mesh("ground", ground_p, ground_f)])
-    open_sky = ssdf.trace_lobe_visibility(sky, None, np.array([[[0.0, 0.0, 1.0]]]), lam, samples=1024, vertices=[4])
+    open_sky = ssdf.trace_lobe_visibility(sky, None, np.array([[[0.0, 0.0, 1.0]]]), lam, samples=1024, vertices=[4],
+                                          device=device)
     # (the lobe's mass below the horizon, e^-lambda of it, falls inside the last of 1024 strata)
     np.testing.assert_allclose(open_sky[0, 0], pole, rtol=1.0 / 1024)
 
 
-def test_product_against_ray_tracing(wall_scene):
+def test_product_against_ray_tracing(wall_scene, device):
     scene, v = wall_scene
-    maps = ssdf.bake_ssdf(scene, None, resolution=64, supersample=4, vertices=[v])
+    maps = ssdf.bake_ssdf(scene, None, resolution=64, supersample=4, vertices=[v], device=device)
     model = ssdf_pca.compress_ssdf(maps, error_budget=0.01)  # one vertex: the mean is the map
-    frame = _frame_of(scene, v)
+    frame = _frame_of(scene, v, device)
     world = _unit(np.array([[0.0, 0.0, 1.0], [-0.5, 0.2, 0.8], [0.4, -0.3, 0.85], [-0.7, 0.0, 0.72], [0.1, 0.5, 0.85]]))
     axes_local = world @ frame.T
     lam = np.array([10.0, 50.0, 200.0])
-    traced = ssdf.trace_lobe_visibility(scene, None, axes_local[None], lam, samples=4096, vertices=[v])[0]
+    traced = ssdf.trace_lobe_visibility(scene, None, axes_local[None], lam, samples=4096, vertices=[v], device=device)[0]
     rows = np.repeat(model.coeffs, axes_local.shape[0], axis=0)
     for k, l in enumerate(lam):
         approx = ssdf_products.ssdf_integral(model, rows, axes_local, l)

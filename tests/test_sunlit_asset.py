@@ -92,12 +92,12 @@ def test_sky_has_a_small_very_bright_sun(scene):
     assert 35.0 <= np.degrees(np.arcsin(direction[2])) <= 45.0
 
 
-def test_the_sun_casts_a_shadow_of_the_knot_in_view(scene):
+def test_the_sun_casts_a_shadow_of_the_knot_in_view(scene, device):
     from warpshade.geometry.bvh import Visibility
 
     ground = _mesh(scene, "Ground")
     sun = sunlit.sunlit_sun_direction()
-    vis = Visibility.from_scene(scene, frame=0.0, device="cpu")
+    vis = Visibility.from_scene(scene, frame=0.0, device=device)
     origins = ground.points + [0.0, 0.0, 1e-3]
     shadowed = vis.occluded(origins, np.tile(sun, (len(origins), 1))).numpy().astype(bool)
     assert 0.01 < shadowed.mean() < 0.2

@@ -27,8 +27,9 @@ ATOL_ZH_FLOAT32 = 5e-6
 #: Gauss-Legendre projection (degree 400) of a function with a kink at the horizon (the clamped
 #: cosine, the membrane function): the product rule's error on the kink is far below this.
 ATOL_QUADRATURE = 2e-4
-#: Bilinear look-ups in a 65 x 128 lighting table (order 3) against direct SH evaluation,
-#: relative to the largest radiance (interpolation error ~5e-4 of the lighting norm).
+#: Bilinear look-ups in a lighting table over normals against direct SH evaluation, relative to
+#: the largest radiance: ldprt's 65 x 128 table (order 3; interpolation error ~5e-4 of the lighting
+#: norm) and shexp's 33 x 64 L*H(N) table (L*H a polynomial of degree <= 3 in N; measured 6e-4).
 RTOL_TABLE = 3e-3
 #: A recorded (replayed) launch runs the same float32 kernels on the same inputs as an uncaptured
 #: one: results agree to a few ulps, relative to the model's size.
