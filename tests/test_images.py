@@ -98,9 +98,9 @@ def test_missing_and_unreadable_files(tmp_path):
     (tmp_path / "short.hdr").write_bytes(HEADER + b"-Y 4 +X 4\n" + bytes(12))
     with pytest.raises(ValueError, match="short.hdr.*truncated"):
         read_hdr(tmp_path / "short.hdr")
-    (tmp_path / "flip.hdr").write_bytes(HEADER + b"+Y 1 +X 1\n" + bytes(4))
-    with pytest.raises(ValueError, match="resolution"):
-        read_hdr(tmp_path / "flip.hdr")
+    (tmp_path / "rotated.hdr").write_bytes(HEADER + b"+X 1 -Y 1\n" + bytes(4))  # flips are read: tests/test_faults_outputs.py
+    with pytest.raises(ValueError, match=r"resolution line b'\+X 1 -Y 1'"):
+        read_hdr(tmp_path / "rotated.hdr")
     (tmp_path / "junk.exr").write_bytes(b"garbage")
     with pytest.raises(ValueError, match="junk.exr"):
         read_image(tmp_path / "junk.exr")

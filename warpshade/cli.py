@@ -184,8 +184,10 @@ def _run_graph(graph_file, frames=None, device=None, out_dir=None, validate=Fals
     """Run one stage graph end to end; returns (runtime, outputs dict).
 
     Everything is checked before any work: the graph file, the output directory (writable, not
-    a file), the scene, ``--frames``, the ``[validate]`` frames measured (those the run steps)
-    and the lighting. Then the runtime (precompute, frames) is composed with the measuring layer
+    a file), the scene, ``--frames``, the ``[validate]`` frames measured (those the run steps),
+    that the output can be measured at all (``--validate``), every file the run will write (none
+    may replace a file warpshade did not write there: :func:`_plan_run`), the artifact cache and
+    the lighting. Then the runtime (precompute, frames) is composed with the measuring layer
     (ground truth, pictures, the USD layer and the report). Nothing is written outside the
     output directory: every output is named by the graph's name, which cannot hold a path.
     """
@@ -208,6 +210,8 @@ def _run_graph(graph_file, frames=None, device=None, out_dir=None, validate=Fals
     measured = left_out = []
     if validate:
         measured, left_out = spec.validation_frames(scene, run_frames)
+    plan = _plan_run(spec, scene, out, run_frames, measured, validate, previews, usd_format)
+    _check_cache()
     # ground-truth frames go to the executor only when one is asked for (flag or environment)
     try:
         tasks = _tasks.executor(scheduler) if scheduler is not None or os.environ.get(_tasks.SCHEDULER_ENV) else None
@@ -216,7 +220,7 @@ def _run_graph(graph_file, frames=None, device=None, out_dir=None, validate=Fals
     try:
         rt = spec.compile(scene, device=device, progress=progress, scheduler=scheduler)
         rt.run(run_frames)
-        outputs = _finish_run(spec, rt, out, measured, left_out, validate, previews, usd_format, tasks)
+        outputs = _finish_run(spec, rt, plan, measured, left_out, validate, previews, tasks)
     finally:
         if tasks is not None:
             tasks.close()
@@ -224,43 +228,86 @@ def _run_graph(graph_file, frames=None, device=None, out_dir=None, validate=Fals
     return rt, outputs
 
 
-def _finish_run(spec, rt, out, measured, left_out, validate, previews, usd_format, tasks) -> dict:
-    """The measuring layer's part of a run: USD layer, previews, error, comparisons, report."""
+def _plan_run(spec, scene, out, run_frames, measured, validate, previews, usd_format):
+    """The files of the run, planned and checked before any work
+    (:func:`warpshade.measure.outputs.plan_outputs`); with ``validate``, the stages measured are
+    asked whether their parameters allow a ground truth at all.
+
+    Raises:
+        FileExistsError: a planned file warpshade did not write there (an input, say), naming it.
+        StageError: a stage that cannot be measured, naming it and its parameter.
+    """
     from pathlib import Path
 
     from .io.usd_write import usd_output_name
+    from .measure.outputs import plan_outputs
+    from .measure.pixels import pixel_stage_of
+    from .measure.protocols import check_measurable
+
+    stages, _ = spec.build()
+    shader = pixel_stage_of(stages, spec.output)
+    if validate:
+        output_name = spec.output.split(".", 1)[0]
+        check_measurable(next(s for s in stages if s.name == output_name))
+        if shader is not None and measured:
+            check_measurable(shader, per_pixel=True)
+    source = Path(scene.source) if scene.source and Path(scene.source).exists() else None
+    plan = plan_outputs(out, spec.name, usd_output_name(spec.name, scene, len(run_frames), usd_format), run_frames,
+                        measured, previews=previews, validate=validate, pixels=shader is not None,
+                        protected=() if source is None else (source,))
+    plan.check()
+    return plan
+
+
+def _check_cache() -> None:
+    """The artifact cache must take new entries: say so before any work, naming the directory and
+    how to choose another."""
+    from ._fileio import check_writable_dir
+    from .graph.cache import default_cache_dir
+
+    cache = default_cache_dir()
+    try:
+        check_writable_dir(cache, "artifact cache")
+    except OSError as exc:
+        raise CliError(f"{_message(exc)}; set $WARPSHADE_CACHE to a writable directory") from None
+
+
+def _finish_run(spec, rt, plan, measured, left_out, validate, previews, tasks) -> dict:
+    """The measuring layer's part of a run: USD layer, previews, error, comparisons, report, each
+    written where ``plan`` (:class:`~warpshade.measure.outputs.OutputPlan`) says and recorded in
+    the output directory's manifest once written."""
+    from pathlib import Path
+
     from .measure import measure_error, render_comparisons, render_previews, write_report, write_usd
     from .measure.pixels import measure_pixels, pixel_stage, write_pixel_images
 
-    out = Path(out)
-    outputs = {"left_out": left_out}
+    out = plan.directory
+    outputs = {"left_out": left_out, "png": []}
 
-    def inside(name: str) -> Path:
-        path = out / name
-        if path.resolve().parent != out.resolve():
-            raise CliError(f"output {name!r} would be written outside --out {out}")
-        return path
+    def wrote(paths) -> list:
+        plan.record(paths)
+        return list(paths)
 
-    outputs["usd"] = write_usd(rt, inside(usd_output_name(spec.name, rt.scene, len(rt.results), usd_format)))
+    outputs["usd"] = wrote([write_usd(rt, plan.usd)])[0]
     if previews:
-        outputs["png"] = render_previews(rt, out)
+        outputs["png"] += wrote(render_previews(rt, out, frames=sorted(plan.previews)))
     measurement = measure_error(rt, measured, executor=tasks) if validate else None
     error = measurement.error if measurement is not None else None
     if error is not None and left_out:
         error["frames_left_out"] = left_out
     if validate and previews:
-        outputs["png"] = [*outputs.get("png", []), *render_comparisons(rt, measurement, out)]
+        outputs["png"] += wrote(render_comparisons(rt, measurement, out, frames=sorted(plan.comparisons)))
     if pixel_stage(rt) is not None:
         # stages that shade pixels: per-pixel PNG + linear EXR previews, and per-pixel error
         if previews:
-            outputs["png"] = [*outputs.get("png", []), *write_pixel_images(rt, out, width=480, height=360)]
+            outputs["png"] += wrote(write_pixel_images(rt, out, frames=sorted(plan.pixel_images), width=480, height=360))
         if validate and measured:
             samples = int(spec.validate_spec.get("samples", 256))
-            pixels = measure_pixels(rt, out, measured, width=160, height=120, samples=samples)
+            pixels = measure_pixels(rt, out, sorted(plan.pixel_comparisons), width=160, height=120, samples=samples)
             if error is not None:
                 error["pixels"] = pixels
-            outputs["png"] = [*outputs.get("png", []), *[Path(v["image"]) for v in pixels["frames"].values()]]
-    outputs["report"] = write_report(rt, inside(f"{spec.name}.json"), error=error)
+            outputs["png"] += wrote([Path(v["image"]) for v in pixels["frames"].values()])
+    outputs["report"] = wrote([write_report(rt, plan.report, error=error)])[0]
     outputs["error"] = error
     return outputs
 

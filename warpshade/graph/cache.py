@@ -15,6 +15,7 @@ up, against the stage's declared ports (:mod:`warpshade.graph.precompute`).
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import io
 import os
@@ -108,15 +109,23 @@ class ArtifactCache:
         return None
 
     def store(self, key: str, arrays: dict) -> Path | None:
-        """Write ``arrays`` atomically under ``key``; returns the file path (None when disabled)."""
+        """Write ``arrays`` atomically under ``key``; returns the file path (None when disabled).
+
+        Raises:
+            OSError: naming the cache directory when it cannot take the file (read-only, full).
+        """
         if self.root is None:
             return None
         buffer = io.BytesIO()
         np.savez(buffer, **{k: np.asarray(v) for k, v in arrays.items()})
         data = buffer.getvalue()
         final = self.root / f"{key}.{_digest(data)}.npz"
-        with atomic_path(final) as tmp:
-            tmp.write_bytes(data)
+        try:
+            with atomic_path(final) as tmp:
+                tmp.write_bytes(data)
+        except OSError as exc:  # a read-only or full cache: name it and how to choose another
+            raise OSError(exc.errno or errno.EIO, f"artifact cache {self.root}: cannot store {final.name} "
+                          f"({exc.strerror or exc}); set $WARPSHADE_CACHE to a writable directory") from None
         for old in self._entries(key):  # an earlier entry of the same key (another digest)
             if old != final:
                 try:

@@ -8,9 +8,12 @@ broadcast to grey; an alpha channel is ignored.
 Radiance .hdr (RGBE) details:
 
 * reading accepts the flat layout, the "new" run-length encoding (``2 2 hi lo`` scanline
-  header) and the "old" run-length encoding (``1 1 1 n`` repeat pixels); only the standard
-  "-Y H +X W" orientation is accepted. An ``EXPOSURE=`` header value is divided out so the
-  returned values are the original radiance (Radiance's own convention);
+  header) and the "old" run-length encoding (``1 1 1 n`` repeat pixels); the standard
+  "-Y H +X W" orientation and its flips ("+Y H +X W" stores the bottom row first, "-X" each
+  row right to left) are accepted, rotated ones ("+X W -Y H") are not. An ``EXPOSURE=`` header
+  value is divided out so the returned values are the original radiance (Radiance's own
+  convention). A size above :data:`warpshade._limits.MAX_IMAGE_PIXELS` is refused before
+  anything is allocated;
 * decoding uses Radiance's rounding, ``value = (mantissa + 0.5) * 2**(exponent - 136)``;
 * writing uses the new run-length encoding (runs of equal bytes of length >= 4 become run
   packets, everything else literal packets), which every common reader accepts.
@@ -143,23 +146,51 @@ def _decode_hdr(data: bytes) -> np.ndarray:
     end = data.find(b"\n", pos)
     if end < 0:
         raise ValueError("missing resolution line")
-    res = data[pos:end].split()
+    line = data[pos:end]
     pos = end + 1
-    if len(res) != 4 or res[0] != b"-Y" or res[2] != b"+X":
-        raise ValueError(f"unsupported resolution line {data[pos:end]!r} (only '-Y H +X W')")
-    height, width = int(res[1]), int(res[3])
-    if height < 1 or width < 1:
-        raise ValueError(f"bad image size {width}x{height}")
+    height, width, flip_rows, flip_columns = _resolution(line)
     buf = np.frombuffer(data, dtype=np.uint8, offset=pos)
+    if buf.shape[0] < 4 * height:  # every scanline takes at least one pixel's 4 bytes
+        raise ValueError(f"truncated pixel data: {buf.shape[0]} bytes for {height} scanlines")
     rgbe = np.empty((height, width, 4), dtype=np.uint8)
     cursor = 0
     for row in range(height):
         cursor = _decode_scanline(buf, cursor, rgbe[row], width, row)
+    if flip_rows:
+        rgbe = rgbe[::-1]
+    if flip_columns:
+        rgbe = rgbe[:, ::-1]
     mantissa = rgbe[..., :3].astype(np.float64)
     exponent = rgbe[..., 3].astype(np.int64)
     scale = np.where(exponent > 0, np.ldexp(1.0, exponent - _RGBE_EXPONENT_BIAS), 0.0)
     img = (mantissa + 0.5) * scale[..., None] / exposure
     return img.astype(np.float32)
+
+
+def _resolution(line: bytes) -> tuple[int, int, bool, bool]:
+    """``(height, width, flip_rows, flip_columns)`` of a resolution line ``[-+]Y H [-+]X W``
+    (scanlines along X; ``+Y`` stores the bottom row first, ``-X`` each row right to left).
+
+    Raises:
+        ValueError: quoting the line (a rotated image, with Y along scanlines, is not read), or
+            naming a size above :data:`warpshade._limits.MAX_IMAGE_PIXELS`.
+    """
+    from .._limits import MAX_IMAGE_PIXELS
+
+    res = line.split()
+    if len(res) != 4 or res[0] not in (b"-Y", b"+Y") or res[2] not in (b"+X", b"-X"):
+        raise ValueError(f"unsupported resolution line {line[:80]!r} (only '-Y H +X W' and its flips "
+                         "'+Y H +X W', '-Y H -X W', '+Y H -X W')")
+    try:
+        height, width = int(res[1]), int(res[3])
+    except ValueError:
+        raise ValueError(f"resolution line {line[:80]!r}: the sizes are not integers") from None
+    if height < 1 or width < 1:
+        raise ValueError(f"bad image size {width}x{height}")
+    if height * width > MAX_IMAGE_PIXELS:
+        raise ValueError(f"image size {width}x{height} ({height * width:,} pixels) exceeds the limit of "
+                         f"{MAX_IMAGE_PIXELS:,} pixels (warpshade._limits.MAX_IMAGE_PIXELS)")
+    return height, width, res[0] == b"+Y", res[2] == b"-X"
 
 
 def _decode_scanline(buf: np.ndarray, cursor: int, out: np.ndarray, width: int, row: int) -> int:

@@ -4,7 +4,8 @@
 * :mod:`.truth` -- ray-traced ground truth cached on disk; a run's error against it;
 * :mod:`.metrics` -- relative RMS, 99th percentile, ground-truth noise;
 * :mod:`.pictures` -- previews and method | reference | error pictures of a run;
-* :mod:`.outputs` -- the USD layer and JSON report of a run;
+* :mod:`.outputs` -- the USD layer and JSON report of a run, the names of its files, planned
+  before any work and never over a file warpshade did not write (the output folder's manifest);
 * :mod:`.scenes` -- the bundled scenes under the measuring conventions;
 * :mod:`.harness` -- one method setting on one scene, timed and measured;
 * :mod:`.budget` -- choose a method's setting from an error budget.

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from .._fileio import atomic_path
+from .outputs import comparison_name, preview_frames, preview_name
 
 __all__ = [
     "ERROR_COLORMAP",
@@ -183,14 +184,14 @@ def render_previews(runtime, out_dir, frames=None, width: int = 480, height: int
     if not rec:
         raise ValueError("render_previews: the run recorded no frames (step with record=True, or run())")
     if frames is None:
-        frames = sorted({rec[0], rec[len(rec) // 2], rec[-1]})
+        frames = preview_frames(rec)
     if exposure is None:
         lum = np.concatenate([luminance(runtime.results[float(f)]) for f in frames])
         p99 = float(np.percentile(lum, 99)) if lum.size else 1.0
         exposure = float(np.log2(0.9 / p99)) if p99 > 0 else 0.0
     paths = []
     for f in frames:
-        p = Path(out_dir) / f"{runtime.spec.name}_{int(round(f)):04d}.png"
+        p = Path(out_dir) / preview_name(runtime.spec.name, f)
         render(runtime.scene, f, colors=runtime.results[float(f)], width=width, height=height,
                environment=_environment_at(runtime, f), exposure=exposure, path=p, device=runtime.device, supersample=2)
         paths.append(p)
@@ -214,7 +215,7 @@ def render_comparisons(runtime, measurement, out_dir, frames=None, width: int = 
                          f"{sorted(measurement.references)})")
     paths = []
     for f in frames:
-        p = Path(out_dir) / f"{runtime.spec.name}_{int(round(f)):04d}_vs_reference.png"
+        p = Path(out_dir) / comparison_name(runtime.spec.name, f)
         paths.append(comparison_figure(runtime.scene, f, measurement.estimates[f], measurement.references[f], p,
                                        label=runtime.spec.name, environment=_environment_at(runtime, f), width=width,
                                        height=height, device=runtime.device))

@@ -24,20 +24,29 @@ from pathlib import Path
 import numpy as np
 
 from .._wp import wp
+from .outputs import pixel_comparison_name, pixel_image_names, preview_frames
 from .protocols import PixelStage, ground_truth_model
 
 #: The primary-ray BVH of each run without one of its own (built once, refit per frame).
 _BVHS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 
-__all__ = ["PixelImage", "exposure_for", "measure_pixels", "pixel_bvh", "pixel_materials", "pixel_stage", "render_frame",
-           "write_pixel_images"]
+__all__ = ["PixelImage", "exposure_for", "measure_pixels", "pixel_bvh", "pixel_materials", "pixel_stage", "pixel_stage_of",
+           "render_frame", "write_pixel_images"]
 
 
 def pixel_stage(runtime):
     """The stage of the run that shades pixels (a :class:`~warpshade.measure.protocols.PixelStage`):
     the output's, else the first such stage; None when there is none."""
-    out_name = runtime.spec.output.split(".")[0] if getattr(runtime, "spec", None) is not None else None
-    stages = list(runtime.stages)
+    spec = getattr(runtime, "spec", None)
+    return pixel_stage_of(runtime.stages, spec.output if spec is not None else None)
+
+
+def pixel_stage_of(stages, output: str | None = None):
+    """:func:`pixel_stage` among ``stages`` (built, not necessarily set up: e.g. those of
+    :meth:`warpshade.graph.GraphSpec.build`, to plan a run's files before any work), whose output
+    port is ``output`` ("stage.port")."""
+    out_name = output.split(".")[0] if output else None
+    stages = list(stages)
     for st in ([s for s in stages if s.name == out_name] + stages):
         if isinstance(st, PixelStage):
             return st
@@ -176,16 +185,16 @@ def write_pixel_images(runtime, out_dir, frames=None, width: int = 640, height: 
         return []
     rec = sorted(runtime.results)
     if frames is None:
-        frames = sorted({rec[0], rec[len(rec) // 2], rec[-1]}) if rec else [float(runtime.scene.frames[0])]
+        frames = preview_frames(rec) if rec else [float(runtime.scene.frames[0])]
     images = [render_frame(runtime, f, width, height, supersample, textures) for f in frames]
     if exposure is None:
         exposure = exposure_for(np.concatenate([im.linear.reshape(-1, 3) for im in images]))
     paths = []
     for im in images:
-        stem = Path(out_dir) / f"{runtime.spec.name}_px_{int(round(im.frame)):04d}"
-        write_png(stem.with_suffix(".png"), tonemap_f64(im.linear, exposure=exposure))
-        write_exr(stem.with_suffix(".exr"), im.linear)
-        paths += [stem.with_suffix(".png"), stem.with_suffix(".exr")]
+        png, exr = (Path(out_dir) / name for name in pixel_image_names(runtime.spec.name, im.frame))
+        write_png(png, tonemap_f64(im.linear, exposure=exposure))
+        write_exr(exr, im.linear)
+        paths += [png, exr]
     return paths
 
 
@@ -225,7 +234,7 @@ def measure_pixels(runtime, out_dir, frames, width: int = 160, height: int = 120
         denom = float(np.sqrt(np.mean(r * r))) if r.size else 0.0
         rel = float(np.sqrt(np.mean(d * d)) / denom) if denom > 0 else float("nan")
         noise = float(np.sqrt(np.mean(ref.stderr[mask] ** 2)) / denom) if denom > 0 else float("nan")
-        path = Path(out_dir) / f"{runtime.spec.name}_px_{int(round(float(f))):04d}_vs_reference.png"
+        path = Path(out_dir) / pixel_comparison_name(runtime.spec.name, f)
         exposure = exposure_for(ref.radiance.reshape(-1, 3))
         err = np.abs(im.linear - ref.radiance)
         strip = np.concatenate([tonemap_f64(im.linear, exposure=exposure), tonemap_f64(ref.radiance, exposure=exposure),

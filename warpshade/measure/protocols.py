@@ -11,6 +11,8 @@ implements none is measured against the default ground truth, the diffuse refere
 * :class:`ViewerStage` -- a stage that shades toward the state's eye (the camera or
   ``Runtime.set_eye``): its reference follows the eye of each frame measured;
 * :class:`PixelStage` -- a stage that shades G-buffers per pixel;
+* :class:`MeasurableStage` -- a stage whose parameters can rule out a ground truth, and
+  :func:`check_measurable`, which asks it before any work;
 * :func:`ground_truth_model` -- the ground truth a stage's output is measured against, for one
   frame's materials and eye (the default and the follows-eye rule included).
 """
@@ -22,9 +24,11 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 __all__ = [
+    "MeasurableStage",
     "MeasuredStage",
     "PixelStage",
     "ViewerStage",
+    "check_measurable",
 ]
 
 
@@ -67,6 +71,23 @@ class PixelStage(Protocol):
     def pixel_reference_model(self, materials=None) -> dict | None:
         """:meth:`MeasuredStage.reference_model` for a per-pixel reference (which takes
         roughness and colours per pixel, so textured materials can be measured)."""
+
+
+@runtime_checkable
+class MeasurableStage(Protocol):
+    """A stage whose parameters alone can rule out a ground truth (checked before any work)."""
+
+    def check_measurable(self, per_pixel: bool = False) -> None:
+        """Raise :class:`~warpshade.methods.stage.StageError` naming the stage and parameter when
+        its output cannot be measured (per vertex, or per pixel with ``per_pixel``); needs only
+        the parameters (the stage is built, not set up)."""
+
+
+def check_measurable(stage, per_pixel: bool = False) -> None:
+    """Refuse before any work a stage that cannot be measured (:class:`MeasurableStage`); a stage
+    that is no :class:`MeasurableStage` is measurable as far as its parameters tell."""
+    if isinstance(stage, MeasurableStage):
+        stage.check_measurable(per_pixel)
 
 
 def ground_truth_model(stage, materials=None, eye=None, per_pixel: bool = False) -> dict | None:

@@ -33,6 +33,7 @@ its own through :meth:`Stage.dims`.
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -75,7 +76,8 @@ class Port:
 
 @dataclass(frozen=True)
 class Param:
-    """A typed stage parameter with a default and optional bounds or choices."""
+    """A typed stage parameter with a default and optional bounds or choices (a ``tuple``
+    parameter holds finite numbers: a colour, a position, a range)."""
 
     default: Any
     type: type = float
@@ -97,6 +99,8 @@ class Param:
             )
         if self.type is float and not math.isfinite(value):
             raise StageError(f"stage {stage!r}: parameter {name!r} must be finite, got {value!r}")
+        if self.type is tuple and not all(isinstance(x, numbers.Real) and not isinstance(x, bool) for x in value):
+            raise StageError(f"stage {stage!r}: parameter {name!r} must hold numbers, got {value!r}")
         if self.type is tuple and any(isinstance(x, float) and not math.isfinite(x) for x in value):
             raise StageError(f"stage {stage!r}: parameter {name!r} must hold finite numbers, got {value!r}")
         if self.choices is not None and value not in self.choices:

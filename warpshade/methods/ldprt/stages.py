@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..._limits import MAX_FIT_RESTARTS, MAX_LOOKUP_TABLE_WIDTH, MAX_VIEW_RESOLUTION
 from ..._wp import wp
 from ...basis.zh import DEFAULT_RIDGE as _RIDGE
 from ...basis.sh_warp import sh_kernels
@@ -72,7 +73,8 @@ class LdprtFitStage(PrecomputeStage):
         "target_error": Param(None, float, "per-vertex fit error target relative to the RMS transfer norm "
                                            "(None: 'lobes' lobes everywhere)", minimum=0.0),
         "stored_bands": Param("paper", str, "bands stored exactly", choices=tuple(STORED_BANDS)),
-        "restarts": Param(2, int, "random multi-starts where the fit error stays high", minimum=0),
+        "restarts": Param(2, int, "random multi-starts where the fit error stays high", minimum=0,
+                          maximum=MAX_FIT_RESTARTS),
         "restart_error": Param(0.05, float, "relative error above which the multi-start engages", minimum=0.0),
         "ridge": Param(_RIDGE, float, "coefficient ridge mu of the fit (psi + mu |g*|^2; keeps lobes from "
                                       "cancelling with huge coefficients; 0: the paper's objective)", minimum=0.0),
@@ -154,7 +156,8 @@ class LdprtShadeStage(FrameStage):
         "lobes": _LOBES,
         "evaluation": Param("table", str, "'table' (e^ look-ups, eq. 24-25) or 'direct' (SH at the axes)",
                             choices=("table", "direct")),
-        "table_width": Param(128, int, "longitudes of the e^ table (latitudes: width / 2 + 1)", minimum=8),
+        "table_width": Param(128, int, "longitudes of the e^ table (latitudes: width / 2 + 1)", minimum=8,
+                             maximum=MAX_LOOKUP_TABLE_WIDTH),
     }
 
     def dims(self):
@@ -255,11 +258,12 @@ class LdprtGlossyFitStage(PrecomputeStage):
         "roughness": Param(0.5, float, "microfacet roughness alpha", minimum=1e-3, maximum=2.0),
         "exponent": Param(30.0, float, "Phong / Blinn-Phong exponent", minimum=0.0),
         "f0": Param(0.04, float, "microfacet Fresnel reflectance at normal incidence", minimum=0.0, maximum=1.0),
-        "view_resolution": Param(32, int, "view-factor texture size (res x res)", minimum=2),
+        "view_resolution": Param(32, int, "view-factor texture size (res x res)", minimum=2, maximum=MAX_VIEW_RESOLUTION),
         "samples": _SAMPLES,
         "frame": _FRAME,
         "seed": Param(0, int, "seed of the per-vertex sample rotations"),
-        "restarts": Param(1, int, "random multi-starts where the fit error stays high", minimum=0),
+        "restarts": Param(1, int, "random multi-starts where the fit error stays high", minimum=0,
+                          maximum=MAX_FIT_RESTARTS),
         "below_horizon": Param("visible", str, "visibility below the tangent plane: 'visible' (the BRDF vanishes "
                                "there; avoids horizon ringing) or 'traced' (the paper's V)",
                                choices=("visible", "traced")),
@@ -313,8 +317,8 @@ class LdprtGlossyShadeStage(FrameStage):
         "order": _ORDER,
         "lobes": Param(3, int, "ZH lobes per BRDF row", minimum=1, maximum=8),
         "rank": Param(3, int, "BRDF rows (n_b)", minimum=1),
-        "view_resolution": Param(32, int, "view-factor texture size", minimum=2),
-        "table_width": Param(128, int, "longitudes of the e^ table", minimum=8),
+        "view_resolution": Param(32, int, "view-factor texture size", minimum=2, maximum=MAX_VIEW_RESOLUTION),
+        "table_width": Param(128, int, "longitudes of the e^ table", minimum=8, maximum=MAX_LOOKUP_TABLE_WIDTH),
         "specular": Param((1.0, 1.0, 1.0), tuple, "RGB specular colour multiplying r(v)"),
         "eye": Param(None, tuple, "viewer position, world (default: the scene camera)"),
     }

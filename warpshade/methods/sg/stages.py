@@ -499,22 +499,31 @@ class SgShadeStage(FrameStage):
         and colours per pixel (:class:`warpshade.measure.protocols.PixelStage`)."""
         return self._reference_model(per_pixel=True)
 
-    def _reference_model(self, per_pixel: bool):
-        """The glossy reference model; ``per_pixel``: textured materials are measured per pixel
-        (per vertex only with brdf = 'beckmann', whose reference takes a roughness per vertex)."""
+    def check_measurable(self, per_pixel: bool = False) -> None:
+        """Refuse, from the parameters alone (before any work), what has no ground truth:
+        ``component = 'both'``, a BRDF the glossy reference does not shade, textured materials
+        measured per vertex without Beckmann (:class:`warpshade.measure.protocols.MeasurableStage`)."""
         p = self.params
         if p["component"] == "diffuse":
-            return None
+            return
         if p["component"] == "both":
             raise StageError(f"stage {self.name!r}: component = 'both' has no single reference; validate 'specular' "
                              "and 'diffuse' separately")
         if p["brdf"] not in VALIDATED_MODELS:
             raise StageError(f"stage {self.name!r}: the glossy reference shades {VALIDATED_MODELS}; brdf = {p['brdf']!r} "
                              "cannot be validated")
-        textured = p["textures"] and not per_pixel
-        if textured and p["brdf"] != "beckmann":
+        if p["textures"] and not per_pixel and p["brdf"] != "beckmann":
             raise StageError(f"stage {self.name!r}: per-vertex validation of textured materials needs brdf = 'beckmann' "
                              "(the reference takes a roughness per vertex); measure it per pixel")
+
+    def _reference_model(self, per_pixel: bool):
+        """The glossy reference model; ``per_pixel``: textured materials are measured per pixel
+        (per vertex only with brdf = 'beckmann', whose reference takes a roughness per vertex)."""
+        p = self.params
+        self.check_measurable(per_pixel)
+        if p["component"] == "diffuse":
+            return None
+        textured = p["textures"] and not per_pixel
         if p["brdf"] == "beckmann":
             brdf = materials.Microfacet(roughness=p["roughness"], distribution="beckmann", f0=p["f0"])
         else:

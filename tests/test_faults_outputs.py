@@ -1,0 +1,254 @@
+"""Issue 23, data loss and late or unclear errors: every case refused early, by name, with nothing lost.
+
+* Data loss: ``--out`` pointing at a folder that holds inputs. A run plans every file it will write
+  before any work (:func:`warpshade.measure.outputs.plan_outputs`) and never replaces a file that
+  warpshade did not write there itself (the folder's manifest says which it did).
+* Sizes that would not fit (``restarts``, ``view_resolution``, ``table_width``, an HDR header)
+  are refused naming the parameter or file, before anything is allocated.
+* ``specular = ["a", ...]`` names ``specular``; an HDR ``+Y`` orientation is read (flipped) and a
+  rotated one is quoted as it is; ``component = "both"`` with ``--validate`` is refused before any
+  work; a read-only cache names the directory and ``$WARPSHADE_CACHE``.
+
+"Before any work" is asserted without timing: compiling the graph (which runs the precompute) is
+replaced by a function that fails the test when called, and the output folder is left as it was.
+"""
+
+import errno
+import json
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from warpshade import cli
+from warpshade.graph import GraphError, GraphSpec, Param, StageError, load
+from warpshade.io import read_hdr, read_image, write_hdr
+from warpshade.measure.outputs import MANIFEST_NAME, plan_outputs
+
+ROOT = Path(__file__).resolve().parents[1]
+ASSETS = ROOT / "warpshade" / "usd_assets"
+CUBE = textwrap.dedent("""\
+    #usda 1.0
+    (
+        upAxis = "Z"
+    )
+    def Mesh "Cube"
+    {
+        int[] faceVertexCounts = [4, 4, 4, 4, 4, 4]
+        int[] faceVertexIndices = [0, 1, 3, 2, 2, 3, 7, 6, 6, 7, 5, 4, 4, 5, 1, 0, 2, 6, 4, 0, 7, 3, 1, 5]
+        point3f[] points = [(-1, -1, -1), (1, -1, -1), (-1, 1, -1), (1, 1, -1), (-1, -1, 1), (1, -1, 1), (-1, 1, 1), (1, 1, 1)]
+    }
+    """)
+
+
+@pytest.fixture(autouse=True)
+def _private_cache(tmp_path_factory, monkeypatch):
+    monkeypatch.setenv("WARPSHADE_CACHE", str(tmp_path_factory.getbasetemp() / "outputs-cache"))
+
+
+def _graph(path: Path, name: str, scene: str, stage: str = 'type = "prt.unshadowed"\norder = 2') -> Path:
+    """A graph over ``scene`` stepping frames 0 and 1 (a static scene gets two time codes)."""
+    static = "frame_count = 2\n" if not scene.startswith("bundled:") else ""
+    path.write_text(f'[graph]\nname = "{name}"\nscene = "{scene}"\noutput = "shade.radiance"\nframes = "0:2"\n'
+                    f'{static}\n[[stage]]\nname = "shade"\n{stage}\n')
+    return path
+
+
+def _no_work(monkeypatch):
+    """Make compiling the graph (precompute, then frames) fail the test when it is reached."""
+    def compile_(*args, **kwargs):
+        raise AssertionError("the run started its work")
+
+    monkeypatch.setattr(GraphSpec, "compile", compile_)
+
+
+def _run(capsys, *argv) -> tuple[int, str]:
+    rc = cli.main(list(argv))
+    return rc, capsys.readouterr().err
+
+
+def _snapshot(folder: Path) -> dict:
+    return {p.name: p.read_bytes() for p in sorted(folder.iterdir())}
+
+
+# ---- 1. data loss: --out pointing at a folder that holds inputs -------------------------------------
+@pytest.mark.parametrize("graph_name, usd_format, held", [
+    ("figure", "auto", "figure.usda"),                 # the review's case: scene bend.usda, folder holds figure.usda
+    ("wanderer_test", "usdc", "wanderer_test.usdc"),   # the review's case: --usd-format usdc
+])
+def test_an_input_named_like_the_usd_layer_is_kept_and_named_before_any_work(tmp_path, capsys, monkeypatch, graph_name,
+                                                                             usd_format, held):
+    out = tmp_path / "assets"
+    out.mkdir()
+    (out / held).write_bytes((ASSETS / held).read_bytes())
+    before = _snapshot(out)
+    g = _graph(tmp_path / "g.toml", graph_name, "bundled:bend")
+    _no_work(monkeypatch)
+    rc, err = _run(capsys, "run", str(g), "--out", str(out), "--usd-format", usd_format, "--device", "cpu")
+    assert rc == 2 and f"already holds {held}" in err and "--out" in err and "Traceback" not in err, err
+    assert _snapshot(out) == before, "the input is untouched and nothing was written"
+
+
+@pytest.mark.parametrize("held, flags", [
+    ("g.json", ()),                                        # the report
+    ("g_0001.png", ()),                                    # a preview (frames 0:2: previews of 0 and 1)
+    ("g_0000_vs_reference.png", ("--validate",)),          # a comparison picture
+])
+def test_an_input_named_like_any_output_is_kept_and_named_before_any_work(tmp_path, capsys, monkeypatch, held, flags):
+    (tmp_path / "cube.usda").write_text(CUBE)
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / held).write_text("an input")
+    g = _graph(tmp_path / "g.toml", "g", str(tmp_path / "cube.usda"))
+    _no_work(monkeypatch)
+    rc, err = _run(capsys, "run", str(g), "--out", str(out), "--device", "cpu", *flags)
+    assert rc == 2 and f"already holds {held}" in err, err
+    assert _snapshot(out) == {held: b"an input"}
+
+
+def test_the_runs_own_scene_is_never_an_output_even_when_warpshade_wrote_it(tmp_path, capsys, monkeypatch):
+    out = tmp_path / "o"
+    out.mkdir()
+    scene = out / "g.usda"
+    scene.write_text(CUBE)
+    st_ = scene.stat()
+    (out / MANIFEST_NAME).write_text(json.dumps({"written": {"g.usda": {"size": st_.st_size,
+                                                                        "mtime_ns": st_.st_mtime_ns}}}))
+    g = _graph(tmp_path / "g.toml", "g", str(scene))
+    _no_work(monkeypatch)
+    rc, err = _run(capsys, "run", str(g), "--out", str(out), "--device", "cpu")
+    assert rc == 2 and "g.usda (the run's own scene)" in err, err
+    assert scene.read_text() == CUBE
+
+
+def test_a_rerun_replaces_only_what_warpshade_wrote(device, tmp_path, capsys):
+    (tmp_path / "cube.usda").write_text(CUBE)
+    out = tmp_path / "o"
+    g = _graph(tmp_path / "g.toml", "g", str(tmp_path / "cube.usda"))
+    assert _run(capsys, "run", str(g), "--out", str(out), "--device", device)[0] == 0
+    written = json.loads((out / MANIFEST_NAME).read_text())["written"]
+    assert sorted(written) == sorted(p.name for p in out.iterdir() if p.name != MANIFEST_NAME) == [
+        "g.json", "g.usda", "g_0000.png", "g_0001.png"]
+    rc, err = _run(capsys, "run", str(g), "--out", str(out), "--device", device)
+    assert rc == 0, err
+    # a file of the same name put there since (not the one warpshade wrote) is kept
+    (out / "g_0000.png").write_bytes(b"someone else's picture")
+    rc, err = _run(capsys, "run", str(g), "--out", str(out), "--device", device)
+    assert rc == 2 and "already holds g_0000.png" in err, err
+    assert (out / "g_0000.png").read_bytes() == b"someone else's picture"
+
+
+def test_the_plan_names_every_file_of_a_measured_pixel_run(tmp_path):
+    plan = plan_outputs(tmp_path, "px", "px.usda", [0.0, 1.0, 2.0, 3.0], [0.0, 3.0], previews=True, validate=True,
+                        pixels=True)
+    assert sorted(p.name for p in plan.paths()) == sorted([
+        "px.usda", "px.json", "px_0000.png", "px_0002.png", "px_0003.png", "px_0000_vs_reference.png",
+        "px_0003_vs_reference.png", "px_px_0000.png", "px_px_0000.exr", "px_px_0002.png", "px_px_0002.exr",
+        "px_px_0003.png", "px_px_0003.exr", "px_px_0000_vs_reference.png", "px_px_0003_vs_reference.png"])
+    (tmp_path / "px_px_0002.exr").write_bytes(b"an input")
+    with pytest.raises(FileExistsError, match=r"already holds px_px_0002\.exr"):
+        plan.check()
+    with pytest.raises(ValueError, match="was not planned"):
+        plan.record([tmp_path / "other.png"])
+
+
+# ---- 5. sizes that would not fit, named before allocating -------------------------------------------
+@pytest.mark.parametrize("stage, parameter", [
+    ('type = "ldprt.fit"\nrestarts = 1000000000', "restarts"),
+    ('type = "ldprt.glossy_fit"\nrestarts = 1000000000', "restarts"),
+    ('type = "ldprt.glossy_fit"\nview_resolution = 100000', "view_resolution"),
+    ('type = "ldprt.glossy_shade"\nview_resolution = 100000', "view_resolution"),
+    ('type = "ldprt.shade"\ntable_width = 10000000', "table_width"),
+    ('type = "ldprt.glossy_shade"\ntable_width = 10000000', "table_width"),
+])
+def test_fit_and_table_sizes_that_would_not_fit_name_the_parameter(tmp_path, stage, parameter):
+    g = _graph(tmp_path / "g.toml", "g", "cube.usda", stage)
+    with pytest.raises(GraphError, match=rf"stage 'shade': parameter '{parameter}' must be <= \d+"):
+        load(g)
+
+
+def _hdr_bytes(tmp_path, image) -> bytes:
+    write_hdr(tmp_path / "base.hdr", image)
+    return (tmp_path / "base.hdr").read_bytes()
+
+
+def _with_resolution_line(data: bytes, line: bytes) -> bytes:
+    head, _, rest = data.partition(b"\n\n")
+    return head + b"\n\n" + line + b"\n" + rest.partition(b"\n")[2]
+
+
+def test_an_hdr_header_claiming_a_huge_image_names_the_file_and_limit(tmp_path):
+    data = _with_resolution_line(_hdr_bytes(tmp_path, np.ones((2, 2, 3), np.float32)), b"-Y 2000000 +X 2000000")
+    path = tmp_path / "huge.hdr"
+    path.write_bytes(data)
+    with pytest.raises(ValueError, match=r"huge\.hdr.*2000000x2000000 .* exceeds the limit of .*MAX_IMAGE_PIXELS"):
+        read_image(path)
+
+
+def test_hdr_orientation_lines_are_read_or_quoted(tmp_path):
+    image = np.arange(4 * 3 * 3, dtype=np.float32).reshape(4, 3, 3) + 1.0
+    data = _hdr_bytes(tmp_path, image)
+    stored = read_hdr(tmp_path / "base.hdr")  # RGBE-rounded, rows top to bottom
+    for line, expected in [(b"+Y 4 +X 3", stored[::-1]), (b"-Y 4 -X 3", stored[:, ::-1]),
+                           (b"+Y 4 -X 3", stored[::-1, ::-1])]:
+        path = tmp_path / "flipped.hdr"
+        path.write_bytes(_with_resolution_line(data, line))
+        np.testing.assert_array_equal(read_hdr(path), expected)
+    path = tmp_path / "rotated.hdr"
+    path.write_bytes(_with_resolution_line(data, b"+X 3 -Y 4"))
+    with pytest.raises(ValueError, match=r"rotated\.hdr.*unsupported resolution line b'\+X 3 -Y 4'"):
+        read_hdr(path)
+
+
+# ---- 5. values named by their parameter ---------------------------------------------------------------
+def test_a_specular_colour_of_words_names_specular(tmp_path):
+    g = _graph(tmp_path / "g.toml", "g", "cube.usda", 'type = "rpo.shade"\nspecular = ["a", "b", "c"]')
+    with pytest.raises(GraphError, match=r"stage 'shade': parameter 'specular' must hold numbers, got \('a', 'b', 'c'\)"):
+        load(g)
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.lists(st.one_of(st.text(max_size=3), st.booleans(), st.none(), st.lists(st.integers(), max_size=2)),
+                min_size=1, max_size=4))
+def test_tuple_parameters_refuse_anything_but_numbers(values):
+    with pytest.raises(StageError, match=r"parameter 'specular' must hold numbers"):
+        Param((1.0, 1.0, 1.0), tuple, "colour").check("shade", "specular", [1.0, *values])
+
+
+def test_component_both_with_validate_is_refused_before_any_work(tmp_path, capsys, monkeypatch):
+    g = tmp_path / "sg_both.toml"
+    g.write_text((ROOT / "stages" / "sunlit_sg.toml").read_text().replace('brdf = "beckmann"',
+                                                                          'brdf = "beckmann"\ncomponent = "both"'))
+    out = tmp_path / "o"
+    _no_work(monkeypatch)
+    rc, err = _run(capsys, "run", str(g), "--out", str(out), "--validate", "--device", "cpu")
+    assert rc == 2 and "stage 'shade': component = 'both' has no single reference" in err, err
+    assert not list(out.iterdir())
+
+
+def test_an_unwritable_cache_names_the_directory_and_variable_before_any_work(tmp_path, capsys, monkeypatch):
+    (tmp_path / "cube.usda").write_text(CUBE)
+    blocked = tmp_path / "a_file"
+    blocked.write_text("x")
+    monkeypatch.setenv("WARPSHADE_CACHE", str(blocked / "cache"))  # cannot be created (read-only as root too)
+    g = _graph(tmp_path / "g.toml", "g", str(tmp_path / "cube.usda"))
+    _no_work(monkeypatch)
+    rc, err = _run(capsys, "run", str(g), "--out", str(tmp_path / "o"), "--device", "cpu")
+    assert rc == 2 and f"artifact cache {blocked / 'cache'} is not writable" in err and "$WARPSHADE_CACHE" in err, err
+
+
+def test_a_cache_that_refuses_a_write_names_the_directory_and_variable(tmp_path, monkeypatch):
+    from warpshade.graph import ArtifactCache
+    from warpshade.graph import cache as cache_module
+
+    def read_only(path, *args, **kwargs):
+        raise PermissionError(errno.EACCES, "Permission denied", str(path))
+
+    monkeypatch.setattr(cache_module, "atomic_path", read_only)
+    with pytest.raises(OSError, match=rf"artifact cache {tmp_path}: cannot store k\.\w+\.npz \(Permission denied\); "
+                                      r"set \$WARPSHADE_CACHE") as caught:
+        ArtifactCache(tmp_path).store("k", {"a": np.zeros(2)})
+    assert caught.value.errno == errno.EACCES
