@@ -91,7 +91,7 @@ def comparison_figure(
     path,
     *,
     label: str = "estimate",
-    reference_label: str = "ray-traced reference",
+    reference_label: str = "ray traced",
     environment=None,
     exposure: float | None = None,
     limit: float = ERROR_LIMIT,
