@@ -16,8 +16,7 @@ import pytest
 
 from warpshade import cli
 from warpshade._tasks import progress_bar
-from warpshade.graph import load
-from warpshade.graph.cache import default_cache_dir
+from warpshade.graph import default_cache_dir, load
 from warpshade.measure import Measurement, render_comparisons, run_exposure
 from warpshade.measure.pictures import ERROR_LABEL, write_panels
 from warpshade.scene.materials import Microfacet
