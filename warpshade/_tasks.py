@@ -42,6 +42,7 @@ __all__ = [
     "ProcessExecutor",
     "DaskExecutor",
     "executor",
+    "progress_bar",
 ]
 
 #: Environment variable read by :func:`executor` when no scheduler is given.
@@ -80,9 +81,61 @@ def _failed(index: int, desc: str | None, exc: BaseException) -> TaskError:
 
 
 def _progress_bar(total: int, desc: str | None, progress: bool):
+    return progress_bar(total=total, desc=desc, unit="task", disable=not progress or total == 0)
+
+
+#: Seconds between the plain progress lines written where stderr is not a terminal.
+PLAIN_PROGRESS_INTERVAL_S = 15.0
+_CURSOR_ONLY = re.compile(r"^(?:[\r\n ]|\x1b\[A)*$")
+
+
+class _LineStream:
+    """The stream a plain progress bar writes to: each of tqdm's status updates becomes one
+    line (the leading carriage return and trailing padding dropped), and the cursor movements
+    and clears tqdm writes between updates are dropped, so a log gets whole lines only."""
+
+    def __init__(self, stream):
+        self._stream = stream
+
+    def write(self, text: str) -> int:
+        if not _CURSOR_ONLY.match(text):
+            self._stream.write(text.strip("\r\n").rstrip() + "\n")
+        return len(text)
+
+    def flush(self) -> None:
+        self._stream.flush()
+
+    def __getattr__(self, name):
+        return getattr(self._stream, name)
+
+
+def progress_bar(iterable=None, *, total=None, desc=None, unit="it", leave=True, disable=False, stream=None,
+                 interval_s: float = PLAIN_PROGRESS_INTERVAL_S):
+    """A progress bar (tqdm) on ``stream`` (default: stderr), the one every long loop of
+    warpshade shows.
+
+    On a terminal (and in a notebook) it is tqdm's bar, redrawn in place. Elsewhere -- a log
+    file, a pipe, a batch job -- it writes plain lines with no carriage returns: one when it
+    starts, one every ``interval_s`` seconds and one with the totals when it closes.
+
+    Args:
+        iterable, total, desc, unit, leave, disable: as :class:`tqdm.tqdm`.
+        stream: where the bar is written (a text stream); default ``sys.stderr``.
+        interval_s: seconds between plain lines.
+    """
+    import sys
+
     from tqdm.auto import tqdm
 
-    return tqdm(total=total, desc=desc, unit="task", disable=not progress or total == 0)
+    stream = sys.stderr if stream is None else stream
+    notebook = any(cls.__module__ == "tqdm.notebook" for cls in tqdm.__mro__)
+    isatty = getattr(stream, "isatty", None)
+    if disable or notebook or (isatty is not None and isatty()):
+        return tqdm(iterable, total=total, desc=desc, unit=unit, leave=leave, disable=disable, file=stream)
+    from tqdm.std import tqdm as plain
+
+    return plain(iterable, total=total, desc=desc, unit=unit, leave=True, file=_LineStream(stream), ascii=True,
+                 mininterval=interval_s, maxinterval=max(interval_s, 10.0), dynamic_ncols=False)
 
 
 class Executor(ABC):

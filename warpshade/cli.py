@@ -210,6 +210,10 @@ def _run_graph(graph_file, frames=None, device=None, out_dir=None, validate=Fals
     measured = left_out = []
     if validate:
         measured, left_out = spec.validation_frames(scene, run_frames)
+        if left_out:  # said before any work, and again in the summary and the report
+            print(f"warpshade run: --validate measures frame(s) {', '.join(f'{f:g}' for f in measured)}; [validate] "
+                  f"frame(s) {', '.join(f'{f:g}' for f in left_out)} are outside the frames run "
+                  f"({run_frames[0]:g}..{run_frames[-1]:g}) and are left out", file=sys.stderr)
     plan = _plan_run(spec, scene, out, run_frames, measured, validate, previews, usd_format)
     _check_cache()
     # ground-truth frames go to the executor only when one is asked for (flag or environment)

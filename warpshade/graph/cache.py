@@ -34,9 +34,15 @@ DIGEST_LENGTH = 16
 
 
 def default_cache_dir() -> Path:
-    """``$WARPSHADE_CACHE`` if set, else ``~/.cache/warpshade``."""
+    """Where artifacts are cached: ``$WARPSHADE_CACHE`` if set, else ``$XDG_CACHE_HOME/warpshade``
+    (the XDG base-directory convention; a relative ``$XDG_CACHE_HOME`` is ignored, as the
+    specification says), else ``~/.cache/warpshade``."""
     env = os.environ.get("WARPSHADE_CACHE")
-    return Path(env) if env else Path.home() / ".cache" / "warpshade"
+    if env:
+        return Path(env)
+    xdg = os.environ.get("XDG_CACHE_HOME")
+    base = Path(xdg) if xdg and Path(xdg).is_absolute() else Path.home() / ".cache"
+    return base / "warpshade"
 
 
 def _digest(data: bytes) -> str:

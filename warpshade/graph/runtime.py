@@ -155,14 +155,14 @@ class Runtime(RunChanges):
         With ``warmup`` the first frame is stepped twice before timing starts (kernels compile,
         then the frame is recorded), so neither counts as frame time. Returns the frames run.
         """
-        from tqdm.auto import tqdm
+        from .._tasks import progress_bar
 
         sel = parse_frames(frames if frames is not None else self.spec.frames, self.scene)
         if warmup:
             self.step(sel[0])
             self.step(sel[0])
             self.reset_timings()
-        for f in tqdm(sel, desc=f"{self.spec.name}: frames", disable=not self.progress, unit="frame"):
+        for f in progress_bar(sel, desc=f"{self.spec.name}: frames", disable=not self.progress, unit="frame"):
             self.step(f, record=record)
         return sel
 

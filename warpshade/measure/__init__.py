@@ -17,7 +17,7 @@ from .budget import BudgetChoice, Candidate, choose, method_candidates, pick
 from .harness import run_setting, setting_error
 from .metrics import combine_metrics, error_metrics
 from .outputs import report, write_report, write_usd
-from .pictures import comparison_figure, error_colors, render_comparisons, render_previews
+from .pictures import comparison_figure, error_colors, render_comparisons, render_previews, run_exposure
 from .protocols import ground_truth_model
 from .scenes import BENCH_SCENES, error_frames, load_bench_scene, pick_frames, scene_kinds
 from .truth import GT_SEED, VALIDATE_SEED, Measurement, ground_truth, measure_error, reference_model, truth_cache
@@ -46,6 +46,7 @@ __all__ = [
     "render_comparisons",
     "render_previews",
     "report",
+    "run_exposure",
     "run_setting",
     "scene_kinds",
     "setting_error",

@@ -3,8 +3,10 @@
 ``comparison_figure`` renders one frame three times from the same camera: the method's
 per-vertex radiance, the reference radiance (both at one exposure so they compare), and the
 signed relative error per vertex on a diverging colour map, then writes the three panels with
-titles and a colour bar as one PNG (atomically). :func:`render_previews` and
-:func:`render_comparisons` do it for the recorded frames of a run.
+titles and a colour bar as one PNG (atomically, :func:`write_panels`, which the per-pixel
+strips of :mod:`.pixels` use too). :func:`render_previews` and :func:`render_comparisons` do it
+for the recorded frames of a run. Every picture of a run has one exposure (:func:`run_exposure`),
+so frames, previews and comparisons compare with each other.
 
 The error shown is ``(Y_est - Y_ref) / mean(Y_ref)`` per vertex, with ``Y`` the Rec. 709
 luminance: blue where the method is too dark (e.g. over-occlusion), red where it is too bright.
@@ -33,11 +35,19 @@ LUMA = np.array([0.2126, 0.7152, 0.0722])
 ERROR_COLORMAP = "RdBu_r"
 #: Default end of the error colour scale, as a fraction of the mean reference luminance.
 ERROR_LIMIT = 0.5
+#: Label of the error colour bar: the signed luminance error over the mean reference luminance.
+ERROR_LABEL = "error: (Y_method - Y_ref) / mean Y_ref"
 
 
 def luminance(rgb) -> np.ndarray:
     """Rec. 709 luminance of linear RGB, shape (..., 3) -> (...)."""
     return np.asarray(rgb, np.float64) @ LUMA
+
+
+def reference_exposure(radiance) -> float:
+    """Exposure (stops) mapping the 99th percentile of the luminance of radiance (..., 3) to 0.9."""
+    p99 = float(np.percentile(luminance(radiance).ravel(), 99))
+    return float(np.log2(0.9 / p99)) if p99 > 0 else 0.0
 
 
 def _srgb_to_linear(c: np.ndarray) -> np.ndarray:
@@ -82,7 +92,7 @@ def comparison_figure(
     path,
     *,
     label: str = "estimate",
-    reference_label: str = "ray-traced reference",
+    reference_label: str = "ray traced",
     environment=None,
     exposure: float | None = None,
     limit: float = ERROR_LIMIT,
@@ -107,11 +117,6 @@ def comparison_figure(
     Returns:
         The path written.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     from ..geometry.bvh import Visibility
     from ..render import render
     from .metrics import error_metrics
@@ -122,8 +127,7 @@ def comparison_figure(
         raise ValueError(f"comparison_figure: estimate {est.shape} and reference {ref.shape} must be "
                          f"({scene.vertex_count}, 3) for this scene")
     if exposure is None:
-        p99 = float(np.percentile(luminance(ref), 99))
-        exposure = float(np.log2(0.9 / p99)) if p99 > 0 else 0.0
+        exposure = reference_exposure(ref)
     colors, err = error_colors(est, ref, limit)
     state = scene.evaluate(frame, device=device)
     bvh = Visibility.from_scene(scene, device=device)
@@ -135,12 +139,42 @@ def comparison_figure(
     ]
     metrics = error_metrics(est, ref)
     titles = [
-        f"{label}\nrel RMS {metrics['rel_rms']:.3f}, p99 {metrics['rel_p99']:.3f}",
-        reference_label,
-        f"(Y_est - Y_ref) / mean Y_ref\nmin {np.nanmin(err):+.2f}, max {np.nanmax(err):+.2f}",
+        f"method: {label}\nrel RMS {metrics['rel_rms']:.3f}, p99 {metrics['rel_p99']:.3f}",
+        f"reference: {reference_label}",
+        f"error\nmin {np.nanmin(err):+.2f}, max {np.nanmax(err):+.2f}",
     ]
+    return write_panels(path, images, titles, limit, f"frame {float(frame):g}")
+
+
+def write_panels(path, images, titles, limit: float = ERROR_LIMIT, caption: str = "") -> Path:
+    """Write three images side by side -- method | reference | error -- with a title over each
+    and a colour bar for the error panel (``ERROR_COLORMAP`` from ``-limit`` to ``+limit``,
+    labelled :data:`ERROR_LABEL`), as one PNG (atomically; its directory is created).
+
+    Args:
+        path: destination PNG.
+        images: three tone-mapped sRGB images, uint8, each (H, W, 3), of one size.
+        titles: three panel titles.
+        limit: error at the ends of the colour bar (fraction of the mean reference luminance).
+        caption: a line under the panels (e.g. the frame).
+
+    Returns:
+        The path written.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    if len(images) != 3 or len(titles) != 3:
+        raise ValueError(f"write_panels: needs three images and three titles, got {len(images)} and {len(titles)}")
+    images = [np.asarray(img) for img in images]
+    if any(img.dtype != np.uint8 or img.ndim != 3 or img.shape != images[0].shape for img in images):
+        raise ValueError(f"write_panels: needs three uint8 (H, W, 3) images of one size, got "
+                         f"{[(str(img.dtype), img.shape) for img in images]}")
+    height, width = images[0].shape[:2]
     # panels placed by hand in inches: three images side by side, a colour bar, room for titles
-    top, bottom, bar = 0.55, 0.25, 0.75
+    top, bottom, bar = 0.55, 0.25, 1.1
     fig_w, fig_h = 3 * width / 100 + bar, height / 100 + top + bottom
     fig = plt.figure(figsize=(fig_w, fig_h), dpi=100)
     axes = [fig.add_axes([i * width / 100 / fig_w, bottom / fig_h, width / 100 / fig_w, height / 100 / fig_h])
@@ -152,8 +186,11 @@ def comparison_figure(
     cax = fig.add_axes([(3 * width / 100 + 0.12) / fig_w, (bottom + 0.1 * height / 100) / fig_h, 0.12 / fig_w,
                         0.8 * height / 100 / fig_h])
     mappable = plt.cm.ScalarMappable(norm=matplotlib.colors.Normalize(-limit, limit), cmap=ERROR_COLORMAP)
-    fig.colorbar(mappable, cax=cax).ax.tick_params(labelsize=7)
-    fig.text(0.5 * 3 * width / 100 / fig_w, 0.04, f"frame {float(frame):g}", fontsize=9, ha="center")
+    cbar = fig.colorbar(mappable, cax=cax)
+    cbar.ax.tick_params(labelsize=7)
+    cbar.set_label(ERROR_LABEL, fontsize=7)
+    if caption:
+        fig.text(0.5 * 3 * width / 100 / fig_w, 0.04, caption, fontsize=9, ha="center")
     path = Path(path)
     try:
         with atomic_path(path) as tmp:
@@ -161,6 +198,23 @@ def comparison_figure(
     finally:
         plt.close(fig)
     return path
+
+
+def run_exposure(runtime) -> float:
+    """The one exposure (stops) of every picture of a run -- previews, comparisons, per-pixel
+    images and strips: it maps the 99th percentile of the luminance of the recorded radiance
+    (the first, middle and last recorded frames) to 0.9 before sRGB encoding.
+
+    Raises:
+        ValueError: when the run recorded no frames.
+    """
+    rec = sorted(runtime.results)
+    if not rec:
+        raise ValueError("run_exposure: the run recorded no frames (step with record=True, or run())")
+    frames = sorted({rec[0], rec[len(rec) // 2], rec[-1]})
+    lum = np.concatenate([luminance(runtime.results[float(f)]) for f in frames])
+    p99 = float(np.percentile(lum, 99)) if lum.size else 1.0
+    return float(np.log2(0.9 / p99)) if p99 > 0 else 0.0
 
 
 def _environment_at(runtime, frame):
@@ -172,8 +226,7 @@ def _environment_at(runtime, frame):
 def render_previews(runtime, out_dir, frames=None, width: int = 480, height: int = 360, exposure: float | None = None) -> list:
     """Write ``<graph>_<frame>.png`` previews of recorded frames (default: first, middle, last).
 
-    One exposure is used for all frames of a run so they compare; by default it maps the 99th
-    percentile of the recorded luminance to 0.9 before sRGB encoding.
+    One exposure is used for all pictures of a run so they compare (default :func:`run_exposure`).
 
     Raises:
         ValueError: when the run recorded no frames.
@@ -186,9 +239,7 @@ def render_previews(runtime, out_dir, frames=None, width: int = 480, height: int
     if frames is None:
         frames = preview_frames(rec)
     if exposure is None:
-        lum = np.concatenate([luminance(runtime.results[float(f)]) for f in frames])
-        p99 = float(np.percentile(lum, 99)) if lum.size else 1.0
-        exposure = float(np.log2(0.9 / p99)) if p99 > 0 else 0.0
+        exposure = run_exposure(runtime)
     paths = []
     for f in frames:
         p = Path(out_dir) / preview_name(runtime.spec.name, f)
@@ -198,12 +249,15 @@ def render_previews(runtime, out_dir, frames=None, width: int = 480, height: int
     return paths
 
 
-def render_comparisons(runtime, measurement, out_dir, frames=None, width: int = 400, height: int = 300) -> list:
+def render_comparisons(runtime, measurement, out_dir, frames=None, width: int = 400, height: int = 300,
+                       exposure: float | None = None) -> list:
     """Write ``<graph>_<frame>_vs_reference.png`` (method | ray-traced | signed error) per frame.
 
     Args:
         runtime: the run; measurement: its :class:`~warpshade.measure.truth.Measurement`.
         frames: default every frame the measurement has.
+        exposure: stops, the same for every frame (default :func:`run_exposure`, or the first
+            measured reference's when the run recorded no frames).
 
     Raises:
         ValueError: a frame the measurement does not have.
@@ -213,10 +267,12 @@ def render_comparisons(runtime, measurement, out_dir, frames=None, width: int = 
     if missing:
         raise ValueError(f"render_comparisons: frame(s) {missing} were not measured (measured: "
                          f"{sorted(measurement.references)})")
+    if exposure is None and frames:
+        exposure = run_exposure(runtime) if runtime.results else reference_exposure(measurement.references[frames[0]])
     paths = []
     for f in frames:
         p = Path(out_dir) / comparison_name(runtime.spec.name, f)
         paths.append(comparison_figure(runtime.scene, f, measurement.estimates[f], measurement.references[f], p,
-                                       label=runtime.spec.name, environment=_environment_at(runtime, f), width=width,
-                                       height=height, device=runtime.device))
+                                       label=runtime.spec.name, environment=_environment_at(runtime, f),
+                                       exposure=exposure, width=width, height=height, device=runtime.device))
     return paths

@@ -25,6 +25,7 @@ import numpy as np
 
 from .._wp import wp
 from .outputs import pixel_comparison_name, pixel_image_names, preview_frames
+from .pictures import ERROR_COLORMAP, ERROR_LIMIT, luminance, run_exposure, write_panels
 from .protocols import PixelStage, ground_truth_model
 
 #: The primary-ray BVH of each run without one of its own (built once, refit per frame).
@@ -175,8 +176,10 @@ def exposure_for(linear: np.ndarray) -> float:
 
 def write_pixel_images(runtime, out_dir, frames=None, width: int = 640, height: int = 480, supersample: int = 1,
                        textures: bool | None = None, exposure: float | None = None) -> list:
-    """``<graph>_px_<frame>.png`` (tone-mapped, one exposure for every frame) and ``.exr``
-    (linear) for the pixel stage of the run; returns the paths (empty without such a stage)."""
+    """``<graph>_px_<frame>.png`` (tone-mapped at the run's one exposure,
+    :func:`~warpshade.measure.pictures.run_exposure`, or one for these images when the run
+    recorded no frame) and ``.exr`` (linear) for the pixel stage of the run; returns the paths
+    (empty without such a stage)."""
     from ..io.images import write_exr
     from ..render import write_png
     from ..render.image import tonemap_f64
@@ -188,7 +191,8 @@ def write_pixel_images(runtime, out_dir, frames=None, width: int = 640, height: 
         frames = preview_frames(rec) if rec else [float(runtime.scene.frames[0])]
     images = [render_frame(runtime, f, width, height, supersample, textures) for f in frames]
     if exposure is None:
-        exposure = exposure_for(np.concatenate([im.linear.reshape(-1, 3) for im in images]))
+        exposure = (run_exposure(runtime) if runtime.results
+                    else exposure_for(np.concatenate([im.linear.reshape(-1, 3) for im in images])))
     paths = []
     for im in images:
         png, exr = (Path(out_dir) / name for name in pixel_image_names(runtime.spec.name, im.frame))
@@ -198,9 +202,30 @@ def write_pixel_images(runtime, out_dir, frames=None, width: int = 640, height: 
     return paths
 
 
+def _error_image(linear, reference, mask):
+    """The error panel of a per-pixel strip: ``(Y_method - Y_ref) / mean Y_ref`` over the covered
+    pixels ``mask`` on :data:`~warpshade.measure.pictures.ERROR_COLORMAP` (``+-ERROR_LIMIT`` at its
+    ends), the neutral grey elsewhere. Returns (uint8 sRGB image (H, W, 3), the errors of the
+    covered pixels)."""
+    import matplotlib
+
+    from ..render.image import GREY_BACKGROUND
+
+    y_est, y_ref = luminance(linear), luminance(reference)
+    scale = float(np.mean(y_ref[mask])) if mask.any() else 0.0
+    err = (y_est - y_ref) / scale if scale > 0 else np.zeros_like(y_ref)
+    t = np.clip(0.5 + 0.5 * np.nan_to_num(err, nan=0.0) / ERROR_LIMIT, 0.0, 1.0)
+    rgb = np.where(mask[..., None], matplotlib.colormaps[ERROR_COLORMAP](t)[..., :3], GREY_BACKGROUND)
+    return np.clip(np.floor(rgb * 255.0 + 0.5), 0, 255).astype(np.uint8), err[mask]
+
+
 def measure_pixels(runtime, out_dir, frames, width: int = 160, height: int = 120, samples: int = 256, supersample: int = 1,
-                   textures: bool | None = None, seed: int = 0) -> dict:
+                   textures: bool | None = None, seed: int = 0, exposure: float | None = None) -> dict:
     """Per-pixel error of the pixel stage against the per-pixel glossy reference, per frame.
+
+    Each frame's ``<graph>_px_<frame>_vs_reference.png`` shows method | reference | error with
+    titles and the error's colour bar (:func:`~warpshade.measure.pictures.write_panels`), at one
+    ``exposure`` (stops; default the run's, :func:`~warpshade.measure.pictures.run_exposure`).
 
     The reference has the stage's per-pixel reference BRDF, eye and colour
     (:func:`~warpshade.measure.protocols.ground_truth_model` with ``per_pixel``), the frame's
@@ -211,7 +236,6 @@ def measure_pixels(runtime, out_dir, frames, width: int = 160, height: int = 120
         ``{"frames": {frame: {"rel_rms", "noise", "pixels", "image"}}, "width", "height", "samples"}``.
     """
     from ..reference.pixels import reference_image
-    from ..render import write_png
     from ..render.image import tonemap_f64
 
     st = pixel_stage(runtime)
@@ -235,10 +259,13 @@ def measure_pixels(runtime, out_dir, frames, width: int = 160, height: int = 120
         rel = float(np.sqrt(np.mean(d * d)) / denom) if denom > 0 else float("nan")
         noise = float(np.sqrt(np.mean(ref.stderr[mask] ** 2)) / denom) if denom > 0 else float("nan")
         path = Path(out_dir) / pixel_comparison_name(runtime.spec.name, f)
-        exposure = exposure_for(ref.radiance.reshape(-1, 3))
-        err = np.abs(im.linear - ref.radiance)
-        strip = np.concatenate([tonemap_f64(im.linear, exposure=exposure), tonemap_f64(ref.radiance, exposure=exposure),
-                                tonemap_f64(err, exposure=exposure + 2.0)], axis=1)
-        write_png(path, strip)
+        if exposure is None:
+            exposure = run_exposure(runtime) if runtime.results else exposure_for(ref.radiance.reshape(-1, 3))
+        error_image, err = _error_image(im.linear, ref.radiance, mask)
+        titles = [f"method: {runtime.spec.name}, per pixel\nrel RMS {rel:.3f} (reference noise {noise:.3f})",
+                  f"reference: ray traced, {samples} spp",
+                  f"error\nmin {np.min(err, initial=0.0):+.2f}, max {np.max(err, initial=0.0):+.2f}"]
+        write_panels(path, [tonemap_f64(im.linear, exposure=exposure), tonemap_f64(ref.radiance, exposure=exposure),
+                            error_image], titles, ERROR_LIMIT, f"frame {float(f):g}, {width}x{height} pixels")
         report["frames"][float(f)] = {"rel_rms": rel, "noise": noise, "pixels": int(mask.sum()), "image": str(path)}
     return report

@@ -11,13 +11,13 @@
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from .._hashing import hash_json
+from .._tasks import progress_bar
 from .metrics import combine_metrics, error_metrics
 from .protocols import ground_truth_model
 
@@ -113,7 +113,7 @@ def ground_truth(scene, lighting, frames, samples: int = 1024, device="cpu", cac
         model: None for the diffuse reference, or keyword arguments of
             :func:`~warpshade.reference.shade_glossy` (``brdf``, ``eye``, ``color``).
         seed: random seed of the estimator.
-        progress: print one line per frame computed.
+        progress: show a progress bar over the frames computed (:func:`warpshade._tasks.progress_bar`).
         executor: a :class:`warpshade._tasks.Executor` to compute the frames missing from the
             cache as independent tasks (local worker processes, a Dask cluster); None computes
             them here, one after another. Same seeds either way, so the same result. Tasks run on
@@ -146,13 +146,13 @@ def ground_truth(scene, lighting, frames, samples: int = 1024, device="cpu", cac
             cache.store(keys[task["frame"]], hit)
             out[task["frame"]] = hit
     else:
-        for task in tasks:
-            t0 = time.perf_counter()
-            hit = _truth_task(task)
-            cache.store(keys[task["frame"]], hit)
-            out[task["frame"]] = hit
-            if progress:
-                print(f"    {kind} frame {task['frame']:g}: {samples} spp in {time.perf_counter() - t0:.1f} s", flush=True)
+        with progress_bar(total=len(tasks), desc=f"{kind} ({samples} spp)", unit="frame",
+                          disable=not progress or not tasks) as bar:
+            for task in tasks:
+                hit = _truth_task(task)
+                cache.store(keys[task["frame"]], hit)
+                out[task["frame"]] = hit
+                bar.update(1)
     return {float(f): out[float(f)] for f in frames}
 
 
@@ -209,7 +209,7 @@ def measure_error(runtime, frames=None, samples: int | None = None, seed: int = 
     for desc in {hash_json(_model_description(m)) for m in models.values()}:
         fs = [f for f in sel if hash_json(_model_description(models[float(f)])) == desc]
         truth.update(ground_truth(runtime.scene, runtime.lighting, fs, samples, runtime.device, cache_dir,
-                                  models[float(fs[0])], seed, executor=executor))
+                                  models[float(fs[0])], seed, progress=runtime.progress, executor=executor))
     model = models[float(sel[0])]
     per_frame, refs, ests = [], {}, {}
     for f in sel:

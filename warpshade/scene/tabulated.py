@@ -369,6 +369,10 @@ def write_merl(path, brdf: BRDF, dims=MERL_DIMS, rgb=(1.0, 1.0, 1.0)) -> Path:
 def read_merl(path, channel="luminance", interpolation="nearest") -> TabulatedBRDF:
     """Read a MERL ``.binary`` file into a :class:`TabulatedBRDF` (values times the scales).
 
+    The glossy stages shade one channel of a BRDF (``channel``: its luminance by default) times
+    their RGB ``specular`` colour; a coloured table read as its luminance warns (UserWarning)
+    with the colour to give ``specular``.
+
     Raises:
         ValueError: naming the file, when it is missing or not a file, shorter than the header,
             has dims outside 1..4096, a size other than ``12 + 3 n_theta_h n_theta_d n_phi_d 8``
@@ -404,4 +408,27 @@ def read_merl(path, channel="luminance", interpolation="nearest") -> TabulatedBR
     if not np.any(stored > 0.0):
         raise ValueError(f"read_merl: {path}: no positive entry (the table is all zero or invalid)")
     table = stored * np.asarray(MERL_SCALES)[:, None, None, None]
-    return TabulatedBRDF(table, channel, interpolation, str(path))
+    brdf = TabulatedBRDF(table, channel, interpolation, str(path))
+    if brdf.channel == "luminance":
+        _warn_if_coloured(table, path)
+    return brdf
+
+
+#: Relative spread of a table's mean channel values above which :func:`read_merl` calls it coloured.
+COLOURED_SPREAD = 0.02
+
+
+def _warn_if_coloured(table: np.ndarray, path: Path) -> None:
+    """Warn that a coloured table read as its luminance renders grey, with the RGB colour (mean
+    of each channel over the valid cells, luminance 1) that a stage's ``specular`` would need."""
+    import warnings
+
+    valid = np.all(table >= 0.0, axis=0)
+    means = np.array([float(c[valid].mean()) if valid.any() else 0.0 for c in table])
+    lum = float(np.dot(LUMINANCE_WEIGHTS, means))
+    if lum <= 0.0 or (means.max() - means.min()) <= COLOURED_SPREAD * means.max():
+        return
+    colour = ", ".join(f"{c:.3f}" for c in means / lum)
+    warnings.warn(f"read_merl: {path}: the table is coloured (mean RGB relative to its luminance: {colour}) and is "
+                  f"read as its luminance, which renders grey; give the glossy stage specular = [{colour}] for its "
+                  "colour, or read one channel (channel='r', 'g' or 'b')", UserWarning, stacklevel=3)

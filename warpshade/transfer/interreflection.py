@@ -282,9 +282,9 @@ class InterreflectionTracer:
         _broadcast_rows(every, direct, self._buffers[0], self.device)
         bar = None
         if self.progress and not self.device.is_capturing:
-            from tqdm.auto import tqdm
+            from .._tasks import progress_bar
 
-            bar = tqdm(total=self.bounces, desc=f"{self.bounces} diffuse bounces, {self.samples} rays per vertex",
+            bar = progress_bar(total=self.bounces, desc=f"{self.bounces} diffuse bounces, {self.samples} rays per vertex",
                        unit="bounce", leave=False)
         previous = self._buffers[0]
         for b in range(1, self.bounces + 1):

@@ -334,11 +334,11 @@ class TransferTracer:
         if not self.progress or self.device.is_capturing:
             launch_parallel(self._kernel, self.receiver_count, inputs, self.device, self._launch_workers(), chunks=self.chunks)
             return
-        from tqdm.auto import tqdm
+        from .._tasks import progress_bar
 
         # batches of about PROGRESS_BATCH_RAYS rays, so a long bake shows it is moving
         batch = max(1, min(self.receiver_count, PROGRESS_BATCH_RAYS // max(self.samples, 1)))
-        with tqdm(total=self.receiver_count, desc=f"ray tracing {self.samples} rays per vertex", unit="vertex",
+        with progress_bar(total=self.receiver_count, desc=f"ray tracing {self.samples} rays per vertex", unit="vertex",
                   leave=False) as bar:
             for lo in range(0, self.receiver_count, batch):
                 count = min(batch, self.receiver_count - lo)

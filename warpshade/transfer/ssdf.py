@@ -134,9 +134,9 @@ class _Progress:
         if progress is None or progress is False:
             return
         if progress is True:
-            from tqdm.auto import tqdm
+            from .._tasks import progress_bar
 
-            self._bar = tqdm(total=self.total, desc=desc, unit="vertex", leave=False)
+            self._bar = progress_bar(total=self.total, desc=desc, unit="vertex", leave=False)
             self._own = True
         elif hasattr(progress, "update"):
             self._bar = progress

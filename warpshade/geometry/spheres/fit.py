@@ -742,9 +742,9 @@ def construct(
     history = {"initial_error": state.error, "teleports_accepted": 0, "teleports_tried": 0}
     bar = None
     if progress:
-        from tqdm.auto import tqdm
+        from ..._tasks import progress_bar
 
-        bar = tqdm(total=teleport_attempts, desc=f"spheres {disc.solid.name} ({sphere_count})", leave=False)
+        bar = progress_bar(total=teleport_attempts, desc=f"spheres {disc.solid.name} ({sphere_count})", leave=False)
     tried: set = set()
     failures = 0
     for _ in range(teleport_attempts if sphere_count > 2 else 0):
@@ -767,7 +767,7 @@ def construct(
                 failures += 1
         if bar is not None:
             bar.update(1)
-            bar.set_postfix(E=f"{state.error / disc.volume:.3f}")
+            bar.set_postfix(E=f"{state.error / disc.volume:.3f}", refresh=False)
     if bar is not None:
         bar.close()
     # exact bounds of the final clusters, then drop spheres that became redundant

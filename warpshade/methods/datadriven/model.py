@@ -605,6 +605,6 @@ def novelty(space: PoseSpace, poses: np.ndarray, training: np.ndarray) -> dict:
 def _maybe_progress(items, progress: bool, desc: str):
     if not progress:
         return items
-    from tqdm.auto import tqdm
+    from ..._tasks import progress_bar
 
-    return tqdm(items, desc=desc, leave=False)
+    return progress_bar(items, desc=desc, leave=False)

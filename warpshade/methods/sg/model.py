@@ -212,13 +212,13 @@ def _level_progress(progress):
         return None
     if callable(progress):
         return progress
-    from tqdm.auto import tqdm
+    from ..._tasks import progress_bar
 
     bar = {}
 
     def update(done, total):
         if "bar" not in bar:
-            bar["bar"] = tqdm(total=total, desc="SG environment table", unit="level", leave=False)
+            bar["bar"] = progress_bar(total=total, desc="SG environment table", unit="level", leave=False)
         bar["bar"].update(done - bar["bar"].n)
         if done >= total:
             bar["bar"].close()
