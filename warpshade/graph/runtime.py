@@ -88,14 +88,15 @@ class Runtime(RunChanges):
         self.results: dict = {}
         self._fingerprint = None
         self._override_on = False
+        self.track = MaterialTrack(getattr(spec, "materials", None), scene)
+        self._track_key = None
+        self._check_material_track()
         done = precompute(self.stages, self.wiring, self.ctx, self.cache, lambda: self.fingerprint, self.timings)
         self.artifacts, self.artifact_keys, self.stale_artifacts = done.artifacts, done.keys, done.stale
         needs_bvh = any(st.needs_bvh for st in self.stages if st.kind == "frame")
         self.evaluator = FrameEvaluator(scene, self.device, self.lighting, bvh=needs_bvh)
         self.state = self.evaluator.state
         self.ctx.state = self.state
-        self.track = MaterialTrack(getattr(spec, "materials", None), scene)
-        self._track_key = None
         self.frame = FrameGraph(self.stages, self.wiring, self.artifacts, self.evaluator, self.ctx, spec.output, capture)
         self.frame_outputs = self.frame.outputs
 

@@ -257,6 +257,10 @@ class FrameStage(Stage):
     #: True when the stage traces rays against the frame's geometry: the runtime then keeps a
     #: BVH over the state's points (``state.bvh``), refit inside the recorded frame.
     needs_bvh: ClassVar[bool] = False
+    #: True when the stage shades the run's BRDFs (``state.materials``, told by
+    #: :data:`~warpshade.scene.state.Change.MATERIAL`): a material change or track is refused on
+    #: a graph without such a stage, where it would be ignored.
+    reads_materials: ClassVar[bool] = False
 
     def setup(self, ctx: StageContext, inputs: dict) -> dict:
         """Allocate fixed device outputs and bind the inputs (device arrays of upstream ports;

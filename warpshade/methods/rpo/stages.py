@@ -81,6 +81,8 @@ class GlossyStage(FrameStage):
     """What RPO shading stages share: checks of the common parameters, the eye, the colour, the
     default BRDF, and the glossy reference of each frame (per mesh when BRDFs differ)."""
 
+    reads_materials = True
+
     def dims(self):
         return {"C": self.params["order"] ** 2}
 

@@ -139,6 +139,7 @@ def _rgb(value, name: str, stage: str) -> np.ndarray:
 @register_stage
 class SgShadeStage(FrameStage):
     type_name = "sg.shade"
+    reads_materials = True
     description = "spherical-Gaussian shading (eq. 39, 41-43) with SSDF visibility, per vertex (and per pixel)"
     parameters = {
         "brdf": Param("beckmann", str, "specular model (NDF as one SG lobe)", choices=BRDF_MODELS),
