@@ -59,8 +59,8 @@ def _stage_brdf(stage, ctx) -> materials.BRDF:
     if file is not None:
         file = str(ctx.resolve_path(file)) if hasattr(ctx, "resolve_path") else file
     try:
-        return brdfs.make_brdf(p["brdf"], roughness=p["roughness"], exponent=p["exponent"], f0=p["f0"], file=file,
-                                   where=f"stage {stage.name!r}")
+        values = {k: p[k] for k in brdfs.BRDF_USES.get(p["brdf"], ()) if k in BRDF_PARAMS and k != "file"}
+        return brdfs.make_brdf(p["brdf"], file=file, where=f"stage {stage.name!r}", **values)
     except ValueError as exc:
         raise StageError(str(exc)) from None
 
