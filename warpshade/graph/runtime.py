@@ -31,6 +31,7 @@ from ..scene.lighting import LightingSource
 from ..scene.state import FrameEvaluator
 from .cache import ArtifactCache, default_cache_dir
 from .changes import MaterialTrack, RunChanges
+from .errors import GraphError
 from .frame import FrameGraph
 from .precompute import StageTiming, precompute
 from .scene_inputs import parse_frames
@@ -132,11 +133,16 @@ class Runtime(RunChanges):
                 coefficients (3, n*n) of at least the graph's highest order, an Environment, a
                 DistantLight or a list of them (projected to SH on the host).
             record: keep a host copy of the result in :attr:`results` (what the USD layer,
-                previews and error measurement of :mod:`warpshade.measure` read).
+                previews and error measurement of :mod:`warpshade.measure` read); the copy is
+                checked for NaN and infinities first (:meth:`check_finite`).
 
         Returns:
             the output device array (per-vertex radiance, (vertex_count, 3) float32). The same
             array is overwritten by the next step; copy it (``.numpy().copy()``) to keep it.
+
+        Raises:
+            GraphError: with ``record``, a frame whose output is not finite, naming the frame
+                and the first stage that produced non-finite values (nothing is recorded).
         """
         t_start = time.perf_counter()
         self.evaluator.set_frame(frame)
@@ -147,8 +153,35 @@ class Runtime(RunChanges):
         self.host_s.append(t_host - t_start)
         self.frame_s.append(time.perf_counter() - t_start)
         if record:
-            self.results[float(self.state.frame)] = self.output.numpy().copy()
+            result = self.output.numpy().copy()
+            if not np.all(np.isfinite(result)):
+                self.check_finite()
+                raise GraphError(f"frame {float(self.state.frame):g}: the output {self.spec.output!r} is not finite")
+            self.results[float(self.state.frame)] = result
         return self.output
+
+    def check_finite(self) -> None:
+        """Check the last frame's arrays for NaN and infinities, in the order they were made:
+        the scene's (points, normals, albedo), then every frame stage's outputs.
+
+        Raises:
+            GraphError: naming the frame, the first stage (or the scene) and port holding a
+                non-finite value, how many there are and the first row.
+        """
+        frame = float(self.state.frame)
+        arrays = [("the scene evaluation", "points", self.state.points), ("the scene evaluation", "normals", self.state.normals),
+                  ("the scene evaluation", "albedo", self.evaluator.albedo)]
+        arrays += [(f"stage {st.name!r} ({st.type_name})", port, a)
+                   for st in self.frame_stages for port, a in self.frame.outputs[st.name].items()]
+        for where, port, array in arrays:
+            if not isinstance(array, wp.array) or array.dtype not in (wp.float32, wp.float64, wp.vec3, wp.mat33):
+                continue
+            host = array.numpy()
+            bad = ~np.isfinite(host.reshape(host.shape[0], -1)).all(axis=1) if host.ndim else ~np.isfinite(host)
+            if np.any(bad):
+                raise GraphError(f"frame {frame:g}: {where} output {port!r} has {int(bad.sum())} non-finite row(s) of "
+                                 f"{bad.size} (first row {int(np.argmax(bad))}): NaN or infinity from here on; check the "
+                                 "stage's parameters, BRDF and inputs")
 
     def run(self, frames=None, record: bool = True, warmup: bool = True) -> np.ndarray:
         """Step over frames (default: the graph's frame range), with a progress bar.
