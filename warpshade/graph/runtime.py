@@ -39,6 +39,22 @@ from .scene_inputs import parse_frames
 __all__: list[str] = []
 
 
+def _check_spaces(stages, wiring) -> None:
+    """Refuse a wire from a port in one frame (``Port.space``: local tangent frames or world)
+    into a port expecting the other, before anything runs (the numbers would be read in the
+    wrong frame and shade silently wrong)."""
+    outputs = {st.name: st.output_ports() for st in stages}
+    for st in stages:
+        wanted = st.input_ports()
+        for port, w in wiring[st.name].items():
+            have = outputs.get(w.provider, {}).get(w.port)
+            want = wanted.get(port)
+            if have is not None and want is not None and have.space and want.space and have.space != want.space:
+                raise GraphError(f"stage {st.name!r} input {port!r} expects {want.space}-frame values; stage "
+                                 f"{w.provider!r} output {w.port!r} is in the {have.space} frame (set the consumer's "
+                                 "frame parameter, e.g. visibility_space, to match)")
+
+
 class Runtime(RunChanges):
     """A compiled stage graph bound to a scene and a device (made by :meth:`GraphSpec.compile
     <warpshade.graph.spec.GraphSpec.compile>`).
@@ -92,6 +108,7 @@ class Runtime(RunChanges):
         self.track = MaterialTrack(getattr(spec, "materials", None), scene)
         self._track_key = None
         self._check_material_track()
+        _check_spaces(self.stages, self.wiring)
         done = precompute(self.stages, self.wiring, self.ctx, self.cache, lambda: self.fingerprint, self.timings)
         self.artifacts, self.artifact_keys, self.stale_artifacts = done.artifacts, done.keys, done.stale
         needs_bvh = any(st.needs_bvh for st in self.stages if st.kind == "frame")

@@ -62,11 +62,15 @@ class Port:
             ``"V"`` vertex count, ``"T"`` frame count, ``"F"`` triangle count; and per stage
             (:meth:`Stage.dims`): ``"C"`` SH coefficients, ``"N"`` SH bands, and the stage's own.
         doc: one line saying what the port carries (frame, units).
+        space: the frame directions in the array are in, ``"local"`` (per-vertex tangent
+            frames) or ``"world"``, or None when it does not matter; a wire joining ports of
+            two different spaces is refused before anything runs.
     """
 
     dtype: str
     shape: tuple = ()
     doc: str = ""
+    space: str | None = None
 
     def __post_init__(self):
         if self.dtype not in PORT_DTYPES:

@@ -351,7 +351,7 @@ class DataDrivenTransferStage(FrameStage):
     def output_ports(self):
         if self.params["color"]:
             return {"transfer_rgb": Port("float32", ("V", 3, "C"), "per-channel transfer after bounces, world frame")}
-        return {"transfer": Port("float32", ("V", "C"), "diffuse transfer vectors, world frame")}
+        return {"transfer": Port("float32", ("V", "C"), "diffuse transfer vectors, world frame", space="world")}
 
     def setup(self, ctx, inputs):
         where = f"stage {self.name!r} ({self.type_name})"

@@ -151,7 +151,8 @@ class RpoShadeStage(GlossyStage):
 
     def input_ports(self):
         return {"frames": Port("mat33", ("V",)), "points": Port("vec3", ("V",)),
-                "visibility": Port("float32", ("V", "C")), "lighting": Port("lighting")}
+                "visibility": Port("float32", ("V", "C"), space=self.params["visibility_space"]),
+                "lighting": Port("lighting")}
 
     # ---- set-up -----------------------------------------------------------------------
     def setup(self, ctx, inputs):
@@ -320,7 +321,7 @@ class RpoVisibilityTracedStage(FrameStage):
         return {"points": Port("vec3", ("V",)), "normals": Port("vec3", ("V",))}
 
     def output_ports(self):
-        return {"visibility": Port("float32", ("V", "C"), "SH visibility, tangent frame"),
+        return {"visibility": Port("float32", ("V", "C"), "SH visibility, tangent frame", space="local"),
                 "frames": Port("mat33", ("V",), "tangent frames of the frame (rows t, b, n)")}
 
     def setup(self, ctx, inputs):
@@ -352,7 +353,8 @@ class RpoVisibilityStaticStage(PrecomputeStage):
         return {"C": self.params["order"] ** 2}
 
     def output_ports(self):
-        return {"visibility": Port("float32", ("V", "C"), "SH visibility at the bake frame, tangent frame")}
+        return {"visibility": Port("float32", ("V", "C"), "SH visibility at the bake frame, tangent frame",
+                                    space="local")}
 
     def precompute(self, ctx, inputs):
         from ...transfer import compute
