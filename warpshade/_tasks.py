@@ -549,6 +549,13 @@ def _executor(scheduler: str | None, workers: int | None) -> Executor:
             if workers is not None and workers != int(count):
                 raise ValueError(f"scheduler {scheduler!r} contradicts workers={workers}")
             workers = int(count)
+            cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+            if workers > cores:
+                import warnings
+
+                warnings.warn(f"scheduler {scheduler!r}: {workers} worker processes on {cores} cores; using {cores} "
+                              "(more would only compete for the same cores and memory)", RuntimeWarning, stacklevel=3)
+                workers = cores
         return ProcessExecutor(workers)
     if re.match(r"^[A-Za-z][A-Za-z0-9+.\-]*://\S+$", text):
         if workers is not None:

@@ -98,7 +98,9 @@ class FrameGraph:
 
     def setup(self, start: int) -> None:
         """Set up frame stages ``start..`` (in order), binding upstream outputs; the recording is
-        dropped (the next frame records anew)."""
+        dropped first (the next frame records anew), so a set-up that fails part way never leaves a
+        recording of buffers some stages no longer use."""
+        self.program = None
         for st in self.stages[start:]:
             inputs = {}
             for port, w in self.wiring[st.name].items():
@@ -114,7 +116,6 @@ class FrameGraph:
                 raise GraphError(f"stage {st.name!r}: setup did not allocate {sorted(missing)}")
             self.outputs[st.name] = outs
         self.output = self.outputs[self._output[0]][self._output[1]]
-        self.program = None
 
     def launch(self, recorder=None) -> None:
         """One frame's launches: scene evaluation, then every frame stage."""

@@ -31,11 +31,28 @@ from ..scene.lighting import LightingSource
 from ..scene.state import FrameEvaluator
 from .cache import ArtifactCache, default_cache_dir
 from .changes import MaterialTrack, RunChanges
+from .errors import GraphError
 from .frame import FrameGraph
 from .precompute import StageTiming, precompute
 from .scene_inputs import parse_frames
 
 __all__: list[str] = []
+
+
+def _check_spaces(stages, wiring) -> None:
+    """Refuse a wire from a port in one frame (``Port.space``: local tangent frames or world)
+    into a port expecting the other, before anything runs (the numbers would be read in the
+    wrong frame and shade silently wrong)."""
+    outputs = {st.name: st.output_ports() for st in stages}
+    for st in stages:
+        wanted = st.input_ports()
+        for port, w in wiring[st.name].items():
+            have = outputs.get(w.provider, {}).get(w.port)
+            want = wanted.get(port)
+            if have is not None and want is not None and have.space and want.space and have.space != want.space:
+                raise GraphError(f"stage {st.name!r} input {port!r} expects {want.space}-frame values; stage "
+                                 f"{w.provider!r} output {w.port!r} is in the {have.space} frame (set the consumer's "
+                                 "frame parameter, e.g. visibility_space, to match)")
 
 
 class Runtime(RunChanges):
@@ -88,14 +105,16 @@ class Runtime(RunChanges):
         self.results: dict = {}
         self._fingerprint = None
         self._override_on = False
+        self.track = MaterialTrack(getattr(spec, "materials", None), scene)
+        self._track_key = None
+        self._check_material_track()
+        _check_spaces(self.stages, self.wiring)
         done = precompute(self.stages, self.wiring, self.ctx, self.cache, lambda: self.fingerprint, self.timings)
         self.artifacts, self.artifact_keys, self.stale_artifacts = done.artifacts, done.keys, done.stale
         needs_bvh = any(st.needs_bvh for st in self.stages if st.kind == "frame")
         self.evaluator = FrameEvaluator(scene, self.device, self.lighting, bvh=needs_bvh)
         self.state = self.evaluator.state
         self.ctx.state = self.state
-        self.track = MaterialTrack(getattr(spec, "materials", None), scene)
-        self._track_key = None
         self.frame = FrameGraph(self.stages, self.wiring, self.artifacts, self.evaluator, self.ctx, spec.output, capture)
         self.frame_outputs = self.frame.outputs
 
@@ -131,11 +150,16 @@ class Runtime(RunChanges):
                 coefficients (3, n*n) of at least the graph's highest order, an Environment, a
                 DistantLight or a list of them (projected to SH on the host).
             record: keep a host copy of the result in :attr:`results` (what the USD layer,
-                previews and error measurement of :mod:`warpshade.measure` read).
+                previews and error measurement of :mod:`warpshade.measure` read); the copy is
+                checked for NaN and infinities first (:meth:`check_finite`).
 
         Returns:
             the output device array (per-vertex radiance, (vertex_count, 3) float32). The same
             array is overwritten by the next step; copy it (``.numpy().copy()``) to keep it.
+
+        Raises:
+            GraphError: with ``record``, a frame whose output is not finite, naming the frame
+                and the first stage that produced non-finite values (nothing is recorded).
         """
         t_start = time.perf_counter()
         self.evaluator.set_frame(frame)
@@ -146,8 +170,35 @@ class Runtime(RunChanges):
         self.host_s.append(t_host - t_start)
         self.frame_s.append(time.perf_counter() - t_start)
         if record:
-            self.results[float(self.state.frame)] = self.output.numpy().copy()
+            result = self.output.numpy().copy()
+            if not np.all(np.isfinite(result)):
+                self.check_finite()
+                raise GraphError(f"frame {float(self.state.frame):g}: the output {self.spec.output!r} is not finite")
+            self.results[float(self.state.frame)] = result
         return self.output
+
+    def check_finite(self) -> None:
+        """Check the last frame's arrays for NaN and infinities, in the order they were made:
+        the scene's (points, normals, albedo), then every frame stage's outputs.
+
+        Raises:
+            GraphError: naming the frame, the first stage (or the scene) and port holding a
+                non-finite value, how many there are and the first row.
+        """
+        frame = float(self.state.frame)
+        arrays = [("the scene evaluation", "points", self.state.points), ("the scene evaluation", "normals", self.state.normals),
+                  ("the scene evaluation", "albedo", self.evaluator.albedo)]
+        arrays += [(f"stage {st.name!r} ({st.type_name})", port, a)
+                   for st in self.frame_stages for port, a in self.frame.outputs[st.name].items()]
+        for where, port, array in arrays:
+            if not isinstance(array, wp.array) or array.dtype not in (wp.float32, wp.float64, wp.vec3, wp.mat33):
+                continue
+            host = array.numpy()
+            bad = ~np.isfinite(host.reshape(host.shape[0], -1)).all(axis=1) if host.ndim else ~np.isfinite(host)
+            if np.any(bad):
+                raise GraphError(f"frame {frame:g}: {where} output {port!r} has {int(bad.sum())} non-finite row(s) of "
+                                 f"{bad.size} (first row {int(np.argmax(bad))}): NaN or infinity from here on; check the "
+                                 "stage's parameters, BRDF and inputs")
 
     def run(self, frames=None, record: bool = True, warmup: bool = True) -> np.ndarray:
         """Step over frames (default: the graph's frame range), with a progress bar.

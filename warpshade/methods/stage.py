@@ -63,11 +63,15 @@ class Port:
             ``"V"`` vertex count, ``"T"`` frame count, ``"F"`` triangle count; and per stage
             (:meth:`Stage.dims`): ``"C"`` SH coefficients, ``"N"`` SH bands, and the stage's own.
         doc: one line saying what the port carries (frame, units).
+        space: the frame directions in the array are in, ``"local"`` (per-vertex tangent
+            frames) or ``"world"``, or None when it does not matter; a wire joining ports of
+            two different spaces is refused before anything runs.
     """
 
     dtype: str
     shape: tuple = ()
     doc: str = ""
+    space: str | None = None
 
     def __post_init__(self):
         if self.dtype not in PORT_DTYPES:
@@ -261,6 +265,10 @@ class FrameStage(Stage):
     #: True when the stage traces rays against the frame's geometry: the runtime then keeps a
     #: BVH over the state's points (``state.bvh``), refit inside the recorded frame.
     needs_bvh: ClassVar[bool] = False
+    #: True when the stage shades the run's BRDFs (``state.materials``, told by
+    #: :data:`~warpshade.scene.state.Change.MATERIAL`): a material change or track is refused on
+    #: a graph without such a stage, where it would be ignored.
+    reads_materials: ClassVar[bool] = False
 
     def setup(self, ctx: StageContext, inputs: dict) -> dict:
         """Allocate fixed device outputs and bind the inputs (device arrays of upstream ports;

@@ -84,6 +84,11 @@ class MaterialAssignment:
             return self.prims[path]
         return self.default if self.default is not None else fallback
 
+    def saved(self) -> tuple:
+        """``(default, prims)`` as they are now (a copy), to put back with
+        :meth:`FrameEvaluator.assign_materials` when a change is rejected."""
+        return self.default, dict(self.prims)
+
     def describe(self) -> dict:
         return {"default": None if self.default is None else self.default.describe(),
                 "prims": {k: v.describe() for k, v in sorted(self.prims.items())}}
@@ -432,19 +437,45 @@ class FrameEvaluator:
 
     def set_albedo(self, albedo, prims=None) -> None:
         """Replace the diffuse albedo of every vertex, or of the meshes whose prim paths are in
-        ``prims`` (RGB, (3,) or per vertex); a direct write (notify :data:`Change.MATERIAL`)."""
+        ``prims`` (one prim path or a list of them; RGB, (3,) or per vertex of those meshes); a
+        direct write (notify :data:`Change.MATERIAL`). Everything is checked before anything is
+        written.
+
+        Raises:
+            ValueError: naming the albedo or prim at fault: no prims, an unknown prim, an albedo
+                that is not numbers, not (3,) / (vertices, 3), not finite or negative.
+        """
         current = self.albedo.numpy().copy()
-        a = np.asarray(albedo, np.float64)
-        meshes = self.scene.meshes if prims is None else [m for m in self.scene.meshes if m.path in set(prims)]
-        if prims is not None and len(meshes) != len(set(prims)):
+        try:
+            a = np.asarray(albedo, np.float64)
+        except (TypeError, ValueError):
+            raise ValueError(f"albedo: expected RGB numbers, got {albedo!r}") from None
+        if prims is None:
+            meshes = self.scene.meshes
+        else:
+            paths = [prims] if isinstance(prims, str) else list(prims)
+            if not paths or not all(isinstance(p, str) for p in paths):
+                raise ValueError(f"albedo: prims must be a mesh prim path or a non-empty list of them, got {prims!r}")
             known = {m.path for m in self.scene.meshes}
-            raise ValueError(f"albedo: unknown mesh prim(s) {sorted(set(prims) - known)}")
+            unknown = sorted(set(paths) - known)
+            if unknown:
+                raise ValueError(f"albedo: no mesh prim {unknown} in {self.scene.source or 'the scene'} "
+                                 f"(meshes: {sorted(known)})")
+            meshes = [m for m in self.scene.meshes if m.path in set(paths)]
+        count = sum(m.vertex_count for m in meshes)
+        if a.size == 3 and a.ndim in (1, 2) and a.shape[-1] == 3:
+            value = np.broadcast_to(a.reshape(3), (count, 3))
+        elif a.shape == (count, 3):
+            value = a
+        else:
+            raise ValueError(f"albedo: expected RGB (3,) or one per vertex ({count}, 3), got shape {a.shape}")
+        if not np.all(np.isfinite(value)) or np.any(value < 0):
+            raise ValueError("albedo: expected finite non-negative RGB, got "
+                             f"{'non-finite values' if not np.all(np.isfinite(value)) else f'minimum {value.min():g}'}")
+        start = 0
         for m in meshes:
-            sl = slice(m.vertex_offset, m.vertex_offset + m.vertex_count)
-            value = a.reshape(1, 3) if a.size == 3 else a.reshape(-1, 3)
-            if value.shape[0] not in (1, m.vertex_count) or not np.all(np.isfinite(value)) or np.any(value < 0):
-                raise ValueError(f"albedo for {m.path}: expected finite non-negative RGB, (3,) or ({m.vertex_count}, 3)")
-            current[sl] = value
+            current[m.vertex_offset : m.vertex_offset + m.vertex_count] = value[start : start + m.vertex_count]
+            start += m.vertex_count
         self.albedo.assign(current.astype(np.float32))
 
     # ---- device side ---------------------------------------------------------------------

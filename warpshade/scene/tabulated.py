@@ -76,6 +76,10 @@ MERL_INVALID = -1.0
 MERL_HEADER_BYTES = 12
 MAX_DIM = 4096
 """Largest table size along one axis that :func:`read_merl` accepts."""
+MAX_VALUE = 1e10
+"""Largest BRDF value (1/sr, after the scales) :func:`read_merl` accepts: far above measured
+materials (mirror-like MERL entries stay below 1e5) and far below what float32 shading overflows
+on (the SH projections sum values times quadrature weights and lighting)."""
 LUMINANCE_WEIGHTS = (0.2126, 0.7152, 0.0722)
 """Rec. 709 luminance of linear RGB."""
 
@@ -408,6 +412,12 @@ def read_merl(path, channel="luminance", interpolation="nearest") -> TabulatedBR
     if not np.any(stored > 0.0):
         raise ValueError(f"read_merl: {path}: no positive entry (the table is all zero or invalid)")
     table = stored * np.asarray(MERL_SCALES)[:, None, None, None]
+    huge = np.abs(table) > MAX_VALUE
+    if huge.any():
+        first = tuple(int(i) for i in np.unravel_index(int(np.argmax(huge)), stored.shape))
+        raise ValueError(f"read_merl: {path}: {int(huge.sum())} entries beyond {MAX_VALUE:g} /sr (largest "
+                         f"{float(np.abs(table).max()):g}), the first at (channel, theta_h, theta_d, phi_d) = {first}; "
+                         "not a BRDF table in the MERL layout")
     brdf = TabulatedBRDF(table, channel, interpolation, str(path))
     if brdf.channel == "luminance":
         _warn_if_coloured(table, path)

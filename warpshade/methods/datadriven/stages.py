@@ -25,7 +25,7 @@ from ..common import order_param, rays_param
 from ..stage import FrameStage, Param, Port, PrecomputeStage, StageError, register_stage
 from . import kernels
 from .model import (DataDrivenModel, PoseSpace, choose_sizes, fit_full, fit_reduced, lighting_weights, novelty,
-                    validation_split)
+                    pose_space, validation_split)
 from .pose import PARAMETERISATIONS, ROOT_MODES, pose_features, pose_layout, root_references
 from .training import check_same_character, parse_frame_selection, topology_key, trace_training
 
@@ -268,6 +268,11 @@ class DataDrivenFitStage(PrecomputeStage):
                   "outputs_per_vertex": int(transfer.shape[2])}
         try:
             train, val = validation_split(n, p["validation"])
+            if p["model"] == "reduced" and p["ka"] is not None:
+                limit = pose_space(poses, pca=True).size
+                if p["ka"] > limit:
+                    raise ValueError(f"parameter 'ka' = {p['ka']} exceeds the {limit} pose components there "
+                                     f"are ({n} training poses, {poses.shape[1]} pose features); set ka <= {limit}")
             if p["model"] == "reduced":
                 choice = None
                 if val.size and (p["ka"] is None or p["kv"] is None):
@@ -346,7 +351,7 @@ class DataDrivenTransferStage(FrameStage):
     def output_ports(self):
         if self.params["color"]:
             return {"transfer_rgb": Port("float32", ("V", 3, "C"), "per-channel transfer after bounces, world frame")}
-        return {"transfer": Port("float32", ("V", "C"), "diffuse transfer vectors, world frame")}
+        return {"transfer": Port("float32", ("V", "C"), "diffuse transfer vectors, world frame", space="world")}
 
     def setup(self, ctx, inputs):
         where = f"stage {self.name!r} ({self.type_name})"

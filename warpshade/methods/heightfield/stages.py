@@ -63,7 +63,8 @@ class HeightFieldVisibilityStage(FrameStage):
     def output_ports(self):
         out = {"texel_visibility": Port("float32", ("S", "C"), "SH visibility at the R x R texels, world frame")}
         if self.params["per_vertex"]:
-            out["visibility"] = Port("float32", ("V", "C"), "SH visibility at every grid vertex (bilinear), world frame")
+            out["visibility"] = Port("float32", ("V", "C"), "SH visibility at every grid vertex (bilinear), world frame",
+                                      space="world")
         return out
 
     def setup(self, ctx, inputs):

@@ -59,8 +59,8 @@ def _stage_brdf(stage, ctx) -> materials.BRDF:
     if file is not None:
         file = str(ctx.resolve_path(file)) if hasattr(ctx, "resolve_path") else file
     try:
-        return brdfs.make_brdf(p["brdf"], roughness=p["roughness"], exponent=p["exponent"], f0=p["f0"], file=file,
-                                   where=f"stage {stage.name!r}")
+        values = {k: p[k] for k in brdfs.BRDF_USES.get(p["brdf"], ()) if k in BRDF_PARAMS and k != "file"}
+        return brdfs.make_brdf(p["brdf"], file=file, where=f"stage {stage.name!r}", **values)
     except ValueError as exc:
         raise StageError(str(exc)) from None
 
@@ -80,6 +80,8 @@ SHADE_PARAMS = {
 class GlossyStage(FrameStage):
     """What RPO shading stages share: checks of the common parameters, the eye, the colour, the
     default BRDF, and the glossy reference of each frame (per mesh when BRDFs differ)."""
+
+    reads_materials = True
 
     def dims(self):
         return {"C": self.params["order"] ** 2}
@@ -149,7 +151,8 @@ class RpoShadeStage(GlossyStage):
 
     def input_ports(self):
         return {"frames": Port("mat33", ("V",)), "points": Port("vec3", ("V",)),
-                "visibility": Port("float32", ("V", "C")), "lighting": Port("lighting")}
+                "visibility": Port("float32", ("V", "C"), space=self.params["visibility_space"]),
+                "lighting": Port("lighting")}
 
     # ---- set-up -----------------------------------------------------------------------
     def setup(self, ctx, inputs):
@@ -318,7 +321,7 @@ class RpoVisibilityTracedStage(FrameStage):
         return {"points": Port("vec3", ("V",)), "normals": Port("vec3", ("V",))}
 
     def output_ports(self):
-        return {"visibility": Port("float32", ("V", "C"), "SH visibility, tangent frame"),
+        return {"visibility": Port("float32", ("V", "C"), "SH visibility, tangent frame", space="local"),
                 "frames": Port("mat33", ("V",), "tangent frames of the frame (rows t, b, n)")}
 
     def setup(self, ctx, inputs):
@@ -350,7 +353,8 @@ class RpoVisibilityStaticStage(PrecomputeStage):
         return {"C": self.params["order"] ** 2}
 
     def output_ports(self):
-        return {"visibility": Port("float32", ("V", "C"), "SH visibility at the bake frame, tangent frame")}
+        return {"visibility": Port("float32", ("V", "C"), "SH visibility at the bake frame, tangent frame",
+                                    space="local")}
 
     def precompute(self, ctx, inputs):
         from ...transfer import compute

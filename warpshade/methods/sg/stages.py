@@ -44,6 +44,10 @@ VALIDATED_MODELS = ("beckmann", "blinn-phong")
 NARROW_LIGHT_MODES = ("brdf", "sg")
 #: A light lobe this many times sharper than the BRDF slice counts as narrow.
 NARROW_LIGHT_RATIO = 8.0
+#: Largest ``roughness`` per model (parameter, run-time BRDF or per-vertex surface): microfacet
+#: slopes past 2 are no longer a lobe and overflow the float32 lobes (Beckmann alpha 100 shaded
+#: inf, 1e30 NaN); Blinn-Phong exponents past 1e6 are a mirror (measured finite to 1e10, NaN at 1e30).
+ROUGHNESS_MAX = {"beckmann": 2.0, "cook-torrance": 2.0, "ward": 2.0, "blinn-phong": 1e6}
 #: The exact models of the "brdf" mode: codes of warpshade.scene.materials_warp.BRDF_MODELS.
 EXACT_MODEL_CODES = {"beckmann": 4, "blinn-phong": 2}
 
@@ -139,6 +143,7 @@ def _rgb(value, name: str, stage: str) -> np.ndarray:
 @register_stage
 class SgShadeStage(FrameStage):
     type_name = "sg.shade"
+    reads_materials = True
     description = "spherical-Gaussian shading (eq. 39, 41-43) with SSDF visibility, per vertex (and per pixel)"
     parameters = {
         "brdf": Param("beckmann", str, "specular model (NDF as one SG lobe)", choices=BRDF_MODELS),
@@ -188,6 +193,9 @@ class SgShadeStage(FrameStage):
         if p["brdf"] == "blinn-phong" and p["roughness"] < 1.0:
             raise StageError(f"stage {self.name!r}: for brdf = 'blinn-phong', 'roughness' carries the exponent (>= 1), "
                              f"got {p['roughness']}")
+        if p["roughness"] > ROUGHNESS_MAX[p["brdf"]]:
+            raise StageError(f"stage {self.name!r}: parameter 'roughness' must be <= {ROUGHNESS_MAX[p['brdf']]:g} for "
+                             f"brdf = {p['brdf']!r}, got {p['roughness']!r}")
         self.model = SSDFModel.from_arrays(inputs["ssdf"])
         if self.model.coeffs.shape[0] != ctx.dims["V"]:
             raise StageError(f"stage {self.name!r}: SSDFs of {self.model.coeffs.shape[0]} vertices for a scene of "
@@ -272,8 +280,10 @@ class SgShadeStage(FrameStage):
 
     def set_surface(self, albedo=None, specular=None, roughness=None) -> None:
         """Write per-vertex material arrays (any of albedo (V, 3), specular (V, 3), roughness (V,))
-        into the stage's buffers: the next frame uses them; nothing is recomputed."""
+        into the stage's buffers: the next frame uses them; nothing is recomputed. All are checked
+        before any is written (a rejected call changes nothing)."""
         count = self._radiance.shape[0]
+        checked = []
         for name, value, buf, shape in (("albedo", albedo, self._albedo, (count, 3)), ("specular", specular, self._spec, (count, 3)),
                                         ("roughness", roughness, self._rough, (count,))):
             if value is None:
@@ -284,6 +294,11 @@ class SgShadeStage(FrameStage):
                                  f"got {a.shape}")
             if name == "roughness" and np.any(a <= 0):
                 raise StageError(f"stage {self.name!r}: set_surface roughness must be > 0")
+            if name == "roughness" and np.any(a > ROUGHNESS_MAX[self.params["brdf"]]):
+                raise StageError(f"stage {self.name!r}: roughness must be <= {ROUGHNESS_MAX[self.params['brdf']]:g} for "
+                                 f"brdf = {self.params['brdf']!r}, got up to {float(a.max()):g}")
+            checked.append((buf, a))
+        for buf, a in checked:
             buf.assign(a if a.ndim == 1 else a.reshape(count, 3))
         self.surface = {"albedo": self._albedo, "specular": self._spec, "roughness": self._rough}
 

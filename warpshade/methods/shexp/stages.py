@@ -300,5 +300,5 @@ class ShexpVisibilityStage(ShexpShadeStage):
 
     def output_ports(self):
         return {"radiance": Port("float32", ("V", 3), "outgoing radiance, linear RGB"),
-                "visibility": Port("float32", ("V", "C"), "accumulated SH visibility, world frame")}
+                "visibility": Port("float32", ("V", "C"), "accumulated SH visibility, world frame", space="world")}
 
