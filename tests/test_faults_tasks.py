@@ -88,7 +88,7 @@ def test_a_scheduler_that_never_answers_fails_within_the_timeout(silent_server):
     exc = _raised_within(1.5 + CONNECT_SLACK_S, lambda: DaskExecutor(silent_server, timeout=1.5))
     assert isinstance(exc, ValueError), exc
     message = str(exc)
-    assert f"'{silent_server}'" in message and "1.5 s" in message and f"${CONNECT_TIMEOUT_ENV}" in message
+    assert f"'{silent_server}'" in message and "1.5 s" in message and "larger timeout" in message
 
 
 def test_the_connect_timeout_comes_from_the_environment(silent_server, monkeypatch):
@@ -96,6 +96,7 @@ def test_the_connect_timeout_comes_from_the_environment(silent_server, monkeypat
     monkeypatch.setenv(CONNECT_TIMEOUT_ENV, "1")
     exc = _raised_within(1 + CONNECT_SLACK_S, lambda: executor(silent_server))
     assert isinstance(exc, ValueError) and f"'{silent_server}' within 1 s" in str(exc), exc
+    assert f"${CONNECT_TIMEOUT_ENV}" in str(exc)
 
 
 @pytest.mark.parametrize("value", ["soon", "0", "-3", "nan", "inf"])

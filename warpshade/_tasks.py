@@ -3,11 +3,11 @@ processes, or a Dask distributed cluster.
 
 ``executor(scheduler, workers)`` picks the back end and every back end has the same
 :meth:`Executor.map`: ``[fn(t) for t in tasks]``, in task order, with a progress bar over the
-finished tasks, and a callback in this process as each task finishes (:func:`map_cached` keeps
-each result in a cache then, so that an interrupted map resumes where it stopped). ``fn`` is a module-level function (it is pickled by reference) and each task is
-a picklable argument that carries everything the task needs, its random seed included, so that
-where and in which order the tasks run changes nothing: every back end returns what the serial
-loop returns.
+finished tasks, and a callback in this process as each task finishes (where a caller keeps each
+result, e.g. in a cache, so that an interrupted map resumes where it stopped). ``fn`` is a
+module-level function (it is pickled by reference) and each task is a picklable argument that
+carries everything the task needs, its random seed included, so that where and in which order
+the tasks run changes nothing: every back end returns what the serial loop returns.
 
 * :class:`SerialExecutor` -- in this process, one task after another.
 * :class:`ProcessExecutor` -- local worker processes (spawned, never forked: a forked child
@@ -48,7 +48,6 @@ __all__ = [
     "ProcessExecutor",
     "DaskExecutor",
     "executor",
-    "map_cached",
 ]
 
 #: Environment variable read by :func:`executor` when no scheduler is given.
@@ -485,13 +484,14 @@ class DaskExecutor(Executor):
         self.address = address
         self.retries = retries
         self.name = f"dask:{address}"
+        longer = f"set ${CONNECT_TIMEOUT_ENV} (seconds)" if timeout is None else "give a larger timeout"
         timeout = connect_timeout() if timeout is None else float(timeout)
         try:
             self._client = _bounded_client(distributed, address, timeout)
         except Exception as exc:
             raise ValueError(f"cannot connect to the Dask scheduler {address!r} within {timeout:g} s "
                              f"({type(exc).__name__}: {exc}): check that a Dask scheduler answers at that address; "
-                             f"set ${CONNECT_TIMEOUT_ENV} (seconds) to wait longer") from exc
+                             f"{longer} to wait longer") from exc
 
     @property
     def workers(self) -> int:

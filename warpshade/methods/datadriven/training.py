@@ -27,8 +27,8 @@ import numpy as np
 
 from ..._hashing import hash_json
 
-__all__ = ["FRAMES_PER_TASK", "TASK_VERSION", "frame_seed", "topology_key", "check_same_character", "trace_task",
-           "task_key", "trace_training", "parse_frame_selection"]
+__all__ = ["FRAMES_PER_TASK", "frame_seed", "topology_key", "check_same_character", "trace_task", "trace_training",
+           "parse_frame_selection"]
 
 #: Frames per task: enough work per task (seconds) to hide the task overhead, few enough for
 #: load balance and for a killed worker to lose little.
@@ -169,11 +169,11 @@ def trace_training(scene, frame_indices, order: int, samples: int, seed: int = 0
                       "space": space, "bounces": int(bounces)})
     if cache is not None and not getattr(cache, "enabled", True):
         cache = None
-    keys = [task_key(scene.fingerprint(), t) for t in tasks] if cache is not None else []
-    parts = [None] * len(tasks)
+    keys, parts = [], [None] * len(tasks)
     if cache is not None:
-        for i, task in enumerate(tasks):
-            parts[i] = _cached_transfer(cache, keys[i], task, scene.vertex_count)
+        fingerprint = scene.fingerprint()
+        keys = [task_key(fingerprint, t) for t in tasks]
+        parts = [_cached_transfer(cache, key, t, scene.vertex_count) for key, t in zip(keys, tasks)]
     missing = [i for i, part in enumerate(parts) if part is None]
     cached = len(tasks) - len(missing)
     if report is not None:
