@@ -3,10 +3,11 @@ processes, or a Dask distributed cluster.
 
 ``executor(scheduler, workers)`` picks the back end and every back end has the same
 :meth:`Executor.map`: ``[fn(t) for t in tasks]``, in task order, with a progress bar over the
-finished tasks. ``fn`` is a module-level function (it is pickled by reference) and each task is
-a picklable argument that carries everything the task needs, its random seed included, so that
-where and in which order the tasks run changes nothing: every back end returns what the serial
-loop returns.
+finished tasks, and a callback in this process as each task finishes (where a caller keeps each
+result, e.g. in a cache, so that an interrupted map resumes where it stopped). ``fn`` is a
+module-level function (it is pickled by reference) and each task is a picklable argument that
+carries everything the task needs, its random seed included, so that where and in which order
+the tasks run changes nothing: every back end returns what the serial loop returns.
 
 * :class:`SerialExecutor` -- in this process, one task after another.
 * :class:`ProcessExecutor` -- local worker processes (spawned, never forked: a forked child
@@ -15,9 +16,12 @@ loop returns.
   out of memory, a crash in native code) breaks the pool; a new pool is started and every
   unfinished task is submitted again. The task that was running on the dead worker is charged
   for it, and a task whose worker dies more than ``retries`` times raises :class:`TaskError`.
+  Workers ignore SIGINT (an interrupt reaches this process, which stops the pool) and exit when
+  this process dies, even by SIGKILL (:func:`_exit_with_parent`), so nothing is left running.
 * :class:`DaskExecutor` -- an existing ``distributed`` cluster, by its scheduler address. The
   scheduler reschedules the tasks of a worker that died; a task that keeps killing workers
-  ends as ``KilledWorker``, which becomes :class:`TaskError`.
+  ends as ``KilledWorker``, which becomes :class:`TaskError`. Connecting, handshake included,
+  is bounded by :func:`connect_timeout`.
 
 Tasks import the parts of warpshade they need themselves: this module is part of the foundation
 layer and imports no warpshade subpackage, and a worker process starts without Warp.
@@ -36,6 +40,8 @@ from concurrent.futures.process import BrokenProcessPool
 __all__ = [
     "SCHEDULER_ENV",
     "CONNECT_TIMEOUT",
+    "CONNECT_TIMEOUT_ENV",
+    "connect_timeout",
     "TaskError",
     "Executor",
     "SerialExecutor",
@@ -47,8 +53,12 @@ __all__ = [
 
 #: Environment variable read by :func:`executor` when no scheduler is given.
 SCHEDULER_ENV = "WARPSHADE_SCHEDULER"
-#: Seconds :class:`DaskExecutor` waits for its scheduler before giving up.
+#: Seconds :class:`DaskExecutor` waits for its scheduler (connection and handshake) by default.
 CONNECT_TIMEOUT = 10.0
+#: Environment variable that overrides :data:`CONNECT_TIMEOUT` (seconds).
+CONNECT_TIMEOUT_ENV = "WARPSHADE_CONNECT_TIMEOUT"
+#: Seconds between a local worker's checks that its parent process still runs.
+PARENT_POLL_S = 0.5
 #: Set in every local worker process: Warp CPU launches on one thread (N workers, N cores).
 WORKER_ENV = {"WARPSHADE_THREADS": "1"}
 #: Set in every local worker process where not already set: one thread for the numerical
@@ -152,7 +162,7 @@ class Executor(ABC):
     workers: int = 1
 
     @abstractmethod
-    def map(self, fn, tasks, desc: str | None = None, progress: bool = True) -> list:
+    def map(self, fn, tasks, desc: str | None = None, progress: bool = True, on_result=None) -> list:
         """``[fn(t) for t in tasks]``, in task order.
 
         Args:
@@ -161,6 +171,9 @@ class Executor(ABC):
                 random numbers, so that the results do not depend on where a task runs.
             desc: what the tasks are, for the progress bar and error messages.
             progress: show a progress bar (tqdm) counting finished tasks.
+            on_result: ``on_result(index, value)``, called in this process as each task
+                finishes (in the order they finish), before the next result is taken: what it
+                keeps survives an interrupt of the map. What it raises stops the map.
 
         Returns:
             The results, ``result[i] == fn(tasks[i])``.
@@ -188,15 +201,18 @@ class SerialExecutor(Executor):
     name = "serial"
     workers = 1
 
-    def map(self, fn, tasks, desc: str | None = None, progress: bool = True) -> list:
+    def map(self, fn, tasks, desc: str | None = None, progress: bool = True, on_result=None) -> list:
         tasks = list(tasks)
         results = []
         with _progress_bar(len(tasks), desc, progress) as bar:
             for index, task in enumerate(tasks):
                 try:
-                    results.append(fn(task))
+                    value = fn(task)
                 except Exception as exc:
                     raise _failed(index, desc, exc) from exc
+                results.append(value)
+                if on_result is not None:
+                    on_result(index, value)
                 bar.update(1)
         return results
 
@@ -206,13 +222,49 @@ class SerialExecutor(Executor):
 _started_queue = None
 
 
+def _exit_with_parent(poll_s: float = PARENT_POLL_S) -> None:
+    """Start a daemon thread that ends this worker process as soon as its parent is gone.
+
+    The parent holds the write end of a pipe whose read end is this process's parent sentinel
+    (:func:`multiprocessing.parent_process`): the pipe closes when the parent dies, however it
+    dies (SIGKILL included), on every platform, and the thread wakes at once. Every ``poll_s``
+    seconds the thread also compares the parent's pid with the first one (POSIX re-parents an
+    orphan), for a sentinel kept open by some other process that inherited it. A signal sent
+    at parent death (Linux ``PR_SET_PDEATHSIG``) is not used: it fires when the *thread* that
+    started the worker ends, and a pool outlives the thread of its first map.
+    """
+    import multiprocessing
+    import threading
+    import time
+
+    parent = multiprocessing.parent_process()
+    parent_pid = os.getppid()
+
+    def watch() -> None:
+        while True:
+            if parent is not None:
+                parent.join(poll_s)  # returns early when the parent's end of the pipe closes
+                gone = not parent.is_alive()
+            else:
+                time.sleep(poll_s)
+                gone = False
+            if gone or os.getppid() != parent_pid:
+                os._exit(1)  # the task's result has no one to go to
+
+    threading.Thread(target=watch, name="warpshade-parent-watch", daemon=True).start()
+
+
 def _init_worker(started_queue) -> None:
-    """Initialiser of a local worker process: its environment and the start-report queue.
+    """Initialiser of a local worker process: its environment, the start-report queue, SIGINT
+    ignored (a Ctrl-C reaches the whole process group: the parent stops the pool in order) and
+    a watch on the parent (:func:`_exit_with_parent`).
 
     Kept to the standard library so that a worker starts quickly; tasks import warpshade.
     """
     global _started_queue
     _started_queue = started_queue
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _exit_with_parent()
     os.environ.update(WORKER_ENV)
     for key, value in WORKER_ENV_DEFAULTS.items():
         os.environ.setdefault(key, value)
@@ -320,7 +372,7 @@ class ProcessExecutor(Executor):
         self._stop_pool()
 
     # the map
-    def map(self, fn, tasks, desc: str | None = None, progress: bool = True) -> list:
+    def map(self, fn, tasks, desc: str | None = None, progress: bool = True, on_result=None) -> list:
         tasks = list(tasks)
         results: list = [None] * len(tasks)
         unfinished = set(range(len(tasks)))
@@ -353,6 +405,8 @@ class ProcessExecutor(Executor):
                         results[index] = value
                         unfinished.discard(index)
                         finished_here += 1
+                        if on_result is not None:
+                            on_result(index, value)
                         bar.update(1)
                     if not broken:
                         continue
@@ -411,6 +465,44 @@ def _run_on_dask_worker(fn, task):
     return fn(task)
 
 
+def connect_timeout() -> float:
+    """Seconds to wait for a Dask scheduler: ``$WARPSHADE_CONNECT_TIMEOUT`` if set, else
+    :data:`CONNECT_TIMEOUT`.
+
+    Raises:
+        ValueError: the variable is not a positive finite number (the message names it).
+    """
+    import math
+
+    text = os.environ.get(CONNECT_TIMEOUT_ENV, "").strip()
+    if not text:
+        return CONNECT_TIMEOUT
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0):
+        raise ValueError(f"${CONNECT_TIMEOUT_ENV} must be a positive number of seconds, got {text!r}")
+    return value
+
+
+def _bounded_client(distributed, address: str, timeout: float):
+    """A ``distributed.Client`` of ``address`` whose whole start -- connection, handshake,
+    registration -- is bounded by ``timeout`` seconds (``Client(timeout=)`` bounds the
+    connection only: a server that accepts it and never answers would hang the start)."""
+
+    class BoundedStartClient(distributed.Client):
+        def start(self, **kwargs):
+            # the start coroutine under asyncio.wait_for: cancelled (its socket closed) at the bound
+            try:
+                super().start(callback_timeout=kwargs.get("timeout"), **kwargs)
+            except TimeoutError:  # closed as distributed closes a client that could not connect
+                self.close()
+                raise
+
+    return BoundedStartClient(address, timeout=timeout, set_as_default=False)
+
+
 def _import_distributed():
     try:
         import distributed
@@ -425,12 +517,14 @@ class DaskExecutor(Executor):
 
     Args:
         address: the scheduler's address, e.g. ``"tcp://10.0.0.5:8786"``.
-        timeout: seconds to wait for the scheduler (default :data:`CONNECT_TIMEOUT`).
+        timeout: seconds to wait for the scheduler to connect and answer (default
+            :func:`connect_timeout`: ``$WARPSHADE_CONNECT_TIMEOUT``, else :data:`CONNECT_TIMEOUT`).
         retries: times Dask runs a task again after it raised; a task whose worker died is
             rescheduled by the scheduler (up to its ``allowed-failures``, then ``KilledWorker``).
 
     Raises:
-        ValueError: ``distributed`` is not installed, or the scheduler cannot be reached.
+        ValueError: ``distributed`` is not installed, or the scheduler cannot be reached or does
+            not answer within ``timeout`` (the message names the address and the timeout).
 
     Each task is submitted under its own key (``"{desc}-{index}-{token}"``, ``pure=False``), so
     tasks of equal arguments are never merged with each other or with an earlier map. A task
@@ -443,11 +537,14 @@ class DaskExecutor(Executor):
         self.address = address
         self.retries = retries
         self.name = f"dask:{address}"
-        timeout = CONNECT_TIMEOUT if timeout is None else timeout
+        longer = f"set ${CONNECT_TIMEOUT_ENV} (seconds)" if timeout is None else "give a larger timeout"
+        timeout = connect_timeout() if timeout is None else float(timeout)
         try:
-            self._client = distributed.Client(address, timeout=timeout, set_as_default=False)
+            self._client = _bounded_client(distributed, address, timeout)
         except Exception as exc:
-            raise ValueError(f"cannot connect to the Dask scheduler {address!r}: {type(exc).__name__}: {exc}") from exc
+            raise ValueError(f"cannot connect to the Dask scheduler {address!r} within {timeout:g} s "
+                             f"({type(exc).__name__}: {exc}): check that a Dask scheduler answers at that address; "
+                             f"{longer} to wait longer") from exc
 
     @property
     def workers(self) -> int:
@@ -459,7 +556,7 @@ class DaskExecutor(Executor):
         """The ``distributed.Client`` (for what this interface does not cover)."""
         return self._client
 
-    def map(self, fn, tasks, desc: str | None = None, progress: bool = True) -> list:
+    def map(self, fn, tasks, desc: str | None = None, progress: bool = True, on_result=None) -> list:
         from distributed import as_completed as dask_as_completed
 
         tasks = list(tasks)
@@ -481,6 +578,8 @@ class DaskExecutor(Executor):
                     except Exception as exc:  # what the task raised, or KilledWorker
                         raise _failed(index, desc, exc) from exc
                     future.release()
+                    if on_result is not None:
+                        on_result(index, results[index])
                     bar.update(1)
         finally:
             self._client.cancel([f for f in futures if not f.done()])

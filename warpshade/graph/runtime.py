@@ -98,7 +98,8 @@ class Runtime(RunChanges):
         source = getattr(spec, "source_path", None)
         self.scheduler = scheduler
         self.ctx = StageContext(scene, self.device, dims, self.lighting, None, progress,
-                                base_dir=source.parent if source is not None else None, scheduler=scheduler)
+                                base_dir=source.parent if source is not None else None, scheduler=scheduler,
+                                cache=self.cache)
         self.timings = {s.name: StageTiming() for s in self.stages}
         self.frame_s: list = []
         self.host_s: list = []

@@ -3,7 +3,8 @@
 * :func:`ground_truth` -- reference radiance and its Monte Carlo standard error per frame
   (:func:`warpshade.reference.shade`, or :func:`~warpshade.reference.shade_glossy` for a
   stage whose reference model names a BRDF, :mod:`.protocols`), cached by a content hash of the scene, the
-  frame, the lighting, the samples, the seed, the estimator version and the model;
+  frame, the lighting, the samples, the seed, the estimator version and the model -- each frame
+  stored as soon as it is computed, so that an interrupted run resumes where it stopped;
 * :func:`reference_model` -- what a run's output is measured against;
 * :func:`measure_error` -- a run's recorded (or freshly stepped) output against ground truth on
   a few frames: relative RMS, the 99th percentile, the ground truth's own noise.
@@ -72,6 +73,14 @@ def _model_description(model) -> dict:
     return out
 
 
+def _valid_truth(hit, vertex_count: int) -> bool:
+    """A cached ground-truth frame is used only when it is one: radiance and standard error,
+    (V, 3) each, finite (anything else is computed again and overwritten)."""
+    if hit is None or set(hit) != {"radiance", "stderr"}:
+        return False
+    return all(hit[k].shape == (vertex_count, 3) and np.isfinite(hit[k]).all() for k in hit)
+
+
 def _truth_task(task: dict) -> dict:
     """One ground-truth frame (an executor task: everything it needs, its seed included)."""
     from ..reference import shade, shade_glossy
@@ -118,6 +127,9 @@ def ground_truth(scene, lighting, frames, samples: int = 1024, device="cpu", cac
             cache as independent tasks (local worker processes, a Dask cluster); None computes
             them here, one after another. Same seeds either way, so the same result. Tasks run on
             the worker's default Warp device (its GPU on a CUDA cluster).
+
+    Each frame is stored in the cache as soon as it is computed (by the executor's
+    ``on_result``), so an interrupted call loses only the frames that were running.
     """
     from ..reference.shading import ESTIMATOR_VERSION
 
@@ -132,7 +144,7 @@ def ground_truth(scene, lighting, frames, samples: int = 1024, device="cpu", cac
              "lighting": lighting.fingerprint(), **desc})[:32]
         keys[float(f)] = key
         hit = cache.load(key)
-        if hit is None or set(hit) != {"radiance", "stderr"}:
+        if not _valid_truth(hit, scene.vertex_count):
             missing.append(float(f))
         else:
             out[float(f)] = hit
@@ -141,9 +153,11 @@ def ground_truth(scene, lighting, frames, samples: int = 1024, device="cpu", cac
               "model": model, "device": device if executor is None else None}
              for f in missing]
     if executor is not None and tasks:
-        results = executor.map(_truth_task, tasks, desc=f"{kind} ({samples} spp)", progress=progress)
+        def keep(index: int, hit: dict) -> None:
+            cache.store(keys[tasks[index]["frame"]], hit)
+
+        results = executor.map(_truth_task, tasks, desc=f"{kind} ({samples} spp)", progress=progress, on_result=keep)
         for task, hit in zip(tasks, results):
-            cache.store(keys[task["frame"]], hit)
             out[task["frame"]] = hit
     else:
         with progress_bar(total=len(tasks), desc=f"{kind} ({samples} spp)", unit="frame",

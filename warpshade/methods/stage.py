@@ -133,6 +133,10 @@ class StageContext:
         scheduler: where independent precompute tasks run (:func:`warpshade._tasks.executor`:
             None = ``$WARPSHADE_SCHEDULER`` or local worker processes, ``"serial"``,
             ``"local:N"``, a Dask scheduler address).
+        cache: the run's artifact cache (:class:`~warpshade.graph.cache.ArtifactCache`:
+            ``load(key)``, ``store(key, arrays)``, ``path(key)``), where a precompute made of
+            many tasks keeps each finished task's result so that an interrupted run resumes
+            where it stopped; None (or a disabled cache): nothing is kept.
     """
 
     scene: Any
@@ -143,6 +147,7 @@ class StageContext:
     progress: bool = False
     base_dir: Any = None
     scheduler: Any = None
+    cache: Any = None
 
     def executor(self):
         """A new :class:`warpshade._tasks.Executor` for :attr:`scheduler` (use it as a context

@@ -5,7 +5,8 @@
   bounces) and the pose vectors of those frames in every parameterisation (:mod:`.pose`). The
   training clip is ``training`` (a USD file, relative to the stage graph; default: the graph's
   own scene); it must hold the same character as the scene the graph runs on. The frames are
-  independent tasks for an executor (:mod:`.training`; ``warpshade run --scheduler``).
+  independent tasks for an executor (:mod:`.training`; ``warpshade run --scheduler``), each kept
+  in the run's cache as it finishes, so that an interrupted run resumes where it stopped.
 * ``datadriven.fit`` (precompute): the linear model from pose to transfer (:mod:`.model`): full,
   or reduced by PCA in pose and coefficient space with the sizes from an error budget on
   validation frames held out of the training clip; alpha per coefficient by closed-form LOO.
@@ -106,9 +107,11 @@ class DataDrivenDataStage(PrecomputeStage):
             raise StageError(str(exc) if str(exc).startswith("stage") else f"{where}: {exc}") from None
         if p["bounces"] and p["space"] != "world":
             raise StageError(f"{where}: interreflected transfer (bounces > 0) is traced in the world frame only")
+        tasks: dict = {}
         with ctx.executor() as ex:
             transfer = trace_training(train, idx, p["order"], p["samples"], seed=p["seed"], bounces=p["bounces"],
-                                      space=p["space"], executor=ex, progress=ctx.progress)
+                                      space=p["space"], executor=ex, progress=ctx.progress, cache=ctx.cache,
+                                      report=tasks)
         ref = root_references(train, int(idx[0]))
         out = {"transfer": transfer, "frames": np.asarray(train.frames[idx], np.float64),
                "frame_indices": idx.astype(np.int64), "topology": topology_key(train), "root_reference": ref,
@@ -122,7 +125,7 @@ class DataDrivenDataStage(PrecomputeStage):
             out[f"root_{kind}"] = root
         self.report = {"training": train.source, "frames": int(idx.size), "vertices": int(train.vertex_count),
                        "coefficients": int(transfer.shape[2]), "bytes": int(transfer.nbytes),
-                       "executor": getattr(ex, "name", "?")}
+                       "executor": getattr(ex, "name", "?"), **tasks}
         return {"data": out}
 
     def check_artifact(self, outputs):

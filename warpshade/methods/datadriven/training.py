@@ -10,13 +10,22 @@ Seeds: frame ``i`` of the clip traces with seed ``frame_seed(seed, i)``: the per
 rotations differ from pose to pose, so the Monte Carlo noise of the training transfer is
 independent across poses and the least-squares fit averages it down (a fixed seed would give
 every pose the same noise pattern, which the bias term would then learn).
+
+Resuming: given a cache, each task's transfer is stored there as soon as the task finishes,
+under a key of everything that determines it (:func:`task_key`), so that a run interrupted
+(Ctrl-C, a failing task, a killed process) traces only the tasks it had not finished when run
+again. Entries are checked when read (the cache's digest, then shape, dtype and finite values)
+and traced again when they fail; they are removed once the whole training set is assembled.
 """
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 
 import numpy as np
+
+from ..._hashing import hash_json
 
 __all__ = ["FRAMES_PER_TASK", "frame_seed", "topology_key", "check_same_character", "trace_task", "trace_training",
            "parse_frame_selection"]
@@ -24,6 +33,9 @@ __all__ = ["FRAMES_PER_TASK", "frame_seed", "topology_key", "check_same_characte
 #: Frames per task: enough work per task (seconds) to hide the task overhead, few enough for
 #: load balance and for a killed worker to lose little.
 FRAMES_PER_TASK = 4
+#: Bumped when the transfer a task traces changes (:func:`trace_task` or the ray tracer it calls),
+#: so that the cached tasks of an interrupted run of an older version are not reused.
+TASK_VERSION = 1
 
 
 def frame_seed(seed: int, index: int) -> int:
@@ -106,13 +118,45 @@ def trace_task(task: dict) -> np.ndarray:
     return np.stack(out)
 
 
+def task_key(scene_fingerprint: str, task: dict) -> str:
+    """The cache key of one task's transfer: the training scene's content, the task's frames and
+    their seeds, order, samples, bounces, space and :data:`TASK_VERSION`."""
+    return "datadriven-task-" + hash_json({
+        "scene": scene_fingerprint, "frame_indices": [int(i) for i in task["frame_indices"]],
+        "seeds": [int(s) for s in task["seeds"]], "order": task["order"], "samples": task["samples"],
+        "space": task["space"], "bounces": task["bounces"], "version": TASK_VERSION})[:32]
+
+
+def _cached_transfer(cache, key: str, task: dict, vertex_count: int) -> np.ndarray | None:
+    """The transfer of ``task`` kept under ``key``, or None when missing or not a valid result
+    (the cache removes entries that fail its digest; a wrong shape, dtype or a non-finite value
+    is traced again and overwritten)."""
+    hit = cache.load(key)
+    if hit is None or set(hit) != {"transfer"}:
+        return None
+    transfer = hit["transfer"]
+    coefficients = task["order"] ** 2 * (3 if task["bounces"] else 1)
+    if (transfer.dtype != np.float32 or transfer.shape != (len(task["frame_indices"]), vertex_count, coefficients)
+            or not np.isfinite(transfer).all()):
+        return None
+    return transfer
+
+
 def trace_training(scene, frame_indices, order: int, samples: int, seed: int = 0, bounces: int = 0,
-                   space: str = "world", executor=None, progress: bool = False) -> np.ndarray:
+                   space: str = "world", executor=None, progress: bool = False, cache=None,
+                   report: dict | None = None) -> np.ndarray:
     """Training transfer at ``frame_indices`` of ``scene``, (p, V, C or 3C) float32.
 
     Args:
         executor: a :class:`warpshade._tasks.Executor` (default: :func:`warpshade._tasks.executor`,
             closed afterwards).
+        cache: where each finished task's transfer is kept until all are assembled (an
+            :class:`~warpshade.graph.cache.ArtifactCache`: ``load``, ``store``, ``path``), so that
+            an interrupted call resumes: tasks found there are not traced again. None: no cache.
+        report: a dict that receives ``tasks`` and ``tasks_cached`` (found in ``cache``).
+
+    Raises:
+        TaskError: a task failed (the message names its training frames).
     """
     from ... import _tasks
 
@@ -123,11 +167,44 @@ def trace_training(scene, frame_indices, order: int, samples: int, seed: int = 0
         tasks.append({"scene": scene, "frame_indices": frame_indices[lo:lo + FRAMES_PER_TASK].tolist(),
                       "seeds": seeds[lo:lo + FRAMES_PER_TASK], "order": int(order), "samples": int(samples),
                       "space": space, "bounces": int(bounces)})
-    own = executor is None
+    if cache is not None and not getattr(cache, "enabled", True):
+        cache = None
+    keys, parts = [], [None] * len(tasks)
+    if cache is not None:
+        fingerprint = scene.fingerprint()
+        keys = [task_key(fingerprint, t) for t in tasks]
+        parts = [_cached_transfer(cache, key, t, scene.vertex_count) for key, t in zip(keys, tasks)]
+    missing = [i for i, part in enumerate(parts) if part is None]
+    cached = len(tasks) - len(missing)
+    if report is not None:
+        report.update(tasks=len(tasks), tasks_cached=cached)
+    desc = f"training transfer ({len(frame_indices)} frames" + (f", {cached} of {len(tasks)} tasks from an "
+                                                               "interrupted run)" if cached else ")")
+
+    def keep(j: int, transfer) -> None:
+        cache.store(keys[missing[j]], {"transfer": transfer})
+
+    own = executor is None and bool(missing)
     ex = _tasks.executor() if own else executor
     try:
-        parts = ex.map(trace_task, tasks, desc=f"training transfer ({len(frame_indices)} frames)", progress=progress)
+        if missing:
+            done = ex.map(trace_task, [tasks[i] for i in missing], desc=desc, progress=progress,
+                          on_result=keep if cache is not None else None)
+            for i, transfer in zip(missing, done):
+                parts[i] = transfer
+    except _tasks.TaskError as exc:
+        if exc.index is None:
+            raise
+        frames = tasks[missing[exc.index]]["frame_indices"]
+        raise _tasks.TaskError(f"{exc} (training frames {frames[0]}..{frames[-1]})", missing[exc.index],
+                               exc.desc) from exc.__cause__
     finally:
         if own:
             ex.close()
-    return np.concatenate(parts)
+    transfer = np.concatenate(parts)
+    for key in keys:  # assembled: the per-task entries are not needed any more
+        path = cache.path(key)
+        with contextlib.suppress(OSError):  # a read-only cache keeps them
+            if path is not None:
+                path.unlink()
+    return transfer
