@@ -214,14 +214,27 @@ def kernel_costs(vertices: int = 65536, repeats: int = 7):
         mats = op.matrices()[None] if kw.get("evaluation") == "matrices" else np.zeros((1, 1, 1, 1))
         k = kernels.shade_kernel(n, op.view_order, kw.get("lighting", "rotate"), kw.get("cosine", "brdf"), "local",
                                  kw.get("evaluation", "gaunt"))
-        args = [frames, pts, eye, wp.array(rng.normal(size=(vertices, n * n)).astype(np.float32), device=dev),
-                wp.zeros(vertices, dtype=wp.int32, device=dev), wp.array(op.light_sh[None].astype(np.float32), device=dev),
-                wp.array(op.view_sh[None].astype(np.float32), device=dev), wp.array(np.array([8], np.int32), device=dev),
-                wp.array(mats.astype(np.float32), device=dev), wp.array(cosine_sh(n).astype(np.float32), device=dev),
-                wp.array(rng.normal(size=(3, n * n)).astype(np.float32), device=dev),
-                wp.array(rng.normal(size=(3, 3)).astype(np.float32), dtype=wp.vec3, device=dev),
-                wp.zeros((3, 3, n), dtype=wp.float32, device=dev), sh_kernels(n).tables(dev), wp.vec3(1.0, 1.0, 1.0)]
-        out = [wp.zeros((vertices, 3), dtype=wp.float32, device=dev), wp.zeros(2, dtype=wp.int32, device=dev)]
+        surface = kernels.Receivers()
+        surface.frames, surface.points = frames, pts
+        surface.visibility = wp.array(rng.normal(size=(vertices, n * n)).astype(np.float32), device=dev)
+        surface.material = wp.zeros(vertices, dtype=wp.int32, device=dev)
+        ops = kernels.Operators()
+        ops.light_sh = wp.array(op.light_sh[None].astype(np.float32), device=dev)
+        ops.view_sh = wp.array(op.view_sh[None].astype(np.float32), device=dev)
+        ops.rank = wp.array(np.array([8], np.int32), device=dev)
+        ops.matrices = wp.array(mats.astype(np.float32), device=dev)
+        ops.cos_sh = wp.array(cosine_sh(n).astype(np.float32), device=dev)
+        ops.specular = wp.vec3(1.0, 1.0, 1.0)
+        lit = kernels.ViewLighting()
+        lit.eye = eye
+        lit.sh = wp.array(rng.normal(size=(3, n * n)).astype(np.float32), device=dev)
+        lit.zh_axes = wp.array(rng.normal(size=(3, 3)).astype(np.float32), dtype=wp.vec3, device=dev)
+        lit.zh_coeffs = wp.zeros((3, 3, n), dtype=wp.float32, device=dev)
+        args = [surface, ops, lit, sh_kernels(n).tables(dev)]
+        out = kernels.ShadeOutputs()
+        out.radiance = wp.zeros((vertices, 3), dtype=wp.float32, device=dev)
+        out.stats = wp.zeros(2, dtype=wp.int32, device=dev)
+        out = [out]
         setups[name] = (k, args, out)
         launch_parallel(k, vertices, lambda a, b, args=args, out=out: args + [a] + out, dev)  # compile
     times = {name: [] for name in setups}

@@ -81,11 +81,16 @@ def test_glossy_kernel_and_unshadowed_case(device, sheet, factorization):
     wp.launch(kernels.shade_kernels(ORDER)[0], dim=(65, 128),
               inputs=[light_wp, wp.ones(1, dtype=wp.int32, device=device), table], device=device)
     out = wp.zeros((v, 3), dtype=wp.float32, device=device)
-    wp.launch(kernels.glossy_kernel(ORDER), dim=v, inputs=[
-        frames, state.points, wp.array([wp.vec3(*eye)], dtype=wp.vec3, device=device), wp.array(model.axes.reshape(v, -1, 3), dtype=wp.vec3, device=device),
-        wp.array(model.coeffs.reshape(v, -1, ORDER), device=device), wp.array(model.stored, device=device),
-        model.lobe_count, wp.array(factorization.view_factors.astype(np.float32), device=device), table, light_wp,
-        wp.vec3(1.0, 1.0, 1.0), out], device=device)
+    vertices = kernels.GlossyVertices()
+    vertices.frames, vertices.points = frames, state.points
+    vertices.axes = wp.array(model.axes.reshape(v, -1, 3), dtype=wp.vec3, device=device)
+    vertices.coeffs = wp.array(model.coeffs.reshape(v, -1, ORDER), device=device)
+    vertices.stored, vertices.lobes = wp.array(model.stored, device=device), model.lobe_count
+    shading = kernels.GlossyShading()
+    shading.eye = wp.array([wp.vec3(*eye)], dtype=wp.vec3, device=device)
+    shading.factors = wp.array(factorization.view_factors.astype(np.float32), device=device)
+    shading.table, shading.light, shading.specular = table, light_wp, wp.vec3(1.0, 1.0, 1.0)
+    wp.launch(kernels.glossy_kernel(ORDER), dim=v, inputs=[vertices, shading, out], device=device)
     np.testing.assert_allclose(out.numpy(), ref, atol=RTOL_KERNEL * np.abs(ref).max())
 
     # brute force: integral_H b(v_local, s_local) L(F^T s_local) s_z ds, per vertex

@@ -131,11 +131,14 @@ def test_wrinkle_kernel_matches_float64(device, groove):
     depth_k, shade = kernels.wrinkle_kernels(4)
     out = wp.zeros((count, 3), dtype=wp.float32, device=device)
     f32 = lambda a: wp.array(np.asarray(a, np.float32), device=device)
-    wp.launch(shade, dim=count, inputs=[
-        wp.array(frames.astype(np.float32), dtype=wp.mat33, device=device), f32(phase), f32(angle),
-        f32(np.clip(depth, 0.0, table.max_depth)),
-        wp.array(table.axes.astype(np.float32), dtype=wp.vec3, device=device), f32(table.coeffs), f32(table.stored),
-        table.max_depth, f32(light), f32(albedo), out], device=device)
+    vertices = kernels.WrinkleVertices()
+    vertices.frames = wp.array(frames.astype(np.float32), dtype=wp.mat33, device=device)
+    vertices.phase, vertices.groove_angle = f32(phase), f32(angle)
+    vertices.depth, vertices.albedo = f32(np.clip(depth, 0.0, table.max_depth)), f32(albedo)
+    tab = kernels.WrinkleTable()
+    tab.axes = wp.array(table.axes.astype(np.float32), dtype=wp.vec3, device=device)
+    tab.coeffs, tab.stored, tab.max_depth = f32(table.coeffs), f32(table.stored), table.max_depth
+    wp.launch(shade, dim=count, inputs=[vertices, tab, f32(light), out], device=device)
     np.testing.assert_allclose(out.numpy(), ref, atol=RTOL_FLOAT32 * np.abs(ref).max())
     # depth from compression along the axis
     pts = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 0.8], [1.0, 0.0, 0.0]])

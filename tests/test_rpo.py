@@ -149,16 +149,26 @@ def test_kernel_matches_the_float64_reference(device, rng, lighting, cosine, spa
     st = wp.zeros(2, dtype=wp.int32, device=dev)
     axes = zh.axes if zh is not None else np.zeros((0, 3))
     coeffs = zh.coeffs if zh is not None else np.zeros((1, 3, N))
-    wp.launch(kern, dim=v, device=dev, inputs=[
-        wp.array(frames.astype(f32), dtype=wp.mat33, device=dev), wp.array(points.astype(f32), dtype=wp.vec3, device=dev),
-        wp.array(eye[None].astype(f32), dtype=wp.vec3, device=dev), wp.array(vis.astype(f32), device=dev),
-        wp.array(material.astype(np.int32), device=dev),
-        wp.array(np.stack([op.light_sh for op in ops]).astype(f32), device=dev),
-        wp.array(np.stack([op.view_sh for op in ops]).astype(f32).reshape(2, k, nv2), device=dev),
-        wp.array(np.array([k, k], np.int32), device=dev), wp.array(mats, device=dev),
-        wp.array(cosine_sh(N).astype(f32), device=dev), wp.array(light.astype(f32), device=dev),
-        wp.array(axes.astype(f32), dtype=wp.vec3, device=dev), wp.array(coeffs.astype(f32), device=dev),
-        sh_kernels(N).tables(dev), wp.vec3(1.0, 0.8, 0.6), 0, rad, st])
+    surface = kernels.Receivers()
+    surface.frames = wp.array(frames.astype(f32), dtype=wp.mat33, device=dev)
+    surface.points = wp.array(points.astype(f32), dtype=wp.vec3, device=dev)
+    surface.visibility = wp.array(vis.astype(f32), device=dev)
+    surface.material = wp.array(material.astype(np.int32), device=dev)
+    table = kernels.Operators()
+    table.light_sh = wp.array(np.stack([op.light_sh for op in ops]).astype(f32), device=dev)
+    table.view_sh = wp.array(np.stack([op.view_sh for op in ops]).astype(f32).reshape(2, k, nv2), device=dev)
+    table.rank = wp.array(np.array([k, k], np.int32), device=dev)
+    table.matrices = wp.array(mats, device=dev)
+    table.cos_sh = wp.array(cosine_sh(N).astype(f32), device=dev)
+    table.specular = wp.vec3(1.0, 0.8, 0.6)
+    lit = kernels.ViewLighting()
+    lit.eye = wp.array(eye[None].astype(f32), dtype=wp.vec3, device=dev)
+    lit.sh = wp.array(light.astype(f32), device=dev)
+    lit.zh_axes = wp.array(axes.astype(f32), dtype=wp.vec3, device=dev)
+    lit.zh_coeffs = wp.array(coeffs.astype(f32), device=dev)
+    out = kernels.ShadeOutputs()
+    out.radiance, out.stats = rad, st
+    wp.launch(kern, dim=v, device=dev, inputs=[surface, table, lit, sh_kernels(N).tables(dev), 0, out])
     got = rad.numpy()
     np.testing.assert_allclose(got, want, atol=RTOL_KERNEL * np.abs(want).max())
     s = st.numpy()

@@ -24,6 +24,11 @@ wp.set_module_options({"enable_backward": False})
 __all__ = [
     "STAT_BELOW_HORIZON",
     "STAT_NEGATIVE",
+    "HorizonMarch",
+    "ShadeOutputs",
+    "ShadeTexels",
+    "ShadeVertices",
+    "TexelVisibility",
     "heights_kernel",
     "horizon_kernel",
     "horizon_slope",
@@ -36,6 +41,88 @@ __all__ = [
 
 #: ``stats`` entries of the shading kernel.
 STAT_NEGATIVE, STAT_BELOW_HORIZON = 0, 1
+
+
+@wp.struct
+class HorizonMarch:
+    """The frame's max pyramid and the horizon march over it (see :func:`horizon_slope`).
+
+    Fields:
+        pyr: the pyramid's levels, concatenated row-major, (sum of side^2,) float32, scene units.
+        steps: ``(d_j, 1 / d_j, 2^-k_j, 0)`` per march sample, (J,) vec4 (vertex units).
+        step_level: ``(offset, side)`` in ``pyr`` of each sample's level, (J, 2) int32.
+        azimuth: ``(cos phi, sin phi, cos phi / dx, sin phi / dy)`` per azimuth, (A,) vec4.
+        size: grid vertices per side.
+        dx, dy: grid spacing along x and y, scene units.
+    """
+
+    pyr: wp.array(dtype=wp.float32)
+    steps: wp.array(dtype=wp.vec4)
+    step_level: wp.array2d(dtype=wp.int32)
+    azimuth: wp.array(dtype=wp.vec4)
+    size: int
+    dx: float
+    dy: float
+
+
+@wp.struct
+class TexelVisibility:
+    """The wedge sums of the texel kernel and where they go.
+
+    Fields:
+        table: SH of the canonical wedge open above ``z0``, for ``z0`` on ``linspace(-1, 1, E)``,
+            (E, n*n) float32 (:func:`.model.wedge_table`).
+        open_below: 1 to count directions below the tangent plane as open.
+        res: texels per side.
+        out: SH visibility per texel, world frame, (res * res, n*n) float32.
+    """
+
+    table: wp.array2d(dtype=wp.float32)
+    open_below: int
+    res: int
+    out: wp.array2d(dtype=wp.float32)
+
+
+@wp.struct
+class ShadeVertices:
+    """The grid vertices the shading kernel shades.
+
+    Fields:
+        points: world positions, (size * size,) vec3; normals: unit normals, (size * size,) vec3.
+        eye: viewer position, world space, (1,) vec3.
+        size: grid vertices per side.
+    """
+
+    points: wp.array(dtype=wp.vec3)
+    normals: wp.array(dtype=wp.vec3)
+    eye: wp.array(dtype=wp.vec3)
+    size: int
+
+
+@wp.struct
+class ShadeTexels:
+    """The lighting products at the visibility texels and the BRDF's view table.
+
+    Fields:
+        g: ``L_c * V`` per channel at each texel, (res * res, 3 n*n) float32, world frame.
+        res: texels per side.
+        ftable: ``F(wo)`` over ``cos(theta_o)`` in [0, 1], (E, n*n) float32, local frame.
+        specular: RGB colour multiplying the radiance, linear.
+    """
+
+    g: wp.array2d(dtype=wp.float32)
+    res: int
+    ftable: wp.array2d(dtype=wp.float32)
+    specular: wp.vec3
+
+
+@wp.struct
+class ShadeOutputs:
+    """What the shading kernel writes: radiance toward the eye, (size * size, 3) float32, linear
+    RGB; ``stats`` (2,) int32 counters (:data:`STAT_NEGATIVE`, :data:`STAT_BELOW_HORIZON`)."""
+
+    radiance: wp.array2d(dtype=wp.float32)
+    stats: wp.array(dtype=wp.int32)
 
 
 @wp.kernel(enable_backward=False)
@@ -239,7 +326,9 @@ def horizon_kernel(pyr: wp.array(dtype=wp.float32), steps: wp.array(dtype=wp.vec
 
 @functools.lru_cache(maxsize=None)
 def visibility_kernels(order: int):
-    """``(texel_kernel, upsample_kernel)`` of one SH order (cached)."""
+    """``(texel_kernel, upsample_kernel)`` of one SH order (cached): ``texel_kernel(march:
+    HorizonMarch, texels: TexelVisibility, start)`` and ``upsample_kernel(texels, size, res, start,
+    out)``, each over items ``start .. start + dim``."""
     shk = sh_kernels(order)
     N2 = order * order
     vec_t = shk.vec
@@ -257,20 +346,11 @@ def visibility_kernels(order: int):
         return out
 
     @wp.kernel(enable_backward=False, module="unique")
-    def texel_kernel(
-        pyr: wp.array(dtype=wp.float32),
-        steps: wp.array(dtype=wp.vec4),
-        step_level: wp.array2d(dtype=wp.int32),
-        azimuth: wp.array(dtype=wp.vec4),
-        table: wp.array2d(dtype=wp.float32),
-        size: int,
-        res: int,
-        dx: float,
-        dy: float,
-        open_below: int,
-        start: int,
-        out: wp.array2d(dtype=wp.float32),
-    ):
+    def texel_kernel(march: HorizonMarch, texels: TexelVisibility, start: int):
+        pyr = march.pyr
+        size = march.size
+        res = texels.res
+        table = texels.table
         t = wp.tid() + start
         a = t // res
         b = t - a * res
@@ -279,19 +359,19 @@ def visibility_kernels(order: int):
         v = float(a) * scale  # row (y)
         h0 = _bilinear_height(pyr, size, u, v)
         gx = (_bilinear_height(pyr, size, u + 1.0, v) - _bilinear_height(pyr, size, u - 1.0, v)) / \
-            ((wp.min(u + 1.0, float(size - 1)) - wp.max(u - 1.0, 0.0)) * dx)
+            ((wp.min(u + 1.0, float(size - 1)) - wp.max(u - 1.0, 0.0)) * march.dx)
         gy = (_bilinear_height(pyr, size, u, v + 1.0) - _bilinear_height(pyr, size, u, v - 1.0)) / \
-            ((wp.min(v + 1.0, float(size - 1)) - wp.max(v - 1.0, 0.0)) * dy)
+            ((wp.min(v + 1.0, float(size - 1)) - wp.max(v - 1.0, 0.0)) * march.dy)
         full = wedge(table, -1.0)
         acc = vec_t()
-        for i in range(azimuth.shape[0]):
-            az = azimuth[i]
-            best = horizon_slope(pyr, steps, step_level, u + 0.5, v + 0.5, h0, az)
+        for i in range(march.azimuth.shape[0]):
+            az = march.azimuth[i]
+            best = horizon_slope(pyr, march.steps, march.step_level, u + 0.5, v + 0.5, h0, az)
             zh = -1.0
             if best > -1.0e29:
                 zh = best / wp.sqrt(1.0 + best * best)
             w = wedge(table, zh)
-            if open_below == 1:
+            if texels.open_below == 1:
                 tau = gx * az[0] + gy * az[1]
                 zt = wp.min(tau / wp.sqrt(1.0 + tau * tau), zh)
                 lo = wedge(table, zt)
@@ -299,7 +379,7 @@ def visibility_kernels(order: int):
                     w[k] = w[k] + full[k] - lo[k]
             acc = acc + rotate_z_cs(w, az[0], az[1])
         for k in range(N2):
-            out[t, k] = acc[k]
+            texels.out[t, k] = acc[k]
 
     @wp.kernel(enable_backward=False, module="unique")
     def upsample_kernel(texels: wp.array2d(dtype=wp.float32), size: int, res: int, start: int,
@@ -316,7 +396,9 @@ def visibility_kernels(order: int):
 
 @functools.lru_cache(maxsize=None)
 def shade_kernels(order: int):
-    """``(product_kernel, shade_kernel, rotate_kernel)`` of one SH order (cached)."""
+    """``(product_kernel, shade_kernel, rotate_kernel, pair_product_kernel)`` of one SH order
+    (cached); ``shade_kernel(vertices: ShadeVertices, texels: ShadeTexels, start, out:
+    ShadeOutputs)`` shades grid vertices ``start .. start + dim``."""
     shk = sh_kernels(order)
     N2 = order * order
     vec_t = shk.vec
@@ -334,32 +416,23 @@ def shade_kernels(order: int):
                 out[t, ch * N2 + k] = g[k]
 
     @wp.kernel(enable_backward=False, module="unique")
-    def shade_kernel(
-        points: wp.array(dtype=wp.vec3),
-        normals: wp.array(dtype=wp.vec3),
-        eye: wp.array(dtype=wp.vec3),
-        g: wp.array2d(dtype=wp.float32),
-        ftable: wp.array2d(dtype=wp.float32),
-        size: int,
-        res: int,
-        specular: wp.vec3,
-        start: int,
-        radiance: wp.array2d(dtype=wp.float32),
-        stats: wp.array(dtype=wp.int32),
-    ):
+    def shade_kernel(vertices: ShadeVertices, texels: ShadeTexels, start: int, out: ShadeOutputs):
         vtx = wp.tid() + start
-        n = normals[vtx]
-        d = eye[0] - points[vtx]
+        g = texels.g
+        ftable = texels.ftable
+        res = texels.res
+        n = vertices.normals[vtx]
+        d = vertices.eye[0] - vertices.points[vtx]
         dl = wp.length(d)
         mu = float(0.0)
         if dl > 0.0:
             d = d / dl
             mu = wp.dot(n, d)
         if mu <= 0.0:
-            radiance[vtx, 0] = 0.0
-            radiance[vtx, 1] = 0.0
-            radiance[vtx, 2] = 0.0
-            wp.atomic_add(stats, STAT_BELOW_HORIZON, 1)
+            out.radiance[vtx, 0] = 0.0
+            out.radiance[vtx, 1] = 0.0
+            out.radiance[vtx, 2] = 0.0
+            wp.atomic_add(out.stats, STAT_BELOW_HORIZON, 1)
             return
         # local frame about n with the view in its x-z plane
         x = d - mu * n
@@ -384,7 +457,7 @@ def shade_kernels(order: int):
         rt = wp.mat33(x[0], y[0], n[0], x[1], y[1], n[1], x[2], y[2], n[2])
         fw = rotate_frame(f, rt)
         # g at the vertex (bilinear over the visibility texels)
-        t00, w = texel_weights(vtx, size, res)
+        t00, w = texel_weights(vtx, vertices.size, res)
         w00, w01, w10, w11 = w[0], w[1], w[2], w[3]
         neg = int(0)
         for ch in range(3):
@@ -396,9 +469,9 @@ def shade_kernels(order: int):
             if acc < 0.0:
                 acc = 0.0
                 neg = 1
-            radiance[vtx, ch] = specular[ch] * acc
+            out.radiance[vtx, ch] = texels.specular[ch] * acc
         if neg == 1:
-            wp.atomic_add(stats, STAT_NEGATIVE, 1)
+            wp.atomic_add(out.stats, STAT_NEGATIVE, 1)
 
     @wp.kernel(enable_backward=False, module="unique")
     def rotate_kernel(f: wp.array2d(dtype=wp.float32), rot: wp.array(dtype=wp.mat33), out: wp.array2d(dtype=wp.float32)):

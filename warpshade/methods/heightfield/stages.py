@@ -11,8 +11,8 @@ from ..._wp import launch_parallel, wp
 from ..common import ShLighting, order_param
 from ..rpo import OPERATORS, SHADE_PARAMS, GlossyStage
 from ..stage import FrameStage, Param, Port, StageError, register_stage
-from .kernels import (STAT_BELOW_HORIZON, STAT_NEGATIVE, heights_kernel, horizon_kernel, reduce_kernel, shade_kernels,
-                      visibility_kernels)
+from .kernels import (STAT_BELOW_HORIZON, STAT_NEGATIVE, HorizonMarch, ShadeOutputs, ShadeTexels, ShadeVertices,
+                      TexelVisibility, heights_kernel, horizon_kernel, reduce_kernel, shade_kernels, visibility_kernels)
 from .model import WEDGE_ENTRIES, GridLayout, grid_layout, march_plan, pyramid_levels, view_table, wedge_table
 
 __all__: list[str] = []
@@ -96,6 +96,13 @@ class HeightFieldVisibilityStage(FrameStage):
         r = p["resolution"]
         self._texels = wp.zeros((r * r, n * n), dtype=wp.float32, device=dev)
         self._texel_kernel, self._upsample_kernel = visibility_kernels(n)
+        march = HorizonMarch()
+        march.pyr, march.steps, march.step_level, march.azimuth = self._pyr, self._steps, self._step_level, self._azimuth
+        march.size, march.dx, march.dy = lay.size, lay.dx, lay.dy
+        texels = TexelVisibility()
+        texels.table, texels.res, texels.out = self._table, r, self._texels
+        texels.open_below = 1 if p["below"] == "open" else 0
+        self._march, self._texel_args = march, texels
         out = {"texel_visibility": self._texels}
         self._vertex = None
         if p["per_vertex"]:
@@ -113,11 +120,9 @@ class HeightFieldVisibilityStage(FrameStage):
             wp.launch(reduce_kernel, dim=s * s, inputs=[self._pyr, int(self._offs[k - 1]), self._sizes[k - 1],
                                                          int(self._offs[k]), s], device=dev)
         r = p["resolution"]
-        open_below = 1 if p["below"] == "open" else 0
 
         def texel_inputs(start, stop):
-            return [self._pyr, self._steps, self._step_level, self._azimuth, self._table, g, r, lay.dx, lay.dy,
-                    open_below, start, self._texels]
+            return [self._march, self._texel_args, start]
 
         launch_parallel(self._texel_kernel, r * r, texel_inputs, dev, min_count=CPU_CHUNK_MIN)
         if self._vertex is not None:
@@ -183,6 +188,14 @@ class HeightFieldShadeStage(GlossyStage):
         self._stats = wp.zeros(2, dtype=wp.int32, device=dev)
         self._radiance = wp.zeros((ctx.dims["V"], 3), dtype=wp.float32, device=dev)
         self._product, self._shade, _, _ = shade_kernels(n)
+        vertices = ShadeVertices()
+        vertices.points, vertices.normals, vertices.eye, vertices.size = self._points, self._normals, self._eye, lay.size
+        shade_texels = ShadeTexels()
+        shade_texels.g, shade_texels.res, shade_texels.ftable = self._g, r, self._ftable
+        shade_texels.specular = self._specular
+        out = ShadeOutputs()
+        out.radiance, out.stats = self._radiance, self._stats
+        self._shade_args = (vertices, shade_texels, out)
         self._upload_material()
         return {"radiance": self._radiance}
 
@@ -226,9 +239,10 @@ class HeightFieldShadeStage(GlossyStage):
 
         launch_parallel(self._product, r * r, product_inputs, dev, min_count=CPU_CHUNK_MIN)
 
+        vertices, texels, out = self._shade_args
+
         def shade_inputs(start, stop):
-            return [self._points, self._normals, self._eye, self._g, self._ftable, g, r,
-                    self._specular, start, self._radiance, self._stats]
+            return [vertices, texels, start, out]
 
         launch_parallel(self._shade, g * g, shade_inputs, dev, min_count=CPU_CHUNK_MIN)
 

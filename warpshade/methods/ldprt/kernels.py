@@ -173,36 +173,61 @@ def stored_row_term(stored: wp.array3d(dtype=wp.float32), v: int, j: int, rot: w
     return acc
 
 
+@wp.struct
+class GlossyVertices:
+    """Per-vertex inputs of :func:`glossy_kernel`.
+
+    Fields:
+        frames: tangent frames, rows tangent, bitangent, normal (world -> local), (V,) mat33.
+        points: world positions, (V,) vec3.
+        axes: lobe axes, local frame, (V, n_b * lobes) vec3 (n_b BRDF rows x ``lobes``, row-major).
+        coeffs: lobe convolution coefficients ``g*``, (V, n_b * lobes, n) float32.
+        stored: exactly stored DC and linear SH coefficients per BRDF row, local frame, (V, n_b, 4) float32.
+        lobes: lobes per BRDF row.
+    """
+
+    frames: wp.array(dtype=wp.mat33)
+    points: wp.array(dtype=wp.vec3)
+    axes: wp.array2d(dtype=wp.vec3)
+    coeffs: wp.array3d(dtype=wp.float32)
+    stored: wp.array3d(dtype=wp.float32)
+    lobes: int
+
+
+@wp.struct
+class GlossyShading:
+    """The viewer, BRDF and lighting of :func:`glossy_kernel`.
+
+    Fields:
+        eye: viewer position, world space, (1,) vec3 (the frame state's viewer).
+        factors: BRDF view-factor texture over the concentric square, (res, res, n_b) float32.
+        table: light-specialised ZH table (eq. 24-25), (rows, cols, 3, n) float32.
+        light: distant lighting SH per channel, world frame, (3, n*n) float32.
+        specular: RGB colour multiplying the radiance, linear.
+    """
+
+    eye: wp.array(dtype=wp.vec3)
+    factors: wp.array3d(dtype=wp.float32)
+    table: wp.array4d(dtype=wp.float32)
+    light: wp.array2d(dtype=wp.float32)
+    specular: wp.vec3
+
+
 @functools.cache
 def glossy_kernel(order: int):
-    """``shade_glossy(frames, points, eye, axes, coeffs, stored, lobes, factors, table, light,
-    specular, radiance)``: glossy LDPRT (eq. 16) with the light-specialised table, one thread
-    per vertex; ``eye`` is a (1,) vec3 device array (the frame state's viewer). ``axes``/``coeffs`` hold n_b rows x ``lobes`` lobes per vertex (row-major),
-    ``factors`` the (res, res, n_b) view-factor texture; radiance = specular * r(v), 0 where the
-    eye is below the vertex's tangent plane (the BRDF vanishes there)."""
+    """``shade_glossy(vertices: GlossyVertices, shading: GlossyShading, radiance)``: glossy LDPRT
+    (eq. 16) with the light-specialised table, one thread per vertex; radiance (V, 3) float32 =
+    specular * r(v), 0 where the eye is below the vertex's tangent plane (the BRDF vanishes there)."""
     zk = zh_kernels(order)
     table_lookup = zk.table_lookup
     load_bands = zk.load_bands
 
     @wp.kernel(enable_backward=False, module="unique")
-    def shade_glossy(
-        frames: wp.array(dtype=wp.mat33),
-        points: wp.array(dtype=wp.vec3),
-        eye: wp.array(dtype=wp.vec3),
-        axes: wp.array2d(dtype=wp.vec3),
-        coeffs: wp.array3d(dtype=wp.float32),
-        stored: wp.array3d(dtype=wp.float32),
-        lobes: int,
-        factors: wp.array3d(dtype=wp.float32),
-        table: wp.array4d(dtype=wp.float32),
-        light: wp.array2d(dtype=wp.float32),
-        specular: wp.vec3,
-        radiance: wp.array2d(dtype=wp.float32),
-    ):
+    def shade_glossy(vertices: GlossyVertices, shading: GlossyShading, radiance: wp.array2d(dtype=wp.float32)):
         v = wp.tid()
-        f = frames[v]
+        f = vertices.frames[v]
         rot = wp.transpose(f)
-        view = eye[0] - points[v]
+        view = shading.eye[0] - vertices.points[v]
         vlen = wp.length(view)
         if vlen > 0.0:
             view = view / vlen
@@ -214,16 +239,17 @@ def glossy_kernel(order: int):
             return
         ab = hemisphere_to_concentric(local_view)
         acc = wp.vec3(0.0)
-        for j in range(factors.shape[2]):
-            s = wp.vec3(stored_row_term(stored, v, j, rot, light, 0), stored_row_term(stored, v, j, rot, light, 1),
-                        stored_row_term(stored, v, j, rot, light, 2))
-            for k in range(lobes):
-                slot = j * lobes + k
-                s += table_lookup(table, rot * axes[v, slot]) * load_bands(coeffs, v, slot)
-            acc += view_factor(factors, ab, j) * s
+        for j in range(shading.factors.shape[2]):
+            s = wp.vec3(stored_row_term(vertices.stored, v, j, rot, shading.light, 0),
+                        stored_row_term(vertices.stored, v, j, rot, shading.light, 1),
+                        stored_row_term(vertices.stored, v, j, rot, shading.light, 2))
+            for k in range(vertices.lobes):
+                slot = j * vertices.lobes + k
+                s += table_lookup(shading.table, rot * vertices.axes[v, slot]) * load_bands(vertices.coeffs, v, slot)
+            acc += view_factor(shading.factors, ab, j) * s
         for c in range(3):
             # SH truncation rings below zero around a sharp light: clamped, as every SH shading stage does
-            radiance[v, c] = specular[c] * wp.max(acc[c], 0.0)
+            radiance[v, c] = shading.specular[c] * wp.max(acc[c], 0.0)
 
     return shade_glossy
 
@@ -231,6 +257,42 @@ def glossy_kernel(order: int):
 @wp.func
 def rotate_z(v: wp.vec3, c: float, s: float) -> wp.vec3:
     return wp.vec3(c * v[0] - s * v[1], s * v[0] + c * v[1], v[2])
+
+
+@wp.struct
+class WrinkleVertices:
+    """Per-vertex inputs of the wrinkle shading.
+
+    Fields:
+        frames: tangent frames, rows tangent, bitangent, normal (world -> local), (V,) mat33.
+        phase: groove phase, (V,) float32 (periods; the table is periodic in it).
+        groove_angle: angle of the groove frame about the normal, (V,) float32, radians.
+        depth: wrinkle depth, (V,) float32 (groove periods).
+        albedo: diffuse albedo, (V, 3) float32, linear RGB.
+    """
+
+    frames: wp.array(dtype=wp.mat33)
+    phase: wp.array(dtype=wp.float32)
+    groove_angle: wp.array(dtype=wp.float32)
+    depth: wp.array(dtype=wp.float32)
+    albedo: wp.array2d(dtype=wp.float32)
+
+
+@wp.struct
+class WrinkleTable:
+    """The fitted 3-lobe wrinkle table over (phase, depth), groove frame.
+
+    Fields:
+        axes: lobe axes, (phase_controls, depth_controls, 3) vec3 (normalised after interpolation).
+        coeffs: lobe ZH coefficients, (phase_controls, depth_controls, 3, n) float32.
+        stored: DC and linear SH coefficients, (phase_controls, depth_controls, 4) float32.
+        max_depth: depth of the table's last depth row (groove periods).
+    """
+
+    axes: wp.array3d(dtype=wp.vec3)
+    coeffs: wp.array4d(dtype=wp.float32)
+    stored: wp.array3d(dtype=wp.float32)
+    max_depth: float
 
 
 @functools.cache
@@ -242,11 +304,11 @@ def wrinkle_kernels(order: int):
       max_depth)`` with k the vertex's one-ring neighbour most aligned with the groove axis at
       rest (compression along the groove axis deepens the wrinkle); ``axis_neighbour < 0``: base
       depth only.
-    * ``shade_wrinkle(frames, phase, groove_angle, depth, table_axes, table_coeffs, table_stored,
-      max_depth, light, albedo, radiance)``: bilinear look-up of the 3-lobe parameters at
-      (phase, depth) (periodic in phase), axes normalised, turned from the groove frame into the
-      tangent frame by ``groove_angle`` about the normal, then to world by ``F^T``; shaded by
-      direct SH evaluation, ``albedo / pi * dot(L, t~)``.
+    * ``shade_wrinkle(vertices: WrinkleVertices, table: WrinkleTable, light, radiance)``: bilinear
+      look-up of the 3-lobe parameters at (phase, depth) (periodic in phase), axes normalised,
+      turned from the groove frame into the tangent frame by ``groove_angle`` about the normal,
+      then to world by ``F^T``; shaded by direct SH evaluation, ``albedo / pi * dot(L, t~)``
+      (``light`` the world SH per channel, (3, n*n) float32; radiance (V, 3) float32).
     """
     shk = sh_kernels(order)
     ORDER = order
@@ -271,49 +333,38 @@ def wrinkle_kernels(order: int):
         depth[v] = wp.clamp(d, 0.0, max_depth)
 
     @wp.kernel(enable_backward=False, module="unique")
-    def shade_wrinkle(
-        frames: wp.array(dtype=wp.mat33),
-        phase: wp.array(dtype=wp.float32),
-        groove_angle: wp.array(dtype=wp.float32),
-        depth: wp.array(dtype=wp.float32),
-        table_axes: wp.array3d(dtype=wp.vec3),
-        table_coeffs: wp.array4d(dtype=wp.float32),
-        table_stored: wp.array3d(dtype=wp.float32),
-        max_depth: float,
-        light: wp.array2d(dtype=wp.float32),
-        albedo: wp.array2d(dtype=wp.float32),
-        radiance: wp.array2d(dtype=wp.float32),
-    ):
+    def shade_wrinkle(vertices: WrinkleVertices, table: WrinkleTable, light: wp.array2d(dtype=wp.float32),
+                      radiance: wp.array2d(dtype=wp.float32)):
         v = wp.tid()
-        cx = table_axes.shape[0]
-        cd = table_axes.shape[1]
-        x = phase[v] - wp.floor(phase[v])
+        cx = table.axes.shape[0]
+        cd = table.axes.shape[1]
+        x = vertices.phase[v] - wp.floor(vertices.phase[v])
         fx = x * float(cx)
         i0 = int(wp.floor(fx)) % cx
         i1 = (i0 + 1) % cx
         tx = fx - wp.floor(fx)
-        fd = wp.clamp(depth[v] / max_depth, 0.0, 1.0) * float(cd - 1)
+        fd = wp.clamp(vertices.depth[v] / table.max_depth, 0.0, 1.0) * float(cd - 1)
         j0 = wp.min(int(wp.floor(fd)), cd - 2)
         td = fd - float(j0)
         w00 = (1.0 - tx) * (1.0 - td)
         w10 = tx * (1.0 - td)
         w01 = (1.0 - tx) * td
         w11 = tx * td
-        c = wp.cos(groove_angle[v])
-        s = wp.sin(groove_angle[v])
-        rot = wp.transpose(frames[v])
+        c = wp.cos(vertices.groove_angle[v])
+        s = wp.sin(vertices.groove_angle[v])
+        rot = wp.transpose(vertices.frames[v])
         acc = wp.vec3(0.0)
         # stored DC + linear band (groove frame -> tangent frame -> world)
         st = wp.vec4(0.0)
         for q in range(4):
-            st[q] = (w00 * table_stored[i0, j0, q] + w10 * table_stored[i1, j0, q]
-                     + w01 * table_stored[i0, j0 + 1, q] + w11 * table_stored[i1, j0 + 1, q])
+            st[q] = (w00 * table.stored[i0, j0, q] + w10 * table.stored[i1, j0, q]
+                     + w01 * table.stored[i0, j0 + 1, q] + w11 * table.stored[i1, j0 + 1, q])
         wv = rot * rotate_z(wp.vec3(-st[3], -st[1], st[2]), c, s)
         for ch in range(3):
             acc[ch] = st[0] * light[ch, 0] - wv[1] * light[ch, 1] + wv[2] * light[ch, 2] - wv[0] * light[ch, 3]
         for k in range(3):
-            a = (w00 * table_axes[i0, j0, k] + w10 * table_axes[i1, j0, k] + w01 * table_axes[i0, j0 + 1, k]
-                 + w11 * table_axes[i1, j0 + 1, k])
+            a = (w00 * table.axes[i0, j0, k] + w10 * table.axes[i1, j0, k] + w01 * table.axes[i0, j0 + 1, k]
+                 + w11 * table.axes[i1, j0 + 1, k])
             alen = wp.length(a)
             if alen > 0.0:
                 a = a / alen
@@ -321,12 +372,12 @@ def wrinkle_kernels(order: int):
                 a = wp.vec3(0.0, 0.0, 1.0)
             y = sh_eval(rot * rotate_z(a, c, s))
             for l in range(ORDER):
-                g = (w00 * table_coeffs[i0, j0, k, l] + w10 * table_coeffs[i1, j0, k, l]
-                     + w01 * table_coeffs[i0, j0 + 1, k, l] + w11 * table_coeffs[i1, j0 + 1, k, l])
+                g = (w00 * table.coeffs[i0, j0, k, l] + w10 * table.coeffs[i1, j0, k, l]
+                     + w01 * table.coeffs[i0, j0 + 1, k, l] + w11 * table.coeffs[i1, j0 + 1, k, l])
                 for m in range(-l, l + 1):
                     i = l * l + l + m
                     acc += (g * y[i]) * wp.vec3(light[0, i], light[1, i], light[2, i])
         for ch in range(3):
-            radiance[v, ch] = albedo[v, ch] * INV_PI * acc[ch]
+            radiance[v, ch] = vertices.albedo[v, ch] * INV_PI * acc[ch]
 
     return depth_kernel, shade_wrinkle

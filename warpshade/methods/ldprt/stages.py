@@ -357,7 +357,6 @@ class LdprtGlossyShadeStage(FrameStage):
             raise StageError(f"stage {self.name!r}: parameter 'specular' needs three numbers, got {p['specular']!r}")
         self._specular = wp.vec3(*[float(x) for x in p["specular"]])
         self._brdf = inputs["brdf"]
-        self._in = inputs
         v = ctx.dims["V"]
         self._axes = wp.array(inputs["glossy_axes"].numpy().reshape(v, -1, 3), dtype=wp.vec3, device=ctx.device)
         self._lighting = ShLighting(inputs["lighting"], p["order"])
@@ -366,6 +365,13 @@ class LdprtGlossyShadeStage(FrameStage):
         self._table_kernel = kernels.shade_kernels(p["order"])[0]
         self._kernel = kernels.glossy_kernel(p["order"])
         self._radiance = wp.zeros((v, 3), dtype=wp.float32, device=ctx.device)
+        vertices = kernels.GlossyVertices()
+        vertices.frames, vertices.points, vertices.axes = inputs["frames"], inputs["points"], self._axes
+        vertices.coeffs, vertices.stored, vertices.lobes = inputs["glossy_coeffs"], inputs["glossy_stored"], p["lobes"]
+        shading = kernels.GlossyShading()
+        shading.eye, shading.factors, shading.table = self._eye, inputs["view_factors"], self._table
+        shading.light, shading.specular = self._lighting.light, self._specular
+        self._vertices, self._shading = vertices, shading
         return {"radiance": self._radiance}
 
     def reference_model(self, materials=None):
@@ -380,15 +386,13 @@ class LdprtGlossyShadeStage(FrameStage):
         }
 
     def launch(self, state):
-        i, light = self._in, self._lighting
+        light = self._lighting
         dev = self._radiance.device
         light.launch()
         wp.launch(self._table_kernel, dim=self._table.shape[:2], inputs=[light.light, light.changed, self._table],
                   device=dev)
-        wp.launch(self._kernel, dim=self._radiance.shape[0],
-                  inputs=[i["frames"], i["points"], self._eye, self._axes, i["glossy_coeffs"], i["glossy_stored"],
-                          self.params["lobes"], i["view_factors"], self._table, light.light, self._specular,
-                          self._radiance], device=dev)
+        wp.launch(self._kernel, dim=self._radiance.shape[0], inputs=[self._vertices, self._shading, self._radiance],
+                  device=dev)
 
 
 @register_stage
@@ -518,6 +522,13 @@ class LdprtWrinkleShadeStage(FrameStage):
         v = ctx.dims["V"]
         self._depth = wp.zeros(v, dtype=wp.float32, device=dev)
         self._radiance = wp.zeros((v, 3), dtype=wp.float32, device=dev)
+        vertices = kernels.WrinkleVertices()
+        vertices.frames, vertices.phase = inputs["frames"], self._layout["phase"]
+        vertices.groove_angle, vertices.depth, vertices.albedo = self._layout["groove_angle"], self._depth, inputs["albedo"]
+        table = kernels.WrinkleTable()
+        table.axes, table.coeffs, table.stored = self._table_axes, inputs["wrinkle_coeffs"], inputs["wrinkle_stored"]
+        table.max_depth = p["max_depth"]
+        self._vertices, self._wrinkle_table = vertices, table
         return {"radiance": self._radiance, "depth": self._depth}
 
     def launch(self, state):
@@ -527,6 +538,5 @@ class LdprtWrinkleShadeStage(FrameStage):
         wp.launch(self._depth_kernel, dim=v, inputs=[i["points"], lay["axis_neighbour"], lay["rest_length"],
                                                      lay["base_depth"], p["compression_gain"], p["max_depth"],
                                                      self._depth], device=dev)
-        wp.launch(self._shade, dim=v, inputs=[i["frames"], lay["phase"], lay["groove_angle"], self._depth,
-                                              self._table_axes, i["wrinkle_coeffs"], i["wrinkle_stored"],
-                                              p["max_depth"], self._lighting.light, i["albedo"], self._radiance], device=dev)
+        wp.launch(self._shade, dim=v, inputs=[self._vertices, self._wrinkle_table, self._lighting.light, self._radiance],
+                  device=dev)

@@ -40,6 +40,77 @@ EVALUATIONS = ("gaunt", "matrices")
 STAT_NEGATIVE, STAT_BELOW_HORIZON = 0, 1
 
 
+@wp.struct
+class Receivers:
+    """Receiver vertices of one frame.
+
+    Fields:
+        frames: tangent frames, rows tangent, bitangent, normal (world -> local), (V,) mat33.
+        points: world positions, (V,) vec3.
+        visibility: SH visibility, local or world frame (the kernel's ``visibility_space``),
+            (V, n*n) float32.
+        material: material slot of each vertex (row of the operator tables), (V,) int32.
+    """
+
+    frames: wp.array(dtype=wp.mat33)
+    points: wp.array(dtype=wp.vec3)
+    visibility: wp.array2d(dtype=wp.float32)
+    material: wp.array(dtype=wp.int32)
+
+
+@wp.struct
+class Operators:
+    """The reflectance product operators of the material slots and the surface colour.
+
+    Fields:
+        light_sh: light factors ``w_b^light`` per slot, (slots, k, n*n) float32 (``"gaunt"``).
+        view_sh: view factors ``w_b``, (slots, k, view_order^2) float32.
+        rank: factors used per slot, (slots,) int32 (entries at and after it are ignored).
+        matrices: dense operators ``M_b``, (slots, k, n*n, n*n) float32 (``"matrices"``; a
+            (1, 1, 1, 1) placeholder otherwise).
+        cos_sh: clamped cosine SH, (n*n,) float32 (read when ``cosine = "product"``).
+        specular: RGB colour multiplying the radiance, linear.
+    """
+
+    light_sh: wp.array3d(dtype=wp.float32)
+    view_sh: wp.array3d(dtype=wp.float32)
+    rank: wp.array(dtype=wp.int32)
+    matrices: wp.array4d(dtype=wp.float32)
+    cos_sh: wp.array(dtype=wp.float32)
+    specular: wp.vec3
+
+
+@wp.struct
+class ViewLighting:
+    """The viewer and the frame's lighting.
+
+    Fields:
+        eye: viewer position, world space, (1,) vec3.
+        sh: distant lighting SH per channel, world frame, (3, n*n) float32 (``"rotate"``).
+        zh_axes: the frame's ZH lobe axes, world unit vectors, (J,) vec3 (``"zh"``; empty otherwise).
+        zh_coeffs: ZH coefficients of each lobe per channel and band, (max(J, 1), 3, n) float32.
+    """
+
+    eye: wp.array(dtype=wp.vec3)
+    sh: wp.array2d(dtype=wp.float32)
+    zh_axes: wp.array(dtype=wp.vec3)
+    zh_coeffs: wp.array3d(dtype=wp.float32)
+
+
+@wp.struct
+class ShadeOutputs:
+    """What :func:`shade_kernel` writes.
+
+    Fields:
+        radiance: radiance toward the eye, (V, 3) float32, linear RGB.
+        stats: (2,) int32 counters, incremented per receiver (:data:`STAT_NEGATIVE`,
+            :data:`STAT_BELOW_HORIZON`).
+    """
+
+    radiance: wp.array2d(dtype=wp.float32)
+    stats: wp.array(dtype=wp.int32)
+
+
 @wp.kernel
 def turn_axes_kernel(frame: wp.array(dtype=wp.int32), turn: wp.array(dtype=wp.mat33), axes0: wp.array(dtype=wp.vec3),
                      axes: wp.array(dtype=wp.vec3)):
@@ -51,7 +122,8 @@ def turn_axes_kernel(frame: wp.array(dtype=wp.int32), turn: wp.array(dtype=wp.ma
 @functools.lru_cache(maxsize=None)
 def shade_kernel(order: int, view_order: int, lighting: str = "rotate", cosine: str = "brdf",
                  visibility_space: str = "local", evaluation: str = "gaunt"):
-    """The eq. 11 kernel for one configuration (cached). Launch with ``dim = count`` and
+    """The eq. 11 kernel for one configuration (cached): ``kernel(surface: Receivers, ops: Operators,
+    light: ViewLighting, tables: SHTables, start, out: ShadeOutputs)``. Launch with ``dim = count`` and
     ``start`` (receivers ``start .. start + count``)."""
     if lighting not in LIGHTING_MODES or evaluation not in EVALUATIONS or cosine not in ("brdf", "product") \
             or visibility_space not in ("local", "world"):
@@ -70,90 +142,71 @@ def shade_kernel(order: int, view_order: int, lighting: str = "rotate", cosine: 
     MATRICES = 1 if evaluation == "matrices" else 0
 
     @wp.kernel(enable_backward=False, module="unique")
-    def kernel(
-        frames: wp.array(dtype=wp.mat33),
-        points: wp.array(dtype=wp.vec3),
-        eye: wp.array(dtype=wp.vec3),
-        visibility: wp.array2d(dtype=wp.float32),
-        material: wp.array(dtype=wp.int32),
-        light_sh: wp.array3d(dtype=wp.float32),
-        view_sh: wp.array3d(dtype=wp.float32),
-        rank: wp.array(dtype=wp.int32),
-        matrices: wp.array4d(dtype=wp.float32),
-        cos_sh: wp.array(dtype=wp.float32),
-        light: wp.array2d(dtype=wp.float32),
-        zh_axes: wp.array(dtype=wp.vec3),
-        zh_coeffs: wp.array3d(dtype=wp.float32),
-        tables: SHTables,
-        specular: wp.vec3,
-        start: int,
-        radiance: wp.array2d(dtype=wp.float32),
-        stats: wp.array(dtype=wp.int32),
-    ):
+    def kernel(surface: Receivers, ops: Operators, light: ViewLighting, tables: SHTables, start: int, out: ShadeOutputs):
         v = wp.tid() + start
-        f = frames[v]
-        d = eye[0] - points[v]
+        f = surface.frames[v]
+        d = light.eye[0] - surface.points[v]
         dl = wp.length(d)
         wo = wp.vec3(0.0, 0.0, 1.0)
         if dl > 0.0:
             wo = f * (d / dl)
         if wo[2] <= 0.0:
-            radiance[v, 0] = 0.0
-            radiance[v, 1] = 0.0
-            radiance[v, 2] = 0.0
-            wp.atomic_add(stats, STAT_BELOW_HORIZON, 1)
+            out.radiance[v, 0] = 0.0
+            out.radiance[v, 1] = 0.0
+            out.radiance[v, 2] = 0.0
+            wp.atomic_add(out.stats, STAT_BELOW_HORIZON, 1)
             return
-        s = material[v]
+        s = surface.material[v]
         yo = view_eval(wo)
-        vis = sh_load(visibility, v)
+        vis = sh_load(surface.visibility, v)
         if VIS_WORLD == 1:
             vis = sh_rotate(vis, f, tables)
         if COS_PRODUCT == 1:
             c = vec_t()
             for i in range(N2):
-                c[i] = cos_sh[i]
+                c[i] = ops.cos_sh[i]
             vis = sh_product(vis, c, tables)
         t = vec_t()
         if MATRICES == 1:
-            for b in range(rank[s]):
+            for b in range(ops.rank[s]):
                 ub = float(0.0)
                 for i in range(NV):
-                    ub += view_sh[s, b, i] * yo[i]
+                    ub += ops.view_sh[s, b, i] * yo[i]
                 for i in range(N2):
                     acc = float(0.0)
                     for j in range(N2):
-                        acc += matrices[s, b, i, j] * vis[j]
+                        acc += ops.matrices[s, b, i, j] * vis[j]
                     t[i] = t[i] + ub * acc
         else:
             fo = vec_t()
-            for b in range(rank[s]):
+            for b in range(ops.rank[s]):
                 ub = float(0.0)
                 for i in range(NV):
-                    ub += view_sh[s, b, i] * yo[i]
+                    ub += ops.view_sh[s, b, i] * yo[i]
                 for i in range(N2):
-                    fo[i] = fo[i] + ub * light_sh[s, b, i]
+                    fo[i] = fo[i] + ub * ops.light_sh[s, b, i]
             t = sh_product(fo, vis, tables)
         r = wp.vec3(0.0, 0.0, 0.0)
         if ZH == 1:
-            for j in range(zh_axes.shape[0]):
-                y = sh_eval(f * zh_axes[j])
+            for j in range(light.zh_axes.shape[0]):
+                y = sh_eval(f * light.zh_axes[j])
                 for l in range(ORDER):
                     acc = float(0.0)
                     for m in range(2 * l + 1):
                         acc += t[l * l + m] * y[l * l + m]
-                    r = r + acc * wp.vec3(zh_coeffs[j, 0, l], zh_coeffs[j, 1, l], zh_coeffs[j, 2, l])
+                    r = r + acc * wp.vec3(light.zh_coeffs[j, 0, l], light.zh_coeffs[j, 1, l], light.zh_coeffs[j, 2, l])
         else:
             tw = sh_rotate(t, wp.transpose(f), tables)
             for i in range(N2):
-                r = r + tw[i] * wp.vec3(light[0, i], light[1, i], light[2, i])
+                r = r + tw[i] * wp.vec3(light.sh[0, i], light.sh[1, i], light.sh[2, i])
         neg = int(0)
         for c in range(3):
             x = r[c]
             if x < 0.0:
                 x = 0.0
                 neg = 1
-            radiance[v, c] = specular[c] * x
+            out.radiance[v, c] = ops.specular[c] * x
         if neg == 1:
-            wp.atomic_add(stats, STAT_NEGATIVE, 1)
+            wp.atomic_add(out.stats, STAT_NEGATIVE, 1)
 
     return kernel

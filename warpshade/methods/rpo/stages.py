@@ -180,6 +180,7 @@ class RpoShadeStage(GlossyStage):
         self._kernel = kernels.shade_kernel(n, p["view_order"], p["lighting"], p["cosine"], p["visibility_space"],
                                             p["evaluation"])
         self._radiance = wp.zeros((ctx.dims["V"], 3), dtype=wp.float32, device=dev)
+        self._bind_kernel_inputs()
         self.slot_brdfs: list = []
         self.build_s: list = []
         self.zh = None
@@ -187,6 +188,22 @@ class RpoShadeStage(GlossyStage):
         if p["lighting"] == "zh":
             self._fit_lighting()
         return {"radiance": self._radiance}
+
+    def _bind_kernel_inputs(self) -> None:
+        """The shading kernel's argument structs over the stage's fixed buffers (built once: the
+        buffers are written in place when materials or lighting change)."""
+        surface = kernels.Receivers()
+        surface.frames, surface.points = self._frames, self._points
+        surface.visibility, surface.material = self._visibility, self._material
+        ops = kernels.Operators()
+        ops.light_sh, ops.view_sh, ops.rank, ops.matrices = self._light_sh, self._view_sh, self._rank, self._matrices
+        ops.cos_sh, ops.specular = self._cos, self._specular
+        light = kernels.ViewLighting()
+        light.eye, light.sh = self._eye, self._lighting.light
+        light.zh_axes, light.zh_coeffs = self._zh_axes, self._zh_coeffs
+        out = kernels.ShadeOutputs()
+        out.radiance, out.stats = self._radiance, self._stats
+        self._surface, self._ops, self._view_lighting, self._outputs = surface, ops, light, out
 
     def _operator(self, brdf):
         p = self.params
@@ -280,9 +297,7 @@ class RpoShadeStage(GlossyStage):
                       inputs=[state.frame_index_device, self._zh_turn, self._zh_axes0, self._zh_axes])
 
         def inputs(start, stop):
-            return [self._frames, self._points, self._eye, self._visibility, self._material, self._light_sh,
-                    self._view_sh, self._rank, self._matrices, self._cos, self._lighting.light, self._zh_axes,
-                    self._zh_coeffs, self._tables, self._specular, start, self._radiance, self._stats]
+            return [self._surface, self._ops, self._view_lighting, self._tables, start, self._outputs]
 
         launch_parallel(self._kernel, self._radiance.shape[0], inputs, dev, min_count=CPU_CHUNK_MIN)
 

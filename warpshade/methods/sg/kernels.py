@@ -108,6 +108,47 @@ class Visibility:
     frames: wp.array(dtype=wp.mat33)
 
 
+@wp.struct
+class Materials:
+    """Per-point material arrays (vertices or pixels): diffuse albedo (P,) vec3 and specular colour
+    (P,) vec3, linear RGB; microfacet roughness (exponent for Blinn-Phong), (P,) float32."""
+
+    albedo: wp.array(dtype=wp.vec3)
+    specular: wp.array(dtype=wp.vec3)
+    roughness: wp.array(dtype=float)
+
+
+@wp.struct
+class VertexPoints:
+    """The vertices shaded by :func:`shade_vertices_kernel`: world positions and unit shading
+    normals, (V,) vec3 each; the viewer, world position, (1,) vec3."""
+
+    position: wp.array(dtype=wp.vec3)
+    normal: wp.array(dtype=wp.vec3)
+    eye: wp.array(dtype=wp.vec3)
+
+
+@wp.struct
+class PixelHits:
+    """The rays of a G-buffer (:mod:`warpshade.render.raycast`), N rows each.
+
+    Fields:
+        hit: 1 where the ray hit, (N,) int32.
+        position: world hit point, (N,) vec3; normal: unit shading normal there, (N,) vec3.
+        face: hit triangle, (N,) int32; bary: Warp barycentrics of its first two vertices, (N,) vec2.
+        faces: the scene's triangles, (F, 3) int32 vertex indices.
+        eye: the viewer, world position, (1,) vec3.
+    """
+
+    hit: wp.array(dtype=wp.int32)
+    position: wp.array(dtype=wp.vec3)
+    normal: wp.array(dtype=wp.vec3)
+    face: wp.array(dtype=wp.int32)
+    bary: wp.array(dtype=wp.vec2)
+    faces: wp.array2d(dtype=wp.int32)
+    eye: wp.array(dtype=wp.vec3)
+
+
 @wp.func
 def ssdf_bilinear(maps: wp.array3d(dtype=float), v: int, ab: wp.vec2, r: int):
     """Bilinear fetch of vertex ``v``'s map at a point ``ab`` of the concentric square."""
@@ -222,65 +263,58 @@ def turn_lobes_kernel(axes0: wp.array(dtype=wp.vec3), rotation: wp.array(dtype=w
 
 
 @wp.kernel
-def shade_vertices_kernel(points: wp.array(dtype=wp.vec3), normals: wp.array(dtype=wp.vec3), eye: wp.array(dtype=wp.vec3),
-                          albedo: wp.array(dtype=wp.vec3), specular: wp.array(dtype=wp.vec3), roughness: wp.array(dtype=float),
-                          lights: Lights, vis: Visibility, st: Settings, start: int, radiance: wp.array2d(dtype=float)):
+def shade_vertices_kernel(points: VertexPoints, mats: Materials, lights: Lights, vis: Visibility, st: Settings, start: int,
+                          radiance: wp.array2d(dtype=float)):
+    """One vertex (``wp.tid() + start``): radiance toward the eye, (V, 3) float32, linear RGB."""
     v = wp.tid() + start
-    x = points[v]
-    o = wp.normalize(eye[0] - x)
+    x = points.position[v]
+    o = wp.normalize(points.eye[0] - x)
     mat = Material()
-    mat.albedo = albedo[v]
-    mat.specular = specular[v]
-    mat.roughness = roughness[v]
-    c = shade_point(x, normals[v], o, mat, lights, vis, st, v, v, v, wp.vec3(1.0, 0.0, 0.0))
+    mat.albedo = mats.albedo[v]
+    mat.specular = mats.specular[v]
+    mat.roughness = mats.roughness[v]
+    c = shade_point(x, points.normal[v], o, mat, lights, vis, st, v, v, v, wp.vec3(1.0, 0.0, 0.0))
     radiance[v, 0] = c[0]
     radiance[v, 1] = c[1]
     radiance[v, 2] = c[2]
 
 
 @wp.kernel
-def shade_pixels_kernel(hit: wp.array(dtype=wp.int32), position: wp.array(dtype=wp.vec3), normal: wp.array(dtype=wp.vec3),
-                        face: wp.array(dtype=wp.int32), bary: wp.array(dtype=wp.vec2), faces: wp.array2d(dtype=wp.int32),
-                        eye: wp.array(dtype=wp.vec3), albedo: wp.array(dtype=wp.vec3), specular: wp.array(dtype=wp.vec3),
-                        roughness: wp.array(dtype=float), lights: Lights, vis: Visibility, st: Settings, start: int,
+def shade_pixels_kernel(hits: PixelHits, mats: Materials, lights: Lights, vis: Visibility, st: Settings, start: int,
                         out: wp.array(dtype=wp.vec3)):
     """One pixel of a G-buffer (:mod:`warpshade.render.raycast`): per-pixel normal, material from
     the per-pixel arrays (textures sampled by the caller), visibility blended over the hit triangle."""
     p = wp.tid() + start
-    if hit[p] == 0:
+    if hits.hit[p] == 0:
         out[p] = wp.vec3(0.0)
         return
-    f = face[p]
-    b = bary[p]
+    f = hits.face[p]
+    b = hits.bary[p]
     w = wp.vec3(b[0], b[1], 1.0 - b[0] - b[1])
-    x = position[p]
-    o = wp.normalize(eye[0] - x)
+    x = hits.position[p]
+    o = wp.normalize(hits.eye[0] - x)
     mat = Material()
-    mat.albedo = albedo[p]
-    mat.specular = specular[p]
-    mat.roughness = roughness[p]
-    out[p] = shade_point(x, normal[p], o, mat, lights, vis, st, faces[f, 0], faces[f, 1], faces[f, 2], w)
+    mat.albedo = mats.albedo[p]
+    mat.specular = mats.specular[p]
+    mat.roughness = mats.roughness[p]
+    out[p] = shade_point(x, hits.normal[p], o, mat, lights, vis, st, hits.faces[f, 0], hits.faces[f, 1], hits.faces[f, 2], w)
 
 
 @wp.kernel
-def interpolate_materials_kernel(hit: wp.array(dtype=wp.int32), face: wp.array(dtype=wp.int32), bary: wp.array(dtype=wp.vec2),
-                                 faces: wp.array2d(dtype=wp.int32), albedo: wp.array(dtype=wp.vec3),
-                                 specular: wp.array(dtype=wp.vec3), roughness: wp.array(dtype=float),
-                                 albedo_px: wp.array(dtype=wp.vec3), specular_px: wp.array(dtype=wp.vec3),
-                                 roughness_px: wp.array(dtype=float)):
-    """Per-vertex materials interpolated at each pixel's hit (Warp barycentrics)."""
+def interpolate_materials_kernel(hits: PixelHits, vertex: Materials, pixel: Materials):
+    """Per-vertex materials interpolated at each pixel's hit (Warp barycentrics); misses are left as they are."""
     p = wp.tid()
-    if hit[p] == 0:
+    if hits.hit[p] == 0:
         return
-    f = face[p]
-    b = bary[p]
-    a = faces[f, 0]
-    c = faces[f, 1]
-    d = faces[f, 2]
+    f = hits.face[p]
+    b = hits.bary[p]
+    a = hits.faces[f, 0]
+    c = hits.faces[f, 1]
+    d = hits.faces[f, 2]
     w2 = 1.0 - b[0] - b[1]
-    albedo_px[p] = b[0] * albedo[a] + b[1] * albedo[c] + w2 * albedo[d]
-    specular_px[p] = b[0] * specular[a] + b[1] * specular[c] + w2 * specular[d]
-    roughness_px[p] = b[0] * roughness[a] + b[1] * roughness[c] + w2 * roughness[d]
+    pixel.albedo[p] = b[0] * vertex.albedo[a] + b[1] * vertex.albedo[c] + w2 * vertex.albedo[d]
+    pixel.specular[p] = b[0] * vertex.specular[a] + b[1] * vertex.specular[c] + w2 * vertex.specular[d]
+    pixel.roughness[p] = b[0] * vertex.roughness[a] + b[1] * vertex.roughness[c] + w2 * vertex.roughness[d]
 
 
 @wp.kernel

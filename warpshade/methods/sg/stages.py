@@ -237,6 +237,11 @@ class SgShadeStage(FrameStage):
         self._spec = wp.zeros(count, dtype=wp.vec3, device=dev)
         self._rough = wp.zeros(count, dtype=float, device=dev)
         self._radiance = wp.zeros((count, 3), dtype=wp.float32, device=dev)
+        # the vertex kernel's argument structs over the fixed buffers (materials are written in place)
+        self._vertex_points = kernels.VertexPoints()
+        self._vertex_points.position, self._vertex_points.normal = self._points, self._normals
+        self._vertex_points.eye = self._eye
+        self._vertex_materials = self._materials(self._albedo, self._spec, self._rough)
         self._upload_materials()
         self._setup_lights()
         return {"radiance": self._radiance}
@@ -253,6 +258,13 @@ class SgShadeStage(FrameStage):
             return float(brdf.exponent), self._specular_rgb * float(brdf.specular)
         raise StageError(f"stage {self.name!r}: run-time BRDF {brdf.describe()} is not a {p['brdf']!r} model this stage "
                          "shades (set brdf = 'beckmann' for Beckmann microfacets, 'blinn-phong' for Blinn-Phong)")
+
+    @staticmethod
+    def _materials(albedo, specular, roughness):
+        """A :class:`~.kernels.Materials` over per-point arrays (albedo, specular (P,) vec3; roughness (P,) float)."""
+        m = kernels.Materials()
+        m.albedo, m.specular, m.roughness = albedo, specular, roughness
+        return m
 
     def _upload_materials(self) -> None:
         p = self.params
@@ -436,27 +448,30 @@ class SgShadeStage(FrameStage):
         self._turn_lights()
 
         def inputs(start, stop):
-            return [self._points, self._normals, self._eye, self._albedo, self._spec, self._rough, lights, self._vis,
-                    self._settings, start, self._radiance]
+            return [self._vertex_points, self._vertex_materials, lights, self._vis, self._settings, start, self._radiance]
 
         launch_parallel(kernels.shade_vertices_kernel, self._radiance.shape[0], inputs, dev, min_count=CPU_CHUNK_MIN)
 
     def pixel_materials(self, gbuffer) -> dict:
         """The per-vertex materials interpolated at every ray of a G-buffer: ``albedo`` (N, 3),
         ``specular`` (N, 3), ``roughness`` (N,), float32 host arrays (0 for misses)."""
-        alb, spc, rgh = self._interpolated_materials(gbuffer)
-        return {"albedo": alb.numpy(), "specular": spc.numpy(), "roughness": rgh.numpy()}
+        px = self._interpolated_materials(self._pixel_hits(gbuffer, gbuffer.normal), gbuffer.pixel_count)
+        return {"albedo": px.albedo.numpy(), "specular": px.specular.numpy(), "roughness": px.roughness.numpy()}
 
-    def _interpolated_materials(self, gbuffer):
+    def _pixel_hits(self, gbuffer, normals):
+        """The G-buffer's rays as a :class:`~.kernels.PixelHits` with shading ``normals`` (N,) vec3."""
+        hits = kernels.PixelHits()
+        hits.hit, hits.position, hits.normal = gbuffer.hit, gbuffer.position, normals
+        hits.face, hits.bary, hits.faces, hits.eye = gbuffer.face, gbuffer.bary, gbuffer.faces, self._eye
+        return hits
+
+    def _interpolated_materials(self, hits, n: int):
+        """The per-vertex materials at each of the ``n`` rays of ``hits`` (0 for misses), new per-pixel arrays."""
         dev = self._device
-        n = gbuffer.pixel_count
-        alb = wp.zeros(n, dtype=wp.vec3, device=dev)
-        spc = wp.zeros(n, dtype=wp.vec3, device=dev)
-        rgh = wp.zeros(n, dtype=float, device=dev)
-        wp.launch(kernels.interpolate_materials_kernel, dim=n, device=dev,
-                  inputs=[gbuffer.hit, gbuffer.face, gbuffer.bary, gbuffer.faces, self._albedo, self._spec, self._rough],
-                  outputs=[alb, spc, rgh])
-        return alb, spc, rgh
+        px = self._materials(wp.zeros(n, dtype=wp.vec3, device=dev), wp.zeros(n, dtype=wp.vec3, device=dev),
+                             wp.zeros(n, dtype=float, device=dev))
+        wp.launch(kernels.interpolate_materials_kernel, dim=n, device=dev, inputs=[hits, self._vertex_materials, px])
+        return px
 
     def render_pixels(self, gbuffer, albedo=None, specular=None, roughness=None, normals=None):
         """Shade every pixel of a G-buffer of this frame (:func:`warpshade.render.render_gbuffer`:
@@ -469,9 +484,10 @@ class SgShadeStage(FrameStage):
         Returns wp.array(vec3) of linear radiance, 0 for misses."""
         dev = self._device
         n = gbuffer.pixel_count
-        alb, spc, rgh = self._interpolated_materials(gbuffer)
-        for name, value, buf, rgb in (("albedo", albedo, alb, True), ("specular", specular, spc, True),
-                                      ("roughness", roughness, rgh, False)):
+        hits = self._pixel_hits(gbuffer, gbuffer.normal)
+        px = self._interpolated_materials(hits, n)
+        for name, value, buf, rgb in (("albedo", albedo, px.albedo, True), ("specular", specular, px.specular, True),
+                                      ("roughness", roughness, px.roughness, False)):
             if value is None:
                 continue
             a = np.asarray(value, np.float32)
@@ -480,7 +496,6 @@ class SgShadeStage(FrameStage):
                 raise StageError(f"stage {self.name!r}: render_pixels {name} must be finite, non-negative, shape {want}; "
                                  f"got {a.shape}")
             buf.assign(a)
-        shading_normals = gbuffer.normal
         if normals is not None:
             a = np.asarray(normals, np.float32)
             hit = gbuffer.hit.numpy().astype(bool)
@@ -490,14 +505,13 @@ class SgShadeStage(FrameStage):
             if bad:
                 raise StageError(f"stage {self.name!r}: render_pixels normals must be finite unit vectors, shape {(n, 3)}; "
                                  f"got {a.shape}")
-            shading_normals = wp.array(a, dtype=wp.vec3, device=dev)
+            hits.normal = wp.array(a, dtype=wp.vec3, device=dev)
         lights = self._lights
         self._turn_lights()
         out = wp.zeros(n, dtype=wp.vec3, device=dev)
 
         def inputs(start, stop):
-            return [gbuffer.hit, gbuffer.position, shading_normals, gbuffer.face, gbuffer.bary, gbuffer.faces, self._eye,
-                    alb, spc, rgh, lights, self._vis, self._settings, start, out]
+            return [hits, px, lights, self._vis, self._settings, start, out]
 
         launch_parallel(kernels.shade_pixels_kernel, n, inputs, dev, min_count=CPU_CHUNK_MIN)
         return out
