@@ -186,11 +186,14 @@ def main(argv=None) -> int:
     ap.add_argument("--frames", type=int, default=48, help="frames timed per graph")
     ap.add_argument("--before", default=None, metavar="COMMIT", help="also measure this earlier commit, side by side")
     ap.add_argument("--no-variants", action="store_true", help="only the default (recorded) frame")
-    ap.add_argument("--out", default=str(RESULTS))
+    ap.add_argument("--out", default=None, help="output directory (default benchmarks/results; required with --quick)")
     ap.add_argument("--cache", default=None, help="artifact cache directory (default: a temporary one)")
     ap.add_argument("--inner", default=None, help=argparse.SUPPRESS)  # child process: write rows here
     ap.add_argument("--quick", action="store_true", help="smoke profile: 3 frames per graph, no variants")
     args = ap.parse_args(argv)
+    if args.quick and args.out is None and not args.inner:
+        ap.error("--quick writes only into --out DIR (never benchmarks/results)")
+    args.out = args.out or str(RESULTS)
     if args.quick:
         args.frames, args.no_variants = 3, True
     own_cache = tempfile.TemporaryDirectory(prefix="warpshade-frame-") if args.cache is None else None
@@ -221,7 +224,7 @@ def main(argv=None) -> int:
         print(f"  before: {b['frame_over_bare_kernel']:.2f} ({b['frame_ms']:.3f} / {b['bare_kernel_ms']:.3f} ms)", flush=True)
     tag = args.device.replace(":", "")
     out = Path(args.out)
-    stem = f"frame-{result['meta']['date']}-{tag}"
+    stem = f"frame-{result['meta']['date']}-{tag}" + ("-quick" if args.quick else "")
     write_json_atomic(out / f"{stem}.json", result, indent=1)
     chart(result, out / f"{stem}.png")
     print(f"wrote {out / stem}.json and .png")
