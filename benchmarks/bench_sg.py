@@ -50,6 +50,7 @@ Usage::
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import datetime
 import json
 import platform
@@ -83,12 +84,24 @@ QUICK_SG = f"ssdf {QUICK_SSDF} x4 e8"
 # ---- set-up -----------------------------------------------------------------------------------
 
 
-def load():
-    """The sunlit scene and its environment-only lighting, not turning."""
+def coarse_environment(env, rows: int = 32):
+    """``env`` box-filtered down to about ``rows`` texel rows (the ``--quick`` profile: the
+    prefiltered table of a full-size sky takes tens of seconds to build on the CPU)."""
+    img = np.asarray(env.image, np.float32)
+    f = max(1, img.shape[0] // rows)
+    h, w = img.shape[0] // f * f, img.shape[1] // f * f
+    return dataclasses.replace(env, image=img[:h, :w].reshape(h // f, f, w // f, f, 3).mean(axis=(1, 3)))
+
+
+def load(quick: bool = False):
+    """The sunlit scene and its environment-only lighting, not turning (``quick``: the scene's
+    environment coarsened by :func:`coarse_environment`)."""
     from warpshade.io import load_scene
-    from warpshade.scene import LightingSource, SphereLight
+    from warpshade.scene import Environment, LightingSource, SphereLight
 
     scene = load_scene("bundled:sunlit")
+    if quick:
+        scene.lights = [coarse_environment(light) if isinstance(light, Environment) else light for light in scene.lights]
     lighting = LightingSource.fixed([light for light in scene.lights if not isinstance(light, SphereLight)], scene.up_axis)
     return scene, lighting
 
@@ -581,7 +594,7 @@ def main(argv=None) -> int:
         ap.error("--quick writes only into --out DIR (never benchmarks/results)")
     gt_samples = args.gt_samples or (32 if quick else 1024)
     t_all = time.perf_counter()
-    scene, lighting = load()
+    scene, lighting = load(quick)
     date = str(datetime.date.today())
     out = Path(args.out or RESULTS)
     out.mkdir(parents=True, exist_ok=True)

@@ -344,7 +344,7 @@ def scene_errors(quick: bool = False, orders=(3, 4, 5, 6), scenes=None, gt_sampl
         frames = error_frames(scene, 1 if quick else 2)
         gt = ground_truth(scene, lighting, frames, gt_samples, device)
         gt_rad = {f: v["radiance"] for f, v in gt.items()}
-        budget = SCENE_BUDGETS[key]
+        budget = 4 if quick else SCENE_BUDGETS[key]
         rows = []
 
         def record(label, stages, output="shade.radiance", **facts):

@@ -256,18 +256,19 @@ def run_hierarchy(scene, spheres, device, quick):
     }
 
 
-def split_launch_ratio(device, key="bunny"):
-    """QMC classification of 64 spheres x 4096 samples on a mesh (the bunny): one launch vs the pool."""
+def split_launch_ratio(device, key="bunny", spheres=64, samples=4096, repeats=3):
+    """QMC classification of 64 spheres x 4096 samples on a mesh (the bunny): one launch vs the
+    pool, median of ``repeats`` after a warm-up."""
     points, faces, name, _ = mesh_points(key)
     solid = fit_internals.make_solid(points, faces, name, device=device)
     rng = np.random.default_rng(0)
-    centres = points[rng.choice(points.shape[0], 64)]
-    radii = np.full(64, 0.1)
-    n = 64 * 4096
+    centres = points[rng.choice(points.shape[0], spheres)]
+    radii = np.full(spheres, 0.1)
+    n = spheres * samples
     dev = solid.device
     cw = wp.array(centres.astype(np.float32), dtype=wp.vec3, device=dev)
     rw = wp.array(radii.astype(np.float32), dtype=wp.float32, device=dev)
-    ub = wp.array(core_internals._unit_ball(4096, 1, 0)[0].astype(np.float32), dtype=wp.vec3, device=dev)
+    ub = wp.array(core_internals._unit_ball(samples, 1, 0)[0].astype(np.float32), dtype=wp.vec3, device=dev)
     out = wp.empty(n, dtype=wp.float32, device=dev)
     uw = wp.empty(n, dtype=wp.float32, device=dev)
     mid = solid.mesh_id
@@ -285,7 +286,7 @@ def split_launch_ratio(device, key="bunny"):
     for key, fn in (("single_launch_s", single), ("split_launch_s", split)):
         fn()
         ts = []
-        for _ in range(3):
+        for _ in range(repeats):
             t0 = time.perf_counter()
             fn()
             ts.append(time.perf_counter() - t0)
@@ -377,7 +378,7 @@ def main():
         scene, base, animation = run_animation(args.quick, device)
         hierarchy = run_hierarchy(scene, base, device, args.quick)
         print("hierarchy", json.dumps({k: v for k, v in hierarchy.items()}, indent=None))
-    split = split_launch_ratio(device, "figure" if args.quick else "bunny")
+    split = split_launch_ratio(device, "figure", 8, 1024, 1) if args.quick else split_launch_ratio(device)
     date = datetime.date.today().isoformat()
     stem = f"spheres-{date}" + ("-quick" if args.quick else "")
     out_dir = Path(args.out or ROOT / "benchmarks" / "results")

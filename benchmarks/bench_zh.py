@@ -74,7 +74,7 @@ def mesh_transfer(samples: int, quick: bool) -> dict:
     body = next(m for m in scene.meshes if m.path.endswith("Body"))
     verts = np.arange(body.vertex_offset, body.vertex_offset + body.vertex_count)
     if quick:
-        verts = verts[::16]
+        verts = verts[::64]
     t = local_transfer(scene, 0.0, 6, samples, device="cpu", seed=0, vertices=verts).astype(np.float64)
     t2 = local_transfer(scene, 0.0, 6, samples, device="cpu", seed=1, vertices=verts).astype(np.float64)
     total = float(np.sum(t * t))
@@ -160,7 +160,7 @@ def chart(result, path):
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true",
-                    help="smoke profile: 8 random vectors, 1 restart, 128 rays on every 16th body vertex")
+                    help="smoke profile: 8 random vectors, 1 restart, 128 rays on every 64th body vertex")
     ap.add_argument("--vectors", type=int, default=200)
     ap.add_argument("--samples", type=int, default=1024)
     ap.add_argument("--restarts", type=int, default=4)

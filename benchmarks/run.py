@@ -54,9 +54,24 @@ from warpshade.methods.rows import all_rows  # noqa: E402
 RESULTS = ROOT / "benchmarks" / "results"
 SCENES = BENCH_SCENES
 #: The ``--quick`` smoke profile: its default scene, and caps on the rows' stage parameters
-#: (rays per vertex, SSDF resolution, blocker-sphere budget).
+#: (rays per vertex, SSDF resolution, blocker-sphere budget, lobe counts, BRDF ranks).
 QUICK_SCENES = "bend"
-QUICK_CAPS = {"samples": 16, "resolution": 8, "budget": 2}
+QUICK_CAPS = {"samples": 16, "resolution": 8, "budget": 2, "lobes": 1, "rank": 2}
+
+
+def coarse_lighting(scene):
+    """``(scene, lighting)`` with the scene's environments box-filtered down to about 32 texel rows
+    (``--quick``: SG's prefiltered table of a full-size sky takes tens of seconds to build)."""
+    from warpshade.scene import Environment, LightingSource
+
+    def coarse(env, rows=32):
+        img = np.asarray(env.image, np.float32)
+        f = max(1, img.shape[0] // rows)
+        h, w = img.shape[0] // f * f, img.shape[1] // f * f
+        return dataclasses.replace(env, image=img[:h, :w].reshape(h // f, f, w // f, f, 3).mean(axis=(1, 3)))
+
+    scene.lights = [coarse(light) if isinstance(light, Environment) else light for light in scene.lights]
+    return scene, LightingSource(scene.lights, scene.up_axis, ROTATE_DEGREES_PER_FRAME, float(scene.frames[0]))
 
 
 def smoke_rows(rows) -> list:
@@ -262,6 +277,8 @@ def main(argv=None) -> int:
         t_all = time.perf_counter()
         for key in scene_keys:
             scene, lighting = load_bench_scene(key)
+            if args.quick:
+                scene, lighting = coarse_lighting(scene)
             kinds = scene_kinds(scene) | {key}
             applicable = [r for r in rows if kinds & set(r.scenes)]
             if not applicable:
