@@ -23,12 +23,12 @@ RESULTS = BENCHMARKS / "results"
 #: Every script's smoke profile: ``--quick`` (a tiny scene or few vertices, 1-3 frames, few rays,
 #: the smallest orders and grids, no optional sweeps; about 15 s or less on one core).
 SMOKE = sorted(p.stem for p in BENCHMARKS.glob("*.py"))
-#: Smoke runs still over a minute on 2 shared CPU cores, kept out of the default suite
-#: (``-m "not slow"``): their cost is precompute the scripts cannot shrink through parameters --
-#: SG's environment preparation (the prefiltered table, minutes even for a coarsened sky),
-#: the data-driven training fit and coefficient PCA, RPO's operator builds and reference
-#: shading, SHEXP's tables and sphere blockers per order -- or, for run.py, the same stages for
-#: one row per method.
+#: Smoke runs still over ~40 s on 2 shared CPU cores (measured alone), kept out of the default
+#: suite (``-m "not slow"``). Their cost is precompute their parameters cannot shrink further:
+#: bench_sg (over 5 min: SG's environment preparation, the prefiltered table, even for a
+#: coarsened sky), bench_datadriven (70 s: training trace, fit and coefficient PCA), bench_shexp
+#: (59 s: SHEXP tables and sphere blockers per order), bench_rpo (42 s: operator builds and
+#: reference shading), run.py (41 s: one row of every method, SG's environment included).
 SLOW = {"bench_sg", "bench_datadriven", "bench_rpo", "bench_shexp", "run"}
 #: Seconds one smoke run may take before it counts as hung.
 TIMEOUT_S = 300
