@@ -75,6 +75,9 @@ ORDER = 6
 TRAIN_RAYS = 256
 TRUTH_RAYS = 1024
 TRUTH_SEED = 9001
+#: The ``--quick`` smoke profile: training data on every 60th frame at 16 rays, 64-ray truths.
+QUICK_DATA = {"frames": "::60", "samples": 16}
+QUICK_RAYS = 64
 #: The paper's numbers, quoted next to ours.
 PAPER = {"residual_mean": 5.1e-5, "residual_variance": 3.25e-4, "pca": (8, 22), "storage_of_one_mesh_prt": 0.629,
          "hz": 105.0, "fit_minutes": 2.0}
@@ -92,11 +95,11 @@ def _rel(a, b) -> float:
     return float(np.linalg.norm(np.asarray(a, np.float64) - b) / max(np.linalg.norm(b), 1e-300))
 
 
-def _truth(scene, frames, progress=True):
+def _truth(scene, frames, progress=True, rays=TRUTH_RAYS):
     out = {}
     for f in frames:
         t0 = time.perf_counter()
-        out[float(f)] = compute(scene, float(f), ORDER, TRUTH_RAYS, seed=TRUTH_SEED).transfer.astype(np.float64)
+        out[float(f)] = compute(scene, float(f), ORDER, rays, seed=TRUTH_SEED).transfer.astype(np.float64)
         if progress:
             print(f"    truth transfer {scene.source and Path(scene.source).name} frame {float(f):g}: {time.perf_counter() - t0:.1f} s",
                   flush=True)
@@ -121,8 +124,10 @@ def _frames(scene, count):
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--character", default="figure", choices=sorted(CHARACTERS))
-    ap.add_argument("--quick", action="store_true", help="fewer test frames and candidates")
-    ap.add_argument("--out", default=str(RESULTS))
+    ap.add_argument("--quick", action="store_true",
+                    help="smoke profile: every 60th training frame at 16 rays, one test clip and frame, 64-ray truths, "
+                         "one sweep point and parameterisation")
+    ap.add_argument("--out", default=None, help="output directory (default benchmarks/results; required with --quick)")
     ap.add_argument("--replot", metavar="JSON", help="redraw the PCA chart of an earlier results JSON (next to it) without measuring")
     args = ap.parse_args(argv)
     if args.replot:
@@ -130,9 +135,17 @@ def main(argv=None) -> int:
         old = json.loads(src.read_text())
         _plot_sweep(old["sweep"], old["spectra"], src.with_name(src.stem + "-pca.png"))
         return 0
+    if args.quick and args.out is None:
+        ap.error("--quick writes only into --out DIR (never benchmarks/results)")
     wp.init()
     cfg = CHARACTERS[args.character]
-    out_dir = Path(args.out)
+    data_params = QUICK_DATA if args.quick else None
+    gt_samples, truth_rays = (QUICK_RAYS, QUICK_RAYS) if args.quick else (GT_SAMPLES, TRUTH_RAYS)
+    if args.quick:
+        test_clip = cfg["tests"][0]
+        clip = test_clip.split(":")[-1]
+        cfg = {**cfg, "tests": (test_clip,), "validate": {clip: cfg["validate"][clip][:1]}}
+    out_dir = Path(args.out or RESULTS)
     out_dir.mkdir(parents=True, exist_ok=True)
     stamp = datetime.date.today().isoformat()
     tag = f"datadriven-{args.character}-{stamp}-cpu" + ("-quick" if args.quick else "")
@@ -144,7 +157,7 @@ def main(argv=None) -> int:
 
     # ---- training data and the chosen reduced model, through the graph (cached) ----------------
     t0 = time.perf_counter()
-    rt = _graph(cfg["training"], "reduced").compile(tests[0], device="cpu", progress=True)
+    rt = _graph(cfg["training"], "reduced", data=data_params).compile(tests[0], device="cpu", progress=True)
     result["graph_compile_s"] = time.perf_counter() - t0
     data = rt.artifacts["data"]["data"]
     fit_report = rt.stages[1].report
@@ -161,7 +174,7 @@ def main(argv=None) -> int:
     # ---- shading against ray-traced ground truth on the graphs' [validate] frames ---------------
     lights = {s.source: LightingSource.fixed(s.lights, s.up_axis) for s in tests}
     weights = dd.lighting_weights(lights[tests[0].source].sh(ORDER, float(tests[0].frames[0])), C)
-    gt = {s.source: ground_truth(s, lights[s.source], cfg["validate"][Path(s.source).stem], GT_SAMPLES, "cpu", "default",
+    gt = {s.source: ground_truth(s, lights[s.source], cfg["validate"][Path(s.source).stem], gt_samples, "cpu", "default",
                                  None, VALIDATE_SEED, progress=True) for s in tests}
 
     def shading_error(model, kind=None, root=None, local=None):
@@ -183,7 +196,7 @@ def main(argv=None) -> int:
     for s in tests:
         per = []
         for f in cfg["validate"][Path(s.source).stem]:
-            t = compute(s, f, ORDER, TRUTH_RAYS, seed=3).transfer
+            t = compute(s, f, ORDER, truth_rays, seed=3).transfer
             rad = shade_transfer_f64(t, lights[s.source].sh(ORDER, f), s.albedo)
             per.append(error_metrics(rad, gt[s.source][f]["radiance"], gt[s.source][f]["stderr"]))
         traced[Path(s.source).stem] = combine_metrics(per)["rel_rms"]
@@ -192,12 +205,12 @@ def main(argv=None) -> int:
     print(f"  per-frame ray-traced transfer (order 6, 1024 rays): shading error {traced}", flush=True)
 
     # ---- truth transfer on test and training frames ---------------------------------------------
-    n_test = 6 if args.quick else 12
+    n_test = 2 if args.quick else 12
     test_frames = {s.source: _frames(s, n_test) for s in tests}
-    truth = {s.source: _truth(s, test_frames[s.source]) for s in tests}
-    train_idx = np.linspace(0, p - 1, 4 if args.quick else 8).round().astype(int)
+    truth = {s.source: _truth(s, test_frames[s.source], rays=truth_rays) for s in tests}
+    train_idx = np.linspace(0, p - 1, 2 if args.quick else 8).round().astype(int)
     train_frames = [float(data["frames"][i]) for i in train_idx]
-    truth_train = _truth(train_scene, train_frames)
+    truth_train = _truth(train_scene, train_frames, rays=truth_rays)
 
     def held_out_error(model, kind=kind, root=root):
         errs = {}
@@ -233,16 +246,18 @@ def main(argv=None) -> int:
 
     # ---- reduced models: the budget's choice, the paper's PCA(8,22), and the sweep (Fig. 4) -----
     t0 = time.perf_counter()
-    basis = dd.coefficient_basis(B, 512, weights=weights)
+    basis = dd.coefficient_basis(B, 64 if args.quick else 512, weights=weights)
     pca_s = time.perf_counter() - t0
     space = dd.pose_space(A, pca=True)
     result["spectra"] = {"pose_variance": (space.variance / space.total_variance).tolist(),
                          "coefficient_energy": (basis[1] ** 2 / basis[2]).tolist(), "pca_s": pca_s}
     ka_sweep = sorted({k for k in (1, 2, 4, 8, 16, 32) if k <= space.size} | {space.size})
     kv_sweep = [k for k in (8, 22, 48, 96, 192, 384) if k <= basis[0].shape[1]]
+    if args.quick:
+        ka_sweep, kv_sweep = ka_sweep[:1], kv_sweep[:1]
     sweep = {}
     for ka in ka_sweep:
-        for kv in kv_sweep if not args.quick else kv_sweep[::2]:
+        for kv in kv_sweep:
             m = dd.fit_reduced(A, B, ka, kv, basis=basis, weights=weights)
             sweep[f"{ka},{kv}"] = {"shading_error": shading_error(m), "ka": ka, "kv": kv, "pose_variance": m.info["pose_variance_retained"],
                                    "coefficient_energy": m.info["coefficient_energy_retained"],
@@ -269,13 +284,14 @@ def main(argv=None) -> int:
         storage[name] = {"MB": 4 * floats / 2 ** 20, "of_training_data": floats / B.size, "of_one_mesh_prt": floats / one_mesh,
                          "flops_per_frame": m.flops_per_frame()}
     result["storage"] = storage
-    result["runtime"] = _runtime(cfg["training"], tests[0], {"chosen": chosen, "paper_pca_8_22": (8, 22)}, args.quick)
+    sizes = {"chosen": chosen} if args.quick else {"chosen": chosen, "paper_pca_8_22": (8, 22)}
+    result["runtime"] = _runtime(cfg["training"], tests[0], sizes, args.quick, data_params)
     result["fit_seconds"] = {"full": full_fit_s, "pca": pca_s, "chosen_total": fit_report.get("total_fit_s")}
 
     # ---- pose parameterisations and the local frame ----------------------------------------------
     params = {}
-    for k in PARAMETERISATIONS:
-        for r in ("include", "exclude"):
+    for k in (kind,) if args.quick else PARAMETERISATIONS:
+        for r in ("include",) if args.quick else ("include", "exclude"):
             Ak = _select(data, k, r)
             mf = dd.fit_full(Ak, B)
             mr = dd.fit_reduced(Ak, B, *chosen, basis=basis, weights=weights)
@@ -310,13 +326,14 @@ def main(argv=None) -> int:
     return 0
 
 
-def _runtime(training, scene, sizes, quick) -> dict:
-    """Median recorded frame and transfer-stage time, over the scene's frames, per model."""
+def _runtime(training, scene, sizes, quick, data=None) -> dict:
+    """Median recorded frame and transfer-stage time, over the scene's frames (quick: every 10th),
+    per model; ``data``: parameters of the training-data stage over the default ones."""
     out = {}
-    frames = [float(f) for f in scene.frames]
+    frames = [float(f) for f in scene.frames[:: 10 if quick else 1]]
     for name, fit in (("full", {}), *((n, {"ka": ka, "kv": kv}) for n, (ka, kv) in sizes.items())):
         model = "full" if name == "full" else "reduced"
-        rt = _graph(training, model, fit=fit).compile(scene, device="cpu", progress=False)
+        rt = _graph(training, model, fit=fit, data=data).compile(scene, device="cpu", progress=False)
         rt.run(frames)
         rt.reset_timings()
         rt.run(frames * (1 if quick else 3))

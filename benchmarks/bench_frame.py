@@ -43,6 +43,9 @@ from warpshade._wp import wp
 ROOT = Path(__file__).resolve().parent.parent
 GRAPHS = ("demo", "figure_ldprt", "figure_shexp")
 RESULTS = ROOT / "benchmarks" / "results"
+#: Caps on the graphs' stage parameters in the ``--quick`` smoke profile (rays per vertex, ZH
+#: lobes, blocker spheres): the precompute of a fresh cache in seconds.
+QUICK_CAPS = {"samples": 16, "lobes": 1, "budget": 4}
 
 
 def _median_ms(xs) -> float:
@@ -69,10 +72,19 @@ def bare_kernel_ms(rt, repeats: int = 200) -> float:
     return _median_ms(times)
 
 
-def measure_graph(name: str, device: str, frame_count: int, cache_dir: str) -> dict:
+def load_graph(name: str, quick: bool = False):
+    """The graph ``stages/<name>.toml``; ``quick``: its stage parameters capped by :data:`QUICK_CAPS`."""
     from warpshade.graph import load
 
     spec = load(ROOT / "stages" / f"{name}.toml")
+    if quick:
+        for stage in spec.stages:
+            stage.params.update({k: min(v, QUICK_CAPS[k]) for k, v in stage.params.items() if k in QUICK_CAPS})
+    return spec
+
+
+def measure_graph(name: str, device: str, frame_count: int, cache_dir: str, quick: bool = False) -> dict:
+    spec = load_graph(name, quick)
     t0 = time.perf_counter()
     rt = spec.compile(device=device, progress=False, cache_dir=cache_dir)
     setup_s = time.perf_counter() - t0
@@ -93,10 +105,10 @@ def measure_graph(name: str, device: str, frame_count: int, cache_dir: str) -> d
     return out
 
 
-def measure_variants(device: str, frame_count: int, cache_dir: str, variants: bool) -> dict:
+def measure_variants(device: str, frame_count: int, cache_dir: str, variants: bool, quick: bool = False) -> dict:
     rows = {}
     for name in GRAPHS:
-        rows[name] = {"default": measure_graph(name, device, frame_count, cache_dir)}
+        rows[name] = {"default": measure_graph(name, device, frame_count, cache_dir, quick)}
         print(f"  {name:14s} {rows[name]['default']['frame_ms']:8.3f} ms/frame, host {rows[name]['default']['host_ms']:.4f} ms",
               flush=True)
     if variants:
@@ -186,11 +198,15 @@ def main(argv=None) -> int:
     ap.add_argument("--frames", type=int, default=48, help="frames timed per graph")
     ap.add_argument("--before", default=None, metavar="COMMIT", help="also measure this earlier commit, side by side")
     ap.add_argument("--no-variants", action="store_true", help="only the default (recorded) frame")
-    ap.add_argument("--out", default=str(RESULTS))
+    ap.add_argument("--out", default=None, help="output directory (default benchmarks/results; required with --quick)")
     ap.add_argument("--cache", default=None, help="artifact cache directory (default: a temporary one)")
     ap.add_argument("--inner", default=None, help=argparse.SUPPRESS)  # child process: write rows here
-    ap.add_argument("--quick", action="store_true", help="smoke profile: 3 frames per graph, no variants")
+    ap.add_argument("--quick", action="store_true",
+                    help="smoke profile: 3 frames per graph, no variants, stage parameters capped (QUICK_CAPS)")
     args = ap.parse_args(argv)
+    if args.quick and args.out is None and not args.inner:
+        ap.error("--quick writes only into --out DIR (never benchmarks/results)")
+    args.out = args.out or str(RESULTS)
     if args.quick:
         args.frames, args.no_variants = 3, True
     own_cache = tempfile.TemporaryDirectory(prefix="warpshade-frame-") if args.cache is None else None
@@ -212,7 +228,7 @@ def main(argv=None) -> int:
             b = result["before"]["rows"][n]["default"]
             print(f"  {n:14s} {b['frame_ms']:8.3f} ms/frame, host {b['host_ms']:.4f} ms", flush=True)
     print("[this checkout]", flush=True)
-    result["rows"] = measure_variants(args.device, args.frames, cache_dir, not args.no_variants)
+    result["rows"] = measure_variants(args.device, args.frames, cache_dir, not args.no_variants, args.quick)
     demo = result["rows"]["demo"]["default"]
     print(f"  demo frame / bare order-4 shading kernel: {demo['frame_over_bare_kernel']:.2f} "
           f"({demo['frame_ms']:.3f} / {demo['bare_kernel_ms']:.3f} ms)", flush=True)
@@ -221,7 +237,7 @@ def main(argv=None) -> int:
         print(f"  before: {b['frame_over_bare_kernel']:.2f} ({b['frame_ms']:.3f} / {b['bare_kernel_ms']:.3f} ms)", flush=True)
     tag = args.device.replace(":", "")
     out = Path(args.out)
-    stem = f"frame-{result['meta']['date']}-{tag}"
+    stem = f"frame-{result['meta']['date']}-{tag}" + ("-quick" if args.quick else "")
     write_json_atomic(out / f"{stem}.json", result, indent=1)
     chart(result, out / f"{stem}.png")
     print(f"wrote {out / stem}.json and .png")

@@ -69,7 +69,7 @@ def methods(order: int, samples: int, quick: bool) -> list[tuple[str, tuple]]:
                                   ("frames", "ldprt.frames", {}, {}),
                                   ("shade", "ldprt.shade_rotated", {"order": order}, {}))),
     ]
-    lobe_counts = (1, 2, 3, 4) if not quick else (1, 3)
+    lobe_counts = (1, 2, 3, 4) if not quick else (1,)
     for n in lobe_counts:
         out.append((f"LDPRT N{n}", _ldprt(order, samples, n)))
     if not quick:
@@ -90,13 +90,14 @@ def mesh_slices(scene) -> dict:
     return {m.path.rsplit("/", 1)[-1]: slice(m.vertex_offset, m.vertex_offset + m.vertex_count) for m in scene.meshes}
 
 
-def run_method(label, stages, scene, lighting, device, gt):
-    """One setting over every frame: replayed time per frame, per-stage times (profiled over
-    every frame), precompute, errors on the ground-truth frames, overall and per mesh."""
-    res = run_setting(scene, lighting, stages, list(gt), timing_frames=scene.frames, device=device, cache_dir=None,
+def run_method(label, stages, scene, lighting, device, gt, timing_frames):
+    """One setting over ``timing_frames`` (every frame in the full run): replayed time per frame,
+    per-stage times (profiled over the same frames), precompute, errors on the ground-truth
+    frames, overall and per mesh."""
+    res = run_setting(scene, lighting, stages, list(gt), timing_frames=timing_frames, device=device, cache_dir=None,
                       name=label.replace(" ", "-"), profile=False)
     rt = res["runtime"]
-    stage_ms = {k: 1e3 * v for k, v in rt.profile(scene.frames).items() if k != "scene"}
+    stage_ms = {k: 1e3 * v for k, v in rt.profile(timing_frames).items() if k != "scene"}
     timing = rt.timing_summary()
     err = setting_error(res["radiance"], gt)
     per_frame = err.pop("per_frame")
@@ -309,16 +310,22 @@ def _save(fig, path):
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--quick", action="store_true", help="N in {1, 3}, fewer frames and repeats")
-    ap.add_argument("--scenes", default="figure,bend")
+    ap.add_argument("--quick", action="store_true",
+                    help="smoke profile: the bend, N = 1 only, 2 frames, 32 transfer and 64 truth rays, tiny cost runs")
+    ap.add_argument("--scenes", default=None, help="comma-separated scenes (default figure,bend; quick: bend)")
     ap.add_argument("--order", type=int, default=4, help="SH order of PRT and LDPRT")
-    ap.add_argument("--samples", type=int, default=256, help="transfer rays per vertex")
-    ap.add_argument("--gt-samples", type=int, default=2048, help="ground-truth rays per vertex")
+    ap.add_argument("--samples", type=int, default=None, help="transfer rays per vertex (default 256; quick 32)")
+    ap.add_argument("--gt-samples", type=int, default=None, help="ground-truth rays per vertex (default 2048; quick 64)")
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--skip-cost", action="store_true")
     ap.add_argument("--cost-only", action="store_true", help="only part 2 (written as ldprt-cost-<date>-<device>)")
-    ap.add_argument("--out", default=str(RESULTS), help="output directory (default benchmarks/results)")
+    ap.add_argument("--out", default=None, help="output directory (default benchmarks/results; required with --quick)")
     args = ap.parse_args(argv)
+    if args.quick and args.out is None:
+        ap.error("--quick writes only into --out DIR (never benchmarks/results)")
+    args.scenes = args.scenes or ("bend" if args.quick else "figure,bend")
+    args.samples = args.samples or (32 if args.quick else 256)
+    args.gt_samples = args.gt_samples or (64 if args.quick else 2048)
     keys = [] if args.cost_only else args.scenes.split(",")
     unknown = [k for k in keys if k not in SCENES]
     if unknown:
@@ -331,14 +338,15 @@ def main(argv=None) -> int:
               "order": args.order, "samples": args.samples, "gt_samples": args.gt_samples, "scenes": {}}
     for key in keys:
         scene, lighting = load_bench_scene(key, rotate_degrees_per_frame=0.0)  # the scenes' own lights, fixed
-        count = 4 if args.quick else 7
+        count = 2 if args.quick else 7
         frames = pick_frames(scene, count)
+        timing_frames = scene.frames[::12] if args.quick else scene.frames
         print(f"{key}: {scene.vertex_count} vertices, ground truth on frames {list(frames)}", flush=True)
         gt = ground_truth(scene, lighting, frames, args.gt_samples, device, seed=GT_SEED, progress=True)
         rows = []
         for label, stages in methods(args.order, args.samples, args.quick):
             t0 = time.perf_counter()
-            r = run_method(label, stages, scene, lighting, device, gt)
+            r = run_method(label, stages, scene, lighting, device, gt, timing_frames)
             rows.append(r)
             e = r["error"]
             meshes = ", ".join(f"{k} {v['rel_rms_debiased']:.4f}" for k, v in r["error_per_mesh"].items())
@@ -346,19 +354,21 @@ def main(argv=None) -> int:
                   f"{r['median_frame_ms']:.2f} ms/frame, precompute {r['precompute_s']:.1f} s "
                   f"[{time.perf_counter() - t0:.0f} s] {r['fit'] or ''}", flush=True)
         print(f"  error budget (order {args.order}, at most 4 lobes per vertex):", flush=True)
-        budget = error_budget(scene, args.order, args.samples)
+        budget = error_budget(scene, args.order, args.samples, *(((0.1,), 2) if args.quick else ()))
         result["scenes"][key] = {"vertex_count": scene.vertex_count, "frames": [float(f) for f in frames],
                                  "meshes": {k: v.stop - v.start for k, v in mesh_slices(scene).items()},
                                  "methods": rows, "error_budget": budget}
     if not args.skip_cost:
         print("shading cost per vertex (one run, side by side):", flush=True)
-        result["cost"] = cost_ratios(device, 50000 if args.quick else 200000, (4, 6, 8), (1, 2, 3, 4),
-                                     5 if args.quick else 15)
+        if args.quick:
+            result["cost"] = cost_ratios(device, 2000, (4,), (1, 2), 2)
+        else:
+            result["cost"] = cost_ratios(device, 200000, (4, 6, 8), (1, 2, 3, 4), 15)
         print("light-specialised table vs direct evaluation:", flush=True)
-        result["table_error"] = table_error(device, (4, 6), (64, 128, 256))
+        result["table_error"] = table_error(device, (4,), (64,)) if args.quick else table_error(device, (4, 6), (64, 128, 256))
     else:
         result["cost"], result["table_error"] = [], []
-    out_dir = Path(args.out)
+    out_dir = Path(args.out or RESULTS)
     out_dir.mkdir(parents=True, exist_ok=True)
     kind = "ldprt-cost" if args.cost_only else "ldprt"
     stem = out_dir / f"{kind}-{result['date']}-{device.alias.replace(':', '')}{'-quick' if args.quick else ''}"

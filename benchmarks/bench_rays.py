@@ -153,10 +153,13 @@ def main(argv=None):
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--no-mitsuba", action="store_true")
     parser.add_argument("--no-convergence", action="store_true")
-    parser.add_argument("--out", default=str(ROOT / "benchmarks" / "results"))
+    parser.add_argument("--out", default=None, help="output directory (default benchmarks/results; required with --quick)")
     parser.add_argument("--quick", action="store_true",
                         help="smoke profile: 256 receivers x 16 samples, one repeat, no Mitsuba, no convergence study")
     args = parser.parse_args(argv)
+    if args.quick and args.out is None:
+        parser.error("--quick writes only into --out DIR (never benchmarks/results)")
+    args.out = args.out or str(ROOT / "benchmarks" / "results")
     if args.quick:
         args.receivers, args.samples, args.repeats, args.no_mitsuba, args.no_convergence = 256, 16, 1, True, True
 

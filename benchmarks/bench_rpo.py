@@ -80,8 +80,8 @@ def sweep(key, frames, gt_samples, quick):
     eye = np.asarray(scene.camera.position, np.float64)
     model = {"brdf": brdf, "eye": eye, "color": np.array(COLOR)}
     tf = TangentFrames.from_scene(scene, device="cpu")
-    orders = (3, 4, 6) if quick else ORDERS
-    ranks = (1, 4, 8, 16) if quick else RANKS
+    orders = (4,) if quick else ORDERS
+    ranks = (8,) if quick else RANKS
     ops = {(n, k): build_operator(brdf, n, k) for n in orders for k in ranks if k <= n * n}
     out = []
     for lname, lighting in _lightings(scene).items():
@@ -90,7 +90,7 @@ def sweep(key, frames, gt_samples, quick):
             st = scene.evaluate(f, device="cpu")
             fr = tf.compute(st.points, st.normals).numpy().astype(np.float64)
             pts = st.points.numpy().astype(np.float64)
-            vis6 = compute(scene, f, max(orders), 1024, space="local", device="cpu", seed=3, below_horizon="visible").visibility
+            vis6 = compute(scene, f, max(orders), 64 if quick else 1024, space="local", device="cpu", seed=3, below_horizon="visible").visibility
             row = {"scene": key, "lighting": lname, "frame": float(f), "noise": float(
                 np.sqrt(np.mean(truth[f]["stderr"] ** 2)) / np.sqrt(np.mean(truth[f]["radiance"] ** 2))), "orders": {}}
             for n in orders:
@@ -126,15 +126,16 @@ def sweep(key, frames, gt_samples, quick):
     return out
 
 
-def versus_ldprt(key, frames, gt_samples):
-    """Part 2: glossy LDPRT (rest bake, rebaked) and RPO graphs, the same reference."""
+def versus_ldprt(key, frames, gt_samples, samples=(256, 256, 1024)):
+    """Part 2: glossy LDPRT (rest bake, rebaked) and RPO graphs, the same reference; ``samples``:
+    rays per vertex of the glossy LDPRT fit, the traced and the rest-pose visibility."""
     from warpshade.graph import GraphSpec, StageSpec
     from warpshade.measure import load_bench_scene, measure_error
 
     scene, _ = load_bench_scene(key, rotate_degrees_per_frame=0.0)
     lighting = _lightings(scene)["constant"]
     ldprt = lambda frame=None: [  # noqa: E731
-        StageSpec("fit", "ldprt.glossy_fit", {"order": 4, "lobes": 3, "rank": 3, "brdf": "microfacet", "samples": 256,
+        StageSpec("fit", "ldprt.glossy_fit", {"order": 4, "lobes": 3, "rank": 3, "brdf": "microfacet", "samples": samples[0],
                                               **BRDF_PARAMS, **({} if frame is None else {"frame": frame})}),
         StageSpec("frames", "ldprt.frames"),
         StageSpec("shade", "ldprt.glossy_shade", {"order": 4, "lobes": 3, "rank": 3, "specular": list(COLOR)})]
@@ -143,9 +144,9 @@ def versus_ldprt(key, frames, gt_samples):
     for f in frames:
         if f != scene.frames[0]:
             settings[f"glossy LDPRT n4 b3 N3 (baked at frame {f:g})"] = ldprt(float(f))
-    settings["RPO n4 k8, traced visibility s256"] = [StageSpec("vis", "rpo.visibility_traced", {"order": 4, "samples": 256}),
-                                                      rpo_shade]
-    settings["RPO n4 k8, rest-pose visibility"] = [StageSpec("vis", "rpo.visibility_static", {"order": 4, "samples": 1024}),
+    settings[f"RPO n4 k8, traced visibility s{samples[1]}"] = [
+        StageSpec("vis", "rpo.visibility_traced", {"order": 4, "samples": samples[1]}), rpo_shade]
+    settings["RPO n4 k8, rest-pose visibility"] = [StageSpec("vis", "rpo.visibility_static", {"order": 4, "samples": samples[2]}),
                                                     StageSpec("frames", "ldprt.frames"), rpo_shade]
     out = []
     for label, stages in settings.items():
@@ -164,9 +165,12 @@ def costs(key, quick):
     from warpshade.methods.rpo.rows import rpo_stages
 
     scene, lighting = load_bench_scene(key)
-    frames = list(scene.frames[:: max(1, len(scene.frames) // (8 if quick else 16))])
+    frames = list(scene.frames[:: max(1, len(scene.frames) // (2 if quick else 16))])
     gens = ["traced", "static"] + (["shexp"] if key == "figure" else [])
-    settings = {f"{g} n4 k8": rpo_stages(g, samples=1024 if g == "static" else 256) for g in gens}
+    if quick:
+        settings = {f"{g} n4 k8": rpo_stages(g, samples=32) for g in gens}
+    else:
+        settings = {f"{g} n4 k8": rpo_stages(g, samples=1024 if g == "static" else 256) for g in gens}
     if not quick:
         settings.update({
             "static n4 k8 zh3": rpo_stages("static", lighting="zh", samples=1024),
@@ -188,7 +192,7 @@ def costs(key, quick):
     return out
 
 
-def kernel_costs(vertices: int = 65536, repeats: int = 7):
+def kernel_costs(vertices: int = 65536, repeats: int = 7, orders=(3, 4, 6)):
     """Part 3: the shading kernel alone on synthetic receivers, settings measured side by side
     (interleaved repeats, medians): ns per vertex and the ratio to the default setting."""
     from warpshade._wp import launch_parallel, wp
@@ -204,7 +208,7 @@ def kernel_costs(vertices: int = 65536, repeats: int = 7):
     pts = wp.array((rng.normal(size=(vertices, 3)) * 0.1).astype(np.float32), dtype=wp.vec3, device=dev)
     eye = wp.array(np.array([[0.0, 0.0, 5.0]], np.float32), dtype=wp.vec3, device=dev)
     configs = {}
-    for n in (3, 4, 6):
+    for n in orders:
         for label, kw in (("rotate gaunt", {}), ("zh3 gaunt", {"lighting": "zh"}), ("rotate matrices", {"evaluation": "matrices"}),
                           ("rotate gaunt cosine-product", {"cosine": "product"})):
             configs[f"n{n} k8 {label}"] = (n, kw)
@@ -254,8 +258,10 @@ def kernel_costs(vertices: int = 65536, repeats: int = 7):
     return res
 
 
-def swaps_and_builds():
-    """Part 3: BRDF build time per kind, a run-time swap on the figure, storage per BRDF."""
+def swaps_and_builds(key="figure", samples=256, repeats=3, quick=False):
+    """Part 3: BRDF build time per kind (median of ``repeats``; ``quick``: GGX and the tabulated
+    one only), a run-time swap on a scene (the figure; rest-pose visibility of ``samples`` rays),
+    storage per BRDF."""
     import tempfile
 
     from warpshade.graph import GraphSpec, StageSpec
@@ -272,9 +278,11 @@ def swaps_and_builds():
         kinds = {"lambert": M.Lambert(), "phong 20": M.Phong(20.0), "blinn-phong 40": M.BlinnPhong(40.0),
                  "ggx 0.5": M.Microfacet(0.5), "beckmann 0.3": M.Microfacet(0.3, "beckmann"),
                  "tabulated MERL 90x90x180 (GGX 0.5)": read_merl(merl)}
+        if quick:
+            kinds = {k: v for k, v in kinds.items() if k.startswith(("ggx", "tabulated"))}
         for name, brdf in kinds.items():
             t = []
-            for _ in range(3):
+            for _ in range(repeats):
                 t.append(build_operator(brdf, 4, 8).build_s)
             builds[name] = float(np.median(t))
             print(f"  build n4 k8 {name}: {builds[name] * 1000:.0f} ms", flush=True)
@@ -282,8 +290,8 @@ def swaps_and_builds():
     storage = {"gaunt_floats": op.storage_floats("gaunt"), "matrices_floats": op.storage_floats("matrices"),
                "paper_bound_floats": 8 * 16 * (1 + 16), "gaunt_bytes": 4 * op.storage_floats("gaunt"),
                "matrices_bytes": 4 * op.storage_floats("matrices")}
-    scene, lighting = load_bench_scene("figure")
-    spec = GraphSpec(stages=[StageSpec("vis", "rpo.visibility_static", {"order": 4, "samples": 256}),
+    scene, lighting = load_bench_scene(key)
+    spec = GraphSpec(stages=[StageSpec("vis", "rpo.visibility_static", {"order": 4, "samples": samples}),
                              StageSpec("frames", "ldprt.frames"),
                              StageSpec("shade", "rpo.shade", {"order": 4, "rank": 8, "brdf": "ggx", "roughness": 0.5})],
                      output="shade.radiance")
@@ -307,8 +315,8 @@ def swaps_and_builds():
     back = rt.step(10.0).numpy().copy()
     swap = {"set_material_first_s": first, "set_material_cached_s": cached, "next_frame_s": step_after,
             "next_frame_changed": bool(not np.allclose(after, before)), "cached_equal": bool(np.array_equal(after, again)),
-            "swap_back_exact": bool(np.array_equal(back, before)), "scene": "figure", "vertices": scene.vertex_count}
-    print(f"  swap on the figure: set_material {first * 1000:.0f} ms (first), {cached * 1000:.2f} ms (cached); next frame "
+            "swap_back_exact": bool(np.array_equal(back, before)), "scene": key, "vertices": scene.vertex_count}
+    print(f"  swap on the {key}: set_material {first * 1000:.0f} ms (first), {cached * 1000:.2f} ms (cached); next frame "
           f"{step_after * 1000:.1f} ms, changed {swap['next_frame_changed']}, swap back exact {swap['swap_back_exact']}", flush=True)
     return builds, storage, swap
 
@@ -321,17 +329,18 @@ def roughness_sweep(quick):
     from warpshade.scene import materials as M
 
     rng = np.random.default_rng(5)
-    views = rng.normal(size=(300, 3))
+    count, z_nodes, phi_nodes = (30, 64, 128) if quick else (300, 256, 512)
+    views = rng.normal(size=(count, 3))
     views[:, 2] = np.abs(views[:, 2]) + 0.15
     views /= np.linalg.norm(views, axis=1, keepdims=True)
     out = []
     for n in (4, 6):
         light = LightingSource.fixed([Environment.sky()], "Z").sh(n, 0.0)
-        vis = np.zeros((300, n * n))
+        vis = np.zeros((count, n * n))
         vis[:, 0] = np.sqrt(4 * np.pi)
-        for rough in ((0.05, 0.2, 0.5, 1.0) if quick else (0.02, 0.05, 0.1, 0.2, 0.3, 0.5, 0.8, 1.0)):
+        for rough in ((0.5,) if quick else (0.02, 0.05, 0.1, 0.2, 0.3, 0.5, 0.8, 1.0)):
             brdf = M.Microfacet(rough)
-            want = M.shade_unshadowed(brdf, views, lambda d: sh.basis(d, n) @ light.T, z_nodes=256, phi_nodes=512)
+            want = M.shade_unshadowed(brdf, views, lambda d: sh.basis(d, n) @ light.T, z_nodes=z_nodes, phi_nodes=phi_nodes)
             for k in sorted({8, n * n}):
                 op = build_operator(brdf, n, k)
                 got = op.shade_local(views, vis, light)
@@ -410,13 +419,18 @@ def main(argv=None) -> int:
     from warpshade._fileio import write_json_atomic
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--scenes", default="bend,cloth,figure")
-    ap.add_argument("--gt-samples", type=int, default=4096)
-    ap.add_argument("--out", default=str(RESULTS))
+    ap.add_argument("--quick", action="store_true",
+                    help="smoke profile: the bend at frame 0, n4 k8 only, 32-64 rays per vertex, one roughness")
+    ap.add_argument("--scenes", default=None, help="comma-separated scenes (default bend,cloth,figure; quick: bend)")
+    ap.add_argument("--gt-samples", type=int, default=None, help="reference rays per vertex (default 4096; quick 64)")
+    ap.add_argument("--out", default=None, help="output directory (default benchmarks/results; required with --quick)")
     ap.add_argument("--kernels-into", default=None, metavar="JSON",
                     help="only measure the kernel costs and add them to an earlier results JSON")
     args = ap.parse_args(argv)
+    if args.quick and args.out is None:
+        ap.error("--quick writes only into --out DIR (never benchmarks/results)")
+    args.scenes = args.scenes or ("bend" if args.quick else "bend,cloth,figure")
+    args.gt_samples = args.gt_samples or (64 if args.quick else 4096)
     if args.kernels_into:
         import json
 
@@ -427,21 +441,28 @@ def main(argv=None) -> int:
         return 0
     scenes = [s for s in args.scenes.split(",") if s]
     frames = {"bend": [0.0, 30.0], "cloth": [20.0, 40.0], "figure": [30.0]}
+    if args.quick:
+        frames = {k: v[:1] for k, v in frames.items()}
     t0 = time.perf_counter()
     doc = {"date": str(datetime.date.today()), "device": "cpu", "machine": platform.machine(), "command": " ".join(sys.argv),
            "brdf": {"model": "ggx", **BRDF_PARAMS}, "color": COLOR, "gt_samples": args.gt_samples}
     print("part 1: factorisation sweep", flush=True)
     doc["sweep"] = [r for s in scenes for r in sweep(s, frames[s], args.gt_samples, args.quick)]
     print("part 2: against glossy LDPRT", flush=True)
-    doc["versus_ldprt"] = [r for s in scenes if s in ("bend", "figure") for r in versus_ldprt(s, frames[s] if s != "bend" else [0.0, 30.0], args.gt_samples)]
+    if args.quick:
+        doc["versus_ldprt"] = [r for s in scenes if s in ("bend", "figure") for r in versus_ldprt(s, frames[s], args.gt_samples,
+                                                                                                  (32, 32, 32))]
+    else:
+        doc["versus_ldprt"] = [r for s in scenes if s in ("bend", "figure")
+                               for r in versus_ldprt(s, frames[s] if s != "bend" else [0.0, 30.0], args.gt_samples)]
     print("part 3: cost", flush=True)
     doc["costs"] = [r for s in scenes for r in costs(s, args.quick)]
-    doc["kernels"] = kernel_costs()
-    doc["builds_s"], doc["storage"], doc["swap"] = swaps_and_builds()
+    doc["kernels"] = kernel_costs(1024, 1, (4,)) if args.quick else kernel_costs()
+    doc["builds_s"], doc["storage"], doc["swap"] = swaps_and_builds(scenes[0], 32, 1, True) if args.quick else swaps_and_builds()
     print("part 4: roughness", flush=True)
     doc["roughness"] = roughness_sweep(args.quick)
     doc["seconds"] = time.perf_counter() - t0
-    out = Path(args.out)
+    out = Path(args.out or RESULTS)
     out.mkdir(parents=True, exist_ok=True)
     stem = str(out / f"rpo-{doc['date']}-cpu{'-quick' if args.quick else ''}")
     write_json_atomic(f"{stem}.json", doc)

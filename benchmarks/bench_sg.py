@@ -50,6 +50,7 @@ Usage::
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import datetime
 import json
 import platform
@@ -75,17 +76,32 @@ BASELINE_SEED = 9001
 PIXEL_SEED = 77
 #: Where precompute seconds of computed artifacts are remembered (inside the artifact cache).
 PRECOMPUTE_LOG = "bench-sg-precompute.json"
+#: SSDF resolution and row label of the SG row of the ``--quick`` smoke profile (part 2 runs it).
+QUICK_SSDF = 8
+QUICK_SG = f"ssdf {QUICK_SSDF} x4 e8"
 
 
 # ---- set-up -----------------------------------------------------------------------------------
 
 
-def load():
-    """The sunlit scene and its environment-only lighting, not turning."""
+def coarse_environment(env, rows: int = 32):
+    """``env`` box-filtered down to about ``rows`` texel rows (the ``--quick`` profile: the
+    prefiltered table of a full-size sky takes tens of seconds to build on the CPU)."""
+    img = np.asarray(env.image, np.float32)
+    f = max(1, img.shape[0] // rows)
+    h, w = img.shape[0] // f * f, img.shape[1] // f * f
+    return dataclasses.replace(env, image=img[:h, :w].reshape(h // f, f, w // f, f, 3).mean(axis=(1, 3)))
+
+
+def load(quick: bool = False):
+    """The sunlit scene and its environment-only lighting, not turning (``quick``: the scene's
+    environment coarsened by :func:`coarse_environment`)."""
     from warpshade.io import load_scene
-    from warpshade.scene import LightingSource, SphereLight
+    from warpshade.scene import Environment, LightingSource, SphereLight
 
     scene = load_scene("bundled:sunlit")
+    if quick:
+        scene.lights = [coarse_environment(light) if isinstance(light, Environment) else light for light in scene.lights]
     lighting = LightingSource.fixed([light for light in scene.lights if not isinstance(light, SphereLight)], scene.up_axis)
     return scene, lighting
 
@@ -99,10 +115,10 @@ def sg_stages(resolution: int, supersample: int = 4, lobes: int = 8, sun: str = 
     return tuple(stages)
 
 
-def ldprt_stages(order: int, rank: int, lobes: int) -> tuple:
+def ldprt_stages(order: int, rank: int, lobes: int, samples: int = 256) -> tuple:
     """Glossy LDPRT stages with the benchmark's BRDF (``stages/sunlit_ldprt_glossy.toml`` at n4 b3 N3)."""
     return (("fit", "ldprt.glossy_fit", {"order": order, "lobes": lobes, "rank": rank, "brdf": "beckmann",
-                                         "roughness": ROUGHNESS, "f0": F0, "samples": 256}, {}),
+                                         "roughness": ROUGHNESS, "f0": F0, "samples": samples}, {}),
             ("frames", "ldprt.frames", {}, {}),
             ("shade", "ldprt.glossy_shade", {"order": order, "lobes": lobes, "rank": rank, "specular": list(SPECULAR)}, {}))
 
@@ -123,10 +139,9 @@ def settings(quick: bool, ssdf128: bool) -> list:
     """``(method, setting, stages)`` rows of part 1."""
     if quick:
         # one environment table only (each lobe count builds its own, minutes on the CPU)
-        return [("sg", "ssdf 16 x4 e8", sg_stages(16)),
-                ("sg", "ssdf 16 x4 e8 no horizon", sg_stages(16, horizon=False)),
-                ("ldprt-glossy", "n4 b3 N3", ldprt_stages(4, 3, 3)),
-                ("rpo", "traced n4 k8 s64", rpo_stages("traced", 64))]
+        return [("sg", QUICK_SG, sg_stages(QUICK_SSDF)),
+                ("ldprt-glossy", "n4 b3 N3 s16", ldprt_stages(4, 3, 3, samples=16)),
+                ("rpo", "traced n4 k8 s16", rpo_stages("traced", 16))]
     rows = [("sg", f"ssdf {r} x4 e8", sg_stages(r)) for r in (16, 32, 64)]
     if ssdf128:
         rows.append(("sg", "ssdf 128 x4 e8", sg_stages(128)))
@@ -384,9 +399,9 @@ def vertex_vs_pixel(rt, frames, width, height, samples):
     return out, images
 
 
-def textured_pixels(scene, env_only, stem, res, samples, width, height, frames):
+def textured_pixels(scene, env_only, stem, res, samples, width, height, frames, lights_size=(640, 480)):
     """Per-pixel error of the textured variant (environment only) and one frame with every light
-    of the scene, the moving lamp included (PNG + EXR).
+    of the scene, the moving lamp included (PNG + EXR, ``lights_size`` pixels).
 
     :func:`warpshade.measure.pixels.measure_pixels` cannot measure it: it asks the stage for its
     reference model, which ``sg.shade`` refuses with ``textures = true``. So the same measurement
@@ -429,9 +444,9 @@ def textured_pixels(scene, env_only, stem, res, samples, width, height, frames):
     rt2 = _sg_runtime(scene, lamp, sg_stages(res, textures=True, component="both", specular=[1.0, 1.0, 1.0]),
                       f"{prefix}-lights")
     frame = float(frames[-1])
-    render_frame(rt2, frame, 160, 120)  # warm-up
+    render_frame(rt2, frame, *(min(a, b) for a, b in zip((160, 120), lights_size)))  # warm-up
     t0 = time.perf_counter()
-    paths = write_pixel_images(rt2, out_dir, frames=[frame], width=640, height=480, textures=True)
+    paths = write_pixel_images(rt2, out_dir, frames=[frame], width=lights_size[0], height=lights_size[1], textures=True)
     report["lights_image"] = {"frame": frame, "paths": [str(p) for p in paths], "seconds": time.perf_counter() - t0,
                               "lights": [type(light).__name__ for light in scene.lights], "component": "both"}
     print(f"  lamp frame {frame:g}: wrote {', '.join(Path(p).name for p in paths)}", flush=True)
@@ -557,10 +572,11 @@ def main(argv=None) -> int:
     from warpshade._wp import cpu_workers, wp
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="tiny settings (a smoke run of a few minutes)")
+    ap.add_argument("--quick", action="store_true",
+                    help="smoke profile: SSDF 8, 16-ray LDPRT and RPO, 32-spp truth, tiny pictures")
     ap.add_argument("--ssdf128", action="store_true", help="also the paper's SSDF 128 (512 traced; ~7+ min of bake)")
-    ap.add_argument("--gt-samples", type=int, default=None, help="rays per vertex of the truth (default 1024; quick 256)")
-    ap.add_argument("--out", default=str(RESULTS))
+    ap.add_argument("--gt-samples", type=int, default=None, help="rays per vertex of the truth (default 1024; quick 32)")
+    ap.add_argument("--out", default=None, help="output directory (default benchmarks/results; required with --quick)")
     ap.add_argument("--replot", default=None, metavar="JSON", help="redraw the Pareto chart of an earlier results JSON")
     args = ap.parse_args(argv)
     if args.replot:
@@ -574,11 +590,13 @@ def main(argv=None) -> int:
         print(table(doc))
         return 0
     quick = args.quick
-    gt_samples = args.gt_samples or (256 if quick else 1024)
+    if quick and args.out is None:
+        ap.error("--quick writes only into --out DIR (never benchmarks/results)")
+    gt_samples = args.gt_samples or (32 if quick else 1024)
     t_all = time.perf_counter()
-    scene, lighting = load()
+    scene, lighting = load(quick)
     date = str(datetime.date.today())
-    out = Path(args.out)
+    out = Path(args.out or RESULTS)
     out.mkdir(parents=True, exist_ok=True)
     stem = str(out / f"sg-{date}-cpu{'-quick' if quick else ''}")
     timing_frames = [float(f) for f in scene.frames[:: max(1, len(scene.frames) // (4 if quick else 12))]]
@@ -594,7 +612,7 @@ def main(argv=None) -> int:
     print(f"part 1: per-vertex rows ({scene.vertex_count} vertices, truth {gt_samples} spp)", flush=True)
     rows, runtimes, truths = graph_rows(scene, lighting, quick, args.ssdf128, gt_samples, timing_frames, log)
     truth = next(iter(truths.values()))
-    base_rows, shaders = baseline_rows(scene, lighting, truth, (16, 64) if quick else (16, 64, 256))
+    base_rows, shaders = baseline_rows(scene, lighting, truth, (4,) if quick else (16, 64, 256))
     doc["reference_models"] = len(truths)
     steppers = [(row, _runtime_step(rt)) for row, rt in runtimes] + [(row, _shader_step(s)) for row, s in shaders]
     print(f"  timing {len(steppers)} rows interleaved over {len(timing_frames)} frames", flush=True)
@@ -606,23 +624,24 @@ def main(argv=None) -> int:
             print(f"  {r['method']:12s} {r['setting']:28s} {r['median_frame_ms']:9.2f} ms/frame  precompute "
                   f"{pre} s  rel RMS {r['per_frame']['0']['rel_rms']:.4f} / "
                   f"{r['per_frame']['24']['rel_rms']:.4f}", flush=True)
-    keep = {id(rt) for row, rt in runtimes if row["setting"] == f"ssdf {16 if quick else 32} x4 e8"}
+    keep = {id(rt) for row, rt in runtimes if row["setting"] == (QUICK_SG if quick else "ssdf 32 x4 e8")}
     sg_rt = next(rt for row, rt in runtimes if id(rt) in keep)
     best_rt = next((rt for row, rt in runtimes if row["setting"] == "ssdf 128 x4 e8"), None)
     del steppers, shaders
 
-    print("part 2: per pixel (SG, SSDF %d)" % (16 if quick else 32), flush=True)
-    w, h = (320, 240) if quick else (640, 480)
-    doc["pixels"] = {"ssdf_resolution": 16 if quick else 32}
+    print("part 2: per pixel (SG, SSDF %d)" % (QUICK_SSDF if quick else 32), flush=True)
+    w, h = (64, 48) if quick else (640, 480)
+    doc["pixels"] = {"ssdf_resolution": QUICK_SSDF if quick else 32}
     doc["pixels"]["timing"] = pixel_timing(sg_rt, timing_frames[: 5 if not quick else 3] if not quick else timing_frames[:3],
                                            w, h)
     t = doc["pixels"]["timing"]
     print(f"  {w}x{h}: full frame {t['frame_with_host_copy_ms']:.1f} ms ({t['fps_full']:.1f} fps; step {t['step_ms']:.1f}, "
           f"G-buffer {t['gbuffer_ms']:.1f}, materials {t['materials_ms']:.1f}, shade {t['shade_ms']:.1f}), relight only "
           f"{t['relight_ms']:.1f} ms ({t['fps_relight']:.1f} fps)", flush=True)
-    px_samples = 64 if quick else 512
-    doc["pixels"]["vertex_vs_pixel"], images = vertex_vs_pixel(sg_rt, list(ERROR_FRAMES), 160, 120, px_samples)
-    doc["pixels"]["vertex_vs_pixel_settings"] = {"width": 160, "height": 120, "samples": px_samples, "seed": PIXEL_SEED}
+    px_samples = 8 if quick else 512
+    pw, ph = (40, 30) if quick else (160, 120)
+    doc["pixels"]["vertex_vs_pixel"], images = vertex_vs_pixel(sg_rt, list(ERROR_FRAMES), pw, ph, px_samples)
+    doc["pixels"]["vertex_vs_pixel_settings"] = {"width": pw, "height": ph, "samples": px_samples, "seed": PIXEL_SEED}
     pv, pp, ref, _ = images
     e0 = doc["pixels"]["vertex_vs_pixel"][f"{ERROR_FRAMES[0]:g}"]
     strip(f"{stem}-pixels.png", [(f"SG per vertex, interpolated (rel RMS {e0['per_vertex_rel_rms']:.3f})", pv),
@@ -640,8 +659,10 @@ def main(argv=None) -> int:
                                              (f"reference {px_samples} spp", ref), ("|per vertex - reference| x4", pv - ref),
                                              ("|per pixel - reference| x4", pp - ref)], ref)
         del best_rt
-    doc["pixels"]["textured"] = textured_pixels(scene, lighting, stem, 16 if quick else 32, 64 if quick else 256, 160, 120,
-                                                ERROR_FRAMES)
+    if quick:
+        doc["pixels"]["textured"] = textured_pixels(scene, lighting, stem, QUICK_SSDF, 8, pw, ph, ERROR_FRAMES[:1], (pw, ph))
+    else:
+        doc["pixels"]["textured"] = textured_pixels(scene, lighting, stem, 32, 256, 160, 120, ERROR_FRAMES)
     del runtimes
     doc["meshes"] = [{"name": n, "vertices": [sl.start, sl.stop], "animation": m.animation}
                      for (n, sl), m in zip(_meshes(scene), scene.meshes)]

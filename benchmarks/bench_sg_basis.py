@@ -51,16 +51,20 @@ def sphere_rule(nt=400, nphi=800):
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", default=str(RESULTS))
+    ap.add_argument("--quick", action="store_true", help="smoke profile: 12 sharpnesses, 8 lobe pairs, a 100 x 200 sphere rule")
+    ap.add_argument("--out", default=None, help="output directory (default benchmarks/results; required with --quick)")
     args = ap.parse_args(argv)
+    if args.quick and args.out is None:
+        ap.error("--quick writes only into --out DIR (never benchmarks/results)")
     rng = np.random.default_rng(0)
-    lams = np.geomspace(0.01, 2000.0, 60)
+    lams = np.geomspace(0.01, 2000.0, 12 if args.quick else 60)
     fh = {m: fh_errors(lams, m) for m in ("erf", "paper")}
     goal = (lams >= 1.0) & (lams <= 400.0)
-    dirs, w = sphere_rule()
+    dirs, w = sphere_rule(*((100, 200) if args.quick else ()))
+    pairs = 8 if args.quick else 40
     inner = []
     product = []
-    for _ in range(40):
+    for _ in range(pairs):
         a1, a2 = (v / np.linalg.norm(v) for v in rng.normal(size=(2, 3)))
         l1, l2 = rng.uniform(0.5, 100.0, 2)
         g1, g2 = sg.evaluate(dirs, a1, l1), sg.evaluate(dirs, a2, l2)
@@ -83,11 +87,12 @@ def main(argv=None) -> int:
                "goal_lambda_1_400": {m: {"max_of_pole": float(np.max(np.array(fh[m]["of_pole"])[goal])),
                                          "max_relative": float(np.max(np.array(fh[m]["relative"])[goal]))} for m in fh},
                "all_lambda": {m: float(np.max(fh[m]["of_pole"])) for m in fh}},
-        "inner_product": {"lobes": 40, "max_relative_error": float(np.max(inner)), "quadrature": "400 x 800"},
-        "product": {"lobes": 40, "max_error_of_peak": float(np.max(product))},
+        "inner_product": {"lobes": pairs, "max_relative_error": float(np.max(inner)),
+                          "quadrature": "100 x 200" if args.quick else "400 x 800"},
+        "product": {"lobes": pairs, "max_error_of_peak": float(np.max(product))},
         "clamped_cosine": cosine,
     }
-    stem = Path(args.out) / f"sg-basis-{out['date']}-cpu"
+    stem = Path(args.out or RESULTS) / f"sg-basis-{out['date']}-cpu{'-quick' if args.quick else ''}"
     write_json_atomic(stem.with_suffix(".json"), out)
     import matplotlib
 

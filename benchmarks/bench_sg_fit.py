@@ -51,6 +51,9 @@ ANISOTROPIC = {
     "ward": {"alpha_x": 0.1, "alpha_y": 0.4},
 }
 ANISO_VIEWS = ((0.0, 0.0), (30.0, 0.0), (30.0, 90.0), (60.0, 0.0), (60.0, 90.0))
+#: Views of the ``--quick`` smoke profile.
+QUICK_VIEW_THETAS = (0.0, 60.0)
+QUICK_ANISO_VIEWS = ((0.0, 0.0), (60.0, 90.0))
 
 
 def view(theta_deg: float, phi_deg: float = 0.0) -> np.ndarray:
@@ -79,11 +82,12 @@ def isotropic(quick: bool) -> dict:
     out = {}
     for model, (name, values) in SWEEPS.items():
         rows = []
-        for value in values[::2] if quick else values:
+        for value in values[2:3] if quick else values:
             params = {name: value}
             exact = brdf.microfacet_brdf(model, **params)
             lobes = sg_ndf.ndf_lobes(model, **params)
-            errors = {f"{t:g}": slices.slice_error(exact, model, params, view(t)) for t in VIEW_THETAS}
+            errors = {f"{t:g}": slices.slice_error(exact, model, params, view(t))
+                      for t in (QUICK_VIEW_THETAS if quick else VIEW_THETAS)}
             row = {name: value, "sharpness": float(lobes.sharpness[0]), "amplitude": float(lobes.amplitude[0]),
                    "ndf_error": ndf_error_isotropic(model, params), "slice_error": errors}
             rows.append(row)
@@ -91,13 +95,13 @@ def isotropic(quick: bool) -> dict:
                   "  ".join(f"{t}deg {e:.4f}" for t, e in errors.items()), flush=True)
         out[model] = {"parameter": name, "rows": rows}
     forms = {}
-    for a in SWEEPS["beckmann"][1]:
+    for a in SWEEPS["beckmann"][1][2:3] if quick else SWEEPS["beckmann"][1]:
         forms[f"{a:g}"] = {f: (ndf_error_isotropic("beckmann", {"roughness": a, "form": f})
                                if (f != "taylor" or a < 0.7) else None) for f in brdf.BECKMANN_FORMS}
         print(f"  beckmann forms a={a:g}: " + "  ".join(f"{k} {v:.4f}" for k, v in forms[f"{a:g}"].items()), flush=True)
     out["beckmann_forms"] = forms
     out["isotropic_warp_floor"] = {f"{t:g}": float(slices.isotropic_warp_floor(math.cos(math.radians(t))))
-                                   for t in VIEW_THETAS}
+                                   for t in (QUICK_VIEW_THETAS if quick else VIEW_THETAS)}
     print("  isotropic-warp floor (sharp-lobe limit): " +
           "  ".join(f"{t}deg {e:.4f}" for t, e in out["isotropic_warp_floor"].items()), flush=True)
     return out
@@ -105,7 +109,7 @@ def isotropic(quick: bool) -> dict:
 
 def anisotropic(quick: bool) -> dict:
     out = {}
-    counts = (1, 2, 4, 7) if quick else tuple(range(1, 9))
+    counts = (1, 2) if quick else tuple(range(1, 9))
     for model, params in ANISOTROPIC.items():
         exact = brdf.microfacet_brdf(model, **params)
         rows = []
@@ -114,7 +118,8 @@ def anisotropic(quick: bool) -> dict:
             slice_params = {**params, "lobes": k}
             fit = sg_ndf.fit_model_ndf(model, **slice_params)  # cached: view_slice below reuses it
             seconds = time.perf_counter() - t0
-            errors = {f"{t:g}/{p:g}": slices.slice_error(exact, model, slice_params, view(t, p)) for t, p in ANISO_VIEWS}
+            errors = {f"{t:g}/{p:g}": slices.slice_error(exact, model, slice_params, view(t, p))
+                      for t, p in (QUICK_ANISO_VIEWS if quick else ANISO_VIEWS)}
             culled_85 = int(slices.view_slice(model, view(85.0), **slice_params).culled.sum())
             rows.append({"lobes": k, "ndf_error": fit.relative_error, "initial_error": fit.initial_error,
                          "fit_seconds": seconds, "iterations": fit.iterations, "converged": fit.success,
@@ -136,10 +141,11 @@ def chart(result, path: Path) -> None:
     for ax, model in zip(axs.ravel()[:4], SWEEPS):
         block = result["isotropic"][model]
         for row in block["rows"]:
-            ys = [row["slice_error"][f"{t:g}"] for t in VIEW_THETAS]
-            ax.semilogy(VIEW_THETAS, ys, "o-", label=f"{block['parameter']}={row[block['parameter']]:g}")
+            thetas = [float(t) for t in row["slice_error"]]
+            ys = list(row["slice_error"].values())
+            ax.semilogy(thetas, ys, "o-", label=f"{block['parameter']}={row[block['parameter']]:g}")
         floor = result["isotropic"]["isotropic_warp_floor"]
-        ax.semilogy(VIEW_THETAS[1:], [floor[f"{t:g}"] for t in VIEW_THETAS[1:]], "k:", lw=2,
+        ax.semilogy([float(t) for t in floor][1:], list(floor.values())[1:], "k:", lw=2,
                     label="isotropic-warp floor")
         ax.set_title(f"{model}: 1 SG lobe, warped slice")
         ax.set_xlabel("view polar angle (deg)")
@@ -150,7 +156,7 @@ def chart(result, path: Path) -> None:
         rows = result["anisotropic"][model]["rows"]
         k = [r["lobes"] for r in rows]
         ax.semilogy(k, [r["ndf_error"] for r in rows], "ks-", label="NDF fit")
-        for v, _ in [(f"{t:g}/{p:g}", None) for t, p in ANISO_VIEWS]:
+        for v in rows[0]["slice_error"]:
             ax.semilogy(k, [r["slice_error"][v] for r in rows], "o--", label=f"slice, view {v} deg")
         params = ", ".join(f"{a}={b:g}" for a, b in result["anisotropic"][model]["params"].items())
         ax.set_title(f"{model} ({params}): L-BFGS-B lobes")
@@ -167,12 +173,15 @@ def chart(result, path: Path) -> None:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--quick", action="store_true", help="fewer roughness values and lobe counts")
-    ap.add_argument("--out", type=Path, default=RESULTS)
+    ap.add_argument("--quick", action="store_true",
+                    help="smoke profile: one roughness per model, 1 and 2 anisotropic lobes")
+    ap.add_argument("--out", type=Path, default=None, help="output directory (default benchmarks/results; required with --quick)")
     args = ap.parse_args(argv)
+    if args.quick and args.out is None:
+        ap.error("--quick writes only into --out DIR (never benchmarks/results)")
     t0 = time.perf_counter()
     result = {"date": datetime.date.today().isoformat(), "machine": f"{platform.machine()}, {os.cpu_count()} cores",
-              "view_polar_angles_deg": list(VIEW_THETAS),
+              "view_polar_angles_deg": list(QUICK_VIEW_THETAS if args.quick else VIEW_THETAS),
               "metric": "relative L2 over the hemisphere of i of (rho_s*(i;o) max(0,i_z) - rho(o,i) i_z); "
                         "NDF: relative L2 over the hemisphere (isotropic) or fitting cap (anisotropic) of h"}
     print("isotropic closed forms:", flush=True)
@@ -180,7 +189,7 @@ def main(argv=None) -> int:
     print("anisotropic fits (L-BFGS-B, free axes):", flush=True)
     result["anisotropic"] = anisotropic(args.quick)
     result["seconds"] = time.perf_counter() - t0
-    stem = args.out / f"sg-fit-{result['date']}-cpu"
+    stem = (args.out or RESULTS) / f"sg-fit-{result['date']}-cpu{'-quick' if args.quick else ''}"
     write_json_atomic(f"{stem}.json", result, indent=1)
     chart(result, Path(f"{stem}.png"))
     print(f"wrote {stem}.json, {stem}.png ({result['seconds']:.0f} s)")

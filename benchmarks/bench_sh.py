@@ -266,17 +266,20 @@ def main(argv=None) -> int:
     parser.add_argument("--workers", type=int, default=2, help="thread-pool size for chunked launches")
     parser.add_argument("--repeats", type=int, default=None)
     parser.add_argument("--compile-times", action="store_true", help="also time cold compiles (orders 6, 10)")
-    parser.add_argument("--out", type=Path, default=RESULTS_DIR)
+    parser.add_argument("--out", type=Path, default=None, help="output directory (default benchmarks/results; required with --quick)")
     parser.add_argument("--_compile-worker", type=int, default=None, dest="compile_worker", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.compile_worker is not None:
         compile_worker(args.compile_worker, args.device)
         return 0
+    if args.quick and args.out is None:
+        parser.error("--quick writes only into --out DIR (never benchmarks/results)")
+    args.out = args.out or RESULTS_DIR
 
     if args.quick:
         sizes = dict(basis=10_000, product=2_000, rotate=2_000, basis_orders=[4, 6, 8], product_orders=[4, 6],
                      rotate_orders=[4, 6])
-        repeats = args.repeats or 3
+        repeats = args.repeats or 1
     else:
         sizes = dict(basis=1_000_000, product=100_000, rotate=100_000, basis_orders=[4, 6, 8],
                      product_orders=[4, 6], rotate_orders=[4, 6])

@@ -119,8 +119,12 @@ def _shader(order, points, normals, centres, radii, light, **options):
     return s
 
 
-def figure_spheres(count: int = 60):
-    """Leaf spheres of the bundled figure at its first frame (sphere module), or procedural."""
+def figure_spheres(count: int = 60, procedural: bool = False):
+    """Leaf spheres of the bundled figure at its first frame (sphere module), or procedural
+    (always with ``procedural``: the ``--quick`` profile skips the sphere fit)."""
+    if procedural:
+        c, r = procedural_figure(count)
+        return c, r, f"procedural {count}-sphere figure (--quick)"
     try:
         from warpshade.io import load_scene
         from warpshade.methods.shexp.model import build_blocker_model
@@ -135,9 +139,9 @@ def figure_spheres(count: int = 60):
 
 
 def part_speed(args) -> dict:
-    res = 100 if args.quick else 200
+    res = 32 if args.quick else 200
     points, normals = ground_grid(res, 6.0)
-    centres, radii, source = figure_spheres(60)
+    centres, radii, source = figure_spheres(60, procedural=args.quick)
     out = {"receivers": int(points.shape[0]), "spheres": int(radii.shape[0]), "spheres_source": source, "orders": {}}
     for order in args.orders:
         light = sky_light(order)
@@ -163,7 +167,7 @@ def part_speed(args) -> dict:
 
 
 def part_battle(args) -> dict:
-    res = 128 if args.quick else 256
+    res = 32 if args.quick else 256
     points, normals = ground_grid(res, 20.0)
     figures = [procedural_figure(61, origin, seed=k) for k, origin in enumerate([(-4, -3), (3, -2), (-1, 4), (5, 5)])]
     centres = np.concatenate([f[0] for f in figures])
@@ -205,7 +209,7 @@ def part_exp(args) -> dict:
 
     res = 40
     points, normals = ground_grid(res, 6.0)
-    centres, radii, source = figure_spheres(60)
+    centres, radii, source = figure_spheres(60, procedural=args.quick)
     out = {"receivers": int(points.shape[0]), "spheres_source": source, "orders": {}}
     for order in args.orders:
         f = mirror.log_visibility(points, normals, centres, radii, order)
@@ -239,7 +243,7 @@ def part_shading(args) -> dict:
     """Shading paths side by side: direct (one SH product), the L*H(N) table, (M_L g).H(N)."""
     import trimesh
 
-    ico = trimesh.creation.icosphere(subdivisions=5 if args.quick else 6, radius=2.0)
+    ico = trimesh.creation.icosphere(subdivisions=2 if args.quick else 6, radius=2.0)
     points = np.asarray(ico.vertices, np.float64)
     normals = points / np.linalg.norm(points, axis=1, keepdims=True)
     rng = np.random.default_rng(4)
@@ -331,8 +335,8 @@ def scene_errors(quick: bool = False, orders=(3, 4, 5, 6), scenes=None, gt_sampl
     from warpshade.measure import error_frames, ground_truth, load_bench_scene, run_setting, setting_error
     from warpshade.methods.shexp import graph_stages
 
-    keys = list(scenes or (("blockers", "figure") if quick else tuple(SCENE_BUDGETS)))
-    gt_samples = gt_samples or (512 if quick else 2048)
+    keys = list(scenes or (("blockers",) if quick else tuple(SCENE_BUDGETS)))
+    gt_samples = gt_samples or (64 if quick else 2048)
     out = {}
     for key in keys:
         t0 = time.perf_counter()
@@ -340,7 +344,7 @@ def scene_errors(quick: bool = False, orders=(3, 4, 5, 6), scenes=None, gt_sampl
         frames = error_frames(scene, 1 if quick else 2)
         gt = ground_truth(scene, lighting, frames, gt_samples, device)
         gt_rad = {f: v["radiance"] for f, v in gt.items()}
-        budget = SCENE_BUDGETS[key]
+        budget = 4 if quick else SCENE_BUDGETS[key]
         rows = []
 
         def record(label, stages, output="shade.radiance", **facts):
@@ -367,7 +371,7 @@ def scene_errors(quick: bool = False, orders=(3, 4, 5, 6), scenes=None, gt_sampl
                                     kind="product", budget=budget)
         record("SHEXP n4 HYB tree", graph_stages(4, "hyb", budget, hierarchy=True), order=4, method="hyb", kind="shexp",
                hierarchy=True, budget=budget)
-        traced = sphere_trace_errors(scene, lighting, frames, budget, orders, samples=1024 if quick else 2048, device=device)
+        traced = sphere_trace_errors(scene, lighting, frames, budget, orders, samples=64 if quick else 2048, device=device)
         sources = {}
         for order in orders:
             sources[str(order)] = {
@@ -416,10 +420,10 @@ def budget_report(quick: bool = False, targets=BUDGET_TARGETS, scenes=BUDGET_SCE
     out = {"targets": list(targets), "scenes": {}}
     for key in scenes:
         scene, lighting = load_bench_scene(key)
-        cands = budget.candidates(orders=(3, 4, 6) if quick else budget.DEFAULT_ORDERS,
-                                  spheres=(8, 32) if quick else budget.DEFAULT_SPHERE_BUDGETS,
-                                  methods=("ol", "hyb") if quick else budget.DEFAULT_METHODS)
-        choice = choose(scene, cands, min(targets), lighting=lighting, method="shexp", gt_samples=512 if quick else 1024,
+        cands = budget.candidates(orders=(3,) if quick else budget.DEFAULT_ORDERS,
+                                  spheres=(8,) if quick else budget.DEFAULT_SPHERE_BUDGETS,
+                                  methods=("hyb",) if quick else budget.DEFAULT_METHODS)
+        choice = choose(scene, cands, min(targets), lighting=lighting, method="shexp", gt_samples=64 if quick else 1024,
                         device=device, progress=True)
         per_target = {}
         for t in targets:
@@ -442,7 +446,7 @@ def budget_report(quick: bool = False, targets=BUDGET_TARGETS, scenes=BUDGET_SCE
 
 
 def part_budget(args) -> dict:
-    return budget_report(quick=args.quick)
+    return budget_report(quick=args.quick, scenes=BUDGET_SCENES[:1] if args.quick else BUDGET_SCENES)
 
 
 _COLD_COMPILE = r"""
@@ -463,8 +467,9 @@ print(f"{t1 - t0:.3f} {time.perf_counter() - t1:.3f}")
 
 def part_compile(args) -> dict:
     out = {}
+    configs = (("log", "hyb"), ("log", "ps_star"), ("product", "hyb"))
     for order in args.orders:
-        for accumulate, method in (("log", "hyb"), ("log", "ps_star"), ("product", "hyb")):
+        for accumulate, method in configs[:1] if args.quick else configs:
             r = subprocess.run([sys.executable, "-c", _COLD_COMPILE, str(order), accumulate, method], capture_output=True, text=True,
                                cwd=str(ROOT))
             try:
@@ -509,14 +514,20 @@ PARTS = {"speed": part_speed, "battle": part_battle, "exp": part_exp, "shading":
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--parts", default=None, help=f"comma-separated parts (default all: {','.join(PARTS)})")
-    ap.add_argument("--orders", default="3,4,5,6")
-    ap.add_argument("--repeats", type=int, default=7)
-    ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--out", default=str(RESULTS_DIR))
+    ap.add_argument("--parts", default=None,
+                    help=f"comma-separated parts (default all: {','.join(PARTS)}; quick: all but compile, whose cold "
+                         "compiles into an empty kernel cache take minutes)")
+    ap.add_argument("--orders", default=None, help="comma-separated SH orders (default 3,4,5,6; quick 3)")
+    ap.add_argument("--repeats", type=int, default=None, help="timing repeats (default 7; quick 1)")
+    ap.add_argument("--quick", action="store_true",
+                    help="smoke profile: order 3, one repeat, tiny grids, the blocker scene only, 64-ray truths")
+    ap.add_argument("--out", default=None, help="output directory (default benchmarks/results; required with --quick)")
     args = ap.parse_args(argv)
-    args.orders = [int(o) for o in args.orders.split(",")]
-    parts = args.parts.split(",") if args.parts else list(PARTS)
+    if args.quick and args.out is None:
+        ap.error("--quick writes only into --out DIR (never benchmarks/results)")
+    args.orders = [int(o) for o in (args.orders or ("3" if args.quick else "3,4,5,6")).split(",")]
+    args.repeats = args.repeats or (1 if args.quick else 7)
+    parts = args.parts.split(",") if args.parts else [p for p in PARTS if not (args.quick and p == "compile")]
     unknown = [p for p in parts if p not in PARTS]
     if unknown:
         ap.error(f"unknown part(s) {unknown} (parts: {', '.join(PARTS)})")
@@ -535,7 +546,7 @@ def main(argv=None) -> int:
         t0 = time.perf_counter()
         result[part] = PARTS[part](args)
         result.setdefault("seconds", {})[part] = time.perf_counter() - t0
-    out_dir = Path(args.out)
+    out_dir = Path(args.out or RESULTS_DIR)
     stem = f"shexp-{date}-cpu" + ("-quick" if args.quick else "")
     path = out_dir / f"{stem}.json"
     if path.exists():  # merge with parts measured earlier today

@@ -4,7 +4,7 @@ attached spheres behave over the skinned figure's animation.
 Usage::
 
     python benchmarks/bench_spheres.py                 # counts 8 16 32 64 128, CPU
-    python benchmarks/bench_spheres.py --quick         # counts 8 16 32, fewer frames
+    python benchmarks/bench_spheres.py --quick --out /tmp/spheres   # smoke run: the figure, 4 spheres, coarse fits
     python benchmarks/bench_spheres.py --counts 64 --meshes bunny --out /tmp/spheres
 
 Writes ``spheres-<date>.json`` and ``spheres-<date>.png`` into ``--out`` (default
@@ -62,6 +62,8 @@ MESHES = {
     "bunny": ("warp-example:bunny", None),
     "bear": ("warp-example:bear", None),
 }
+#: Fit settings of the ``--quick`` smoke profile (few iterations and teleports, a coarse grid).
+QUICK_FIT = {"iterations": 2, "teleports": 2, "grid_cells": 20000, "samples_per_sphere": 256}
 
 
 def mesh_points(key):
@@ -91,13 +93,13 @@ def kmeans_baseline(points, faces, count, name, seed=0):
     return {"count": len(radii), "E": ov.total / volume, "E_stderr": ov.total_stderr / volume, "E_union": ov.union / volume}
 
 
-def run_fits(keys, counts):
+def run_fits(keys, counts, fit_options):
     rows = []
     for key in keys:
         points, faces, name, up = mesh_points(key)
         for n in counts:
             t0 = time.perf_counter()
-            s = sp.fit_spheres(points, faces, n, name=name, progress=True)
+            s = sp.fit_spheres(points, faces, n, name=name, progress=True, **fit_options)
             seconds = time.perf_counter() - t0
             row = {
                 "mesh": key,
@@ -164,13 +166,16 @@ def drift(spheres, scene, frames):
 
 def run_animation(quick, device):
     scene = load_scene("bundled:figure")
-    frames = scene.frames[::3] if quick else scene.frames
+    frames = scene.frames[::12] if quick else scene.frames
     results = {}
-    base = ss.spheres_for_scene(scene, budget=32, progress=True, device=device)
+    budget, fit_options = (4, QUICK_FIT) if quick else (32, {})
+    base = ss.spheres_for_scene(scene, budget=budget, progress=True, device=device, **fit_options)
     variants = {
         "mvc_4_bones": base,
-        "mvc_all_bones": ss.spheres_for_scene(scene, budget=32, max_bones=scene.skeletons[0].joint_count, device=device),
-        "cluster_skin_weights": ss.spheres_for_scene(scene, budget=32, skinned_attachment="skin_weights", device=device),
+        "mvc_all_bones": ss.spheres_for_scene(scene, budget=budget, max_bones=scene.skeletons[0].joint_count, device=device,
+                                              **fit_options),
+        "cluster_skin_weights": ss.spheres_for_scene(scene, budget=budget, skinned_attachment="skin_weights", device=device,
+                                                     **fit_options),
     }
     mesh = scene.meshes[int(base.mesh_index[0])]
     solid = fit_internals.make_solid(scene.points_at(scene.frames[0])[mesh.vertex_offset : mesh.vertex_offset + mesh.vertex_count], mesh.faces, mesh.path)
@@ -185,7 +190,7 @@ def run_animation(quick, device):
             "max_outside_fraction": max(s["outside_fraction"] for s in stats),
             "max_gap": max(s["max_gap"] for s in stats),
             "max_gap_over_mean_radius": max(s["max_gap"] for s in stats) / mean_r,
-            "drift": drift(spheres, scene, scene.frames[10::10] if not quick else scene.frames[15::30]),
+            "drift": drift(spheres, scene, scene.frames[10::10] if not quick else scene.frames[15:16]),
         }
         calibrated = ss.SceneSpheres.from_arrays(spheres.to_arrays())
         growth = calibrated.calibrate_radii(scene)
@@ -218,7 +223,7 @@ def run_hierarchy(scene, spheres, device, quick):
     radius = {m: [] for m in refits}
     cut_len = []
     times = {"attach": [], "refit": [], "receiver_bounds": [], "cut": []}
-    frames = scene.frames[::3] if quick else scene.frames
+    frames = scene.frames[::12] if quick else scene.frames
     for f in frames:
         evaluator.set_frame(f)
         evaluator.launch()
@@ -251,18 +256,19 @@ def run_hierarchy(scene, spheres, device, quick):
     }
 
 
-def split_launch_ratio(device):
-    """QMC classification of 64 spheres x 4096 samples on the bunny: one launch vs the pool."""
-    points, faces, name, _ = mesh_points("bunny")
+def split_launch_ratio(device, key="bunny", spheres=64, samples=4096, repeats=3):
+    """QMC classification of 64 spheres x 4096 samples on a mesh (the bunny): one launch vs the
+    pool, median of ``repeats`` after a warm-up."""
+    points, faces, name, _ = mesh_points(key)
     solid = fit_internals.make_solid(points, faces, name, device=device)
     rng = np.random.default_rng(0)
-    centres = points[rng.choice(points.shape[0], 64)]
-    radii = np.full(64, 0.1)
-    n = 64 * 4096
+    centres = points[rng.choice(points.shape[0], spheres)]
+    radii = np.full(spheres, 0.1)
+    n = spheres * samples
     dev = solid.device
     cw = wp.array(centres.astype(np.float32), dtype=wp.vec3, device=dev)
     rw = wp.array(radii.astype(np.float32), dtype=wp.float32, device=dev)
-    ub = wp.array(core_internals._unit_ball(4096, 1, 0)[0].astype(np.float32), dtype=wp.vec3, device=dev)
+    ub = wp.array(core_internals._unit_ball(samples, 1, 0)[0].astype(np.float32), dtype=wp.vec3, device=dev)
     out = wp.empty(n, dtype=wp.float32, device=dev)
     uw = wp.empty(n, dtype=wp.float32, device=dev)
     mid = solid.mesh_id
@@ -280,7 +286,7 @@ def split_launch_ratio(device):
     for key, fn in (("single_launch_s", single), ("split_launch_s", split)):
         fn()
         ts = []
-        for _ in range(3):
+        for _ in range(repeats):
             t0 = time.perf_counter()
             fn()
             ts.append(time.perf_counter() - t0)
@@ -354,25 +360,30 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--counts", type=int, nargs="+", default=None)
     parser.add_argument("--meshes", nargs="+", default=list(MESHES), choices=list(MESHES))
-    parser.add_argument("--quick", action="store_true")
+    parser.add_argument("--quick", action="store_true",
+                        help="smoke profile: the figure only, 4 spheres, coarse fits, every 12th frame")
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--skip-animation", action="store_true")
-    parser.add_argument("--out", default=str(ROOT / "benchmarks" / "results"), help="output directory (default benchmarks/results)")
+    parser.add_argument("--out", default=None, help="output directory (default benchmarks/results; required with --quick)")
     args = parser.parse_args()
+    if args.quick and args.out is None:
+        parser.error("--quick writes only into --out DIR (never benchmarks/results)")
     device = resolve_device(args.device)
-    counts = args.counts or ([8, 16, 32] if args.quick else [8, 16, 32, 64, 128])
+    counts = args.counts or ([4] if args.quick else [8, 16, 32, 64, 128])
+    meshes = ["figure"] if args.quick and args.meshes == list(MESHES) else args.meshes
     t_start = time.perf_counter()
-    rows = run_fits(args.meshes, counts)
+    rows = run_fits(meshes, counts, QUICK_FIT if args.quick else {})
     animation, hierarchy = {}, {}
     if not args.skip_animation:
         scene, base, animation = run_animation(args.quick, device)
         hierarchy = run_hierarchy(scene, base, device, args.quick)
         print("hierarchy", json.dumps({k: v for k, v in hierarchy.items()}, indent=None))
-    split = split_launch_ratio(device)
+    split = split_launch_ratio(device, "figure", 8, 1024, 1) if args.quick else split_launch_ratio(device)
     date = datetime.date.today().isoformat()
-    out_dir = Path(args.out)
+    stem = f"spheres-{date}" + ("-quick" if args.quick else "")
+    out_dir = Path(args.out or ROOT / "benchmarks" / "results")
     out_dir.mkdir(parents=True, exist_ok=True)
-    png = out_dir / f"spheres-{date}.png"
+    png = out_dir / f"{stem}.png"
     plot(png, rows, animation)
     bunny64 = next((x for x in rows if x["mesh"] == "bunny" and x["requested"] == 64), None)
     report = {
@@ -389,8 +400,8 @@ def main():
         "qmc_split_launch": split,
         "total_seconds": time.perf_counter() - t_start,
     }
-    write_json_atomic(out_dir / f"spheres-{date}.json", report)
-    print(f"wrote {out_dir / f'spheres-{date}.json'} and {png}")
+    write_json_atomic(out_dir / f"{stem}.json", report)
+    print(f"wrote {out_dir / f'{stem}.json'} and {png}")
 
 
 if __name__ == "__main__":

@@ -63,13 +63,16 @@ def _errors(approx, truth, pole) -> dict:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="64 vertices at 256 -> 64")
+    ap.add_argument("--quick", action="store_true", help="smoke profile: 32 vertices at 128 -> 32")
     ap.add_argument("--vertices", type=int, default=512, help="receivers (a seeded random subset of the scene's)")
     ap.add_argument("--budget", type=float, default=0.02, help="PCA RMS error budget, radians")
     ap.add_argument("--frame", type=float, default=0.0)
     ap.add_argument("--device", default="cpu")
-    ap.add_argument("--out", type=Path, default=RESULTS)
+    ap.add_argument("--out", type=Path, default=None, help="output directory (default benchmarks/results; required with --quick)")
     args = ap.parse_args(argv)
+    if args.quick and args.out is None:
+        ap.error("--quick writes only into --out DIR (never benchmarks/results)")
+    out_dir = args.out or RESULTS
 
     from warpshade._fileio import write_json_atomic
     from warpshade._wp import cpu_workers
@@ -77,8 +80,8 @@ def main(argv=None) -> int:
     from warpshade.io import load_scene
     from warpshade.transfer import ssdf, ssdf_pca, ssdf_products
 
-    resolution, supersample = (64, 4) if args.quick else (128, 4)
-    count = 64 if args.quick else args.vertices
+    resolution, supersample = (32, 4) if args.quick else (128, 4)
+    count = 32 if args.quick else args.vertices
     fine = resolution * supersample
     scene = load_scene(SCENE)
     rng = np.random.default_rng(2009)
@@ -187,9 +190,9 @@ def main(argv=None) -> int:
 
     # ---- outputs ------------------------------------------------------------------------------
     tag = f"ssdf-{report['date']}-cpu" + ("-quick" if args.quick else "")
-    json_path = args.out / f"{tag}.json"
+    json_path = out_dir / f"{tag}.json"
     write_json_atomic(json_path, report)
-    _charts(args.out, tag, report, maps, model, vis, resolution)
+    _charts(out_dir, tag, report, maps, model, vis, resolution)
     print(f"wrote {json_path}")
     return 0
 

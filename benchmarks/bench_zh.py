@@ -74,7 +74,7 @@ def mesh_transfer(samples: int, quick: bool) -> dict:
     body = next(m for m in scene.meshes if m.path.endswith("Body"))
     verts = np.arange(body.vertex_offset, body.vertex_offset + body.vertex_count)
     if quick:
-        verts = verts[::4]
+        verts = verts[::64]
     t = local_transfer(scene, 0.0, 6, samples, device="cpu", seed=0, vertices=verts).astype(np.float64)
     t2 = local_transfer(scene, 0.0, 6, samples, device="cpu", seed=1, vertices=verts).astype(np.float64)
     total = float(np.sum(t * t))
@@ -102,7 +102,8 @@ def mesh_transfer(samples: int, quick: bool) -> dict:
         print(f"  mesh N={n_lobes}, 8 restarts above 1 %: {err:.4f} (paper {PAPER_MESH[n_lobes]}), "
               f"{res.seconds:.1f} s", flush=True)
     # batched vs scipy BFGS on the same vertices, same settings, one run
-    sub = t[:: max(1, len(verts) // 60)][:60]
+    size = 12 if quick else 60
+    sub = t[:: max(1, len(verts) // size)][:size]
     speed = {}
     for n_lobes in (1, 2):
         b = zh.fit(sub, n_lobes, restarts=0, optimizer="batched")
@@ -158,13 +159,18 @@ def chart(result, path):
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--quick", action="store_true",
+                    help="smoke profile: 8 random vectors, 1 restart, 128 rays on every 64th body vertex")
     ap.add_argument("--vectors", type=int, default=200)
     ap.add_argument("--samples", type=int, default=1024)
     ap.add_argument("--restarts", type=int, default=4)
-    ap.add_argument("--out", default=str(RESULTS), help="output directory (default benchmarks/results)")
+    ap.add_argument("--out", default=None, help="output directory (default benchmarks/results; required with --quick)")
     args = ap.parse_args(argv)
-    count = 40 if args.quick else args.vectors
+    if args.quick and args.out is None:
+        ap.error("--quick writes only into --out DIR (never benchmarks/results)")
+    count = args.vectors
+    if args.quick:
+        count, args.samples, args.restarts = 8, 128, 1
     result = {"date": datetime.date.today().isoformat(), "machine": f"{platform.machine()}, {os.cpu_count()} cores",
               "command": "python benchmarks/bench_zh.py " + " ".join(argv if argv is not None else sys.argv[1:]),
               "random_count": count, "stored_bands": zh.PAPER_STORED_BANDS}
@@ -174,9 +180,9 @@ def main(argv=None) -> int:
     print("mesh transfer:", flush=True)
     result["mesh"] = mesh_transfer(args.samples, args.quick)
     result["seconds"] = time.perf_counter() - t0
-    out_dir = Path(args.out)
+    out_dir = Path(args.out or RESULTS)
     out_dir.mkdir(parents=True, exist_ok=True)
-    stem = out_dir / f"zh-{result['date']}-s{args.samples}"
+    stem = out_dir / f"zh-{result['date']}-s{args.samples}{'-quick' if args.quick else ''}"
     write_json_atomic(f"{stem}.json", result, indent=1)
     chart(result, Path(f"{stem}.png"))
     print(f"wrote {stem}.json, {stem}.png")

@@ -21,6 +21,7 @@ Usage::
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import datetime
 import os
 import platform
@@ -52,6 +53,38 @@ from warpshade.methods.rows import all_rows  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
 SCENES = BENCH_SCENES
+#: The ``--quick`` smoke profile: its default scene, and caps on the rows' stage parameters
+#: (rays per vertex, SSDF resolution, blocker-sphere budget, lobe counts, BRDF ranks).
+QUICK_SCENES = "bend"
+QUICK_CAPS = {"samples": 16, "resolution": 8, "budget": 2, "lobes": 1, "rank": 2}
+
+
+def coarse_lighting(scene):
+    """``(scene, lighting)`` with the scene's environments box-filtered down to about 32 texel rows
+    (``--quick``: SG's prefiltered table of a full-size sky takes tens of seconds to build)."""
+    from warpshade.scene import Environment, LightingSource
+
+    def coarse(env, rows=32):
+        img = np.asarray(env.image, np.float32)
+        f = max(1, img.shape[0] // rows)
+        h, w = img.shape[0] // f * f, img.shape[1] // f * f
+        return dataclasses.replace(env, image=img[:h, :w].reshape(h // f, f, w // f, f, 3).mean(axis=(1, 3)))
+
+    scene.lights = [coarse(light) if isinstance(light, Environment) else light for light in scene.lights]
+    return scene, LightingSource(scene.lights, scene.up_axis, ROTATE_DEGREES_PER_FRAME, float(scene.frames[0]))
+
+
+def smoke_rows(rows) -> list:
+    """The first row of each method, its stage parameters capped by :data:`QUICK_CAPS` (``--quick``)."""
+    out, seen = [], set()
+    for row in rows:
+        if row.method in seen:
+            continue
+        seen.add(row.method)
+        stages = tuple((n, t, {k: min(v, QUICK_CAPS[k]) if k in QUICK_CAPS else v for k, v in p.items()}, i)
+                       for (n, t, p, i) in row.stages)
+        out.append(dataclasses.replace(row, stages=stages))
+    return out
 
 
 def run_row(row, scene, lighting, device, timing_frames, gt_frames, truth_for, precompute_cache, progress=False):
@@ -197,19 +230,24 @@ def replot(path: Path) -> int:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--quick", action="store_true", help="fewer settings, frames and ground-truth samples")
-    ap.add_argument("--scenes", default=None, help="comma-separated scene keys (default: all)")
+    ap.add_argument("--quick", action="store_true",
+                    help="smoke profile: the bend, one row per method with few rays, 2 timed frames, 32-ray truth")
+    ap.add_argument("--scenes", default=None, help="comma-separated scene keys (default: all; quick: bend)")
     ap.add_argument("--methods", default=None, help="comma-separated method names (default: all)")
     ap.add_argument("--device", action="append", default=None, help="device(s); default: cpu and cuda:0 if present")
     ap.add_argument("--exclude", default=None,
                     help="comma-separated row labels to leave out (e.g. \"ldprt-glossy n6 b12 N4\")")
     ap.add_argument("--gt-samples", type=int, default=None, help="ground-truth samples per vertex")
-    ap.add_argument("--out", default=str(RESULTS))
+    ap.add_argument("--out", default=None, help="output directory (default benchmarks/results; required with --quick)")
     ap.add_argument("--replot", default=None, metavar="JSON",
                     help="redraw the chart and table of an earlier results JSON (next to it) without measuring")
     args = ap.parse_args(argv)
     if args.replot:
         return replot(Path(args.replot))
+    if args.quick and args.out is None:
+        ap.error("--quick writes only into --out DIR (never benchmarks/results)")
+    if args.quick and args.scenes is None:
+        args.scenes = QUICK_SCENES
 
     devices = args.device or (["cpu"] + (["cuda:0"] if wp.is_cuda_available() else []))
     scene_keys = args.scenes.split(",") if args.scenes else list(SCENES)
@@ -217,16 +255,18 @@ def main(argv=None) -> int:
         if k not in SCENES:
             ap.error(f"unknown scene {k!r}; known: {sorted(SCENES)}")
     rows = all_rows(quick=args.quick)
+    if args.quick:
+        rows = smoke_rows(rows)
     if args.methods:
         wanted = set(args.methods.split(","))
         rows = [r for r in rows if r.method in wanted]
     if args.exclude:
         drop = {x.strip() for x in args.exclude.split(",")}
         rows = [r for r in rows if r.label not in drop]
-    gt_samples = args.gt_samples or (512 if args.quick else 2048)
-    timing_frames = 4 if args.quick else 12
+    gt_samples = args.gt_samples or (32 if args.quick else 2048)
+    timing_frames = 2 if args.quick else 12
     gt_count = 1 if args.quick else 2
-    out_dir = Path(args.out)
+    out_dir = Path(args.out or RESULTS)
     out_dir.mkdir(parents=True, exist_ok=True)
     date = datetime.date.today().isoformat()
 
@@ -237,6 +277,8 @@ def main(argv=None) -> int:
         t_all = time.perf_counter()
         for key in scene_keys:
             scene, lighting = load_bench_scene(key)
+            if args.quick:
+                scene, lighting = coarse_lighting(scene)
             kinds = scene_kinds(scene) | {key}
             applicable = [r for r in rows if kinds & set(r.scenes)]
             if not applicable:

@@ -632,7 +632,7 @@ def main(argv=None):
                         help="cross-check the glossy per-pixel reference (part 4) with these microfacet distributions "
                              "instead of parts 1-3")
     parser.add_argument("--point-light", action="store_true", help="with --glossy: also an image lit by a point light")
-    parser.add_argument("--out", default=str(ROOT / "benchmarks" / "results"))
+    parser.add_argument("--out", default=None, help="output directory (default benchmarks/results; required with --quick)")
     args = parser.parse_args(argv)
     args.argv = list(argv if argv is not None else sys.argv[1:])
     if args.point_light and not args.glossy:
@@ -640,6 +640,9 @@ def main(argv=None):
     if args.bounces is not None and args.bounces < 0:
         parser.error(f"--bounces must be >= 0, got {args.bounces}")
     bounces = args.bounces or 0
+    if args.quick and args.out is None:
+        parser.error("--quick writes only into --out DIR (never benchmarks/results)")
+    args.out = args.out or str(ROOT / "benchmarks" / "results")
     if args.quick:
         args.samples, args.receivers = 64, args.receivers or 300
         args.width, args.height, args.supersample, args.shade_samples, args.spp = 64, 48, 2, 64, 64
