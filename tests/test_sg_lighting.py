@@ -334,6 +334,12 @@ def test_inside_hull():
     cube = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], float)
     assert lights.inside_hull(cube, [0.5, 0.5, 0.5])
     assert not lights.inside_hull(cube, [0.5, 0.5, 1.5])
+    # many positions at once (a light's path over a clip): the same answers as one at a time
+    path = np.random.default_rng(3).uniform(-0.5, 1.5, (200, 3))
+    many = lights.inside_hull(cube, path)
+    assert many.shape == (200,) and many.dtype == bool
+    assert many.tolist() == [lights.inside_hull(cube, p) for p in path]
+    assert many.tolist() == [bool(np.all((p >= 0.0) & (p <= 1.0))) for p in path]
     flat = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], float)
     assert not lights.inside_hull(flat, [0.5, 0.5, 0.0])
     with pytest.raises(ValueError, match="points_of_mesh"):

@@ -92,29 +92,36 @@ def directional_light_lobe(light: DistantLight):
     return light.direction.copy(), lam, light.irradiance / float(sg.integral(lam))
 
 
-def inside_hull(points_of_mesh, light_position) -> bool:
-    """Whether a point light lies inside the convex hull of a mesh's points (then precomputed
+def inside_hull(points_of_mesh, light_position):
+    """Whether point lights lie inside the convex hull of a mesh's points (then precomputed
     visibility, which describes distant light, does not apply; sec. 7).
+
+    The hull is triangulated once (over its own vertices) for all the positions asked about, so
+    a light's whole path over a clip costs one triangulation.
 
     Args:
         points_of_mesh: (M, 3) world positions.
-        light_position: (3,) world position.
+        light_position: (3,) world position, or (K, 3) positions.
 
     Returns:
-        True when inside (or on) the hull; False for a flat or degenerate point set (no volume).
+        For one position, True when inside (or on) the hull; for (K, 3), a (K,) bool array. False
+        for a flat or degenerate point set (no volume).
     """
-    from scipy.spatial import Delaunay, QhullError
+    from scipy.spatial import ConvexHull, Delaunay, QhullError
 
     pts = np.asarray(points_of_mesh, np.float64)
-    q = np.asarray(light_position, np.float64).reshape(-1)
+    q = np.asarray(light_position, np.float64)
+    one = q.ndim == 1
     if pts.ndim != 2 or pts.shape[1] != 3 or not np.all(np.isfinite(pts)):
         raise ValueError(f"inside_hull: points_of_mesh must be finite (M, 3), got shape {pts.shape}")
-    if q.shape != (3,) or not np.all(np.isfinite(q)):
-        raise ValueError(f"inside_hull: light_position must be a finite (3,) point, got {light_position!r}")
-    if pts.shape[0] < 4:
-        return False
-    try:
-        tri = Delaunay(pts)
-    except QhullError:
-        return False
-    return bool(tri.find_simplex(q[None])[0] >= 0)
+    if q.shape[-1:] != (3,) or q.ndim > 2 or not np.all(np.isfinite(q)):
+        raise ValueError(f"inside_hull: light_position must be finite (3,) or (K, 3) points, got {light_position!r}")
+    q = q.reshape(-1, 3)
+    inside = np.zeros(len(q), bool)
+    if pts.shape[0] >= 4:
+        try:
+            tri = Delaunay(pts[ConvexHull(pts).vertices])
+            inside = tri.find_simplex(q) >= 0
+        except QhullError:
+            pass
+    return bool(inside[0]) if one else inside

@@ -406,8 +406,9 @@ class SgShadeStage(FrameStage):
             pts = points[m.vertex_offset : m.vertex_offset + m.vertex_count]
             if m.vertex_count < 4:
                 continue
+            hits = inside_hull(pts, table.reshape(-1, 3)).reshape(table.shape[:2])  # (T, S)
             for s in range(table.shape[1]):
-                inside = [int(t) for t in range(table.shape[0]) if inside_hull(pts, table[t, s])]
+                inside = [int(t) for t in np.flatnonzero(hits[:, s])]
                 if inside:
                     self.lights_inside_hull.append({"mesh": m.path, "light": s, "frames": inside[:8], "count": len(inside)})
         if self.lights_inside_hull:
