@@ -25,11 +25,10 @@ RESULTS = BENCHMARKS / "results"
 SMOKE = sorted(p.stem for p in BENCHMARKS.glob("*.py"))
 #: Smoke runs still over ~40 s on 2 shared CPU cores (measured alone), kept out of the default
 #: suite (``-m "not slow"``). Their cost is precompute their parameters cannot shrink further:
-#: bench_sg (over 5 min: SG's environment preparation, the prefiltered table, even for a
-#: coarsened sky), bench_datadriven (70 s: training trace, fit and coefficient PCA), bench_shexp
+#: bench_datadriven (70 s: training trace, fit and coefficient PCA), bench_shexp
 #: (59 s: SHEXP tables and sphere blockers per order), bench_rpo (42 s: operator builds and
 #: reference shading), run.py (41 s: one row of every method, SG's environment included).
-SLOW = {"bench_sg", "bench_datadriven", "bench_rpo", "bench_shexp", "run"}
+SLOW = {"bench_datadriven", "bench_rpo", "bench_shexp", "run"}
 #: Seconds one smoke run may take before it counts as hung.
 TIMEOUT_S = 300
 
