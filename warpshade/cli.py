@@ -180,8 +180,11 @@ class CliError(Exception):
 
 
 def _run_graph(graph_file, frames=None, device=None, out_dir=None, validate=False, previews=True, progress=True,
-               usd_format="auto", scheduler=None):
+               usd_format="auto", scheduler=None, movie=False):
     """Run one stage graph end to end; returns (runtime, outputs dict).
+
+    With ``movie``, a movie of every frame run is written too (MP4, or GIF without ffmpeg), and
+    with ``validate`` one of the measured frames' method | reference | error strips.
 
     Everything is checked before any work: the graph file, the output directory (writable, not
     a file), the scene, ``--frames``, the ``[validate]`` frames measured (those the run steps),
@@ -198,6 +201,10 @@ def _run_graph(graph_file, frames=None, device=None, out_dir=None, validate=Fals
     from ._fileio import check_writable_dir
     from .graph import GraphError, load
 
+    if movie and not previews:
+        raise CliError("--movie and --no-previews: a movie is made of the pictures --no-previews skips; "
+                       "drop one of the two")
+    movie_format = _movie_format() if movie else None
     spec = load(graph_file)
     out = Path(out_dir if out_dir is not None else Path("warpshade-out") / spec.name)
     check_writable_dir(out, "--out directory")
@@ -214,7 +221,7 @@ def _run_graph(graph_file, frames=None, device=None, out_dir=None, validate=Fals
             print(f"warpshade run: --validate measures frame(s) {', '.join(f'{f:g}' for f in measured)}; [validate] "
                   f"frame(s) {', '.join(f'{f:g}' for f in left_out)} are outside the frames run "
                   f"({run_frames[0]:g}..{run_frames[-1]:g}) and are left out", file=sys.stderr)
-    plan = _plan_run(spec, scene, out, run_frames, measured, validate, previews, usd_format)
+    plan = _plan_run(spec, scene, out, run_frames, measured, validate, previews, usd_format, movie_format)
     _check_cache()
     # ground-truth frames go to the executor only when one is asked for (flag or environment)
     try:
@@ -232,7 +239,17 @@ def _run_graph(graph_file, frames=None, device=None, out_dir=None, validate=Fals
     return rt, outputs
 
 
-def _plan_run(spec, scene, out, run_frames, measured, validate, previews, usd_format):
+def _movie_format() -> str:
+    """``mp4`` or ``gif`` (:func:`warpshade.measure.pictures.movie_format`), or a CliError saying what to install."""
+    from .measure.pictures import movie_format
+
+    try:
+        return movie_format()
+    except ImportError as exc:
+        raise CliError(f"--movie: {exc}") from None
+
+
+def _plan_run(spec, scene, out, run_frames, measured, validate, previews, usd_format, movie_format=None):
     """The files of the run, planned and checked before any work
     (:func:`warpshade.measure.outputs.plan_outputs`); with ``validate``, the stages measured are
     asked whether their parameters allow a ground truth at all.
@@ -258,7 +275,7 @@ def _plan_run(spec, scene, out, run_frames, measured, validate, previews, usd_fo
     source = Path(scene.source) if scene.source and Path(scene.source).exists() else None
     plan = plan_outputs(out, spec.name, usd_output_name(spec.name, scene, len(run_frames), usd_format), run_frames,
                         measured, previews=previews, validate=validate, pixels=shader is not None,
-                        protected=() if source is None else (source,))
+                        movie=movie_format, protected=() if source is None else (source,))
     plan.check()
     return plan
 
@@ -283,6 +300,7 @@ def _finish_run(spec, rt, plan, measured, left_out, validate, previews, tasks) -
     from pathlib import Path
 
     from .measure import measure_error, render_comparisons, render_previews, write_report, write_usd
+    from .measure.pictures import render_comparison_movie, render_movie
     from .measure.pixels import measure_pixels, pixel_stage, write_pixel_images
 
     out = plan.directory
@@ -301,6 +319,11 @@ def _finish_run(spec, rt, plan, measured, left_out, validate, previews, tasks) -
         error["frames_left_out"] = left_out
     if validate and previews:
         outputs["png"] += wrote(render_comparisons(rt, measurement, out, frames=sorted(plan.comparisons)))
+    if plan.movie is not None:
+        outputs["movie"] = wrote([render_movie(rt, plan.movie)])
+        if plan.comparison_movie is not None:
+            outputs["movie"] += wrote([render_comparison_movie(rt, measurement, plan.comparison_movie,
+                                                               frames=sorted(measurement.references))])
     if pixel_stage(rt) is not None:
         # stages that shade pixels: per-pixel PNG + linear EXR previews, and per-pixel error
         if previews:
@@ -339,6 +362,8 @@ def _print_run(rt, outputs) -> None:
     print(f"  USD     {outputs['usd']}")
     for p in outputs.get("png", []):
         print(f"  {'EXR' if str(p).endswith('.exr') else 'PNG'}     {p}")
+    for p in outputs.get("movie", []):
+        print(f"  movie   {p}")
     print(f"  report  {outputs['report']}  ({outputs['seconds']:.1f} s in all)")
 
 
@@ -346,7 +371,7 @@ def _cmd_run(args) -> int:
     """Run a stage graph: precompute (cached), frame loop, USD + PNG + JSON outputs."""
     graph_file = _find_graph(args.graph)
     rt, outputs = _run_graph(graph_file, args.frames, args.device, args.out, args.validate, not args.no_previews,
-                             usd_format=args.usd_format, scheduler=args.scheduler)
+                             usd_format=args.usd_format, scheduler=args.scheduler, movie=args.movie)
     _print_run(rt, outputs)
     return 0
 
@@ -419,6 +444,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--validate", action="store_true",
                    help="measure the error against ray-traced ground truth on the graph's [validate] frames that are run")
     p.add_argument("--no-previews", action="store_true", help="skip the PNG previews and comparison pictures")
+    p.add_argument("--movie", action="store_true",
+                   help="also write <graph>.mp4 (<graph>.gif without ffmpeg) of every frame run, and with --validate "
+                        "<graph>_vs_reference.mp4: method | reference | error over the validated frames")
     p.add_argument("--usd-format", choices=("auto", "usda", "usdc"), default="auto",
                    help="USD layer format: text (usda), binary (usdc) or auto (binary above 32 MiB of colours)")
     p.add_argument("--scheduler", default=None, metavar="ADDRESS",

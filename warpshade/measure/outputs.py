@@ -2,7 +2,7 @@
 
 Every file a run writes into its output directory is named here (:func:`preview_name`,
 :func:`comparison_name`, :func:`pixel_image_names`, :func:`pixel_comparison_name`,
-:func:`report_name`; the USD layer by :func:`warpshade.io.usd_write.usd_output_name`) and planned
+:func:`movie_name`, :func:`comparison_movie_name`, :func:`report_name`; the USD layer by :func:`warpshade.io.usd_write.usd_output_name`) and planned
 before any work (:func:`plan_outputs`): an :class:`OutputPlan` lists every path, refuses a path
 that holds a file warpshade did not write there itself, and records each file once written in the
 directory's manifest (:data:`MANIFEST_NAME`), so a run never overwrites an input that happens to
@@ -91,6 +91,22 @@ def pixel_comparison_name(graph: str, frame) -> str:
     return f"{graph}_px_{_frame_tag(frame)}_vs_reference.png"
 
 
+def movie_name(graph: str, movie_format: str) -> str:
+    """``<graph>.mp4`` or ``.gif``: the movie of every recorded frame (:func:`~warpshade.measure.pictures.render_movie`)."""
+    return f"{graph}.{_movie_suffix(movie_format)}"
+
+
+def comparison_movie_name(graph: str, movie_format: str) -> str:
+    """``<graph>_vs_reference.mp4`` or ``.gif``: the method | reference | error strips of the measured frames."""
+    return f"{graph}_vs_reference.{_movie_suffix(movie_format)}"
+
+
+def _movie_suffix(movie_format: str) -> str:
+    if movie_format not in ("mp4", "gif"):
+        raise ValueError(f"movie format must be 'mp4' or 'gif', got {movie_format!r}")
+    return movie_format
+
+
 def report_name(graph: str) -> str:
     """``<graph>.json``: the run's report."""
     return f"{graph}.json"
@@ -114,6 +130,8 @@ class OutputPlan:
         usd, report: the USD layer and the JSON report.
         previews, comparisons, pixel_comparisons: time code -> PNG path.
         pixel_images: time code -> (PNG path, EXR path).
+        movie, comparison_movie: the movie of the recorded frames and that of the measured frames'
+            comparison strips (None when not asked for).
         protected: files the run reads (its scene): never written, whatever the manifest says.
     """
 
@@ -124,6 +142,8 @@ class OutputPlan:
     comparisons: dict = field(default_factory=dict)
     pixel_images: dict = field(default_factory=dict)
     pixel_comparisons: dict = field(default_factory=dict)
+    movie: Path | None = None
+    comparison_movie: Path | None = None
     protected: tuple = ()
 
     @property
@@ -136,7 +156,8 @@ class OutputPlan:
         out = [self.usd, *self.previews.values(), *self.comparisons.values()]
         for png, exr in self.pixel_images.values():
             out += [png, exr]
-        return [*out, *self.pixel_comparisons.values(), self.report]
+        movies = [p for p in (self.movie, self.comparison_movie) if p is not None]
+        return [*out, *self.pixel_comparisons.values(), *movies, self.report]
 
     def written(self) -> dict:
         """The manifest's entries (name -> ``{"size", "mtime_ns"}``); empty when it is missing or unreadable."""
@@ -193,7 +214,7 @@ class OutputPlan:
 
 
 def plan_outputs(directory, graph: str, usd_name: str, frames, measured=(), *, previews: bool = True,
-                 validate: bool = False, pixels: bool = False, protected=()) -> OutputPlan:
+                 validate: bool = False, pixels: bool = False, movie: str | None = None, protected=()) -> OutputPlan:
     """The files of a run (see :class:`OutputPlan`), from what is known before any work.
 
     Args:
@@ -204,6 +225,8 @@ def plan_outputs(directory, graph: str, usd_name: str, frames, measured=(), *, p
             comparison pictures of the measured frames.
         validate: the run is measured; pixels: a stage of the run shades pixels (per-pixel images
             with ``previews``, per-pixel comparisons with ``validate``).
+        movie: ``"mp4"`` or ``"gif"`` for a movie of every recorded frame, and with ``validate``
+            one of the measured frames' comparison strips (None: no movies).
         protected: files the run reads (its scene).
     """
     d = Path(directory)
@@ -217,5 +240,7 @@ def plan_outputs(directory, graph: str, usd_name: str, frames, measured=(), *, p
         comparisons={f: d / comparison_name(graph, f) for f in measured} if previews else {},
         pixel_images={f: tuple(d / n for n in pixel_image_names(graph, f)) for f in shown} if previews and pixels else {},
         pixel_comparisons={f: d / pixel_comparison_name(graph, f) for f in measured} if pixels else {},
+        movie=d / movie_name(graph, movie) if movie is not None else None,
+        comparison_movie=d / comparison_movie_name(graph, movie) if movie is not None and measured else None,
         protected=tuple(protected),
     )

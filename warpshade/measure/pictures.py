@@ -117,6 +117,25 @@ def comparison_figure(
     Returns:
         The path written.
     """
+    images, titles, caption = comparison_panels(
+        scene, frame, estimate, reference, label=label, reference_label=reference_label, environment=environment,
+        exposure=exposure, limit=limit, width=width, height=height, supersample=supersample, device=device)
+    return write_panels(path, images, titles, limit, caption)
+
+
+def comparison_panels(scene, frame, estimate, reference, *, label: str = "estimate", reference_label: str = "ray traced",
+                      environment=None, exposure: float | None = None, limit: float = ERROR_LIMIT, width: int = 400,
+                      height: int = 300, supersample: int = 2, device=None, bvh=None):
+    """The three panels of :func:`comparison_figure` (same arguments), not yet composed.
+
+    Args:
+        bvh: a :class:`~warpshade.geometry.bvh.Visibility` of the scene to refit and reuse (frame
+            loops); default one built for the call.
+
+    Returns:
+        (three uint8 sRGB images (height, width, 3): method, reference, error; their three titles;
+        the caption naming the frame).
+    """
     from ..geometry.bvh import Visibility
     from ..render import render
     from .metrics import error_metrics
@@ -130,7 +149,8 @@ def comparison_figure(
         exposure = reference_exposure(ref)
     colors, err = error_colors(est, ref, limit)
     state = scene.evaluate(frame, device=device)
-    bvh = Visibility.from_scene(scene, device=device)
+    if bvh is None:
+        bvh = Visibility.from_scene(scene, device=device)
     common = dict(width=width, height=height, supersample=supersample, device=device, bvh=bvh, state=state)
     images = [
         render(scene, frame, colors=est.astype(np.float32), environment=environment, exposure=exposure, **common).image,
@@ -143,7 +163,7 @@ def comparison_figure(
         f"reference: {reference_label}",
         f"error\nmin {np.nanmin(err):+.2f}, max {np.nanmax(err):+.2f}",
     ]
-    return write_panels(path, images, titles, limit, f"frame {float(frame):g}")
+    return images, titles, f"frame {float(frame):g}"
 
 
 def write_panels(path, images, titles, limit: float = ERROR_LIMIT, caption: str = "") -> Path:
@@ -161,6 +181,32 @@ def write_panels(path, images, titles, limit: float = ERROR_LIMIT, caption: str 
     Returns:
         The path written.
     """
+    import matplotlib.pyplot as plt
+
+    fig = _panels_figure(images, titles, limit, caption)
+    path = Path(path)
+    try:
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, format="png")
+    finally:
+        plt.close(fig)
+    return path
+
+
+def panels_image(images, titles, limit: float = ERROR_LIMIT, caption: str = "") -> np.ndarray:
+    """The picture :func:`write_panels` writes, as an sRGB uint8 array (height, width, 3) (a movie's frame)."""
+    import matplotlib.pyplot as plt
+
+    fig = _panels_figure(images, titles, limit, caption)
+    try:
+        fig.canvas.draw()
+        return np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
+    finally:
+        plt.close(fig)
+
+
+def _panels_figure(images, titles, limit: float, caption: str):
+    """The matplotlib figure of :func:`write_panels` (the caller closes it)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -191,13 +237,7 @@ def write_panels(path, images, titles, limit: float = ERROR_LIMIT, caption: str 
     cbar.set_label(ERROR_LABEL, fontsize=7)
     if caption:
         fig.text(0.5 * 3 * width / 100 / fig_w, 0.04, caption, fontsize=9, ha="center")
-    path = Path(path)
-    try:
-        with atomic_path(path) as tmp:
-            fig.savefig(tmp, format="png")
-    finally:
-        plt.close(fig)
-    return path
+    return fig
 
 
 def run_exposure(runtime) -> float:
@@ -276,3 +316,155 @@ def render_comparisons(runtime, measurement, out_dir, frames=None, width: int = 
                                        label=runtime.spec.name, environment=_environment_at(runtime, f),
                                        exposure=exposure, width=width, height=height, device=runtime.device))
     return paths
+
+
+# ---- movies -----------------------------------------------------------------------------------------
+def movie_format() -> str:
+    """The format of a run's movies: ``"mp4"`` (H.264) when imageio's ffmpeg plugin finds an ffmpeg
+    binary (``imageio-ffmpeg`` carries one), else ``"gif"``.
+
+    Raises:
+        ImportError: when imageio is not installed, saying what to install.
+    """
+    try:
+        import imageio  # noqa: F401
+    except ImportError:
+        raise ImportError("movies need imageio: pip install imageio imageio-ffmpeg") from None
+    try:
+        import imageio_ffmpeg
+
+        imageio_ffmpeg.get_ffmpeg_exe()
+    except (ImportError, RuntimeError):
+        return "gif"
+    return "mp4"
+
+
+def write_movie(path, frames, fps: float) -> Path:
+    """Write sRGB frames as a movie, atomically (its directory is created).
+
+    Args:
+        path: destination; its suffix picks the format (``.mp4``: H.264 through imageio-ffmpeg;
+            ``.gif``: looping GIF through Pillow).
+        frames: an iterable of uint8 sRGB images (H, W, 3), all of one size; each is written as
+            it comes (a long run is never held in memory). Odd sizes are padded by one edge pixel
+            (H.264 in yuv420p needs even sizes).
+        fps: frames per second (> 0).
+
+    Returns:
+        The path written.
+
+    Raises:
+        ValueError: no frames, frames of different sizes or not uint8 (H, W, 3), or ``fps`` <= 0.
+    """
+    import imageio.v2 as imageio
+
+    path = Path(path)
+    if not fps > 0:
+        raise ValueError(f"write_movie: fps must be > 0, got {fps!r} ({path.name})")
+    suffix = path.suffix.lower()
+    if suffix not in (".mp4", ".gif"):
+        raise ValueError(f"write_movie: {path.name}: the suffix must be .mp4 or .gif")
+    count, shape = 0, None
+    with atomic_path(path) as tmp:
+        if suffix == ".mp4":
+            writer = imageio.get_writer(tmp, format="FFMPEG", mode="I", fps=float(fps), codec="libx264",
+                                        pixelformat="yuv420p", macro_block_size=1, quality=8)
+        else:
+            writer = imageio.get_writer(tmp, format="GIF", mode="I", duration=1000.0 / float(fps), loop=0)
+        with writer:
+            for image in frames:
+                image = np.asarray(image)
+                if image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] != 3:
+                    raise ValueError(f"write_movie: {path.name}: frame {count} is {image.dtype} {image.shape}, "
+                                     "expected uint8 (H, W, 3)")
+                if shape is None:
+                    shape = image.shape
+                elif image.shape != shape:
+                    raise ValueError(f"write_movie: {path.name}: frame {count} is {image.shape}, frame 0 {shape}")
+                pad = ((0, image.shape[0] % 2), (0, image.shape[1] % 2), (0, 0))
+                writer.append_data(np.pad(image, pad, mode="edge") if any(p[1] for p in pad[:2]) else image)
+                count += 1
+            if count == 0:
+                raise ValueError(f"write_movie: {path.name}: no frames")
+    return path
+
+
+def _fps(runtime) -> float:
+    fps = float(getattr(runtime.scene, "fps", 0.0) or 0.0)
+    return fps if np.isfinite(fps) and fps > 0 else 24.0
+
+
+def render_movie(runtime, path, frames=None, width: int = 480, height: int = 360, exposure: float | None = None,
+                 supersample: int = 1) -> Path:
+    """Write a movie (:func:`write_movie`) of recorded frames at the scene's frame rate (24 when it has none).
+
+    Each frame is rendered as the previews are (:func:`render_previews`: the same camera, sky and
+    the run's one exposure, :func:`run_exposure`), so the movie and the pictures compare.
+
+    Args:
+        runtime: the run; path: ``.mp4`` or ``.gif`` (see :func:`movie_format`).
+        frames: time codes (default every recorded frame, in order).
+        width, height, supersample: resolution and rays per pixel per axis.
+        exposure: stops (default :func:`run_exposure`).
+
+    Raises:
+        ValueError: when the run recorded no frames or a frame was not recorded.
+    """
+    from ..geometry.bvh import Visibility
+    from ..render import render
+
+    frames = sorted(runtime.results) if frames is None else [float(f) for f in frames]
+    missing = [f for f in frames if f not in runtime.results]
+    if not frames or missing:
+        raise ValueError(f"render_movie: frame(s) {missing or frames} were not recorded "
+                         f"(recorded: {len(runtime.results)} frames)")
+    if exposure is None:
+        exposure = run_exposure(runtime)
+    bvh = Visibility.from_scene(runtime.scene, device=runtime.device)
+
+    def images():
+        for f in frames:
+            yield render(runtime.scene, f, colors=runtime.results[f], width=width, height=height,
+                         environment=_environment_at(runtime, f), exposure=exposure, device=runtime.device,
+                         supersample=supersample, bvh=bvh).image
+
+    return write_movie(path, images(), _fps(runtime))
+
+
+def render_comparison_movie(runtime, measurement, path, frames=None, width: int = 400, height: int = 300,
+                            exposure: float | None = None) -> Path:
+    """Write a movie of the method | reference | error strips (:func:`comparison_figure`) of measured frames.
+
+    It plays the measured frames at the scene's pace: the scene's frame rate over the median step
+    between them (validated frames 0 and 24 of a 24 fps scene: one a second), at least 1 fps.
+
+    Args:
+        runtime: the run; measurement: its :class:`~warpshade.measure.truth.Measurement`.
+        path: ``.mp4`` or ``.gif``; frames: default every frame the measurement has.
+        exposure: stops, the same for every frame (default :func:`run_exposure`).
+
+    Raises:
+        ValueError: no frame, or a frame the measurement does not have.
+    """
+    from ..geometry.bvh import Visibility
+
+    frames = sorted(measurement.references) if frames is None else [float(f) for f in frames]
+    missing = [f for f in frames if f not in measurement.references]
+    if not frames or missing:
+        raise ValueError(f"render_comparison_movie: frame(s) {missing or frames} were not measured (measured: "
+                         f"{sorted(measurement.references)})")
+    if exposure is None:
+        exposure = run_exposure(runtime) if runtime.results else reference_exposure(measurement.references[frames[0]])
+    bvh = Visibility.from_scene(runtime.scene, device=runtime.device)
+
+    def strips():
+        for f in frames:
+            images, titles, caption = comparison_panels(
+                runtime.scene, f, measurement.estimates[f], measurement.references[f], label=runtime.spec.name,
+                environment=_environment_at(runtime, f), exposure=exposure, width=width, height=height,
+                device=runtime.device, bvh=bvh)
+            yield panels_image(images, titles, ERROR_LIMIT, caption)
+
+    gaps = np.diff(frames)
+    fps = _fps(runtime) / max(float(np.median(gaps)), 1.0) if len(frames) > 1 else 1.0
+    return write_movie(path, strips(), max(fps, 1.0))
