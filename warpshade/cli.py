@@ -180,11 +180,13 @@ class CliError(Exception):
 
 
 def _run_graph(graph_file, frames=None, device=None, out_dir=None, validate=False, previews=True, progress=True,
-               usd_format="auto", scheduler=None, movie=False):
+               usd_format="auto", scheduler=None, movie=False, validate_samples=None):
     """Run one stage graph end to end; returns (runtime, outputs dict).
 
     With ``movie``, a movie of every frame run is written too (MP4, or GIF without ffmpeg), and
     with ``validate`` one of the measured frames' method | reference | error strips.
+    ``validate_samples`` replaces the graph's ``[validate] samples`` (ground-truth rays per vertex
+    and per pixel).
 
     Everything is checked before any work: the graph file, the output directory (writable, not
     a file), the scene, ``--frames``, the ``[validate]`` frames measured (those the run steps),
@@ -201,6 +203,9 @@ def _run_graph(graph_file, frames=None, device=None, out_dir=None, validate=Fals
     from ._fileio import check_writable_dir
     from .graph import GraphError, load
 
+    if validate_samples is not None and not validate:
+        raise CliError("--validate-samples without --validate: it sets the ground truth's rays, which only "
+                       "--validate computes")
     if movie and not previews:
         raise CliError("--movie and --no-previews: a movie is made of the pictures --no-previews skips; "
                        "drop one of the two")
@@ -231,7 +236,7 @@ def _run_graph(graph_file, frames=None, device=None, out_dir=None, validate=Fals
     try:
         rt = spec.compile(scene, device=device, progress=progress, scheduler=scheduler)
         rt.run(run_frames)
-        outputs = _finish_run(spec, rt, plan, measured, left_out, validate, previews, tasks)
+        outputs = _finish_run(spec, rt, plan, measured, left_out, validate, previews, tasks, validate_samples)
     finally:
         if tasks is not None:
             tasks.close()
@@ -293,7 +298,7 @@ def _check_cache() -> None:
         raise CliError(f"{_message(exc)}; set $WARPSHADE_CACHE to a writable directory") from None
 
 
-def _finish_run(spec, rt, plan, measured, left_out, validate, previews, tasks) -> dict:
+def _finish_run(spec, rt, plan, measured, left_out, validate, previews, tasks, validate_samples=None) -> dict:
     """The measuring layer's part of a run: USD layer, previews, error, comparisons, report, each
     written where ``plan`` (:class:`~warpshade.measure.outputs.OutputPlan`) says and recorded in
     the output directory's manifest once written."""
@@ -313,7 +318,8 @@ def _finish_run(spec, rt, plan, measured, left_out, validate, previews, tasks) -
     outputs["usd"] = wrote([write_usd(rt, plan.usd)])[0]
     if previews:
         outputs["png"] += wrote(render_previews(rt, out, frames=sorted(plan.previews)))
-    measurement = measure_error(rt, measured, executor=tasks) if validate else None
+    samples = int(spec.validate_spec.get("samples", 1024) if validate_samples is None else validate_samples)
+    measurement = measure_error(rt, measured, samples=samples, executor=tasks) if validate else None
     error = measurement.error if measurement is not None else None
     if error is not None and left_out:
         error["frames_left_out"] = left_out
@@ -329,8 +335,8 @@ def _finish_run(spec, rt, plan, measured, left_out, validate, previews, tasks) -
         if previews:
             outputs["png"] += wrote(write_pixel_images(rt, out, frames=sorted(plan.pixel_images), width=480, height=360))
         if validate and measured:
-            samples = int(spec.validate_spec.get("samples", 256))
-            pixels = measure_pixels(rt, out, sorted(plan.pixel_comparisons), width=160, height=120, samples=samples)
+            px_samples = int(spec.validate_spec.get("samples", 256) if validate_samples is None else validate_samples)
+            pixels = measure_pixels(rt, out, sorted(plan.pixel_comparisons), width=160, height=120, samples=px_samples)
             if error is not None:
                 error["pixels"] = pixels
             outputs["png"] += wrote([Path(v["image"]) for v in pixels["frames"].values()])
@@ -371,7 +377,8 @@ def _cmd_run(args) -> int:
     """Run a stage graph: precompute (cached), frame loop, USD + PNG + JSON outputs."""
     graph_file = _find_graph(args.graph)
     rt, outputs = _run_graph(graph_file, args.frames, args.device, args.out, args.validate, not args.no_previews,
-                             usd_format=args.usd_format, scheduler=args.scheduler, movie=args.movie)
+                             usd_format=args.usd_format, scheduler=args.scheduler, movie=args.movie,
+                             validate_samples=args.validate_samples)
     _print_run(rt, outputs)
     return 0
 
@@ -397,6 +404,16 @@ def _order(text: str) -> int:
         raise argparse.ArgumentTypeError(f"must be an integer, got {text!r}") from None
     if not 1 <= value <= MAX_KERNEL_ORDER:
         raise argparse.ArgumentTypeError(f"must be in 1..{MAX_KERNEL_ORDER}, got {value}")
+    return value
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
     return value
 
 
@@ -443,6 +460,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default=None, help="output directory (default: warpshade-out/<graph name>)")
     p.add_argument("--validate", action="store_true",
                    help="measure the error against ray-traced ground truth on the graph's [validate] frames that are run")
+    p.add_argument("--validate-samples", type=_positive_int, default=None, metavar="N",
+                   help="ground-truth rays per vertex (and per pixel) of --validate (default: the graph's "
+                        "[validate] samples, else 1024); fewer for a quick, noisier check")
     p.add_argument("--no-previews", action="store_true", help="skip the PNG previews and comparison pictures")
     p.add_argument("--movie", action="store_true",
                    help="also write <graph>.mp4 (<graph>.gif without ffmpeg) of every frame run, and with --validate "

@@ -1,0 +1,157 @@
+"""The README matches the code (issue 26, item 5): every ```python block runs as is and every
+command of its ```bash blocks is run, or checked for shape where running it is not possible here.
+
+Python blocks run as they are, each in a fresh interpreter in a temporary folder that holds the
+checkout's ``stages/`` (the README's commands run from the checkout's root), with a private
+``$WARPSHADE_CACHE``. Commands run in-process (``warpshade.cli.main``) from such a folder, with
+quick settings given only through documented flags (:data:`QUICK`): ``--frames`` narrowed to one
+validated frame and ``--validate-samples`` lowered. What cannot run here is checked for shape,
+each with its reason (:func:`plan`): installing packages, the test suite itself, starting or
+reaching a Dask cluster, and graphs whose precompute takes minutes (those run up to the start of
+their work: graph, scene, frames, outputs and cache checked, then stopped).
+"""
+
+import os
+import re
+import shlex
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import pytest
+
+from warpshade import cli
+from warpshade.graph import GraphSpec
+
+ROOT = Path(__file__).resolve().parents[1]
+README = ROOT / "README.md"
+
+#: Ground-truth rays of a quick --validate (noisy, but every step of measuring runs).
+QUICK_SAMPLES = "16"
+#: Graphs whose precompute takes minutes on a CPU (SSDF bakes, a sky's prefiltered table, glossy
+#: ZH fits, training data over hundreds of poses): run up to the start of their work only.
+LONG_PRECOMPUTE = {
+    "sunlit_sg": "SSDF bake ~10 min and the sky's prefiltered table 4-6 min",
+    "sunlit_sg_lights": "SSDF bake ~10 min and the sky's prefiltered table 4-6 min",
+    "sunlit_ldprt_glossy": "glossy ZH fits of 4,294 vertices, ~40 s",
+    "figure_datadriven": "training data over 600 poses, ~100 s",
+    "wanderer_datadriven": "training data over 500 poses, ~8 min",
+}
+
+
+def fenced_blocks(language: str) -> list[str]:
+    """The bodies of the README's fenced blocks of one language, in order."""
+    return re.findall(rf"^```{language}\n(.*?)^```", README.read_text(), flags=re.M | re.S)
+
+
+def commands() -> list[str]:
+    """Every command of the ```bash blocks: comments dropped, ``&&`` chains split."""
+    out = []
+    for block in fenced_blocks("bash"):
+        for line in block.replace("\\\n", " ").splitlines():
+            words = shlex.split(line, comments=True)
+            while words:
+                cut = words.index("&&") if "&&" in words else len(words)
+                out.append(shlex.join(words[:cut]))
+                words = words[cut + 1:]
+    return out
+
+
+class _WorkStarted(BaseException):
+    """Raised where a shape-only run would start its work (not an Exception: the CLI lets it through)."""
+
+
+def plan(command: str) -> tuple[str, list[str], str]:
+    """How a README command is tested: ``("run", argv, "")`` runs ``warpshade argv`` (quick
+    settings added), ``("shape", argv, reason)`` runs it up to the start of its work,
+    ``("parse", argv, reason)`` parses its flags, ``("check", words, reason)`` checks it otherwise."""
+    words = shlex.split(command)
+    env = [w for w in words if re.match(r"^[A-Z_]+=", w)]
+    words = words[len(env):]
+    if words[:2] == ["pip", "install"]:
+        return "check", words, "installs packages"
+    if words[:3] == ["python", "-m", "pytest"]:
+        return "check", words, "the test suite this test is part of"
+    if words[:1] == ["dask"]:
+        return "check", words, "starts a Dask cluster"
+    assert words[0] == "warpshade", f"README command {command!r}: no test knows how to check it"
+    argv = words[1:]
+    if "HOST" in command:
+        return "parse", argv, "needs a Dask cluster at tcp://HOST:8786"
+    if argv[0] != "run":
+        return "run", argv, ""
+    graph = Path(argv[1]).stem
+    if graph in LONG_PRECOMPUTE:
+        return "shape", argv, LONG_PRECOMPUTE[graph]
+    return "run", quick(argv), ""
+
+
+def quick(argv: list[str]) -> list[str]:
+    """``warpshade run`` flags made quick with documented flags: one frame (the first validated
+    one, so --validate still measures) and few ground-truth rays."""
+    spec = tomllib.loads((ROOT / argv[1]).read_text())
+    frame = int(spec.get("validate", {}).get("frames", [0])[0])
+    out = list(argv)
+    if "--frames" in out:
+        i = out.index("--frames")
+        del out[i:i + 2]
+    out += ["--frames", f"{frame}:{frame + 1}"]
+    if "--validate" in out:
+        out += ["--validate-samples", QUICK_SAMPLES]
+    return out
+
+
+@pytest.fixture
+def readme_dir(tmp_path, monkeypatch):
+    """A temporary working folder holding the checkout's stages/, with a private artifact cache."""
+    (tmp_path / "work").mkdir()
+    (tmp_path / "work" / "stages").symlink_to(ROOT / "stages")
+    monkeypatch.setenv("WARPSHADE_CACHE", str(tmp_path / "cache"))
+    monkeypatch.delenv("WARPSHADE_SCHEDULER", raising=False)
+    monkeypatch.chdir(tmp_path / "work")
+    return tmp_path / "work"
+
+
+def test_the_readme_has_blocks_and_commands():
+    assert len(fenced_blocks("python")) >= 2 and len(commands()) >= 10
+
+
+@pytest.mark.parametrize("index", range(len(fenced_blocks("python"))))
+def test_python_block_runs_as_is(index, readme_dir):
+    block = fenced_blocks("python")[index]
+    script = readme_dir / f"readme_block_{index}.py"
+    script.write_text(block)
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
+    done = subprocess.run([sys.executable, script.name], cwd=readme_dir, env=env, capture_output=True, text=True,
+                          timeout=300)
+    assert done.returncode == 0, f"README python block {index}:\n{block}\n{done.stderr[-3000:]}"
+
+
+@pytest.mark.parametrize("command", commands())
+def test_command(command, readme_dir, monkeypatch, capsys):
+    how, argv, reason = plan(command)
+    if how == "check":
+        if argv[:2] == ["pip", "install"]:
+            extras = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["optional-dependencies"]
+            target = argv[-1]
+            assert argv[2:4] == ["-e", target] and re.fullmatch(r"\.(\[[a-z,]+\])?", target), command
+            for extra in re.findall(r"[a-z]+", target):
+                assert extra in extras, f"{command}: pyproject.toml has no extra {extra!r}"
+        elif argv[0] == "dask":
+            assert argv[1] in ("scheduler", "worker"), command
+        pytest.skip(f"checked for shape only: {reason}")
+    if how == "parse":
+        args = cli.build_parser().parse_args(argv)
+        assert (ROOT / args.graph).exists(), command
+        pytest.skip(f"flags parsed only: {reason}")
+    if how == "shape":
+        def reached(*args, **kwargs):
+            raise _WorkStarted
+
+        monkeypatch.setattr(GraphSpec, "compile", reached)
+        with pytest.raises(_WorkStarted):
+            cli.main(argv)
+        pytest.skip(f"run up to the start of its work only: {reason}")
+    rc = cli.main(argv)
+    assert rc == 0, f"warpshade {shlex.join(argv)}:\n{capsys.readouterr().err}"
