@@ -128,7 +128,7 @@ def test_python_block_runs_as_is(index, readme_dir):
     assert done.returncode == 0, f"README python block {index}:\n{block}\n{done.stderr[-3000:]}"
 
 
-@pytest.mark.parametrize("command", commands())
+@pytest.mark.parametrize("command", commands(), ids=[c.replace(" ", "_") for c in commands()])
 def test_command(command, readme_dir, monkeypatch, capsys):
     how, argv, reason = plan(command)
     if how == "check":
