@@ -74,7 +74,7 @@ class Runtime(RunChanges):
             lights, fixed).
         scheduler: where precompute stages run their independent tasks (training frames):
             None = ``$WARPSHADE_SCHEDULER`` or local worker processes; ``"serial"``,
-            ``"local:N"`` or a Dask scheduler address (:func:`warpshade._tasks.executor`).
+            ``"local:N"`` or a Dask scheduler address (:func:`warpshade.tasks.executor`).
 
     Attributes:
         state: the :class:`~warpshade.scene.state.FrameState` every frame is evaluated into.
@@ -207,7 +207,7 @@ class Runtime(RunChanges):
         With ``warmup`` the first frame is stepped twice before timing starts (kernels compile,
         then the frame is recorded), so neither counts as frame time. Returns the frames run.
         """
-        from .._tasks import progress_bar
+        from ..tasks import progress_bar
 
         sel = parse_frames(frames if frames is not None else self.spec.frames, self.scene)
         if warmup:
