@@ -304,6 +304,8 @@ class FrameEvaluator:
         self.input = HostFields(("frame_index", "sh_override", "eye_from_host", *self._live_fields.values()), dev)
         #: mesh index -> staging buffer of fed points (allocated when a mesh is first fed)
         self._live_points: dict[int, Any] = {}
+        #: (kind, index) -> (device staging array, its host side, a NumPy view of the host side)
+        self._live_staging: dict[tuple, tuple] = {}
         #: bumped whenever a staging buffer is allocated: a recorded frame older than it must be
         #: recorded again (it does not read the new buffer)
         self.live_version = 0
@@ -494,20 +496,26 @@ class FrameEvaluator:
         return value
 
     def _stage_live(self, kind: str, index: int, value) -> None:
-        """Copy checked fed values into their staging buffer (allocated on the first feed)."""
-        if kind == "points":
-            staging = self._live_points.get(index)
-            if staging is None:
+        """Copy checked fed values into their staging buffer: device arrays device to device,
+        host arrays through the buffer's host side (the buffer itself on the CPU, a pinned
+        host twin uploaded asynchronously on CUDA)."""
+        if (kind, index) not in self._live_staging:
+            if kind == "points":
                 staging = wp.zeros(self.scene.meshes[index].vertex_count, dtype=wp.vec3, device=self.device)
                 self._live_points[index] = staging
-                self.live_version += 1
-        else:
-            lo = self.state.joint_offsets[index]
-            staging = self._live_joints[lo : lo + self.scene.skeletons[index].joint_count]
+                self.live_version += 1  # a recording made before does not read it
+            else:
+                lo = self.state.joint_offsets[index]
+                staging = self._live_joints[lo : lo + self.scene.skeletons[index].joint_count]
+            host = staging if self.device.is_cpu else wp.empty_like(staging, device="cpu", pinned=True)
+            self._live_staging[kind, index] = (staging, host, host.numpy())
+        staging, host, host_view = self._live_staging[kind, index]
         if isinstance(value, wp.array):
             wp.copy(staging, value)
-        else:
-            wp.copy(staging, wp.array(value, dtype=staging.dtype, device="cpu"))
+            return
+        host_view.reshape(value.shape)[...] = value
+        if host is not staging:
+            wp.copy(staging, host)
 
     def set_eye(self, position) -> None:
         """Move the viewer (3,), world (a direct write; notify :data:`Change.VIEW`)."""
