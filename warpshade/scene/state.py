@@ -63,7 +63,8 @@ def _checked_host(where: str, value, shape: tuple) -> np.ndarray:
         raise ValueError(f"{where}: expected floating-point numbers, got dtype {a.dtype}")
     if a.shape != shape:
         raise ValueError(f"{where}: expected shape {shape}, got {a.shape} (topology never changes)")
-    a = np.ascontiguousarray(a, np.float32)
+    with np.errstate(over="ignore"):  # values past float32's range become infinite: refused below
+        a = np.ascontiguousarray(a, np.float32)
     bad = int(np.count_nonzero(~np.isfinite(a)))
     if bad:
         raise ValueError(f"{where}: {bad} value(s) are NaN or infinite (in float32)")
