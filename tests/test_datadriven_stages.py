@@ -80,7 +80,7 @@ def test_recorded_frame_replays_the_unrecorded_one(device, bend, tmp_path):
 def test_process_workers_give_the_serial_training_data(bend):
     frames = np.array([1, 9, 17, 25, 33])
     serial = trace_training(bend, frames, 2, 32, seed=3, executor=_serial())
-    from warpshade._tasks import executor
+    from warpshade.tasks import executor
 
     with executor("local:2") as ex:
         local = trace_training(bend, frames, 2, 32, seed=3, executor=ex)
@@ -90,7 +90,7 @@ def test_process_workers_give_the_serial_training_data(bend):
 
 
 def _serial():
-    from warpshade._tasks import SerialExecutor
+    from warpshade.tasks import SerialExecutor
 
     return SerialExecutor()
 

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from warpshade import cli
-from warpshade._tasks import progress_bar
+from warpshade.tasks import progress_bar
 from warpshade.graph import default_cache_dir, load
 from warpshade.measure import Measurement, render_comparisons, run_exposure
 from warpshade.measure.pictures import ERROR_LABEL, write_panels

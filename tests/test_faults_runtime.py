@@ -14,7 +14,7 @@ from grids import ground_grid
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from warpshade._tasks import executor
+from warpshade.tasks import executor
 from warpshade.graph import GraphError, GraphSpec, StageError, StageSpec
 from warpshade.scene import Environment, LightingSource, Mesh, Scene, SphereLight
 from warpshade.scene import materials as M

@@ -22,8 +22,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from warpshade import _tasks
-from warpshade._tasks import CONNECT_TIMEOUT_ENV, DaskExecutor, SerialExecutor, TaskError, executor
+from warpshade import tasks as task_module
+from warpshade.tasks import CONNECT_TIMEOUT_ENV, DaskExecutor, SerialExecutor, TaskError, executor
 from warpshade.graph import ArtifactCache, GraphSpec, StageSpec
 from warpshade.io import load_scene
 from warpshade.measure import ground_truth
@@ -102,13 +102,13 @@ def test_the_connect_timeout_comes_from_the_environment(silent_server, monkeypat
 def test_a_bad_connect_timeout_is_named(monkeypatch, value):
     monkeypatch.setenv(CONNECT_TIMEOUT_ENV, value)
     with pytest.raises(ValueError, match=rf"\${CONNECT_TIMEOUT_ENV} must be a positive number.*{value!r}"):
-        _tasks.connect_timeout()
+        task_module.connect_timeout()
 
 
 # ---- family 2: local workers die with their run ----------------------------------------------
 RUN_LONG_TASKS = """
 import sys
-from warpshade._tasks import ProcessExecutor
+from warpshade.tasks import ProcessExecutor
 import task_helpers
 
 if __name__ == "__main__":

@@ -1,4 +1,4 @@
-"""The executor interface (warpshade._tasks): serial, local worker processes and a Dask
+"""The executor interface (warpshade.tasks): serial, local worker processes and a Dask
 LocalCluster give the serial loop's results, survive a worker killed mid-run, and report failing
 tasks and bad schedulers."""
 
@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 import task_helpers as th
 
-from warpshade import _tasks
-from warpshade._tasks import DaskExecutor, ProcessExecutor, SerialExecutor, TaskError, executor
+from warpshade import tasks as task_module
+from warpshade.tasks import DaskExecutor, ProcessExecutor, SerialExecutor, TaskError, executor
 
 distributed = pytest.importorskip("distributed")
 
@@ -175,7 +175,7 @@ def test_contradicting_worker_counts():
 
 def test_an_unreachable_scheduler_is_named(monkeypatch):
     address = f"tcp://127.0.0.1:{_free_port()}"
-    monkeypatch.setattr(_tasks, "CONNECT_TIMEOUT", 1.0)
+    monkeypatch.setattr(task_module, "CONNECT_TIMEOUT", 1.0)
     with pytest.raises(ValueError, match=f"cannot connect to the Dask scheduler '{address}'"):
         executor(address)
     monkeypatch.setenv("WARPSHADE_SCHEDULER", address)

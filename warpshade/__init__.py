@@ -4,9 +4,9 @@ The package is layered; a module imports only modules of its own layer or of lay
 left, at module level and inside functions alike (``tests/test_layers.py`` checks it, and that
 there is no import cycle)::
 
-    _wp, _fileio, _hashing, _limits, _tasks -> basis -> geometry -> scene -> io -> render -> transfer -> methods -> reference -> graph -> measure -> cli, usd_assets
+    _wp, _fileio, _hashing, _limits, tasks -> basis -> geometry -> scene -> io -> render -> transfer -> methods -> reference -> graph -> measure -> cli, usd_assets
 
-* ``_wp``, ``_fileio``, ``_hashing``, ``_limits``, ``_tasks``: Warp set-up and launch helpers,
+* ``_wp``, ``_fileio``, ``_hashing``, ``_limits``, ``tasks``: Warp set-up and launch helpers,
   atomic files, content hashes, the sizes refused before allocating, the executor that runs
   precompute tasks serially, in local worker processes or on a Dask cluster;
 * ``basis``: spherical functions (SH, ZH, quadrature), no scene objects;

@@ -230,6 +230,10 @@ class HostFields:
         """The device array kernels read, int32 (len(names),) (fixed address)."""
         return self._input.array
 
+    def slot(self, name: str) -> int:
+        """The element of :attr:`array` that holds field ``name`` (what a kernel indexes)."""
+        return self._slot[name]
+
     def __getitem__(self, name: str) -> int:
         """The value the host last wrote to field ``name``."""
         return int(self._input.host[self._slot[name]])

@@ -199,7 +199,7 @@ def _run_graph(graph_file, frames=None, device=None, out_dir=None, validate=Fals
     import time
     from pathlib import Path
 
-    from . import _tasks
+    from .tasks import SCHEDULER_ENV, executor
     from ._fileio import check_writable_dir
     from .graph import GraphError, load
 
@@ -230,7 +230,7 @@ def _run_graph(graph_file, frames=None, device=None, out_dir=None, validate=Fals
     _check_cache()
     # ground-truth frames go to the executor only when one is asked for (flag or environment)
     try:
-        tasks = _tasks.executor(scheduler) if scheduler is not None or os.environ.get(_tasks.SCHEDULER_ENV) else None
+        tasks = executor(scheduler) if scheduler is not None or os.environ.get(SCHEDULER_ENV) else None
     except ValueError as exc:
         raise CliError(f"--scheduler: {exc}") from None
     try:

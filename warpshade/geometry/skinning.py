@@ -125,6 +125,8 @@ def skeleton_pose_kernel(
     skel_to_world: wp.array(dtype=wp.mat44),
     world_start: wp.array(dtype=wp.int32),
     world_frames: wp.array(dtype=wp.int32),
+    live_slot: wp.array(dtype=wp.int32),
+    live_local: wp.array(dtype=wp.mat44),
     joint_transforms: wp.array(dtype=wp.mat44),
     skin_matrices: wp.array(dtype=wp.mat44),
 ):
@@ -134,7 +136,10 @@ def skeleton_pose_kernel(
     Skeleton ``s`` owns joints ``joint_start[s] .. joint_start[s + 1]`` (parents first, as USD
     requires); its joint-local transforms are ``local_frames[s]`` frames of that many joints
     from ``local_start[s]`` (frame-major), its skeleton-to-world ``world_frames[s]`` matrices
-    from ``world_start[s]``; a frame past the last sample holds the last one. Writes the
+    from ``world_start[s]``; a frame past the last sample holds the last one. When
+    ``frame[live_slot[s]]`` is non-zero (``live_slot[s] >= 0``) the skeleton's joint-local
+    transforms are read from ``live_local`` instead (joints ``joint_start[s] ..``, USD's
+    row-vector matrices as fed from Python, transposed here). Writes the
     skeleton-space joint transforms ``X_j = X_parent L_j`` and the skinning matrices
     ``skel_to_world X_j inverse(bind_j)``.
     """
@@ -144,8 +149,13 @@ def skeleton_pose_kernel(
     count = joint_start[s + 1] - j0
     lt = wp.min(t, local_frames[s] - 1)
     world = skel_to_world[world_start[s] + wp.min(t, world_frames[s] - 1)]
+    live = False
+    if live_slot[s] >= 0:
+        live = frame[live_slot[s]] != 0
     for j in range(count):
         x = local[local_start[s] + lt * count + j]
+        if live:
+            x = wp.transpose(live_local[j0 + j])
         p = parents[j0 + j]
         if p >= 0:
             x = joint_transforms[j0 + p] * x

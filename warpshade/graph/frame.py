@@ -8,7 +8,8 @@ evaluation (:class:`~warpshade.scene.state.FrameEvaluator`) followed by every fr
 (:func:`warpshade._wp.record_program`: a Warp graph capture, on CUDA and on the CPU) and every
 later one replays the recording. What cannot be recorded (chunked multi-core CPU launches, a
 stage that says so, point samples too large for the device) runs as Python calls between
-recorded segments. A new set-up drops the recording; the next frame records anew.
+recorded segments. A new set-up drops the recording, as does a first live input of a mesh
+(its staging buffer is new); the next frame records anew.
 """
 
 from __future__ import annotations
@@ -71,6 +72,7 @@ class FrameGraph:
         self.output = None
         self.program = None
         self._warm = False
+        self._recorded_live = evaluator.live_version
         self.setup(0)
 
     def _scene_input(self, port: str):
@@ -130,10 +132,14 @@ class FrameGraph:
     def run(self) -> None:
         """Run the frame the evaluator's host inputs name: replay the recording; record it on the
         second frame after a set-up; run it directly before (kernels compile) or without capture.
-        Returns once the device is done."""
+        A recording made before the evaluator allocated a staging buffer for live inputs does
+        not read it: it is recorded anew. Returns once the device is done."""
+        if self.program is not None and self._recorded_live != self.evaluator.live_version:
+            self.program = None
         if self.program is not None:
             self.program.replay()
         elif self.capture and self._warm:
+            self._recorded_live = self.evaluator.live_version
             self.program = record_program(self.launch, self.ctx.device)
             self.program.replay()
         else:

@@ -21,6 +21,7 @@ pictures and reports are the measuring layer's (:mod:`warpshade.measure`).
 
 from __future__ import annotations
 
+import threading
 import time
 
 import numpy as np
@@ -74,7 +75,7 @@ class Runtime(RunChanges):
             lights, fixed).
         scheduler: where precompute stages run their independent tasks (training frames):
             None = ``$WARPSHADE_SCHEDULER`` or local worker processes; ``"serial"``,
-            ``"local:N"`` or a Dask scheduler address (:func:`warpshade._tasks.executor`).
+            ``"local:N"`` or a Dask scheduler address (:func:`warpshade.tasks.executor`).
 
     Attributes:
         state: the :class:`~warpshade.scene.state.FrameState` every frame is evaluated into.
@@ -106,6 +107,7 @@ class Runtime(RunChanges):
         self.results: dict = {}
         self._fingerprint = None
         self._override_on = False
+        self._stepping = threading.Lock()
         self.track = MaterialTrack(getattr(spec, "materials", None), scene)
         self._track_key = None
         self._check_material_track()
@@ -142,11 +144,21 @@ class Runtime(RunChanges):
         return self.frame.program
 
     # ---- stepping -----------------------------------------------------------------------
-    def step(self, frame, lighting=None, record: bool = False):
+    def step(self, frame, lighting=None, record: bool = False, points=None, joints=None):
         """Shade one frame.
 
         Args:
             frame: a time code of the scene (a number; ValueError names the valid range).
+            points: live geometry for this frame, {mesh prim path: world-space points (V, 3)}
+                of deforming or skinned meshes, NumPy or a wp.array on the run's device (copied
+                device to device): they replace the time samples and flow through the recorded
+                frame (normals, BVH refit, every stage). The first feed of a mesh records the
+                frame anew; later ones copy into its staging buffer and replay.
+            joints: live poses, {skeleton prim path: joint-local transforms (J, 4, 4)} in USD's
+                row-vector convention (as UsdSkel animation gives them), NumPy or a wp.array
+                on the run's device; skinning follows. A step without ``points`` / ``joints``
+                uses the time samples again
+                (:meth:`FrameEvaluator.set_frame <warpshade.scene.state.FrameEvaluator.set_frame>`).
             lighting: optional override of the SH lighting for this frame: world-frame SH
                 coefficients (3, n*n) of at least the graph's highest order, an Environment, a
                 DistantLight or a list of them (projected to SH on the host).
@@ -161,21 +173,31 @@ class Runtime(RunChanges):
         Raises:
             GraphError: with ``record``, a frame whose output is not finite, naming the frame
                 and the first stage that produced non-finite values (nothing is recorded).
+            ValueError: a bad frame, or live inputs naming no deforming or skinned mesh /
+                skeleton, of the wrong shape, dtype or device, or not finite (the prim is
+                named); nothing is written, the next step is as if this one had not been made.
+            RuntimeError: another thread is stepping this runtime (its frame is not disturbed).
         """
-        t_start = time.perf_counter()
-        self.evaluator.set_frame(frame)
-        self._apply_material_track(self.state.frame)
-        self._step_lighting(lighting)
-        t_host = time.perf_counter()
-        self.frame.run()
-        self.host_s.append(t_host - t_start)
-        self.frame_s.append(time.perf_counter() - t_start)
-        if record:
-            result = self.output.numpy().copy()
-            if not np.all(np.isfinite(result)):
-                self.check_finite()
-                raise GraphError(f"frame {float(self.state.frame):g}: the output {self.spec.output!r} is not finite")
-            self.results[float(self.state.frame)] = result
+        if not self._stepping.acquire(blocking=False):
+            raise RuntimeError(f"step({frame!r}): another thread is stepping this runtime (one frame at a time: "
+                               "feed and step from one thread, or wait for its step to return)")
+        try:
+            t_start = time.perf_counter()
+            self.evaluator.set_frame(frame, points=points, joints=joints)
+            self._apply_material_track(self.state.frame)
+            self._step_lighting(lighting)
+            t_host = time.perf_counter()
+            self.frame.run()
+            self.host_s.append(t_host - t_start)
+            self.frame_s.append(time.perf_counter() - t_start)
+            if record:
+                result = self.output.numpy().copy()
+                if not np.all(np.isfinite(result)):
+                    self.check_finite()
+                    raise GraphError(f"frame {float(self.state.frame):g}: the output {self.spec.output!r} is not finite")
+                self.results[float(self.state.frame)] = result
+        finally:
+            self._stepping.release()
         return self.output
 
     def check_finite(self) -> None:
@@ -207,7 +229,7 @@ class Runtime(RunChanges):
         With ``warmup`` the first frame is stepped twice before timing starts (kernels compile,
         then the frame is recorded), so neither counts as frame time. Returns the frames run.
         """
-        from .._tasks import progress_bar
+        from ..tasks import progress_bar
 
         sel = parse_frames(frames if frames is not None else self.spec.frames, self.scene)
         if warmup:

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from .._hashing import hash_json
-from .._tasks import progress_bar
+from ..tasks import progress_bar
 from .metrics import combine_metrics, error_metrics
 from .protocols import ground_truth_model
 
@@ -122,8 +122,8 @@ def ground_truth(scene, lighting, frames, samples: int = 1024, device="cpu", cac
         model: None for the diffuse reference, or keyword arguments of
             :func:`~warpshade.reference.shade_glossy` (``brdf``, ``eye``, ``color``).
         seed: random seed of the estimator.
-        progress: show a progress bar over the frames computed (:func:`warpshade._tasks.progress_bar`).
-        executor: a :class:`warpshade._tasks.Executor` to compute the frames missing from the
+        progress: show a progress bar over the frames computed (:func:`warpshade.tasks.progress_bar`).
+        executor: a :class:`warpshade.tasks.Executor` to compute the frames missing from the
             cache as independent tasks (local worker processes, a Dask cluster); None computes
             them here, one after another. Same seeds either way, so the same result. Tasks run on
             the worker's default Warp device (its GPU on a CUDA cluster).

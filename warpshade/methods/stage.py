@@ -130,7 +130,7 @@ class StageContext:
         progress: whether long work may show progress bars.
         base_dir: directory that relative file parameters resolve against (the stage graph
             file's), or None (the working directory).
-        scheduler: where independent precompute tasks run (:func:`warpshade._tasks.executor`:
+        scheduler: where independent precompute tasks run (:func:`warpshade.tasks.executor`:
             None = ``$WARPSHADE_SCHEDULER`` or local worker processes, ``"serial"``,
             ``"local:N"``, a Dask scheduler address).
         cache: the run's artifact cache (:class:`~warpshade.graph.cache.ArtifactCache`:
@@ -150,9 +150,9 @@ class StageContext:
     cache: Any = None
 
     def executor(self):
-        """A new :class:`warpshade._tasks.Executor` for :attr:`scheduler` (use it as a context
+        """A new :class:`warpshade.tasks.Executor` for :attr:`scheduler` (use it as a context
         manager so that its workers are released)."""
-        from .._tasks import executor
+        from ..tasks import executor
 
         return executor(self.scheduler)
 

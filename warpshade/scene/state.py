@@ -48,6 +48,29 @@ CPU_REFIT_NOTE = "BVH refit: Warp's CPU graph capture does not record wp.Mesh.re
 DEVICE_SAMPLE_BYTES = 256 * 1024 * 1024
 
 
+#: The mesh animations whose points a frame loop can feed (:meth:`FrameEvaluator.set_frame`):
+#: their normals are recomputed from the points every frame.
+LIVE_POINTS = ("deforming", "skinned")
+
+
+def _checked_host(where: str, value, shape: tuple) -> np.ndarray:
+    """Fed host values as float32 C-contiguous of ``shape``, finite."""
+    try:
+        a = np.asarray(value)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{where}: expected an array of numbers {shape}: {exc}") from None
+    if a.dtype.kind != "f":
+        raise ValueError(f"{where}: expected floating-point numbers, got dtype {a.dtype}")
+    if a.shape != shape:
+        raise ValueError(f"{where}: expected shape {shape}, got {a.shape} (topology never changes)")
+    with np.errstate(over="ignore"):  # values past float32's range become infinite: refused below
+        a = np.ascontiguousarray(a, np.float32)
+    bad = int(np.count_nonzero(~np.isfinite(a)))
+    if bad:
+        raise ValueError(f"{where}: {bad} value(s) are NaN or infinite (in float32)")
+    return a
+
+
 class Change(enum.IntFlag):
     """What changed outside the frame (``notify_changed`` flags).
 
@@ -182,6 +205,21 @@ def _mesh_transforms_kernel(
     scales[m] = scale_table[k]
 
 
+@wp.kernel
+def _live_points_kernel(frame: wp.array(dtype=wp.int32), slot: int, staging: wp.array(dtype=wp.vec3),
+                        points: wp.array(dtype=wp.vec3), offset: int):
+    # frame[slot] = 1 when the host fed this mesh's points for the frame (FrameEvaluator.set_frame)
+    if frame[slot] != 0:
+        v = wp.tid()
+        points[offset + v] = staging[v]
+
+
+@wp.kernel
+def _count_nonfinite_kernel(values: wp.array(dtype=wp.float32), count: wp.array(dtype=wp.int32)):
+    if not wp.isfinite(values[wp.tid()]):
+        wp.atomic_add(count, 0, 1)
+
+
 def _column(row_matrices) -> np.ndarray:
     m = np.asarray(row_matrices, np.float64).reshape(-1, 4, 4)
     return np.ascontiguousarray(np.transpose(m, (0, 2, 1))).astype(np.float32)
@@ -258,8 +296,20 @@ class FrameEvaluator:
         self._data = data
         #: the frame's host inputs, written only by this evaluator: the frame index, whether the
         #: SH lighting is overridden (``set_lighting_override``), whether the host set the eye
-        #: (``set_eye``); kernels read them as ``frame[0]``, ``frame[1]``, ``frame[2]``
-        self.input = HostFields(("frame_index", "sh_override", "eye_from_host"), dev)
+        #: (``set_eye``); kernels read them as ``frame[0]``, ``frame[1]``, ``frame[2]``. Then one
+        #: field per mesh that can take fed points and per skeleton: whether the frame uses the
+        #: values fed to :meth:`set_frame` (1) or the time samples (0)
+        self._live_fields = {("points", k): f"live_points_{k}" for k, m in enumerate(scene.meshes)
+                             if m.animation in LIVE_POINTS}
+        self._live_fields.update({("joints", s): f"live_joints_{s}" for s in range(len(scene.skeletons))})
+        self.input = HostFields(("frame_index", "sh_override", "eye_from_host", *self._live_fields.values()), dev)
+        #: mesh index -> staging buffer of fed points (allocated when a mesh is first fed)
+        self._live_points: dict[int, Any] = {}
+        #: (kind, index) -> (device staging array, its host side, a NumPy view of the host side)
+        self._live_staging: dict[tuple, tuple] = {}
+        #: bumped whenever a staging buffer is allocated: a recorded frame older than it must be
+        #: recorded again (it does not read the new buffer)
+        self.live_version = 0
         self.uncaptured: list[str] = []
 
         # per-mesh transform tables (skeleton-to-world for skinned meshes), row t = frame index t
@@ -299,8 +349,12 @@ class FrameEvaluator:
                 wsum += w.shape[0]
             ints = lambda x: wp.array(np.asarray(x, np.int32), dtype=wp.int32, device=dev)  # noqa: E731
             mats = lambda x: wp.array(_column(np.concatenate(x)), dtype=wp.mat44, device=dev)  # noqa: E731
+            live_slot = [self.input.slot(self._live_fields["joints", s]) for s in range(self._skeletons)]
+            #: fed joint-local transforms (USD row-vector matrices), all skeletons concatenated
+            self._live_joints = wp.zeros(offsets[-1], dtype=wp.mat44, device=dev)
             self._skel_inputs = [mats(local), ints(local_start), ints(local_frames), ints(offsets), ints(np.concatenate(parents)),
-                                 mats(inv_bind), mats(world), ints(world_start), ints(world_frames)]
+                                 mats(inv_bind), mats(world), ints(world_start), ints(world_frames), ints(live_slot),
+                                 self._live_joints]
         joint_count = offsets[-1]
 
         v = scene.vertex_count
@@ -352,17 +406,117 @@ class FrameEvaluator:
         """Whether any mesh moves (else the points, normals and BVH never change)."""
         return any(self._moves(m) for m in self.scene.meshes)
 
-    def set_frame(self, frame) -> int:
-        """Validate a time code and write its index for the next :meth:`launch` (host only).
+    def set_frame(self, frame, points=None, joints=None) -> int:
+        """Validate a time code and write its index for the next :meth:`launch`, with the live
+        inputs of that frame; every input is checked before anything is written.
+
+        Args:
+            frame: a time code of the scene.
+            points: {mesh prim path: world-space points (V, 3)} replacing the time-sampled
+                points of deforming and skinned meshes for this frame (normals and the BVH
+                follow them): NumPy floats, or a wp.array (vec3 (V,) or float32 (V, 3)) on the
+                evaluator's device, copied device to device into the mesh's staging buffer.
+            joints: {skeleton prim path: joint-local transforms (J, 4, 4)}, USD's row-vector
+                matrices as ``UsdSkel`` animation gives them (what ``Skeleton.local_transforms``
+                holds per frame), replacing the skeleton's time samples for this frame (its
+                skeleton-to-world stays the frame's): NumPy floats, or a wp.array (mat44 (J,)
+                or float32 (J, 4, 4)) on the evaluator's device.
+
+            A mesh or skeleton not fed uses its time samples, as does every one at the next
+            call without it.
 
         Raises:
-            ValueError: naming the valid range when ``frame`` is not a time code of the scene.
+            ValueError: ``frame`` is not a time code of the scene (the valid range is named), or
+                a fed array names no deforming or skinned mesh / skeleton of the scene, or has
+                the wrong shape, dtype or device, or holds NaN or infinities (the prim is named).
         """
+        fed = self._check_live("points", points) + self._check_live("joints", joints)
         t = self.scene.frame_index(frame)
-        self.input.write(frame_index=t)
+        for kind, index, value in fed:
+            self._stage_live(kind, index, value)
+        flags = {name: 0 for name in self._live_fields.values()}
+        flags.update({self._live_fields[kind, index]: 1 for kind, index, _ in fed})
+        self.input.write(frame_index=t, **flags)
         self.state.frame = float(self.scene.frames[t])
         self.state.frame_index = t
         return t
+
+    def _check_live(self, kind: str, fed) -> list:
+        """Fed ``points`` or ``joints`` checked: [(kind, mesh or skeleton index, array)], each
+        array float32 C-contiguous on the host or a vec3 / mat44 wp.array on the device."""
+        if fed is None:
+            return []
+        if not isinstance(fed, dict):
+            raise ValueError(f"{kind}: expected a dict {{prim path: array}}, got {type(fed).__name__}")
+        if kind == "points":
+            prims = {m.path: k for k, m in enumerate(self.scene.meshes)}
+        else:
+            prims = {sk.path: k for k, sk in enumerate(self.scene.skeletons)}
+        out = []
+        for path, value in fed.items():
+            if path not in prims:
+                noun, nouns = ("mesh", "meshes") if kind == "points" else ("skeleton", "skeletons")
+                raise ValueError(f"{kind}: no {noun} prim {path!r} in {self.scene.source or 'the scene'} "
+                                 f"({nouns}: {sorted(prims)})")
+            index = prims[path]
+            if kind == "points":
+                mesh = self.scene.meshes[index]
+                if mesh.animation not in LIVE_POINTS:
+                    raise ValueError(f"points: mesh {path} is {mesh.animation} (its points never deform): only "
+                                     "deforming (point-cached) and skinned meshes take fed points")
+                rows, item, dtype = mesh.vertex_count, (3,), wp.vec3
+            else:
+                rows, item, dtype = self.scene.skeletons[index].joint_count, (4, 4), wp.mat44
+            where = f"{kind} of {path}"
+            value = self._checked_device(where, value, rows, item, dtype) if isinstance(value, wp.array) else \
+                _checked_host(where, value, (rows, *item))
+            out.append((kind, index, value))
+        return out
+
+    def _checked_device(self, where: str, value, rows: int, item: tuple, dtype):
+        """A fed wp.array as a contiguous ``dtype`` array of ``rows`` on this device, finite
+        (counted on the device: only the count comes back)."""
+        if str(value.device) != str(self.device):
+            raise ValueError(f"{where}: the array is on {value.device}, the run on {self.device} "
+                             "(pass a NumPy array or an array on the run's device)")
+        if value.dtype == dtype and value.shape == (rows,):
+            pass
+        elif value.dtype == wp.float32 and value.shape == (rows, *item):
+            value = value.view(dtype) if value.is_contiguous else value
+        else:
+            raise ValueError(f"{where}: expected a wp.array of {dtype.__name__} ({rows},) or float32 "
+                             f"{(rows, *item)}, got {getattr(value.dtype, '__name__', value.dtype)} {value.shape}")
+        if not value.is_contiguous:
+            raise ValueError(f"{where}: the wp.array is not contiguous (pass a contiguous array or a copy)")
+        flat = wp.array(ptr=value.ptr, dtype=wp.float32, shape=(rows * int(np.prod(item)),), device=self.device)
+        count = wp.zeros(1, dtype=wp.int32, device=self.device)
+        wp.launch(_count_nonfinite_kernel, dim=flat.shape[0], inputs=[flat, count], device=self.device)
+        bad = int(count.numpy()[0])
+        if bad:
+            raise ValueError(f"{where}: {bad} value(s) are NaN or infinite")
+        return value
+
+    def _stage_live(self, kind: str, index: int, value) -> None:
+        """Copy checked fed values into their staging buffer: device arrays device to device,
+        host arrays through the buffer's host side (the buffer itself on the CPU, a pinned
+        host twin uploaded asynchronously on CUDA)."""
+        if (kind, index) not in self._live_staging:
+            if kind == "points":
+                staging = wp.zeros(self.scene.meshes[index].vertex_count, dtype=wp.vec3, device=self.device)
+                self._live_points[index] = staging
+                self.live_version += 1  # a recording made before does not read it
+            else:
+                lo = self.state.joint_offsets[index]
+                staging = self._live_joints[lo : lo + self.scene.skeletons[index].joint_count]
+            host = staging if self.device.is_cpu else wp.empty_like(staging, device="cpu", pinned=True)
+            self._live_staging[kind, index] = (staging, host, host.numpy())
+        staging, host, host_view = self._live_staging[kind, index]
+        if isinstance(value, wp.array):
+            wp.copy(staging, value)
+            return
+        host_view.reshape(value.shape)[...] = value
+        if host is not staging:
+            wp.copy(staging, host)
 
     def set_eye(self, position) -> None:
         """Move the viewer (3,), world (a direct write; notify :data:`Change.VIEW`)."""
@@ -537,6 +691,10 @@ class FrameEvaluator:
                                         mesh.vertex_offset, matrix_index=k)
                 launch_transform_normals(entry["rest_normals"], st.mesh_transforms, st.normals, mesh.vertex_offset,
                                          matrix_index=k, area_sums=entry["area_sums"])
+            if k in self._live_points:
+                wp.launch(_live_points_kernel, dim=mesh.vertex_count, device=dev, inputs=[
+                    frame, self.input.slot(self._live_fields["points", k]), self._live_points[k], st.points,
+                    mesh.vertex_offset])
             if "vertices" in entry:
                 compute_vertex_normals(st.points, entry["faces"], st.normals, entry["vertices"])
 

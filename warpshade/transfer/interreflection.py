@@ -282,7 +282,7 @@ class InterreflectionTracer:
         _broadcast_rows(every, direct, self._buffers[0], self.device)
         bar = None
         if self.progress and not self.device.is_capturing:
-            from .._tasks import progress_bar
+            from ..tasks import progress_bar
 
             bar = progress_bar(total=self.bounces, desc=f"{self.bounces} diffuse bounces, {self.samples} rays per vertex",
                        unit="bounce", leave=False)

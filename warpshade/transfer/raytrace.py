@@ -334,7 +334,7 @@ class TransferTracer:
         if not self.progress or self.device.is_capturing:
             launch_parallel(self._kernel, self.receiver_count, inputs, self.device, self._launch_workers(), chunks=self.chunks)
             return
-        from .._tasks import progress_bar
+        from ..tasks import progress_bar
 
         # batches of about PROGRESS_BATCH_RAYS rays, so a long bake shows it is moving
         batch = max(1, min(self.receiver_count, PROGRESS_BATCH_RAYS // max(self.samples, 1)))

@@ -134,7 +134,7 @@ class _Progress:
         if progress is None or progress is False:
             return
         if progress is True:
-            from .._tasks import progress_bar
+            from ..tasks import progress_bar
 
             self._bar = progress_bar(total=self.total, desc=desc, unit="vertex", leave=False)
             self._own = True

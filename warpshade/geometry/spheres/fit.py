@@ -742,7 +742,7 @@ def construct(
     history = {"initial_error": state.error, "teleports_accepted": 0, "teleports_tried": 0}
     bar = None
     if progress:
-        from ..._tasks import progress_bar
+        from ...tasks import progress_bar
 
         bar = progress_bar(total=teleport_attempts, desc=f"spheres {disc.solid.name} ({sphere_count})", leave=False)
     tried: set = set()

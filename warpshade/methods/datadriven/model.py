@@ -605,6 +605,6 @@ def novelty(space: PoseSpace, poses: np.ndarray, training: np.ndarray) -> dict:
 def _maybe_progress(items, progress: bool, desc: str):
     if not progress:
         return items
-    from ..._tasks import progress_bar
+    from ...tasks import progress_bar
 
     return progress_bar(items, desc=desc, leave=False)

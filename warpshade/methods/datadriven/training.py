@@ -1,7 +1,7 @@
 """Training data of the data-driven model: ray-traced transfer at every training pose.
 
 Each training frame is an independent job (ray tracing every vertex of one pose), so the frames
-are split into tasks of a few frames and run by an executor (:mod:`warpshade._tasks`): in this
+are split into tasks of a few frames and run by an executor (:mod:`warpshade.tasks`): in this
 process, in local worker processes, or on a Dask cluster. A task carries the scene itself
 (pickled, without its device caches), its frames and their seeds, so every back end returns
 exactly what the serial loop returns.
@@ -148,7 +148,7 @@ def trace_training(scene, frame_indices, order: int, samples: int, seed: int = 0
     """Training transfer at ``frame_indices`` of ``scene``, (p, V, C or 3C) float32.
 
     Args:
-        executor: a :class:`warpshade._tasks.Executor` (default: :func:`warpshade._tasks.executor`,
+        executor: a :class:`warpshade.tasks.Executor` (default: :func:`warpshade.tasks.executor`,
             closed afterwards).
         cache: where each finished task's transfer is kept until all are assembled (an
             :class:`~warpshade.graph.cache.ArtifactCache`: ``load``, ``store``, ``path``), so that
@@ -158,7 +158,7 @@ def trace_training(scene, frame_indices, order: int, samples: int, seed: int = 0
     Raises:
         TaskError: a task failed (the message names its training frames).
     """
-    from ... import _tasks
+    from ...tasks import TaskError, executor as new_executor
 
     frame_indices = np.asarray(frame_indices, np.int64)
     seeds = [frame_seed(seed, i) for i in frame_indices]
@@ -185,19 +185,19 @@ def trace_training(scene, frame_indices, order: int, samples: int, seed: int = 0
         cache.store(keys[missing[j]], {"transfer": transfer})
 
     own = executor is None and bool(missing)
-    ex = _tasks.executor() if own else executor
+    ex = new_executor() if own else executor
     try:
         if missing:
             done = ex.map(trace_task, [tasks[i] for i in missing], desc=desc, progress=progress,
                           on_result=keep if cache is not None else None)
             for i, transfer in zip(missing, done):
                 parts[i] = transfer
-    except _tasks.TaskError as exc:
+    except TaskError as exc:
         if exc.index is None:
             raise
         frames = tasks[missing[exc.index]]["frame_indices"]
-        raise _tasks.TaskError(f"{exc} (training frames {frames[0]}..{frames[-1]})", missing[exc.index],
-                               exc.desc) from exc.__cause__
+        raise TaskError(f"{exc} (training frames {frames[0]}..{frames[-1]})", missing[exc.index],
+                        exc.desc) from exc.__cause__
     finally:
         if own:
             ex.close()

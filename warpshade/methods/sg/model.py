@@ -212,7 +212,7 @@ def _level_progress(progress):
         return None
     if callable(progress):
         return progress
-    from ..._tasks import progress_bar
+    from ...tasks import progress_bar
 
     bar = {}
 
