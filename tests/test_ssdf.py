@@ -114,10 +114,11 @@ def test_visibility_matches_float64_ray_caster(device):
     assert 0 < vis.sum() < vis.size  # the ball shadows some of them
 
 
-def test_progress_callable_and_tqdm_object(wall_scene):
+def test_progress_callable_and_tqdm_object(device, wall_scene):
     scene, v = wall_scene
     calls = []
-    ssdf.bake_visibility(scene, None, resolution=4, vertices=[v, v], progress=lambda done, total: calls.append((done, total)))
+    ssdf.bake_visibility(scene, None, resolution=4, vertices=[v, v], device=device,
+                         progress=lambda done, total: calls.append((done, total)))
     assert calls[-1] == (2, 2)
 
     class Bar:
@@ -127,7 +128,7 @@ def test_progress_callable_and_tqdm_object(wall_scene):
             self.n += k
 
     bar = Bar()
-    ssdf.bake_ssdf(scene, None, resolution=4, supersample=2, vertices=[v, v, v], progress=bar)
+    ssdf.bake_ssdf(scene, None, resolution=4, supersample=2, vertices=[v, v, v], device=device, progress=bar)
     assert bar.n == 3
 
 
@@ -384,7 +385,7 @@ def test_product_extreme_sharpness(cap_maps):
         assert np.all(np.isfinite(out)) and np.all(out >= 0.0) and np.all(out <= 2.0 + 1e-12)
 
 
-def test_sparse_tessellation_misses_the_shadow():
+def test_sparse_tessellation_misses_the_shadow(device):
     """A floor of two triangles under a small ball: the four corner SSDFs see open sky, so the
     blend at the centre reads visible at the zenith where a vertex there is shadowed. Bounded,
     finite, and wrong -- the tessellation has to sample the visibility signal (sec. 5)."""
@@ -394,12 +395,12 @@ def test_sparse_tessellation_misses_the_shadow():
     dense_p, dense_f = ground_grid(np.linspace(-1.0, 1.0, 5))
     sparse = Scene.from_meshes([Mesh("ground", sparse_p, sparse_f), Mesh("ball", ball_p, ball.faces)])
     dense = Scene.from_meshes([Mesh("ground", dense_p, dense_f), Mesh("ball", ball_p, ball.faces)])
-    corners = ssdf.bake_ssdf(sparse, None, resolution=16, supersample=4, vertices=[0, 1, 2, 3])
+    corners = ssdf.bake_ssdf(sparse, None, resolution=16, supersample=4, vertices=[0, 1, 2, 3], device=device)
     model = ssdf_pca.compress_ssdf(corners, error_budget=1e-4)
     zenith = np.array([[0.0, 0.0, 1.0]])
-    blended = ssdf_products.evaluate_ssdf_warp(model, [[0, 3, 3]], [[0.5, 0.5, 0.0]], zenith)  # the diagonal's midpoint
+    blended = ssdf_products.evaluate_ssdf_warp(model, [[0, 3, 3]], [[0.5, 0.5, 0.0]], zenith, device=device)  # the diagonal's midpoint
     centre = int(np.flatnonzero(np.all(dense_p == 0.0, axis=1))[0])
-    truth = ssdf.bake_ssdf(dense, None, resolution=16, supersample=4, vertices=[centre])
+    truth = ssdf.bake_ssdf(dense, None, resolution=16, supersample=4, vertices=[centre], device=device)
     truth_zenith = ssdf_products.sample_maps(truth, zenith)
     assert np.all(np.isfinite(blended)) and abs(float(blended[0])) <= HALF_PI + 1e-6
     assert truth_zenith[0] < 0.0 < blended[0]
