@@ -2,7 +2,7 @@
 
 Public modules are the modules of ``warpshade`` whose dotted path has no ``_``-prefixed part (the
 asset generator, a tool, excepted). A public name is one listed in a public module's ``__all__``.
-Each object is public in exactly one module, and the tests, the benchmarks and the README import
+Each object is public in exactly one module, and the tests, the benchmarks, the examples and the README import
 every public name from that module (Warp's public modules over ``_src``; Newton's "expose each
 public symbol once").
 """
@@ -91,7 +91,7 @@ def _python_blocks(markdown: str) -> str:
 
 def test_consumers_import_public_names_from_their_module(surface):
     exports, public = surface
-    sources = [(p, p.read_text()) for d in ("tests", "benchmarks") for p in sorted((ROOT / d).rglob("*.py"))]
+    sources = [(p, p.read_text()) for d in ("tests", "benchmarks", "examples") for p in sorted((ROOT / d).rglob("*.py"))]
     sources += [(p, _python_blocks(p.read_text())) for p in [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]]
     wrong = []
     for path, text in sources:

@@ -7,12 +7,14 @@ checkout's ``stages/`` (the README's commands run from the checkout's root), wit
 quick settings given only through documented flags (:data:`QUICK`): ``--frames`` narrowed to one
 validated frame and ``--validate-samples`` lowered. What cannot run here is checked for shape,
 each with its reason (:func:`plan`): installing packages, the test suite itself, starting or
-reaching a Dask cluster, and graphs whose precompute takes minutes (those run up to the start of
+reaching a Dask cluster, the examples (run by ``tests/test_examples.py``; here their flags are
+parsed), and graphs whose precompute takes minutes (those run up to the start of
 their work: graph, scene, frames, outputs and cache checked, then stopped).
 """
 
 import os
 import re
+import runpy
 import shlex
 import subprocess
 import sys
@@ -75,6 +77,8 @@ def plan(command: str) -> tuple[str, list[str], str]:
         return "check", words, "the test suite this test is part of"
     if words[:1] == ["dask"]:
         return "check", words, "starts a Dask cluster"
+    if words[:1] == ["python"] and words[1].startswith("examples/"):
+        return "check", words, "the example runs headless in tests/test_examples.py"
     assert words[0] == "warpshade", f"README command {command!r}: no test knows how to check it"
     argv = words[1:]
     if "HOST" in command:
@@ -140,6 +144,9 @@ def test_command(command, readme_dir, monkeypatch, capsys):
                 assert extra in extras, f"{command}: pyproject.toml has no extra {extra!r}"
         elif argv[0] == "dask":
             assert argv[1] in ("scheduler", "worker"), command
+        elif argv[0] == "python" and argv[1].startswith("examples/"):
+            example = runpy.run_path(str(ROOT / argv[1]))  # its flags parse with its own parser
+            example["build_parser"]().parse_args(argv[2:])
         pytest.skip(f"checked for shape only: {reason}")
     if how == "parse":
         args = cli.build_parser().parse_args(argv)
