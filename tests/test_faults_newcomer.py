@@ -22,20 +22,10 @@ from warpshade.measure.pictures import ERROR_LABEL, write_panels
 from warpshade.scene.materials import Microfacet
 from warpshade.scene.tabulated import read_merl, write_merl
 
+from grids import CUBE_USDA as CUBE
+
 ROOT = Path(__file__).resolve().parents[1]
 README = (ROOT / "README.md").read_text()
-CUBE = textwrap.dedent("""\
-    #usda 1.0
-    (
-        upAxis = "Z"
-    )
-    def Mesh "Cube"
-    {
-        int[] faceVertexCounts = [4, 4, 4, 4, 4, 4]
-        int[] faceVertexIndices = [0, 1, 3, 2, 2, 3, 7, 6, 6, 7, 5, 4, 4, 5, 1, 0, 2, 6, 4, 0, 7, 3, 1, 5]
-        point3f[] points = [(-1, -1, -1), (1, -1, -1), (-1, 1, -1), (1, 1, -1), (-1, -1, 1), (1, -1, 1), (-1, 1, 1), (1, 1, 1)]
-    }
-    """)
 #: Rays of the quick copies of README graphs (the README's 256 / 1024 take minutes on a CPU).
 QUICK_SAMPLES = 16
 

@@ -15,7 +15,6 @@ replaced by a function that fails the test when called, and the output folder is
 
 import errno
 import json
-import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -28,20 +27,10 @@ from warpshade.graph import GraphError, GraphSpec, Param, StageError, load
 from warpshade.io import read_hdr, read_image, write_hdr
 from warpshade.measure.outputs import MANIFEST_NAME, plan_outputs
 
+from grids import CUBE_USDA as CUBE
+
 ROOT = Path(__file__).resolve().parents[1]
 ASSETS = ROOT / "warpshade" / "usd_assets"
-CUBE = textwrap.dedent("""\
-    #usda 1.0
-    (
-        upAxis = "Z"
-    )
-    def Mesh "Cube"
-    {
-        int[] faceVertexCounts = [4, 4, 4, 4, 4, 4]
-        int[] faceVertexIndices = [0, 1, 3, 2, 2, 3, 7, 6, 6, 7, 5, 4, 4, 5, 1, 0, 2, 6, 4, 0, 7, 3, 1, 5]
-        point3f[] points = [(-1, -1, -1), (1, -1, -1), (-1, 1, -1), (1, 1, -1), (-1, -1, 1), (1, -1, 1), (-1, 1, 1), (1, 1, 1)]
-    }
-    """)
 
 
 @pytest.fixture(autouse=True)

@@ -7,7 +7,6 @@ manifest. Flags that cannot go together are refused before any work, naming both
 """
 
 import json
-import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -18,20 +17,10 @@ from warpshade.graph import GraphSpec
 from warpshade.measure.outputs import MANIFEST_NAME, plan_outputs
 from warpshade.measure.pictures import movie_format, write_movie
 
+from grids import CUBE_USDA as CUBE
+
 imageio = pytest.importorskip("imageio.v3")
 
-CUBE = textwrap.dedent("""\
-    #usda 1.0
-    (
-        upAxis = "Z"
-    )
-    def Mesh "Cube"
-    {
-        int[] faceVertexCounts = [4, 4, 4, 4, 4, 4]
-        int[] faceVertexIndices = [0, 1, 3, 2, 2, 3, 7, 6, 6, 7, 5, 4, 4, 5, 1, 0, 2, 6, 4, 0, 7, 3, 1, 5]
-        point3f[] points = [(-1, -1, -1), (1, -1, -1), (-1, 1, -1), (1, 1, -1), (-1, -1, 1), (1, -1, 1), (-1, 1, 1), (1, 1, 1)]
-    }
-    """)
 FRAME_COUNT = 4
 
 
