@@ -8,7 +8,8 @@
   before any work and never over a file warpshade did not write (the output folder's manifest);
 * :mod:`.scenes` -- the bundled scenes under the measuring conventions;
 * :mod:`.harness` -- one method setting on one scene, timed and measured;
-* :mod:`.budget` -- choose a method's setting from an error budget.
+* :mod:`.budget` -- choose a method's setting from an error budget;
+* :mod:`.temporal` -- noise over seeds at a held frame, lag on the fastest-moving frames.
 
 The runtime (:mod:`warpshade.graph`) steps and records; the CLI composes it with this layer.
 """
@@ -20,6 +21,7 @@ from .outputs import report, write_report, write_usd
 from .pictures import comparison_figure, error_colors, render_comparisons, render_previews, run_exposure
 from .protocols import ground_truth_model
 from .scenes import BENCH_SCENES, error_frames, load_bench_scene, pick_frames, scene_kinds
+from .temporal import lag, noise
 from .truth import GT_SEED, VALIDATE_SEED, Measurement, ground_truth, measure_error, reference_model, truth_cache
 
 __all__ = [
@@ -37,9 +39,11 @@ __all__ = [
     "error_metrics",
     "ground_truth",
     "ground_truth_model",
+    "lag",
     "load_bench_scene",
     "measure_error",
     "method_candidates",
+    "noise",
     "pick",
     "pick_frames",
     "reference_model",

@@ -1,0 +1,178 @@
+"""Per-frame tracing with few rays and a control variate (``hybrid.trace``) against per-frame
+tracing with 1024 rays (``prt.trace``): error, time per frame, noise and lag, side by side.
+
+For each scene and setting, in one run on one device:
+
+* the clip is stepped once from its start (every frame, so that reuse over frames works as in
+  use) up to its last measured frame; the error against ray-traced ground truth (relative RMS)
+  on the 3 fastest-moving frames and 4 frames spread over the clip: ``error`` = their mean,
+  ``lag`` = mean on the fast frames / ``error`` (:func:`warpshade.measure.lag`); the time per frame
+  is the median of those steps after the first two (compilation, recording);
+* ``noise``: per-vertex relative standard deviation over 8 seeds at frame index ``--noise-frame``,
+  each seed's run stepped from the clip's start (:func:`warpshade.measure.noise`);
+* ratios against ``prt.trace`` at 1024 rays (same order) measured in the same run.
+
+Settings: ``prt.trace`` n6 1024 rays; ``hybrid.trace`` n6 with K in {8, 16, 32, 64} and each
+applicable control (none, previous, ldprt; datadriven on the figure, trained on figure_train with
+``--training-frames`` and ``--training-samples``).
+
+Usage::
+
+    python benchmarks/bench_hybrid.py [--scenes blockers,cloth,bend,figure] [--device cpu]
+    python benchmarks/bench_hybrid.py --quick --out /tmp/hy
+
+Writes ``benchmarks/results/hybrid-<date>-<device>.json`` and ``.png`` (error and time per frame
+against rays per vertex, per scene), the JSON rewritten after every setting.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+
+from warpshade._fileio import atomic_path, write_json_atomic  # noqa: E402
+from warpshade._wp import cpu_workers  # noqa: E402
+from warpshade.measure import ground_truth, lag, load_bench_scene, noise  # noqa: E402
+from warpshade.methods.hybrid import stages_for  # noqa: E402
+from warpshade.tasks import progress_bar  # noqa: E402
+
+SCENES = ("blockers", "cloth", "bend", "figure")
+TRAINING = {"figure": "bundled:figure_train", "figure_walk": "bundled:figure_train"}
+
+
+def settings(scene_key, order, samples_list, controls, reference_rays, training_frames, training_samples):
+    out = [("traced", reference_rays, (("shade", "prt.trace", {"order": order, "samples": reference_rays}, {}),))]
+    for k in samples_list:
+        for control in controls:
+            if control == "datadriven":
+                if scene_key not in TRAINING:
+                    continue
+                st = stages_for("datadriven", k, order, training=TRAINING[scene_key], frames=training_frames,
+                                training_samples=training_samples)
+            else:
+                st = stages_for(control, k, order)
+            out.append((f"hybrid {control}", k, st))
+    return out
+
+
+def chart(results, path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    scenes = sorted({r["scene"] for r in results})
+    fig, axes = plt.subplots(2, len(scenes), figsize=(4.2 * len(scenes), 7), squeeze=False)
+    for j, s in enumerate(scenes):
+        rs = [r for r in results if r["scene"] == s]
+        ref = next((r for r in rs if r["method"] == "traced"), None)
+        for method in sorted({r["method"] for r in rs if r["method"] != "traced"}):
+            m = sorted((r for r in rs if r["method"] == method), key=lambda r: r["rays"])
+            axes[0, j].plot([r["rays"] for r in m], [r["error"] for r in m], "o-", label=method)
+            axes[1, j].plot([r["rays"] for r in m], [r["frame_ms"] for r in m], "o-", label=method)
+        if ref is not None:
+            axes[0, j].axhline(ref["error"], color="k", ls="--", label=f"prt.trace {ref['rays']} rays")
+            axes[0, j].axhline(1.2 * ref["error"], color="k", ls=":", label="1.2x prt.trace")
+            axes[1, j].axhline(ref["frame_ms"], color="k", ls="--", label=f"prt.trace {ref['rays']} rays")
+            axes[1, j].axhline(ref["frame_ms"] / 8, color="k", ls=":", label="1/8 of prt.trace")
+        axes[0, j].set_title(s)
+        axes[0, j].set_xscale("log", base=2)
+        axes[1, j].set_xscale("log", base=2)
+        axes[1, j].set_yscale("log")
+        axes[1, j].set_xlabel("rays per vertex per frame")
+        axes[0, j].set_ylabel("relative RMS error (clip mean)")
+        axes[1, j].set_ylabel("ms per frame")
+    axes[0, 0].legend(fontsize=7)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=90)
+    plt.close(fig)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--quick", action="store_true", help="smoke profile: cloth, K 8, control none, 64-ray baseline")
+    ap.add_argument("--out", default=None, help="output directory (default benchmarks/results; required with --quick)")
+    ap.add_argument("--scenes", default=",".join(SCENES))
+    ap.add_argument("--samples", default="8,16,32,64", help="rays per vertex per frame of hybrid.trace")
+    ap.add_argument("--controls", default="none,previous,ldprt,datadriven")
+    ap.add_argument("--order", type=int, default=6)
+    ap.add_argument("--reference-rays", type=int, default=1024, help="rays per vertex of the prt.trace baseline")
+    ap.add_argument("--gt-samples", type=int, default=1024, help="ground-truth samples per vertex")
+    ap.add_argument("--noise-frame", type=int, default=12, help="frame index of the noise metric")
+    ap.add_argument("--seeds", type=int, default=8)
+    ap.add_argument("--training-frames", default="0:600:20", help="data-driven control: training frames")
+    ap.add_argument("--training-samples", type=int, default=32, help="data-driven control: rays per training frame")
+    ap.add_argument("--device", default="cpu")
+    args = ap.parse_args(argv)
+    if args.quick and args.out is None:
+        ap.error("--quick writes only into --out DIR (never benchmarks/results)")
+    if args.quick:
+        args.scenes, args.samples, args.controls, args.reference_rays = "cloth", "8", "none", 64
+        args.gt_samples, args.noise_frame, args.seeds, args.order = 32, 2, 2, 3
+    out_dir = Path(args.out or ROOT / "benchmarks" / "results")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    date = datetime.date.today().isoformat()
+    tag = "cpu" if args.device == "cpu" else args.device.replace(":", "")
+    stem = out_dir / (f"hybrid-{date}-{tag}" + ("-quick" if args.quick else ""))
+    meta = {"date": date, "device": args.device, "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores",
+            "threads": cpu_workers() if args.device == "cpu" else None, "order": args.order,
+            "gt_samples": args.gt_samples, "noise_seeds": args.seeds, "noise_frame_index": args.noise_frame,
+            "training_frames": args.training_frames, "training_samples": args.training_samples,
+            "command": " ".join(["python", "benchmarks/bench_hybrid.py", *(argv if argv is not None else sys.argv[1:])])}
+    results = []
+    t_all = time.perf_counter()
+    samples = [int(x) for x in args.samples.split(",")]
+    controls = args.controls.split(",")
+    for key in args.scenes.split(","):
+        scene, lighting = load_bench_scene(key)
+        print(f"{key}: {scene.vertex_count:,} vertices, {len(scene.frames)} frames", flush=True)
+
+        def truth_for(frames, scene=scene, lighting=lighting):
+            return ground_truth(scene, lighting, frames, args.gt_samples, args.device, progress=True)
+
+        noise_frame = float(scene.frames[min(args.noise_frame, len(scene.frames) - 1)])
+        rows = settings(key, args.order, samples, controls, args.reference_rays, args.training_frames, args.training_samples)
+        for method, rays, stages in progress_bar(rows, desc=f"{key}: settings", unit="setting"):
+            t0 = time.perf_counter()
+            try:
+                lg = lag(scene, lighting, stages, truth_for, device=args.device)
+                nz = noise(scene, lighting, stages, frame=noise_frame, seeds=args.seeds, device=args.device)
+            except Exception as exc:  # reported, never dropped
+                print(f"  {method} K{rays}: FAILED {exc!r}", flush=True)
+                results.append({"scene": key, "method": method, "rays": rays, "failed": repr(exc)})
+                continue
+            r = {"scene": key, "method": method, "rays": rays, "error": lg["lag_mean_error"], "lag": lg["lag"],
+                 "fast_error": lg["lag_fast_error"], "frame_ms": lg["frame_ms"], "noise": nz["noise_rel"],
+                 "noise_p99": nz["noise_rel_p99"], "lag_frames": lg["lag_frames"], "fast_frames": lg["lag_fast_frames"],
+                 "diagnostics": lg.get("diagnostics"), "seconds": time.perf_counter() - t0,
+                 "stages": [dict(name=n, type=t, **p) for (n, t, p, _) in stages]}
+            results.append(r)
+            print(f"  {method:18s} K{rays:<5d} error {r['error']:.4f}  lag {r['lag']:.3f}  noise {r['noise']:.4f}  "
+                  f"{r['frame_ms']:9.2f} ms/frame", flush=True)
+            ref = next((x for x in results if x["scene"] == key and x["method"] == "traced" and "failed" not in x), None)
+            for x in results:
+                if ref is not None and x["scene"] == key and "failed" not in x:
+                    x["error_ratio"] = x["error"] / ref["error"]
+                    x["speedup"] = ref["frame_ms"] / x["frame_ms"]
+                    x["noise_ratio"] = x["noise"] / ref["noise"] if ref["noise"] > 0 else None
+            meta["seconds"] = time.perf_counter() - t_all
+            write_json_atomic(Path(f"{stem}.json"), {"meta": meta, "results": results}, indent=1)
+    ok = [r for r in results if "failed" not in r]
+    if ok:
+        chart(ok, Path(f"{stem}.png"))
+    print(f"wrote {stem}.json/.png in {time.perf_counter() - t_all:.0f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,278 @@
+"""hybrid.trace: kernels against the float64 mirror, unbiasedness of the control-variate
+estimator, history cuts, and the failure cases (K = 1, isolated vertices, non-manifold edges)."""
+
+import numpy as np
+import pytest
+import trimesh
+
+from warpshade._wp import wp
+from warpshade.basis import quadrature
+from warpshade.geometry.bvh import Visibility, trace_occlusion_f64
+from warpshade.geometry.normals import vertex_normals_f64
+from warpshade.graph import GraphSpec, StageSpec
+from warpshade.methods.hybrid import filter_f64, residual_f64, surface_neighbours, temporal_f64
+from warpshade.methods.hybrid import kernels
+from warpshade.scene import Environment, Mesh, Scene
+
+from tolerances import ATOL_FLOAT32, STDERR_SIGMAS, assert_close
+
+#: float32 residual against float64: a sum of K <= 64 terms (4 pi / K) e y with |e| <= ~3 (the
+#: control's reconstruction) and |y| <= 2.7 at order 4; float32 rounding of each ~1e-7 relative.
+ATOL_RESIDUAL = 2e-4
+#: The variance estimate is a difference of two float32 sums of that size.
+RTOL_VARIANCE = 1e-3
+#: Filter / moving average: a few float32 products and one division per coefficient.
+ATOL_AVERAGE = 1e-5
+ORDER = 4
+
+
+def _plane_box(frames=1, teleport_at=None):
+    """A subdivided ground plane with a box above it (the box jumps sideways at ``teleport_at``)."""
+    plane = trimesh.creation.box(extents=(3.0, 3.0, 0.05))
+    plane = trimesh.Trimesh(*trimesh.remesh.subdivide_to_size(plane.vertices, plane.faces, 0.4))
+    box = trimesh.creation.box(extents=(0.8, 0.8, 0.4))
+    xf = np.repeat(np.eye(4)[None], frames, axis=0)
+    xf[:, 3, 2] = 0.6
+    if teleport_at is not None:
+        xf[teleport_at:, 3, 0] = 2.5
+    meshes = [Mesh("/plane", plane.vertices, plane.faces),
+              Mesh("/box", box.vertices, box.faces, animation="rigid" if frames > 1 else "static", transforms=xf)]
+    return Scene.from_meshes(meshes, frames=range(frames), lights=[Environment.sky(sun_radiance=(0.0, 0.0, 0.0))])
+
+
+def _frame_arrays(scene, device):
+    pts = scene.points_at(0.0)
+    nrm = vertex_normals_f64(pts, scene.faces)
+    bvh = Visibility.from_scene(scene, device=device)
+    return pts, nrm, bvh
+
+
+def _residual(device, pts, nrm, bvh, samples, control, seed=0, step=0, order=ORDER):
+    v = pts.shape[0]
+    c = order * order
+    dev = wp.get_device(device)
+    args = dict(dtype=wp.vec3, device=dev)
+    p, n = wp.array(pts.astype(np.float32), **args), wp.array(nrm.astype(np.float32), **args)
+    dirs = wp.array(quadrature.fibonacci(samples).directions.astype(np.float32), **args)
+    ctl = wp.array((np.zeros((1, c)) if control is None else control).astype(np.float32), dtype=wp.float32, device=dev)
+    stp = wp.array(np.array([step], np.int32), dtype=wp.int32, device=dev)
+    res = wp.zeros((v, c), dtype=wp.float32, device=dev)
+    var = wp.zeros(v, dtype=wp.float32, device=dev)
+    rot = wp.zeros(v, dtype=wp.mat33, device=dev)
+    wp.launch(kernels.residual_kernel(order), dim=v, device=dev,
+              inputs=[bvh.id, p, n, wp.empty(0, dtype=wp.mat33, device=dev), 0, ctl, 0 if control is None else 1, dirs,
+                      seed, stp, bvh.offset, 0, res, var])
+    wp.launch(kernels.rotations_kernel, dim=v, device=dev, inputs=[seed, stp, rot])
+    return res.numpy(), var.numpy(), rot.numpy()
+
+
+def _hits(scene, pts, nrm, rot, samples, offset):
+    dirs = np.einsum("vij,kj->vki", rot.astype(np.float64), quadrature.fibonacci(samples).directions)
+    origins = np.repeat((pts + offset * nrm)[:, None, :], samples, axis=1)
+    return trace_occlusion_f64(scene.points_at(0.0), scene.faces, origins.reshape(-1, 3),
+                               dirs.reshape(-1, 3)).reshape(len(pts), samples)
+
+
+@pytest.mark.parametrize("samples", [1, 16])
+def test_residual_kernel_matches_mirror(device, samples, rng):
+    scene = _plane_box()
+    pts, nrm, bvh = _frame_arrays(scene, device)
+    control = 0.3 * rng.standard_normal((pts.shape[0], ORDER * ORDER))
+    res, var, rot = _residual(device, pts, nrm, bvh, samples, control, seed=5, step=3)
+    occluded = _hits(scene, pts, nrm, rot, samples, bvh.offset)
+    r64, v64 = residual_f64(nrm, rot, quadrature.fibonacci(samples).directions, occluded, ORDER, control)
+    assert_close(res, r64, atol=ATOL_RESIDUAL, what="residual")
+    assert_close(var, v64, rtol=RTOL_VARIANCE, atol=ATOL_RESIDUAL, what="one-frame variance")
+    assert np.all(np.isfinite(res)) and np.all(var >= 0)
+
+
+def test_rotations_change_per_frame_step(device):
+    scene = _plane_box()
+    pts, nrm, bvh = _frame_arrays(scene, device)
+    _, _, r0 = _residual(device, pts, nrm, bvh, 4, None, step=0)
+    _, _, r1 = _residual(device, pts, nrm, bvh, 4, None, step=1)
+    assert np.abs(r0 - r1).max() > 0.1
+    assert_close(np.einsum("vij,vkj->vik", r0, r0), np.eye(3)[None], atol=ATOL_FLOAT32 * 10, what="orthonormal rotations")
+
+
+def test_filter_kernel_matches_mirror(device, rng):
+    scene = _plane_box()
+    pts, nrm, _ = _frame_arrays(scene, device)
+    nb = surface_neighbours(scene.faces, pts)
+    v, c = pts.shape[0], ORDER * ORDER
+    values = rng.standard_normal((v, c))
+    dev = wp.get_device(device)
+    out = wp.zeros((v, c), dtype=wp.float32, device=dev)
+    gain = wp.zeros(v, dtype=wp.float32, device=dev)
+    wp.launch(kernels.filter_kernel(ORDER), dim=v, device=dev,
+              inputs=[wp.array(nb.offsets, dtype=wp.int32, device=dev), wp.array(nb.neighbours, dtype=wp.int32, device=dev),
+                      wp.array(pts.astype(np.float32), dtype=wp.vec3, device=dev),
+                      wp.array(nrm.astype(np.float32), dtype=wp.vec3, device=dev),
+                      wp.array(nb.scale, dtype=wp.float32, device=dev), 0.3, 1.0,
+                      wp.array(values.astype(np.float32), dtype=wp.float32, device=dev), out, gain])
+    f64, g64 = filter_f64(nb.offsets, nb.neighbours, pts, nrm, nb.scale, 0.3, 1.0, values)
+    assert_close(out.numpy(), f64, atol=ATOL_AVERAGE * 10, what="filtered residual")
+    assert_close(gain.numpy(), g64, rtol=ATOL_AVERAGE * 10, what="filter gain")
+    assert np.all(g64 >= 1.0)
+
+
+def _temporal_run(device, frames_in, params):
+    """Run the temporal kernel over a list of (points, normals, fresh, variance, control) frames;
+    returns per frame (transfer, reset) of the kernel and of the mirror."""
+    pts0 = frames_in[0][0]
+    v, c = frames_in[0][2].shape
+    dev = wp.get_device(device)
+    st = kernels.TemporalState()
+    st.history = wp.zeros((v, c), dtype=wp.float32, device=dev)
+    st.frames = wp.zeros(v, dtype=wp.float32, device=dev)
+    st.variance_mean = wp.zeros(v, dtype=wp.float32, device=dev)
+    st.variance = wp.zeros(v, dtype=wp.float32, device=dev)
+    st.prev_points = wp.zeros(v, dtype=wp.vec3, device=dev)
+    st.prev_normals = wp.zeros(v, dtype=wp.vec3, device=dev)
+    st.reset = wp.zeros(v, dtype=wp.int32, device=dev)
+    tp = kernels.TemporalParams()
+    for k, val in params.items():
+        setattr(tp, k, val)
+    scale = np.full(v, 0.1, np.float32)
+    gain = np.full(v, 2.0, np.float32)
+    mstate = {"history": np.zeros((v, c)), "frames": np.zeros(v), "variance_mean": np.zeros(v), "variance": np.zeros(v),
+              "prev_points": np.zeros((v, 3)), "prev_normals": np.zeros((v, 3))}
+    out = []
+    transfer = wp.zeros((v, c), dtype=wp.float32, device=dev)
+    for pts, nrm, fresh, var, ctl in frames_in:
+        f32 = dict(dtype=wp.float32, device=dev)
+        wp.launch(kernels.temporal_kernel(ORDER), dim=v, device=dev,
+                  inputs=[wp.array(pts.astype(np.float32), dtype=wp.vec3, device=dev),
+                          wp.array(nrm.astype(np.float32), dtype=wp.vec3, device=dev), wp.array(scale, **f32),
+                          wp.array(ctl.astype(np.float32), **f32), 1, wp.array(fresh.astype(np.float32), **f32),
+                          wp.array(var.astype(np.float32), **f32), wp.array(gain, **f32), st, tp, transfer])
+        t64, mstate = temporal_f64(mstate, pts, nrm, scale, fresh, var, gain, ctl, params)
+        out.append((transfer.numpy().copy(), st.reset.numpy().copy(), st.frames.numpy().copy(), t64, mstate["reset"].copy(),
+                    mstate["frames"].copy()))
+    return out
+
+
+PARAMS = {"alpha": 0.1, "motion": 1.0, "normal_cos": float(np.cos(np.radians(20))), "threshold": 4.0, "in_control": 0}
+
+
+@pytest.mark.parametrize("in_control", [0, 1])
+def test_temporal_kernel_matches_mirror_and_teleport_cuts_at_once(device, rng, in_control):
+    v, c = 40, ORDER * ORDER
+    pts = rng.uniform(-1, 1, (v, 3))
+    nrm = np.tile([0.0, 0.0, 1.0], (v, 1))
+    truth = 0.2 * rng.standard_normal((v, c))
+    ctl = 0.1 * rng.standard_normal((v, c))
+    frames_in = []
+    for t in range(8):
+        p = pts + (np.array([30.0, 0.0, 0.0]) if t >= 5 else 0.0)  # teleport at frame 5
+        fresh = truth - ctl + 0.01 * rng.standard_normal((v, c))
+        frames_in.append((p, nrm, fresh, np.full(v, 2 * 0.01**2 * c), ctl))  # gain 2 in _temporal_run
+    params = dict(PARAMS, in_control=in_control)
+    runs = _temporal_run(device, frames_in, params)
+    for t, (tr, reset, fr, t64, reset64, fr64) in enumerate(runs):
+        assert_close(tr, t64, atol=ATOL_AVERAGE, what=f"transfer at step {t}")
+        np.testing.assert_array_equal(reset, reset64)
+        assert_close(fr, fr64, rtol=ATOL_AVERAGE, what="effective frames")
+    assert np.all(runs[5][1] == kernels.RESET_MOTION)
+    assert np.all(runs[5][2] == 1.0)  # cut at once, at the teleport frame
+    if not in_control:  # (with in_control the fixed control given here is not the last estimate)
+        assert runs[4][2].min() > 4.0  # history grew
+        assert np.all(runs[6][1] == 0)
+
+
+def test_variance_test_cuts_when_fresh_rays_disagree(device, rng):
+    v, c = 30, ORDER * ORDER
+    pts = rng.uniform(-1, 1, (v, 3))
+    nrm = np.tile([0.0, 0.0, 1.0], (v, 1))
+    ctl = np.zeros((v, c))
+    frames_in = []
+    for t in range(6):
+        level = 0.0 if t < 4 else 1.0  # the shadow changes at frame 4 without the vertex moving
+        fresh = level + 0.01 * rng.standard_normal((v, c))
+        frames_in.append((pts, nrm, fresh, np.full(v, 2 * 0.01**2 * c), ctl))
+    runs = _temporal_run(device, frames_in, PARAMS)
+    assert np.all(runs[4][1] == 1)  # RESET_VARIANCE
+    assert_close(runs[4][0], frames_in[4][2], atol=ATOL_AVERAGE, what="fresh estimate taken at the cut")
+    assert np.count_nonzero(runs[3][1]) == 0
+
+
+def _exact_projection(scene, pts, nrm, order, offset, rays=1024):
+    rot = np.repeat(np.eye(3)[None], len(pts), axis=0)
+    occ = _hits(scene, pts, nrm, rot, rays, offset)
+    r, _ = residual_f64(nrm, rot, quadrature.fibonacci(rays).directions, occ, order)
+    return r
+
+
+def test_control_variate_is_unbiased_and_a_wrong_control_only_adds_variance(device, rng):
+    """Mean over rotations of T_hat + r approaches the exact projection for a good control and a
+    wrong one; the wrong one's spread is larger."""
+    order = ORDER
+    scene = _plane_box()
+    pts, nrm, bvh = _frame_arrays(scene, device)
+    pick = np.flatnonzero(np.abs(pts[:, 2] + 0.025) < 1e-3)[::7][:12]  # plane top vertices
+    exact = _exact_projection(scene, pts[pick], nrm[pick], order, bvh.offset)
+    good = np.zeros((pts.shape[0], order * order))
+    good[pick] = exact + 0.02 * rng.standard_normal(exact.shape)
+    wrong = 1.5 * rng.standard_normal((pts.shape[0], order * order))
+    steps = 96
+    for control, name in ((good, "good"), (wrong, "wrong")):
+        est = np.stack([(control + _residual(device, pts, nrm, bvh, 4, control, seed=11, step=s, order=order)[0])[pick]
+                        for s in range(steps)])
+        mean, se = est.mean(axis=0), est.std(axis=0, ddof=1) / np.sqrt(steps)
+        # the exact projection's own quadrature error (1024 Fibonacci rays) is well under 2e-3
+        assert np.all(np.abs(mean - exact) <= STDERR_SIGMAS * se + 2e-3), f"{name} control: biased"
+        if name == "good":
+            spread_good = est.std(axis=0).mean()
+        else:
+            assert est.std(axis=0).mean() > 3 * spread_good
+
+
+def _graph(samples=4, control="none", **trace):
+    return GraphSpec([StageSpec("trace", "hybrid.trace", {"order": ORDER, "samples": samples, "control": control, **trace}),
+                      StageSpec("shade", "prt.shade", {"order": ORDER}, {"transfer": "trace.transfer"})],
+                     "shade.radiance", name="hybrid-test")
+
+
+@pytest.mark.parametrize("control", ["none", "previous"])
+def test_one_ray_per_vertex_is_bounded_and_reported(device, control):
+    scene = _plane_box(frames=4)
+    rt = _graph(samples=1, control=control).compile(scene, device=device, cache_dir=None, progress=False)
+    rt.run(list(scene.frames), warmup=False)
+    d = rt.frame_stages[0].diagnostics()
+    for f in scene.frames:
+        out = rt.results[float(f)]
+        assert np.all(np.isfinite(out))
+    assert np.isfinite(d["variance_rel"]) and d["effective_samples_min"] >= 1.0
+    assert d["steps"] == 4
+
+
+def test_teleporting_blocker_cuts_history_in_the_graph(device):
+    scene = _plane_box(frames=6, teleport_at=4)
+    rt = _graph(samples=4).compile(scene, device=device, cache_dir=None, progress=False)
+    stage = rt.frame_stages[0]
+    box = scene.meshes[1]
+    for f in scene.frames[:4]:
+        rt.step(f)
+    assert stage.diagnostics()["resets_motion"] == 0
+    rt.step(scene.frames[4])
+    d = stage.diagnostics()
+    assert d["resets_motion"] == box.vertex_count
+
+
+def test_isolated_and_non_manifold_vertices_are_bounded_and_reported(device):
+    """A fin shared by three triangles along one edge, a degenerate triangle and a vertex in no
+    triangle: the adjacency reports them and the output stays finite."""
+    pts = np.array([[0, 0, 0], [1, 0, 0], [0.5, 1, 0], [0.5, -1, 0], [0.5, 0, 1], [3, 3, 3], [2, 2, 0]], np.float64)
+    faces = np.array([[0, 1, 2], [1, 0, 3], [0, 1, 4], [6, 6, 2]], np.int32)
+    nb = surface_neighbours(faces, pts)
+    assert nb.report["non_manifold_edges"] == 1 and nb.report["isolated_vertices"] == 1
+    assert nb.report["degenerate_triangles"] == 1
+    assert np.all(np.isfinite(nb.scale)) and np.all(nb.scale > 0)
+    scene = Scene.from_meshes([Mesh("/fin", pts, faces)], frames=range(3),
+                              lights=[Environment.sky(sun_radiance=(0.0, 0.0, 0.0))])
+    rt = _graph(samples=8, filter_iterations=2).compile(scene, device=device, cache_dir=None, progress=False)
+    rt.run(list(scene.frames), warmup=False)
+    d = rt.frame_stages[0].diagnostics()
+    assert d["surface_isolated_vertices"] == 1 and d["surface_non_manifold_edges"] == 1
+    for f in scene.frames:
+        assert np.all(np.isfinite(rt.results[float(f)]))

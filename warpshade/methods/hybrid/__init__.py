@@ -1,0 +1,33 @@
+"""Per-frame ray tracing with few rays: a fast model as control variate, reuse over frames and
+over the mesh.
+
+Every frame, ``samples`` rays per vertex (8..64) estimate the diffuse transfer's *difference*
+from a control model's transfer (the data-driven transfer, LDPRT's local transfer, the last
+frame's estimate, or nothing), an unbiased control-variate estimate whose variance is that of the
+model's residual; the residual is filtered over mesh neighbours and averaged per vertex over
+frames, the history cut where the surface moves fast or fresh rays disagree with it.
+
+* :mod:`.stages` -- ``hybrid.trace`` (per frame): ports, parameters, buffers;
+* :mod:`.kernels` -- the residual (rays), the edge-aware filter, the moving average;
+* :mod:`.mirror` -- their float64 mirror, the tests' oracle;
+* :mod:`.model` -- the surface neighbourhood built at set-up (any topology, reported);
+* :mod:`.rows` -- the harness rows (K in {8, 16, 32, 64} x each control);
+* :mod:`.budget` -- the candidate settings an error budget chooses from.
+"""
+
+from .mirror import estimate_f64, filter_f64, residual_f64, temporal_f64
+from .model import SurfaceNeighbours, surface_neighbours
+from .rows import harness_rows, stages_for
+from .stages import HybridTraceStage
+
+__all__ = [
+    "HybridTraceStage",
+    "SurfaceNeighbours",
+    "estimate_f64",
+    "filter_f64",
+    "harness_rows",
+    "residual_f64",
+    "stages_for",
+    "surface_neighbours",
+    "temporal_f64",
+]

@@ -1,0 +1,305 @@
+"""Warp kernels of per-frame ray tracing with a control variate, reuse over frames and over the mesh.
+
+Per vertex ``v`` and frame, with ``K`` sample directions ``w_k`` (a spherical Fibonacci set rotated
+by a random rotation drawn from ``(seed + step * STEP_STRIDE, v)``, ``step`` a per-run frame counter
+held on the device), the control's transfer ``T_hat`` (zero without a control) and its
+reconstruction ``f_hat(w) = sum_j T_hat_j y_j(w')`` (``w' = w`` in the world frame, ``F w`` in the
+tangent frame ``F``):
+
+* :func:`residual_kernel` -- the control-variate residual and the variance of that one-frame
+  estimate::
+
+      e_k = V(w_k) max(0, n.w_k) - f_hat(w_k)
+      r_i = (4 pi / K) sum_k e_k y_i(w_k')
+      m2  = (4 pi)^2 mean_k e_k^2 |y(w_k')|^2 = 4 pi C mean_k e_k^2      (addition theorem)
+      var = max(0, m2 - |r|^2) / (K - 1)    (K > 1; m2 for K = 1: an upper bound)
+
+  ``var`` is the trace of the covariance of ``r`` (the sum over coefficients). Only rays above the
+  horizon are traced (``max(0, n.w)`` is zero below it); ``V`` is 1 for a ray that hits nothing.
+* :func:`filter_kernel` -- one Jacobi pass of an edge-aware filter over the mesh neighbours:
+  ``r'_v = (r_v + sum_u w_uv r_u) / (1 + sum_u w_uv)`` with
+  ``w_uv = exp(-(1 - n_u.n_v) / sigma_n^2) exp(-|p_u - p_v|^2 / (2 (sigma_d s_v)^2))`` for
+  ``n_u.n_v > 0`` (else 0), ``s_v`` the vertex's mean edge length at rest; it also writes the
+  variance reduction of the pass for independent inputs, ``(1 + sum w)^2 / (1 + sum w^2)``.
+* :func:`temporal_kernel` -- the exponential moving average of the residual per vertex with its
+  cuts (:func:`temporal_update`), and the transfer ``T = T_hat + h``.
+* :func:`advance_kernel` -- the frame counter, incremented at the end of every frame.
+"""
+
+from __future__ import annotations
+
+import functools
+
+from ..._wp import wp
+from ...basis.sh_warp import sh_kernels
+from ...geometry.bvh import RAY_MAX_DISTANCE
+from ...transfer.raytrace import random_rotation
+
+wp.set_module_options({"enable_backward": False})
+
+__all__ = ["STEP_STRIDE", "RESET_NONE", "RESET_VARIANCE", "RESET_MOTION", "RESET_NONFINITE"]
+
+#: Added to the seed per frame step: consecutive frames draw unrelated rotations.
+STEP_STRIDE = 7919
+#: Per-vertex reset codes written by the temporal kernel (what the diagnostics count).
+RESET_NONE = wp.constant(0)
+RESET_VARIANCE = wp.constant(1)
+RESET_MOTION = wp.constant(2)
+RESET_NONFINITE = wp.constant(3)
+
+_RAY_MAX = wp.constant(RAY_MAX_DISTANCE)
+
+
+@wp.func
+def frame_rotation(seed: int, step: int, vertex: int) -> wp.mat33:
+    """The random rotation of a vertex's sample set at frame step ``step``."""
+    return random_rotation(seed + step * STEP_STRIDE, vertex)
+
+
+@wp.kernel
+def rotations_kernel(seed: int, step: wp.array(dtype=wp.int32), rotations: wp.array(dtype=wp.mat33)):
+    """The rotations :func:`residual_kernel` uses at the current step (for checks)."""
+    v = wp.tid()
+    rotations[v] = frame_rotation(seed, step[0], v)
+
+
+@wp.kernel
+def advance_kernel(step: wp.array(dtype=wp.int32)):
+    step[0] = step[0] + 1
+
+
+@functools.lru_cache(maxsize=None)
+def residual_kernel(order: int):
+    """The per-vertex residual kernel at an SH order (cached)."""
+    sh = sh_kernels(order)
+    C = sh.coeff_count
+    vec_t = sh.vec
+    sh_eval = sh.eval
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def kernel(
+        mesh_id: wp.uint64,
+        points: wp.array(dtype=wp.vec3),
+        normals: wp.array(dtype=wp.vec3),
+        frames: wp.array(dtype=wp.mat33),
+        use_local: int,
+        control: wp.array2d(dtype=wp.float32),
+        use_control: int,
+        samples: wp.array(dtype=wp.vec3),
+        seed: int,
+        step: wp.array(dtype=wp.int32),
+        offset: float,
+        start: int,
+        residual: wp.array2d(dtype=wp.float32),
+        variance: wp.array(dtype=wp.float32),
+    ):
+        v = start + wp.tid()
+        n = normals[v]
+        origin = points[v] + offset * n
+        rot = frame_rotation(seed, step[0], v)
+        to_space = wp.identity(3, dtype=float)
+        if use_local != 0:
+            to_space = frames[v]
+        t_hat = vec_t()
+        if use_control != 0:
+            for i in range(C):
+                t_hat[i] = control[v, i]
+        acc = vec_t()
+        m2 = float(0.0)
+        for s in range(samples.shape[0]):
+            d = rot * samples[s]
+            y = sh_eval(to_space * d)
+            f = float(0.0)
+            c = wp.dot(n, d)
+            if c > 0.0:
+                if not wp.mesh_query_ray_anyhit(mesh_id, origin, d, _RAY_MAX):
+                    f = c
+            e = f - wp.dot(t_hat, y)
+            acc += e * y
+            m2 += e * e
+        k = samples.shape[0]
+        weight = 4.0 * wp.pi / float(k)
+        norm2 = float(0.0)
+        for i in range(C):
+            r = acc[i] * weight
+            residual[v, i] = r
+            norm2 += r * r
+        second = float(C) * weight * m2
+        var = second
+        if k > 1:
+            var = wp.max(second - norm2, 0.0) / float(k - 1)
+        variance[v] = var
+
+    return kernel
+
+
+@functools.lru_cache(maxsize=None)
+def filter_kernel(order: int):
+    """One pass of the edge-aware filter over mesh neighbours at an SH order (cached)."""
+    C = order * order
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def kernel(
+        offsets: wp.array(dtype=wp.int32),
+        neighbours: wp.array(dtype=wp.int32),
+        points: wp.array(dtype=wp.vec3),
+        normals: wp.array(dtype=wp.vec3),
+        scale: wp.array(dtype=wp.float32),
+        sigma_normal: float,
+        sigma_distance: float,
+        src: wp.array2d(dtype=wp.float32),
+        dst: wp.array2d(dtype=wp.float32),
+        gain: wp.array(dtype=wp.float32),
+    ):
+        v = wp.tid()
+        nv = normals[v]
+        lv = wp.length(nv)
+        pv = points[v]
+        sd = sigma_distance * scale[v]
+        for i in range(C):
+            dst[v, i] = src[v, i]
+        wsum = float(1.0)
+        w2 = float(1.0)
+        if lv > 0.0 and sd > 0.0:
+            for e in range(offsets[v], offsets[v + 1]):
+                u = neighbours[e]
+                nu = normals[u]
+                lu = wp.length(nu)
+                if lu > 0.0:
+                    cosang = wp.dot(nv, nu) / (lv * lu)
+                    if cosang > 0.0:
+                        dp = points[u] - pv
+                        w = wp.exp(-(1.0 - cosang) / (sigma_normal * sigma_normal) - wp.dot(dp, dp) / (2.0 * sd * sd))
+                        if wp.isfinite(w) and w > 0.0:
+                            for i in range(C):
+                                dst[v, i] = dst[v, i] + w * src[u, i]
+                            wsum += w
+                            w2 += w * w
+        inv = 1.0 / wsum
+        for i in range(C):
+            dst[v, i] = dst[v, i] * inv
+        gain[v] = wsum * wsum / w2
+
+    return kernel
+
+
+@wp.struct
+class TemporalState:
+    """Per-vertex history of the moving average (device arrays, fixed for a run).
+
+    Attributes:
+        history: averaged residual h, (V, C) float32.
+        frames: effective frames n in the average (0: none yet), (V,) float32.
+        variance_mean: moving average of the one-frame variance, (V,) float32.
+        variance: variance of the average (trace of its covariance), (V,) float32.
+        prev_points, prev_normals: the vertex at the last frame, (V,) vec3.
+        reset: why the history was cut this frame (RESET_* codes), (V,) int32.
+    """
+
+    history: wp.array2d(dtype=wp.float32)
+    frames: wp.array(dtype=wp.float32)
+    variance_mean: wp.array(dtype=wp.float32)
+    variance: wp.array(dtype=wp.float32)
+    prev_points: wp.array(dtype=wp.vec3)
+    prev_normals: wp.array(dtype=wp.vec3)
+    reset: wp.array(dtype=wp.int32)
+
+
+@wp.struct
+class TemporalParams:
+    """Constants of the moving average (set from the stage's parameters)."""
+
+    alpha: float  # smallest weight of a new frame (EMA weight once enough frames are in)
+    motion: float  # displacement per frame, in mean edge lengths, that cuts the history
+    normal_cos: float  # cosine of the normal's turn per frame that cuts the history
+    threshold: float  # variance test: cut when |r - h|^2 > threshold * (var_mean + var)
+    in_control: int  # 1: the control is the last estimate (the history lives in it)
+
+
+@functools.lru_cache(maxsize=None)
+def temporal_kernel(order: int):
+    """The temporal accumulation at an SH order (cached)."""
+    C = order * order
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def kernel(
+        points: wp.array(dtype=wp.vec3),
+        normals: wp.array(dtype=wp.vec3),
+        scale: wp.array(dtype=wp.float32),
+        control: wp.array2d(dtype=wp.float32),
+        use_control: int,
+        fresh: wp.array2d(dtype=wp.float32),
+        fresh_variance: wp.array(dtype=wp.float32),
+        gain: wp.array(dtype=wp.float32),
+        state: TemporalState,
+        params: TemporalParams,
+        transfer: wp.array2d(dtype=wp.float32),
+    ):
+        v = wp.tid()
+        p = points[v]
+        n = normals[v]
+        vf = fresh_variance[v] / wp.max(gain[v], 1.0)
+        count = state.frames[v]
+        code = int(RESET_NONE)
+        # distance of the fresh residual from the history (the history is 0 when it lives in the control)
+        d2 = float(0.0)
+        for i in range(C):
+            h = float(0.0)
+            if params.in_control == 0:
+                h = state.history[v, i]
+            diff = fresh[v, i] - h
+            d2 += diff * diff
+        if count > 0.0:
+            moved = wp.length(p - state.prev_points[v])
+            ln = wp.length(n) * wp.length(state.prev_normals[v])
+            turned = float(1.0)
+            if ln > 0.0:
+                turned = wp.dot(n, state.prev_normals[v]) / ln
+            if moved > params.motion * scale[v] or turned < params.normal_cos:
+                code = RESET_MOTION
+            else:
+                vm = (1.0 - params.alpha) * state.variance_mean[v] + params.alpha * vf
+                if d2 > params.threshold * (vm + state.variance[v]) + 1.0e-12:
+                    code = RESET_VARIANCE
+        if not (wp.isfinite(d2) and wp.isfinite(vf)):
+            code = RESET_NONFINITE
+        a = float(1.0)
+        if count > 0.0 and code == RESET_NONE:
+            a = wp.max(params.alpha, 1.0 / (count + 1.0))
+        if code == RESET_NONFINITE:
+            for i in range(C):
+                state.history[v, i] = 0.0
+                transfer[v, i] = 0.0
+                if use_control != 0:
+                    c = control[v, i]
+                    if wp.isfinite(c):
+                        transfer[v, i] = c
+            state.frames[v] = 0.0
+            state.variance[v] = 0.0
+            state.variance_mean[v] = 0.0
+        else:
+            for i in range(C):
+                h = float(0.0)
+                if params.in_control == 0:
+                    h = state.history[v, i]
+                h = (1.0 - a) * h + a * fresh[v, i]
+                state.history[v, i] = h
+                c = float(0.0)
+                if use_control != 0:
+                    c = control[v, i]
+                transfer[v, i] = c + h
+            if a >= 1.0:
+                state.frames[v] = 1.0
+                state.variance[v] = vf
+                state.variance_mean[v] = vf
+            else:
+                b = 1.0 - a
+                state.frames[v] = 1.0 / (b * b / count + a * a)
+                state.variance[v] = b * b * state.variance[v] + a * a * vf
+                state.variance_mean[v] = b * state.variance_mean[v] + a * vf
+        state.reset[v] = code
+        state.prev_points[v] = p
+        state.prev_normals[v] = n
+
+    return kernel
+

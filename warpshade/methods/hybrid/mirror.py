@@ -1,0 +1,153 @@
+"""Float64 mirror of the hybrid tracer's kernels (NumPy): the tests' oracle, never ground truth.
+
+Each function does the maths of one kernel of :mod:`.kernels` in float64, from the same inputs
+(the per-vertex rotations and ray hits are given: :func:`warpshade.geometry.bvh.trace_occlusion_f64`
+gives the hits of a tiny scene).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ...basis import sh
+
+__all__ = ["residual_f64", "filter_f64", "temporal_f64", "estimate_f64"]
+
+_RESET_NONE, _RESET_VARIANCE, _RESET_MOTION, _RESET_NONFINITE = 0, 1, 2, 3
+
+
+def residual_f64(normals, rotations, samples, occluded, order: int, control=None, frames=None):
+    """The control-variate residual and the variance of that one-frame estimate per vertex.
+
+    Args:
+        normals: (V, 3) unit normals.
+        rotations: (V, 3, 3) per-vertex rotations of the sample set.
+        samples: (K, 3) unit sample directions (the Fibonacci set).
+        occluded: (V, K) bool, True where the ray toward ``rotations[v] @ samples[k]`` hits something
+            (only rays above the horizon are used).
+        order: SH order; control: (V, C) control transfer or None; frames: (V, 3, 3) tangent
+            frames (rows t, b, n) for local-frame coefficients, or None for the world frame.
+
+    Returns:
+        ``(residual (V, C), variance (V,))`` as :func:`.kernels.residual_kernel` defines them.
+    """
+    n = np.asarray(normals, np.float64)
+    rot = np.asarray(rotations, np.float64)
+    s = np.asarray(samples, np.float64)
+    k = s.shape[0]
+    c = order * order
+    d = np.einsum("vij,kj->vki", rot, s)  # (V, K, 3) world directions
+    ds = d if frames is None else np.einsum("vij,vkj->vki", np.asarray(frames, np.float64), d)
+    y = sh.basis(ds, order)  # (V, K, C)
+    cos = np.einsum("vki,vi->vk", d, n)
+    f = np.where((cos > 0) & ~np.asarray(occluded, bool), cos, 0.0)
+    f_hat = 0.0 if control is None else np.einsum("vkc,vc->vk", y, np.asarray(control, np.float64))
+    e = f - f_hat
+    w = 4.0 * np.pi / k
+    r = w * np.einsum("vk,vkc->vc", e, y)
+    second = c * w * np.sum(e * e, axis=1)
+    var = np.maximum(second - np.sum(r * r, axis=1), 0.0) / (k - 1) if k > 1 else second
+    return r, var
+
+
+def filter_f64(offsets, neighbours, points, normals, scale, sigma_normal: float, sigma_distance: float, values):
+    """One pass of the edge-aware filter over mesh neighbours (:func:`.kernels.filter_kernel`).
+
+    Returns:
+        ``(filtered (V, C), gain (V,))``: the gain is ``(1 + sum w)^2 / (1 + sum w^2)``.
+    """
+    p = np.asarray(points, np.float64)
+    nrm = np.asarray(normals, np.float64)
+    src = np.asarray(values, np.float64)
+    out = src.copy()
+    gain = np.ones(p.shape[0])
+    for v in range(p.shape[0]):
+        lv = np.linalg.norm(nrm[v])
+        sd = sigma_distance * float(scale[v])
+        if lv <= 0 or sd <= 0:
+            continue
+        acc, wsum, w2 = src[v].copy(), 1.0, 1.0
+        for u in neighbours[offsets[v]:offsets[v + 1]]:
+            lu = np.linalg.norm(nrm[u])
+            if lu <= 0:
+                continue
+            cosang = nrm[v] @ nrm[u] / (lv * lu)
+            if cosang <= 0:
+                continue
+            dp = p[u] - p[v]
+            w = np.exp(-(1.0 - cosang) / sigma_normal**2 - dp @ dp / (2.0 * sd * sd))
+            if np.isfinite(w) and w > 0:
+                acc += w * src[u]
+                wsum += w
+                w2 += w * w
+        out[v] = acc / wsum
+        gain[v] = wsum * wsum / w2
+    return out, gain
+
+
+def temporal_f64(state: dict, points, normals, scale, fresh, fresh_variance, gain, control, params: dict):
+    """One frame of the moving average (:func:`.kernels.temporal_kernel`), on a copy of ``state``.
+
+    Args:
+        state: ``history`` (V, C), ``frames`` (V,), ``variance_mean`` (V,), ``variance`` (V,),
+            ``prev_points`` (V, 3), ``prev_normals`` (V, 3).
+        control: (V, C) or None; params: ``alpha``, ``motion``, ``normal_cos``, ``threshold``,
+            ``in_control``.
+
+    Returns:
+        ``(transfer (V, C), new_state)`` with ``new_state["reset"]`` the per-vertex codes.
+    """
+    st = {k: np.array(v, np.float64) for k, v in state.items()}
+    p = np.asarray(points, np.float64)
+    n = np.asarray(normals, np.float64)
+    fr = np.asarray(fresh, np.float64)
+    ctl = np.zeros_like(fr) if control is None else np.asarray(control, np.float64)
+    vcount, c = fr.shape
+    out = np.zeros_like(fr)
+    reset = np.zeros(vcount, np.int32)
+    alpha = params["alpha"]
+    for v in range(vcount):
+        vf = fresh_variance[v] / max(gain[v], 1.0)
+        count = st["frames"][v]
+        h_prev = np.zeros(c) if params["in_control"] else st["history"][v]
+        d2 = float(np.sum((fr[v] - h_prev) ** 2))
+        code = _RESET_NONE
+        if count > 0:
+            moved = np.linalg.norm(p[v] - st["prev_points"][v])
+            ln = np.linalg.norm(n[v]) * np.linalg.norm(st["prev_normals"][v])
+            turned = n[v] @ st["prev_normals"][v] / ln if ln > 0 else 1.0
+            if moved > params["motion"] * scale[v] or turned < params["normal_cos"]:
+                code = _RESET_MOTION
+            else:
+                vm = (1 - alpha) * st["variance_mean"][v] + alpha * vf
+                if d2 > params["threshold"] * (vm + st["variance"][v]) + 1e-12:
+                    code = _RESET_VARIANCE
+        if not (np.isfinite(d2) and np.isfinite(vf)):
+            code = _RESET_NONFINITE
+        if code == _RESET_NONFINITE:
+            st["history"][v] = 0.0
+            out[v] = np.where(np.isfinite(ctl[v]), ctl[v], 0.0) if control is not None else 0.0
+            st["frames"][v] = st["variance"][v] = st["variance_mean"][v] = 0.0
+        else:
+            a = max(alpha, 1.0 / (count + 1.0)) if count > 0 and code == _RESET_NONE else 1.0
+            h = (1 - a) * h_prev + a * fr[v]
+            st["history"][v] = h
+            out[v] = ctl[v] + h
+            if a >= 1.0:
+                st["frames"][v], st["variance"][v], st["variance_mean"][v] = 1.0, vf, vf
+            else:
+                b = 1 - a
+                st["frames"][v] = 1.0 / (b * b / count + a * a)
+                st["variance"][v] = b * b * st["variance"][v] + a * a * vf
+                st["variance_mean"][v] = b * st["variance_mean"][v] + a * vf
+        reset[v] = code
+        st["prev_points"][v] = p[v]
+        st["prev_normals"][v] = n[v]
+    st["reset"] = reset
+    return out, st
+
+
+def estimate_f64(normals, rotations, samples, occluded, order: int, control=None):
+    """One frame without reuse: ``T = T_hat + r`` (the unbiased control-variate estimate)."""
+    r, _ = residual_f64(normals, rotations, samples, occluded, order, control)
+    return r if control is None else np.asarray(control, np.float64) + r

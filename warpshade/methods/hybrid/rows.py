@@ -1,0 +1,63 @@
+"""Settings of the hybrid tracer for the speed-vs-accuracy harness (``benchmarks/run.py``)."""
+
+from __future__ import annotations
+
+from ..rows import HarnessRow
+
+__all__: list[str] = []
+
+#: Rays per vertex per frame the harness runs.
+SAMPLES = (8, 16, 32, 64)
+#: Scenes the rows apply to (the animated bundled scenes).
+SCENES = ("figure", "figure_walk", "wanderer", "cloth", "bend", "blockers")
+#: Data-driven control: training clip and frames per held-out scene (as the data-driven rows, so
+#: that the cached training data is shared).
+DATADRIVEN_SCENES = {"figure": ("bundled:figure_train", None), "figure_walk": ("bundled:figure_train", None),
+                     "wanderer": ("bundled:wanderer_train", "0:1000:2")}
+
+
+def stages_for(control: str, samples: int, order: int = 6, training: str | None = None, frames: str | None = None,
+               training_samples: int = 256, bake_samples: int = 256, trace: dict | None = None) -> tuple:
+    """The stages of a hybrid graph with a control: ``"datadriven"`` (needs ``training``),
+    ``"ldprt"`` (local transfer baked at the first frame, rotated with the surface), ``"previous"``
+    or ``"none"``; the ray count ``samples`` is ``hybrid.trace``'s."""
+    params = {"order": order, "samples": samples, **(trace or {})}
+    shade = ("shade", "prt.shade", {"order": order}, {"transfer": "trace.transfer"})
+    if control in ("previous", "none"):
+        return (("trace", "hybrid.trace", {**params, "control": control}, {}), shade)
+    if control == "datadriven":
+        if training is None:
+            raise ValueError("stages_for: the data-driven control needs a training clip")
+        data = {"training": training, "order": order, "samples": training_samples}
+        if frames is not None:
+            data["frames"] = frames
+        return (("data", "datadriven.data", data, {}),
+                ("fit", "datadriven.fit", {"model": "reduced"}, {"data": "data.data"}),
+                ("model", "datadriven.transfer", {"order": order}, {"model": "fit.model"}),
+                ("trace", "hybrid.trace", {**params, "control": "model"}, {"control": "model.transfer"}), shade)
+    if control == "ldprt":
+        return (("bake", "ldprt.transfer", {"order": order, "samples": bake_samples}, {}),
+                ("frames", "ldprt.frames", {}, {}),
+                ("trace", "hybrid.trace", {**params, "control": "model", "space": "local"},
+                 {"control": "bake.transfer", "frames": "frames.frames"}),
+                ("shade", "ldprt.shade_rotated", {"order": order}, {"transfer": "trace.transfer", "frames": "frames.frames"}))
+    raise ValueError(f"stages_for: unknown control {control!r}")
+
+
+def harness_rows(quick: bool = False) -> list:
+    """K in {8, 16, 32, 64} rays per vertex per frame with each control, on the animated scenes."""
+    rows = []
+    for samples in SAMPLES:
+        for control in ("none", "previous", "ldprt"):
+            rows.append(HarnessRow(
+                "hybrid", f"n6 K{samples} {control}", stages_for(control, samples), "shade.radiance", scenes=SCENES,
+                quick=(samples == 16 and control == "none"),
+                notes=f"{samples} rays per vertex per frame, control: {control}; residual filtered and averaged over frames",
+            ))
+        for scene, (training, frames) in DATADRIVEN_SCENES.items():
+            rows.append(HarnessRow(
+                "hybrid", f"n6 K{samples} datadriven", stages_for("datadriven", samples, training=training, frames=frames),
+                "shade.radiance", scenes=(scene,), quick=False,
+                notes=f"{samples} rays per vertex per frame, control: data-driven transfer trained on {training.split(':')[-1]}",
+            ))
+    return rows

@@ -1,0 +1,200 @@
+"""Per-frame ray tracing with few rays and a control variate, reused over frames and the mesh.
+
+* ``hybrid.trace`` (per frame): the diffuse transfer of every vertex from ``samples`` rays per
+  vertex and frame (a spherical Fibonacci set rotated per vertex and per frame), with a control
+  model's transfer ``T_hat`` as control variate::
+
+      T_i = T_hat_i + (4 pi / K) sum_k [V(w_k) max(0, n.w_k) - f_hat(w_k)] y_i(w_k),
+      f_hat(w) = sum_j T_hat_j y_j(w)
+
+  (unbiased for the projection whatever the control; its variance is that of the control's
+  residual). The residual is filtered over mesh neighbours (edge-aware: normal and distance
+  weights, ``filter_iterations`` Jacobi passes) and averaged per vertex over frames (an
+  exponential moving average, uniform for the first ``1 / alpha`` frames); a vertex's history is
+  cut where it moved more than ``motion`` mean edge lengths or its normal turned more than
+  ``normal_turn`` degrees since the last frame, or where the fresh residual disagrees with the
+  history by more than ``threshold`` times their combined variance (:mod:`.kernels`).
+
+  Controls (``control``): ``model`` -- a transfer on the input port ``control`` (the data-driven
+  transfer, LDPRT's local transfer with ``space = "local"`` and the tangent frames on ``frames``,
+  a static bake); ``previous`` -- the stage's own last estimate (the history then lives in the
+  control: ``T = (1 - a) T_prev + a (T_prev + r)``); ``none`` -- plain tracing with reuse.
+  Output: ``transfer`` (V, C) for ``prt.shade`` (world frame), or for ``ldprt.shade_rotated``
+  (local frame). The frame counter that draws new rotations is a device array advanced inside the
+  recorded frame. :meth:`HybridTraceStage.diagnostics` reports the effective samples per vertex,
+  the history cuts of the last frame and the variance estimate.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..._wp import cpu_workers, launch_parallel, wp
+from ...basis import quadrature
+from ..common import order_param, rays_param
+from ..stage import FrameStage, Param, Port, StageError, register_stage
+from . import kernels
+from .model import surface_neighbours
+
+__all__: list[str] = []
+
+CONTROLS = ("model", "previous", "none")
+SPACES = ("world", "local")
+#: Vertices per chunk below which the ray launch is not split over CPU threads.
+_CHUNK_MIN_VERTICES = 256
+
+
+@register_stage
+class HybridTraceStage(FrameStage):
+    type_name = "hybrid.trace"
+    needs_bvh = True
+    description = "transfer from few rays per frame with a control variate, reused over frames and mesh neighbours"
+    parameters = {
+        "order": order_param(6, minimum=1, maximum=8),
+        "samples": rays_param(32, "rays per vertex per frame", minimum=1),
+        "seed": Param(0, int, "seed of the per-vertex, per-frame sample rotations"),
+        "control": Param("model", str, "control variate: a model's transfer on port 'control', the last estimate, "
+                         "or none", choices=CONTROLS),
+        "space": Param("world", str, "frame of the coefficients (local: per-vertex tangent frames on port 'frames')",
+                       choices=SPACES),
+        "alpha": Param(0.1, float, "smallest weight of a new frame in the moving average (1: no reuse over frames)",
+                       minimum=1e-3, maximum=1.0),
+        "threshold": Param(4.0, float, "history cut when |fresh - history|^2 exceeds this many times their variance",
+                           minimum=0.0),
+        "motion": Param(1.0, float, "history cut when a vertex moves more than this many mean edge lengths per frame",
+                        minimum=0.0),
+        "normal_turn": Param(20.0, float, "history cut when a normal turns more than this (degrees) per frame",
+                             minimum=0.0, maximum=180.0),
+        "filter_iterations": Param(1, int, "passes of the edge-aware filter over mesh neighbours (0: none)",
+                                   minimum=0, maximum=4),
+        "sigma_normal": Param(0.3, float, "normal weight exp(-(1 - n.n') / sigma^2)", minimum=1e-3),
+        "sigma_distance": Param(1.0, float, "distance weight width in mean edge lengths", minimum=1e-3),
+    }
+
+    def dims(self):
+        return {"C": self.params["order"] ** 2}
+
+    def input_ports(self):
+        space = self.params["space"]
+        ports = {"points": Port("vec3", ("V",)), "normals": Port("vec3", ("V",))}
+        if self.params["control"] == "model":
+            ports["control"] = Port("float32", ("V", "C"), f"control model's diffuse transfer, {space} frame", space=space)
+        if space == "local":
+            ports["frames"] = Port("mat33", ("V",), "tangent frames, world space, rows (t, b, n)")
+        return ports
+
+    def output_ports(self):
+        space = self.params["space"]
+        return {"transfer": Port("float32", ("V", "C"), f"diffuse transfer vectors, {space} frame", space=space)}
+
+    def setup(self, ctx, inputs):
+        p = self.params
+        dev = ctx.device
+        where = f"stage {self.name!r} ({self.type_name})"
+        if ctx.state is None or ctx.state.bvh is None:
+            raise StageError(f"{where}: needs the frame's BVH (state.bvh)")
+        v, c = ctx.dims["V"], p["order"] ** 2
+        try:
+            self.neighbours = surface_neighbours(ctx.scene.faces, ctx.scene.points_at(float(ctx.scene.frames[0])))
+        except ValueError as exc:
+            raise StageError(f"{where}: {exc}") from None
+        self.setup_report = dict(self.neighbours.report)
+        self._dev = dev
+        self._bvh = ctx.state.bvh
+        self._points, self._normals = inputs["points"], inputs["normals"]
+        self._use_local = 1 if p["space"] == "local" else 0
+        self._frames_in = inputs["frames"] if p["space"] == "local" else wp.empty(0, dtype=wp.mat33, device=dev)
+        self._transfer = wp.zeros((v, c), dtype=wp.float32, device=dev)
+        if p["control"] == "model":
+            self._control, self._use_control = inputs["control"], 1
+        elif p["control"] == "previous":
+            self._control, self._use_control = self._transfer, 1
+        else:
+            self._control, self._use_control = wp.zeros((1, c), dtype=wp.float32, device=dev), 0
+        self._samples = wp.array(quadrature.fibonacci(p["samples"]).directions.astype(np.float32), dtype=wp.vec3, device=dev)
+        self._step = wp.zeros(1, dtype=wp.int32, device=dev)
+        self._raw = wp.zeros((v, c), dtype=wp.float32, device=dev)
+        self._variance = wp.zeros(v, dtype=wp.float32, device=dev)
+        nb = self.neighbours
+        self._offsets = wp.array(nb.offsets, dtype=wp.int32, device=dev)
+        self._neighbours = wp.array(nb.neighbours if nb.neighbours.size else np.zeros(1, np.int32), dtype=wp.int32, device=dev)
+        self._scale = wp.array(nb.scale, dtype=wp.float32, device=dev)
+        self._gain = wp.zeros(v, dtype=wp.float32, device=dev)
+        self._gain.fill_(1.0)
+        passes = p["filter_iterations"]
+        self._buffers = [wp.zeros((v, c), dtype=wp.float32, device=dev) for _ in range(min(passes, 2))]
+        self._gain_scratch = wp.zeros(v, dtype=wp.float32, device=dev) if passes > 1 else None
+        self._fresh = self._raw if passes == 0 else self._buffers[(passes - 1) % 2]
+        st = kernels.TemporalState()
+        st.history = wp.zeros((v, c), dtype=wp.float32, device=dev)
+        st.frames = wp.zeros(v, dtype=wp.float32, device=dev)
+        st.variance_mean = wp.zeros(v, dtype=wp.float32, device=dev)
+        st.variance = wp.zeros(v, dtype=wp.float32, device=dev)
+        st.prev_points = wp.zeros(v, dtype=wp.vec3, device=dev)
+        st.prev_normals = wp.zeros(v, dtype=wp.vec3, device=dev)
+        st.reset = wp.zeros(v, dtype=wp.int32, device=dev)
+        self._state = st
+        tp = kernels.TemporalParams()
+        tp.alpha = float(p["alpha"])
+        tp.motion = float(p["motion"])
+        tp.normal_cos = float(math.cos(math.radians(p["normal_turn"])))
+        tp.threshold = float(p["threshold"])
+        tp.in_control = 1 if p["control"] == "previous" else 0
+        self._params = tp
+        self._residual_kernel = kernels.residual_kernel(p["order"])
+        self._filter_kernel = kernels.filter_kernel(p["order"])
+        self._temporal_kernel = kernels.temporal_kernel(p["order"])
+        self._workers = cpu_workers() if dev.is_cpu else 1
+        return {"transfer": self._transfer}
+
+    def launch(self, state):
+        p, dev = self.params, self._dev
+        v = self._transfer.shape[0]
+        mesh_id, offset = self._bvh.id, self._bvh.offset
+
+        def ray_inputs(start, stop):
+            return [mesh_id, self._points, self._normals, self._frames_in, self._use_local, self._control,
+                    self._use_control, self._samples, p["seed"], self._step, offset, start, self._raw, self._variance]
+
+        launch_parallel(self._residual_kernel, v, ray_inputs, dev, self._workers, min_count=_CHUNK_MIN_VERTICES)
+        src = self._raw
+        for i in range(p["filter_iterations"]):
+            dst = self._buffers[i % 2]
+            gain = self._gain if i == 0 else self._gain_scratch
+            wp.launch(self._filter_kernel, dim=v, device=dev,
+                      inputs=[self._offsets, self._neighbours, self._points, self._normals, self._scale,
+                              float(p["sigma_normal"]), float(p["sigma_distance"]), src, dst, gain])
+            src = dst
+        wp.launch(self._temporal_kernel, dim=v, device=dev,
+                  inputs=[self._points, self._normals, self._scale, self._control, self._use_control, self._fresh,
+                          self._variance, self._gain, self._state, self._params, self._transfer])
+        wp.launch(kernels.advance_kernel, dim=1, device=dev, inputs=[self._step])
+
+    def model_bytes(self) -> int:
+        v, c = self._transfer.shape
+        return int(4 * (v * c * (3 + min(self.params["filter_iterations"], 2)) + 12 * v))
+
+    def diagnostics(self) -> dict:
+        """The last frame: effective samples per vertex (rays x effective frames x the filter's
+        variance reduction), history cuts by cause, and the variance estimate of the transfer
+        (the square root of its mean over vertices, relative to the transfer's RMS norm)."""
+        if not hasattr(self, "_state"):
+            return {}
+        frames = self._state.frames.numpy().astype(np.float64)
+        gain = self._gain.numpy().astype(np.float64)
+        eff = self.params["samples"] * frames * gain
+        reset = self._state.reset.numpy()
+        var = self._state.variance.numpy().astype(np.float64)
+        t = self._transfer.numpy().astype(np.float64)
+        norm = float(np.sqrt(np.mean(np.sum(t * t, axis=1)))) or 1.0
+        return {
+            "effective_samples_mean": float(eff.mean()), "effective_samples_min": float(eff.min()),
+            "effective_samples_p05": float(np.percentile(eff, 5)),
+            "resets_variance": int(np.count_nonzero(reset == 1)), "resets_motion": int(np.count_nonzero(reset == 2)),
+            "resets_nonfinite": int(np.count_nonzero(reset == 3)),
+            "variance_rel": float(np.sqrt(max(var.mean(), 0.0))) / norm,
+            "steps": int(self._step.numpy()[0]),
+            **{f"surface_{k}": v for k, v in self.setup_report.items()},
+        }
