@@ -41,7 +41,9 @@ from warpshade.graph import ArtifactCache
 from warpshade.measure import (  # noqa: E402
     BENCH_SCENES,
     ground_truth,
+    lag,
     load_bench_scene,
+    noise,
     pick_frames,
     reference_model,
     run_setting,
@@ -125,6 +127,21 @@ def run_row(row, scene, lighting, device, timing_frames, gt_frames, truth_for, p
         "error_per_frame": per_frame,
         "reference": reference,
     }
+
+
+def temporal_metrics(row, scene, lighting, device, gt_samples, cache_root, reference: str) -> dict:
+    """``--temporal``: noise over 8 seeds at a held frame and lag on the fastest-moving frames of
+    the clip (:func:`warpshade.measure.noise`, :func:`warpshade.measure.lag`); lag is measured
+    against the diffuse reference only (None for rows measured against a glossy one)."""
+    out = {"noise": noise(scene, lighting, row.stages, output=row.output, device=device, cache_dir=cache_root)}
+    if reference == "diffuse":
+        lg = lag(scene, lighting, row.stages, lambda frames: ground_truth(scene, lighting, frames, gt_samples, device),
+                 output=row.output, device=device, cache_dir=cache_root)
+        lg.pop("diagnostics", None)
+        out["lag"] = lg
+    else:
+        out["lag"] = {"lag": None, "lag_note": f"measured against the diffuse reference only, the row's is {reference}"}
+    return out
 
 
 def _vs_diffuse(r) -> bool:
@@ -239,6 +256,9 @@ def main(argv=None) -> int:
                     help="comma-separated row labels to leave out (e.g. \"ldprt-glossy n6 b12 N4\")")
     ap.add_argument("--gt-samples", type=int, default=None, help="ground-truth samples per vertex")
     ap.add_argument("--out", default=None, help="output directory (default benchmarks/results; required with --quick)")
+    ap.add_argument("--temporal", action="store_true",
+                    help="also measure noise (8 seeds at a held frame) and lag (error on the fastest-moving frames "
+                         "relative to the clip's mean) for every row")
     ap.add_argument("--replot", default=None, metavar="JSON",
                     help="redraw the chart and table of an earlier results JSON (next to it) without measuring")
     args = ap.parse_args(argv)
@@ -298,6 +318,14 @@ def main(argv=None) -> int:
                                     "failed": repr(exc)})
                     continue
                 r.update(scene=key, device=device, vertex_count=scene.vertex_count)
+                if args.temporal:
+                    try:
+                        r["temporal"] = temporal_metrics(row, scene, lighting, device, gt_samples, precompute_cache[0].root,
+                                                         r["reference"])
+                        print(f"    {'':28s} noise {r['temporal']['noise']['noise_rel']:.4f}  lag {r['temporal']['lag']['lag']}",
+                              flush=True)
+                    except Exception as exc:  # reported with the row, the row's other numbers kept
+                        r["temporal"] = {"failed": repr(exc)}
                 results.append(r)
                 e = r["error"]
                 print(f"    {row.label:28s} {r['median_frame_ms']:9.2f} ms/frame  precompute {r['precompute_s']:7.2f} s  "
@@ -311,7 +339,7 @@ def main(argv=None) -> int:
             "rotate_degrees_per_frame": ROTATE_DEGREES_PER_FRAME,
             "threads": cpu_workers() if device == "cpu" else None,
             "command": " ".join(["python", "benchmarks/run.py", *(argv if argv is not None else sys.argv[1:])]),
-            "seconds": time.perf_counter() - t_all,
+            "seconds": time.perf_counter() - t_all, "temporal": args.temporal,
         }
         stem = f"{date}-{tag}" + ("-quick" if args.quick else "")
         write_json_atomic(out_dir / f"{stem}.json", {"meta": meta, "results": results}, indent=1)

@@ -60,7 +60,7 @@ def _residual(device, pts, nrm, bvh, samples, control, seed=0, step=0, order=ORD
     var = wp.zeros(v, dtype=wp.float32, device=dev)
     rot = wp.zeros(v, dtype=wp.mat33, device=dev)
     wp.launch(kernels.residual_kernel(order), dim=v, device=dev,
-              inputs=[bvh.id, p, n, wp.empty(0, dtype=wp.mat33, device=dev), 0, ctl, 0 if control is None else 1, dirs,
+              inputs=[bvh.id, p, n, wp.empty(0, dtype=wp.mat33, device=dev), 0, ctl, 0 if control is None else 1, 0, dirs,
                       seed, stp, bvh.offset, 0, res, var])
     wp.launch(kernels.rotations_kernel, dim=v, device=dev, inputs=[seed, stp, rot])
     return res.numpy(), var.numpy(), rot.numpy()

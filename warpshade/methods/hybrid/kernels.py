@@ -14,15 +14,20 @@ tangent frame ``F``):
       m2  = (4 pi)^2 mean_k e_k^2 |y(w_k')|^2 = 4 pi C mean_k e_k^2      (addition theorem)
       var = max(0, m2 - |r|^2) / (K - 1)    (K > 1; m2 for K = 1: an upper bound)
 
-  ``var`` is the trace of the covariance of ``r`` (the sum over coefficients). Only rays above the
+  ``var`` is the trace of the covariance of ``r`` (the sum over coefficients). With
+  ``add_control`` the kernel writes ``T_hat + r`` (the full one-frame estimate) instead of ``r``. Only rays above the
   horizon are traced (``max(0, n.w)`` is zero below it); ``V`` is 1 for a ray that hits nothing.
 * :func:`filter_kernel` -- one Jacobi pass of an edge-aware filter over the mesh neighbours:
   ``r'_v = (r_v + sum_u w_uv r_u) / (1 + sum_u w_uv)`` with
   ``w_uv = exp(-(1 - n_u.n_v) / sigma_n^2) exp(-|p_u - p_v|^2 / (2 (sigma_d s_v)^2))`` for
   ``n_u.n_v > 0`` (else 0), ``s_v`` the vertex's mean edge length at rest; it also writes the
   variance reduction of the pass for independent inputs, ``(1 + sum w)^2 / (1 + sum w^2)``.
-* :func:`temporal_kernel` -- the exponential moving average of the residual per vertex with its
-  cuts (:func:`temporal_update`), and the transfer ``T = T_hat + h``.
+* :func:`temporal_kernel` -- the exponential moving average of the residual per vertex, and the
+  transfer ``T = T_hat + h``; when the control is the last estimate (``in_control``) the fresh
+  input is the full estimate ``T_prev + r`` (filtered) and ``T = (1 - a) T_prev + a fresh``. With ``z = |r - h|^2 / (var_mean + var_h)`` (1 on average while the
+  residual holds still) the weight of the fresh frame is ``max(alpha, 1 / (n + 1), s^2)``,
+  ``s = clamp((z - 1) / (threshold - 1), 0, 1)``, so the history fades as the fresh rays drift
+  from it, and is cut (weight 1) for ``z > threshold`` or when the vertex moved or turned fast.
 * :func:`advance_kernel` -- the frame counter, incremented at the end of every frame.
 """
 
@@ -85,6 +90,7 @@ def residual_kernel(order: int):
         use_local: int,
         control: wp.array2d(dtype=wp.float32),
         use_control: int,
+        add_control: int,
         samples: wp.array(dtype=wp.vec3),
         seed: int,
         step: wp.array(dtype=wp.int32),
@@ -122,8 +128,10 @@ def residual_kernel(order: int):
         norm2 = float(0.0)
         for i in range(C):
             r = acc[i] * weight
-            residual[v, i] = r
             norm2 += r * r
+            if add_control != 0:
+                r += t_hat[i]
+            residual[v, i] = r
         second = float(C) * weight * m2
         var = second
         if k > 1:
@@ -212,8 +220,8 @@ class TemporalParams:
     alpha: float  # smallest weight of a new frame (EMA weight once enough frames are in)
     motion: float  # displacement per frame, in mean edge lengths, that cuts the history
     normal_cos: float  # cosine of the normal's turn per frame that cuts the history
-    threshold: float  # variance test: cut when |r - h|^2 > threshold * (var_mean + var)
-    in_control: int  # 1: the control is the last estimate (the history lives in it)
+    threshold: float  # variance test: cut when z = |r - h|^2 / (var_mean + var) > threshold
+    in_control: int  # 1: the control is the last estimate (the history lives in it; fresh = T_prev + r)
 
 
 @functools.lru_cache(maxsize=None)
@@ -241,12 +249,13 @@ def temporal_kernel(order: int):
         vf = fresh_variance[v] / wp.max(gain[v], 1.0)
         count = state.frames[v]
         code = int(RESET_NONE)
-        # distance of the fresh residual from the history (the history is 0 when it lives in the control)
+        drift = float(0.0)
+        # distance of the fresh estimate from the history (the last transfer when it lives in the control)
         d2 = float(0.0)
         for i in range(C):
-            h = float(0.0)
-            if params.in_control == 0:
-                h = state.history[v, i]
+            h = state.history[v, i]
+            if params.in_control != 0:
+                h = control[v, i]
             diff = fresh[v, i] - h
             d2 += diff * diff
         if count > 0.0:
@@ -259,13 +268,17 @@ def temporal_kernel(order: int):
                 code = RESET_MOTION
             else:
                 vm = (1.0 - params.alpha) * state.variance_mean[v] + params.alpha * vf
-                if d2 > params.threshold * (vm + state.variance[v]) + 1.0e-12:
+                z = d2 / (vm + state.variance[v] + 1.0e-12)
+                if z > params.threshold:
                     code = RESET_VARIANCE
+                elif params.threshold > 1.0:
+                    s = wp.clamp((z - 1.0) / (params.threshold - 1.0), 0.0, 1.0)
+                    drift = s * s
         if not (wp.isfinite(d2) and wp.isfinite(vf)):
             code = RESET_NONFINITE
         a = float(1.0)
         if count > 0.0 and code == RESET_NONE:
-            a = wp.max(params.alpha, 1.0 / (count + 1.0))
+            a = wp.max(wp.max(params.alpha, 1.0 / (count + 1.0)), drift)
         if code == RESET_NONFINITE:
             for i in range(C):
                 state.history[v, i] = 0.0
@@ -279,15 +292,15 @@ def temporal_kernel(order: int):
             state.variance_mean[v] = 0.0
         else:
             for i in range(C):
-                h = float(0.0)
-                if params.in_control == 0:
-                    h = state.history[v, i]
+                h = state.history[v, i]
+                base = float(0.0)
+                if params.in_control != 0:
+                    h = control[v, i]
+                elif use_control != 0:
+                    base = control[v, i]
                 h = (1.0 - a) * h + a * fresh[v, i]
                 state.history[v, i] = h
-                c = float(0.0)
-                if use_control != 0:
-                    c = control[v, i]
-                transfer[v, i] = c + h
+                transfer[v, i] = base + h
             if a >= 1.0:
                 state.frames[v] = 1.0
                 state.variance[v] = vf

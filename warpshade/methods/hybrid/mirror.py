@@ -16,7 +16,7 @@ __all__ = ["residual_f64", "filter_f64", "temporal_f64", "estimate_f64"]
 _RESET_NONE, _RESET_VARIANCE, _RESET_MOTION, _RESET_NONFINITE = 0, 1, 2, 3
 
 
-def residual_f64(normals, rotations, samples, occluded, order: int, control=None, frames=None):
+def residual_f64(normals, rotations, samples, occluded, order: int, control=None, frames=None, add_control: bool = False):
     """The control-variate residual and the variance of that one-frame estimate per vertex.
 
     Args:
@@ -47,6 +47,8 @@ def residual_f64(normals, rotations, samples, occluded, order: int, control=None
     r = w * np.einsum("vk,vkc->vc", e, y)
     second = c * w * np.sum(e * e, axis=1)
     var = np.maximum(second - np.sum(r * r, axis=1), 0.0) / (k - 1) if k > 1 else second
+    if add_control and control is not None:
+        r = r + np.asarray(control, np.float64)
     return r, var
 
 
@@ -109,9 +111,10 @@ def temporal_f64(state: dict, points, normals, scale, fresh, fresh_variance, gai
     for v in range(vcount):
         vf = fresh_variance[v] / max(gain[v], 1.0)
         count = st["frames"][v]
-        h_prev = np.zeros(c) if params["in_control"] else st["history"][v]
+        h_prev = ctl[v] if params["in_control"] else st["history"][v]
         d2 = float(np.sum((fr[v] - h_prev) ** 2))
         code = _RESET_NONE
+        drift = 0.0
         if count > 0:
             moved = np.linalg.norm(p[v] - st["prev_points"][v])
             ln = np.linalg.norm(n[v]) * np.linalg.norm(st["prev_normals"][v])
@@ -120,8 +123,11 @@ def temporal_f64(state: dict, points, normals, scale, fresh, fresh_variance, gai
                 code = _RESET_MOTION
             else:
                 vm = (1 - alpha) * st["variance_mean"][v] + alpha * vf
-                if d2 > params["threshold"] * (vm + st["variance"][v]) + 1e-12:
+                z = d2 / (vm + st["variance"][v] + 1e-12)
+                if z > params["threshold"]:
                     code = _RESET_VARIANCE
+                elif params["threshold"] > 1.0:
+                    drift = min(max((z - 1.0) / (params["threshold"] - 1.0), 0.0), 1.0) ** 2
         if not (np.isfinite(d2) and np.isfinite(vf)):
             code = _RESET_NONFINITE
         if code == _RESET_NONFINITE:
@@ -129,10 +135,10 @@ def temporal_f64(state: dict, points, normals, scale, fresh, fresh_variance, gai
             out[v] = np.where(np.isfinite(ctl[v]), ctl[v], 0.0) if control is not None else 0.0
             st["frames"][v] = st["variance"][v] = st["variance_mean"][v] = 0.0
         else:
-            a = max(alpha, 1.0 / (count + 1.0)) if count > 0 and code == _RESET_NONE else 1.0
+            a = max(alpha, 1.0 / (count + 1.0), drift) if count > 0 and code == _RESET_NONE else 1.0
             h = (1 - a) * h_prev + a * fr[v]
             st["history"][v] = h
-            out[v] = ctl[v] + h
+            out[v] = h if params["in_control"] else ctl[v] + h
             if a >= 1.0:
                 st["frames"][v], st["variance"][v], st["variance_mean"][v] = 1.0, vf, vf
             else:

@@ -17,17 +17,27 @@ DATADRIVEN_SCENES = {"figure": ("bundled:figure_train", None), "figure_walk": ("
 
 
 def stages_for(control: str, samples: int, order: int = 6, training: str | None = None, frames: str | None = None,
-               training_samples: int = 256, bake_samples: int = 256, trace: dict | None = None) -> tuple:
+               training_samples: int = 256, bake_samples: int = 256, space: str = "world", trace: dict | None = None) -> tuple:
     """The stages of a hybrid graph with a control: ``"datadriven"`` (needs ``training``),
-    ``"ldprt"`` (local transfer baked at the first frame, rotated with the surface), ``"previous"``
-    or ``"none"``; the ray count ``samples`` is ``hybrid.trace``'s."""
+    ``"ldprt"`` (local transfer baked at the first frame, rotated with the surface: always in the
+    tangent frames), ``"previous"`` or ``"none"`` (in ``space``, world or the tangent frames); the
+    ray count ``samples`` is ``hybrid.trace``'s. Local-frame graphs shade with
+    ``ldprt.shade_rotated``, world-frame ones with ``prt.shade``."""
     params = {"order": order, "samples": samples, **(trace or {})}
-    shade = ("shade", "prt.shade", {"order": order}, {"transfer": "trace.transfer"})
+    local = control == "ldprt" or space == "local"
+    if local:
+        params["space"] = "local"
+        pre = (("frames", "ldprt.frames", {}, {}),)
+        wires = {"frames": "frames.frames"}
+        shade = ("shade", "ldprt.shade_rotated", {"order": order}, {"transfer": "trace.transfer", "frames": "frames.frames"})
+    else:
+        pre, wires = (), {}
+        shade = ("shade", "prt.shade", {"order": order}, {"transfer": "trace.transfer"})
     if control in ("previous", "none"):
-        return (("trace", "hybrid.trace", {**params, "control": control}, {}), shade)
+        return (*pre, ("trace", "hybrid.trace", {**params, "control": control}, wires), shade)
     if control == "datadriven":
-        if training is None:
-            raise ValueError("stages_for: the data-driven control needs a training clip")
+        if training is None or local:
+            raise ValueError("stages_for: the data-driven control needs a training clip and the world frame")
         data = {"training": training, "order": order, "samples": training_samples}
         if frames is not None:
             data["frames"] = frames
@@ -36,11 +46,8 @@ def stages_for(control: str, samples: int, order: int = 6, training: str | None 
                 ("model", "datadriven.transfer", {"order": order}, {"model": "fit.model"}),
                 ("trace", "hybrid.trace", {**params, "control": "model"}, {"control": "model.transfer"}), shade)
     if control == "ldprt":
-        return (("bake", "ldprt.transfer", {"order": order, "samples": bake_samples}, {}),
-                ("frames", "ldprt.frames", {}, {}),
-                ("trace", "hybrid.trace", {**params, "control": "model", "space": "local"},
-                 {"control": "bake.transfer", "frames": "frames.frames"}),
-                ("shade", "ldprt.shade_rotated", {"order": order}, {"transfer": "trace.transfer", "frames": "frames.frames"}))
+        return (("bake", "ldprt.transfer", {"order": order, "samples": bake_samples}, {}), *pre,
+                ("trace", "hybrid.trace", {**params, "control": "model"}, {"control": "bake.transfer", **wires}), shade)
     raise ValueError(f"stages_for: unknown control {control!r}")
 
 

@@ -18,7 +18,9 @@
   Controls (``control``): ``model`` -- a transfer on the input port ``control`` (the data-driven
   transfer, LDPRT's local transfer with ``space = "local"`` and the tangent frames on ``frames``,
   a static bake); ``previous`` -- the stage's own last estimate (the history then lives in the
-  control: ``T = (1 - a) T_prev + a (T_prev + r)``); ``none`` -- plain tracing with reuse.
+  control: the one-frame estimate ``T_prev + r`` is filtered and ``T = (1 - a) T_prev + a B(T_prev + r)``,
+  ``B`` the filter: filtering the correction ``r`` alone and adding it to the state would let the
+  filter's alternating modes grow from frame to frame); ``none`` -- plain tracing with reuse.
   Output: ``transfer`` (V, C) for ``prt.shade`` (world frame), or for ``ldprt.shade_rotated``
   (local frame). The frame counter that draws new rotations is a device array advanced inside the
   recorded frame. :meth:`HybridTraceStage.diagnostics` reports the effective samples per vertex,
@@ -156,7 +158,7 @@ class HybridTraceStage(FrameStage):
 
         def ray_inputs(start, stop):
             return [mesh_id, self._points, self._normals, self._frames_in, self._use_local, self._control,
-                    self._use_control, self._samples, p["seed"], self._step, offset, start, self._raw, self._variance]
+                    self._use_control, self._params.in_control, self._samples, p["seed"], self._step, offset, start, self._raw, self._variance]
 
         launch_parallel(self._residual_kernel, v, ray_inputs, dev, self._workers, min_count=_CHUNK_MIN_VERTICES)
         src = self._raw
