@@ -27,6 +27,7 @@ TEMPLATE_MODULES = ("__init__", "model", "kernels", "mirror", "stages", "rows", 
 CLASS_PREFIX = {
     "datadriven": "DataDriven",
     "heightfield": "HeightField",
+    "hybrid": "Hybrid",
     "ldprt": "Ldprt",
     "prt": "Prt",
     "rpo": "Rpo",

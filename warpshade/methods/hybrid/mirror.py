@@ -11,7 +11,7 @@ import numpy as np
 
 from ...basis import sh
 
-__all__ = ["residual_f64", "filter_f64", "temporal_f64", "estimate_f64"]
+__all__: list[str] = []
 
 _RESET_NONE, _RESET_VARIANCE, _RESET_MOTION, _RESET_NONFINITE = 0, 1, 2, 3
 

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["SurfaceNeighbours", "surface_neighbours"]
+__all__: list[str] = []
 
 
 @dataclass

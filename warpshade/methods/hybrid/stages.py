@@ -63,7 +63,7 @@ class HybridTraceStage(FrameStage):
                        choices=SPACES),
         "alpha": Param(0.1, float, "smallest weight of a new frame in the moving average (1: no reuse over frames)",
                        minimum=1e-3, maximum=1.0),
-        "threshold": Param(4.0, float, "history cut when |fresh - history|^2 exceeds this many times their variance",
+        "threshold": Param(2.0, float, "history cut when |fresh - history|^2 exceeds this many times their variance",
                            minimum=0.0),
         "motion": Param(1.0, float, "history cut when a vertex moves more than this many mean edge lengths per frame",
                         minimum=0.0),
