@@ -276,3 +276,27 @@ def test_isolated_and_non_manifold_vertices_are_bounded_and_reported(device):
     assert d["surface_isolated_vertices"] == 1 and d["surface_non_manifold_edges"] == 1
     for f in scene.frames:
         assert np.all(np.isfinite(rt.results[float(f)]))
+
+
+def test_noise_and_lag_metrics(device):
+    """Noise over seeds: zero (one run) for a method without a seed, positive for few rays; lag is
+    finite on a moving scene and None when no geometry moves."""
+    from warpshade.measure import ground_truth, lag, noise
+    from warpshade.scene import LightingSource
+
+    scene = _plane_box(frames=5, teleport_at=3)
+    lighting = LightingSource(scene.lights, scene.up_axis, 0.0, 0.0)
+    hybrid = tuple((s.name, s.type, s.params, s.inputs) for s in _graph(samples=4).stages)
+    plain = (("shade", "prt.unshadowed", {"order": 2}, {}),)
+    n_plain = noise(scene, lighting, plain, frame=2.0, seeds=3, device=device, cache_dir=None)
+    assert n_plain["deterministic"] and n_plain["noise_rel"] == 0.0
+    n_hybrid = noise(scene, lighting, hybrid, frame=2.0, seeds=3, device=device, cache_dir=None)
+    assert n_hybrid["noise_seeds"] == 3 and 0.0 < n_hybrid["noise_rel"] < 1.0
+
+    def truth_for(frames):
+        return ground_truth(scene, lighting, frames, 16, device, cache_dir=None)
+
+    lg = lag(scene, lighting, hybrid, truth_for, fast=1, spread=2, device=device, cache_dir=None)
+    assert lg["lag_fast_frames"] == [3.0] and np.isfinite(lg["lag"]) and lg["lag"] > 0
+    still = _plane_box(frames=3)
+    assert lag(still, lighting, hybrid, truth_for, device=device, cache_dir=None)["lag"] is None
