@@ -318,6 +318,11 @@ def main(argv=None) -> int:
                                     "failed": repr(exc)})
                     continue
                 r.update(scene=key, device=device, vertex_count=scene.vertex_count)
+                results.append(r)
+                e = r["error"]
+                print(f"    {row.label:28s} {r['median_frame_ms']:9.2f} ms/frame  precompute {r['precompute_s']:7.2f} s  "
+                      f"rel RMS {e['rel_rms']:.4f} (noise {e.get('noise_rel_rms', float('nan')):.4f})  p99 {e['rel_p99']:.4f}",
+                      flush=True)
                 if args.temporal:
                     try:
                         r["temporal"] = temporal_metrics(row, scene, lighting, device, gt_samples, precompute_cache[0].root,
@@ -326,11 +331,6 @@ def main(argv=None) -> int:
                               flush=True)
                     except Exception as exc:  # reported with the row, the row's other numbers kept
                         r["temporal"] = {"failed": repr(exc)}
-                results.append(r)
-                e = r["error"]
-                print(f"    {row.label:28s} {r['median_frame_ms']:9.2f} ms/frame  precompute {r['precompute_s']:7.2f} s  "
-                      f"rel RMS {e['rel_rms']:.4f} (noise {e.get('noise_rel_rms', float('nan')):.4f})  p99 {e['rel_p99']:.4f}",
-                      flush=True)
         ok = [r for r in results if "failed" not in r]
         tag = "cpu" if device == "cpu" else device.replace(":", "")
         meta = {
@@ -339,7 +339,8 @@ def main(argv=None) -> int:
             "rotate_degrees_per_frame": ROTATE_DEGREES_PER_FRAME,
             "threads": cpu_workers() if device == "cpu" else None,
             "command": " ".join(["python", "benchmarks/run.py", *(argv if argv is not None else sys.argv[1:])]),
-            "seconds": time.perf_counter() - t_all, "temporal": args.temporal,
+            "seconds": time.perf_counter() - t_all,
+            "temporal": args.temporal,
         }
         stem = f"{date}-{tag}" + ("-quick" if args.quick else "")
         write_json_atomic(out_dir / f"{stem}.json", {"meta": meta, "results": results}, indent=1)
