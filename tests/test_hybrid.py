@@ -10,7 +10,7 @@ from warpshade.basis import quadrature
 from warpshade.geometry.bvh import Visibility, trace_occlusion_f64
 from warpshade.geometry.normals import vertex_normals_f64
 from warpshade.graph import GraphSpec, StageSpec
-from warpshade.methods.hybrid import filter_f64, residual_f64, surface_neighbours, temporal_f64
+from warpshade.methods.hybrid import cycle_directions_f64, filter_f64, residual_f64, surface_neighbours, temporal_f64
 from warpshade.methods.hybrid import kernels
 from warpshade.scene import Environment, Mesh, Scene
 
@@ -47,43 +47,50 @@ def _frame_arrays(scene, device):
     return pts, nrm, bvh
 
 
-def _residual(device, pts, nrm, bvh, samples, control, seed=0, step=0, order=ORDER):
+def _residual(device, pts, nrm, bvh, samples, control, seed=0, step=0, order=ORDER, cycle=1):
     v = pts.shape[0]
     c = order * order
     dev = wp.get_device(device)
     args = dict(dtype=wp.vec3, device=dev)
     p, n = wp.array(pts.astype(np.float32), **args), wp.array(nrm.astype(np.float32), **args)
-    dirs = wp.array(quadrature.fibonacci(samples).directions.astype(np.float32), **args)
     ctl = wp.array((np.zeros((1, c)) if control is None else control).astype(np.float32), dtype=wp.float32, device=dev)
     stp = wp.array(np.array([step], np.int32), dtype=wp.int32, device=dev)
     res = wp.zeros((v, c), dtype=wp.float32, device=dev)
     var = wp.zeros(v, dtype=wp.float32, device=dev)
     rot = wp.zeros(v, dtype=wp.mat33, device=dev)
     wp.launch(kernels.residual_kernel(order), dim=v, device=dev,
-              inputs=[bvh.id, p, n, wp.empty(0, dtype=wp.mat33, device=dev), 0, ctl, 0 if control is None else 1, 0, dirs,
-                      seed, stp, bvh.offset, 0, res, var])
-    wp.launch(kernels.rotations_kernel, dim=v, device=dev, inputs=[seed, stp, rot])
+              inputs=[bvh.id, p, n, wp.empty(0, dtype=wp.mat33, device=dev), 0, ctl, 0 if control is None else 1, 0, samples,
+                      cycle, seed, stp, bvh.offset, 0, res, var])
+    wp.launch(kernels.rotations_kernel, dim=v, device=dev, inputs=[seed, stp, cycle, rot])
     return res.numpy(), var.numpy(), rot.numpy()
 
 
-def _hits(scene, pts, nrm, rot, samples, offset):
-    dirs = np.einsum("vij,kj->vki", rot.astype(np.float64), quadrature.fibonacci(samples).directions)
+def _hits(scene, pts, nrm, rot, samples, offset, step=0, cycle=1):
+    dirs = np.einsum("vij,kj->vki", rot.astype(np.float64), cycle_directions_f64(samples, step, cycle))
     origins = np.repeat((pts + offset * nrm)[:, None, :], samples, axis=1)
     return trace_occlusion_f64(scene.points_at(0.0), scene.faces, origins.reshape(-1, 3),
                                dirs.reshape(-1, 3)).reshape(len(pts), samples)
 
 
-@pytest.mark.parametrize("samples", [1, 16])
-def test_residual_kernel_matches_mirror(device, samples, rng):
+@pytest.mark.parametrize("samples,cycle", [(1, 1), (16, 1), (16, 4)])
+def test_residual_kernel_matches_mirror(device, samples, cycle, rng):
     scene = _plane_box()
     pts, nrm, bvh = _frame_arrays(scene, device)
     control = 0.3 * rng.standard_normal((pts.shape[0], ORDER * ORDER))
-    res, var, rot = _residual(device, pts, nrm, bvh, samples, control, seed=5, step=3)
-    occluded = _hits(scene, pts, nrm, rot, samples, bvh.offset)
-    r64, v64 = residual_f64(nrm, rot, quadrature.fibonacci(samples).directions, occluded, ORDER, control)
+    res, var, rot = _residual(device, pts, nrm, bvh, samples, control, seed=5, step=3, cycle=cycle)
+    occluded = _hits(scene, pts, nrm, rot, samples, bvh.offset, step=3, cycle=cycle)
+    r64, v64 = residual_f64(nrm, rot, cycle_directions_f64(samples, 3, cycle), occluded, ORDER, control)
     assert_close(res, r64, atol=ATOL_RESIDUAL, what="residual")
     assert_close(var, v64, rtol=RTOL_VARIANCE, atol=ATOL_RESIDUAL, what="one-frame variance")
     assert np.all(np.isfinite(res)) and np.all(var >= 0)
+
+
+def test_cycle_directions_are_the_fibonacci_set_and_stratify_together():
+    assert_close(cycle_directions_f64(64, 0, 1), quadrature.fibonacci(64).directions, atol=1e-12, what="frame 0")
+    union = np.concatenate([cycle_directions_f64(16, j, 8) for j in range(8)])
+    z = np.sort(union[:, 2])
+    # 128 directions, 8 per z-stratum of the 16-point set: the union is stratified in z
+    assert np.all(np.histogram(z, bins=16, range=(-1, 1))[0] == 8)
 
 
 def test_rotations_change_per_frame_step(device):
@@ -92,6 +99,10 @@ def test_rotations_change_per_frame_step(device):
     _, _, r0 = _residual(device, pts, nrm, bvh, 4, None, step=0)
     _, _, r1 = _residual(device, pts, nrm, bvh, 4, None, step=1)
     assert np.abs(r0 - r1).max() > 0.1
+    c1 = _residual(device, pts, nrm, bvh, 4, None, step=1, cycle=4)[2]
+    c3 = _residual(device, pts, nrm, bvh, 4, None, step=3, cycle=4)[2]
+    c4 = _residual(device, pts, nrm, bvh, 4, None, step=4, cycle=4)[2]
+    assert np.array_equal(c1, c3) and np.abs(c3 - c4).max() > 0.1  # one rotation per cycle of 4 frames
     assert_close(np.einsum("vij,vkj->vik", r0, r0), np.eye(3)[None], atol=ATOL_FLOAT32 * 10, what="orthonormal rotations")
 
 
@@ -199,13 +210,14 @@ def test_variance_test_cuts_when_fresh_rays_disagree(device, rng):
 def _exact_projection(scene, pts, nrm, order, offset, rays=1024):
     rot = np.repeat(np.eye(3)[None], len(pts), axis=0)
     occ = _hits(scene, pts, nrm, rot, rays, offset)
-    r, _ = residual_f64(nrm, rot, quadrature.fibonacci(rays).directions, occ, order)
+    r, _ = residual_f64(nrm, rot, cycle_directions_f64(rays, 0, 1), occ, order)
     return r
 
 
 def test_control_variate_is_unbiased_and_a_wrong_control_only_adds_variance(device, rng):
-    """Mean over rotations of T_hat + r approaches the exact projection for a good control and a
-    wrong one; the wrong one's spread is larger."""
+    """Mean over frames (cycles of 4 shifted sets, a random rotation per cycle) of T_hat + r
+    approaches the exact projection for a good control and a wrong one; the wrong one's spread
+    is larger."""
     order = ORDER
     scene = _plane_box()
     pts, nrm, bvh = _frame_arrays(scene, device)
@@ -216,8 +228,8 @@ def test_control_variate_is_unbiased_and_a_wrong_control_only_adds_variance(devi
     wrong = 1.5 * rng.standard_normal((pts.shape[0], order * order))
     steps = 96
     for control, name in ((good, "good"), (wrong, "wrong")):
-        est = np.stack([(control + _residual(device, pts, nrm, bvh, 4, control, seed=11, step=s, order=order)[0])[pick]
-                        for s in range(steps)])
+        est = np.stack([(control + _residual(device, pts, nrm, bvh, 4, control, seed=11, step=s, order=order,
+                                             cycle=4)[0])[pick] for s in range(steps)])
         mean, se = est.mean(axis=0), est.std(axis=0, ddof=1) / np.sqrt(steps)
         # the exact projection's own quadrature error (1024 Fibonacci rays) is well under 2e-3
         assert np.all(np.abs(mean - exact) <= STDERR_SIGMAS * se + 2e-3), f"{name} control: biased"

@@ -15,7 +15,7 @@ frames, the history cut where the surface moves fast or fresh rays disagree with
 * :mod:`.budget` -- the candidate settings an error budget chooses from.
 """
 
-from .mirror import estimate_f64, filter_f64, residual_f64, temporal_f64
+from .mirror import cycle_directions_f64, estimate_f64, filter_f64, residual_f64, temporal_f64
 from .model import SurfaceNeighbours, surface_neighbours
 from .rows import harness_rows, stages_for
 from .stages import HybridTraceStage
@@ -23,6 +23,7 @@ from .stages import HybridTraceStage
 __all__ = [
     "HybridTraceStage",
     "SurfaceNeighbours",
+    "cycle_directions_f64",
     "estimate_f64",
     "filter_f64",
     "harness_rows",

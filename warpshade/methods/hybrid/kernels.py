@@ -1,10 +1,18 @@
 """Warp kernels of per-frame ray tracing with a control variate, reuse over frames and over the mesh.
 
-Per vertex ``v`` and frame, with ``K`` sample directions ``w_k`` (a spherical Fibonacci set rotated
-by a random rotation drawn from ``(seed + step * STEP_STRIDE, v)``, ``step`` a per-run frame counter
-held on the device), the control's transfer ``T_hat`` (zero without a control) and its
+Per vertex ``v`` and frame, with ``K`` sample directions ``w_k`` and the control's transfer
+``T_hat`` (zero without a control) and its
 reconstruction ``f_hat(w) = sum_j T_hat_j y_j(w')`` (``w' = w`` in the world frame, ``F w`` in the
 tangent frame ``F``):
+
+Sample directions (:func:`cycle_direction`): ``step`` is a per-run frame counter held on the
+device; frames go in cycles of ``M`` (``cycle``): frame ``j = step mod M`` of a cycle uses the
+spherical Fibonacci set shifted in its (z, phi) parametrisation by the ``j``-th point of the R2
+sequence (``z_k = 1 - 2 (k + u_j) / K``, ``phi_k = 2 pi frac(k / golden + v_j)``; ``j = 0`` is
+:func:`warpshade.basis.quadrature.fibonacci`), so that the ``M`` frames of a cycle together are
+a stratified set of ``K M`` directions; all of them rotated by one uniformly random rotation per
+vertex and cycle, drawn from ``(seed + (step div M) * STEP_STRIDE, v)``. Every frame's set is a
+fixed point set under a uniform random rotation, so every frame's estimate is unbiased.
 
 * :func:`residual_kernel` -- the control-variate residual and the variance of that one-frame
   estimate::
@@ -55,17 +63,38 @@ RESET_NONFINITE = wp.constant(3)
 _RAY_MAX = wp.constant(RAY_MAX_DISTANCE)
 
 
+#: R2 sequence steps (1 / plastic number, its square) and 1 / golden ratio.
+_R2_U = wp.constant(0.7548776662466927)
+_R2_V = wp.constant(0.5698402909980532)
+_INV_GOLDEN = wp.constant(0.6180339887498949)
+
+
 @wp.func
-def frame_rotation(seed: int, step: int, vertex: int) -> wp.mat33:
-    """The random rotation of a vertex's sample set at frame step ``step``."""
-    return random_rotation(seed + step * STEP_STRIDE, vertex)
+def frame_rotation(seed: int, step: int, cycle: int, vertex: int) -> wp.mat33:
+    """The random rotation of a vertex's sample set at frame step ``step`` (one per cycle)."""
+    return random_rotation(seed + (step / cycle) * STEP_STRIDE, vertex)
+
+
+@wp.func
+def cycle_direction(k: int, count: int, step: int, cycle: int) -> wp.vec3:
+    """Direction ``k`` of ``count`` at frame ``step mod cycle`` of a cycle (before the rotation)."""
+    j = step % cycle
+    u = 0.5
+    v = 0.0
+    if j > 0:
+        u = wp.mod(0.5 + float(j) * _R2_U, 1.0)
+        v = wp.mod(float(j) * _R2_V, 1.0)
+    z = 1.0 - 2.0 * (float(k) + u) / float(count)
+    r = wp.sqrt(wp.max(0.0, 1.0 - z * z))
+    phi = 2.0 * wp.pi * wp.mod(float(k) * _INV_GOLDEN + v, 1.0)
+    return wp.vec3(r * wp.cos(phi), r * wp.sin(phi), z)
 
 
 @wp.kernel
-def rotations_kernel(seed: int, step: wp.array(dtype=wp.int32), rotations: wp.array(dtype=wp.mat33)):
+def rotations_kernel(seed: int, step: wp.array(dtype=wp.int32), cycle: int, rotations: wp.array(dtype=wp.mat33)):
     """The rotations :func:`residual_kernel` uses at the current step (for checks)."""
     v = wp.tid()
-    rotations[v] = frame_rotation(seed, step[0], v)
+    rotations[v] = frame_rotation(seed, step[0], cycle, v)
 
 
 @wp.kernel
@@ -91,7 +120,8 @@ def residual_kernel(order: int):
         control: wp.array2d(dtype=wp.float32),
         use_control: int,
         add_control: int,
-        samples: wp.array(dtype=wp.vec3),
+        count: int,
+        cycle: int,
         seed: int,
         step: wp.array(dtype=wp.int32),
         offset: float,
@@ -102,7 +132,8 @@ def residual_kernel(order: int):
         v = start + wp.tid()
         n = normals[v]
         origin = points[v] + offset * n
-        rot = frame_rotation(seed, step[0], v)
+        st = step[0]
+        rot = frame_rotation(seed, st, cycle, v)
         to_space = wp.identity(3, dtype=float)
         if use_local != 0:
             to_space = frames[v]
@@ -112,8 +143,8 @@ def residual_kernel(order: int):
                 t_hat[i] = control[v, i]
         acc = vec_t()
         m2 = float(0.0)
-        for s in range(samples.shape[0]):
-            d = rot * samples[s]
+        for s in range(count):
+            d = rot * cycle_direction(s, count, st, cycle)
             y = sh_eval(to_space * d)
             f = float(0.0)
             c = wp.dot(n, d)
@@ -123,7 +154,7 @@ def residual_kernel(order: int):
             e = f - wp.dot(t_hat, y)
             acc += e * y
             m2 += e * e
-        k = samples.shape[0]
+        k = count
         weight = 4.0 * wp.pi / float(k)
         norm2 = float(0.0)
         for i in range(C):

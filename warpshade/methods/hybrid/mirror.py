@@ -16,13 +16,25 @@ __all__: list[str] = []
 _RESET_NONE, _RESET_VARIANCE, _RESET_MOTION, _RESET_NONFINITE = 0, 1, 2, 3
 
 
+def cycle_directions_f64(count: int, step: int, cycle: int) -> np.ndarray:
+    """The ``count`` directions of frame ``step mod cycle`` of a cycle before the rotation
+    (:func:`.kernels.cycle_direction`), (count, 3)."""
+    j = step % cycle
+    u, v = (0.5, 0.0) if j == 0 else ((0.5 + j * 0.7548776662466927) % 1.0, (j * 0.5698402909980532) % 1.0)
+    k = np.arange(count, dtype=np.float64)
+    z = 1.0 - 2.0 * (k + u) / count
+    r = np.sqrt(np.maximum(0.0, 1.0 - z * z))
+    phi = 2.0 * np.pi * np.mod(k * 0.6180339887498949 + v, 1.0)
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=-1)
+
+
 def residual_f64(normals, rotations, samples, occluded, order: int, control=None, frames=None, add_control: bool = False):
     """The control-variate residual and the variance of that one-frame estimate per vertex.
 
     Args:
         normals: (V, 3) unit normals.
         rotations: (V, 3, 3) per-vertex rotations of the sample set.
-        samples: (K, 3) unit sample directions (the Fibonacci set).
+        samples: (K, 3) unit sample directions (:func:`cycle_directions_f64`).
         occluded: (V, K) bool, True where the ray toward ``rotations[v] @ samples[k]`` hits something
             (only rays above the horizon are used).
         order: SH order; control: (V, C) control transfer or None; frames: (V, 3, 3) tangent

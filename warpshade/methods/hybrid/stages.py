@@ -2,7 +2,8 @@
 
 * ``hybrid.trace`` (per frame): the diffuse transfer of every vertex from ``samples`` rays per
   vertex and frame (a spherical Fibonacci set rotated per vertex and per frame), with a control
-  model's transfer ``T_hat`` as control variate::
+  model's transfer ``T_hat`` as control variate (frames in cycles of ``cycle`` shifted Fibonacci
+  sets that are stratified together, :mod:`.kernels`)::
 
       T_i = T_hat_i + (4 pi / K) sum_k [V(w_k) max(0, n.w_k) - f_hat(w_k)] y_i(w_k),
       f_hat(w) = sum_j T_hat_j y_j(w)
@@ -34,7 +35,6 @@ import math
 import numpy as np
 
 from ..._wp import cpu_workers, launch_parallel, wp
-from ...basis import quadrature
 from ..common import order_param, rays_param
 from ..stage import FrameStage, Param, Port, StageError, register_stage
 from . import kernels
@@ -61,6 +61,8 @@ class HybridTraceStage(FrameStage):
                          "or none", choices=CONTROLS),
         "space": Param("world", str, "frame of the coefficients (local: per-vertex tangent frames on port 'frames')",
                        choices=SPACES),
+        "cycle": Param(1, int, "frames per cycle of shifted Fibonacci sets (stratified together; one random "
+                       "rotation per vertex and cycle); 1: a new rotation every frame", minimum=1, maximum=256),
         "alpha": Param(0.1, float, "smallest weight of a new frame in the moving average (1: no reuse over frames)",
                        minimum=1e-3, maximum=1.0),
         "threshold": Param(2.0, float, "history cut when |fresh - history|^2 exceeds this many times their variance",
@@ -115,7 +117,6 @@ class HybridTraceStage(FrameStage):
             self._control, self._use_control = self._transfer, 1
         else:
             self._control, self._use_control = wp.zeros((1, c), dtype=wp.float32, device=dev), 0
-        self._samples = wp.array(quadrature.fibonacci(p["samples"]).directions.astype(np.float32), dtype=wp.vec3, device=dev)
         self._step = wp.zeros(1, dtype=wp.int32, device=dev)
         self._raw = wp.zeros((v, c), dtype=wp.float32, device=dev)
         self._variance = wp.zeros(v, dtype=wp.float32, device=dev)
@@ -158,7 +159,7 @@ class HybridTraceStage(FrameStage):
 
         def ray_inputs(start, stop):
             return [mesh_id, self._points, self._normals, self._frames_in, self._use_local, self._control,
-                    self._use_control, self._params.in_control, self._samples, p["seed"], self._step, offset, start, self._raw, self._variance]
+                    self._use_control, self._params.in_control, p["samples"], p["cycle"], p["seed"], self._step, offset, start, self._raw, self._variance]
 
         launch_parallel(self._residual_kernel, v, ray_inputs, dev, self._workers, min_count=_CHUNK_MIN_VERTICES)
         src = self._raw
