@@ -100,7 +100,7 @@ def chart(results, path):
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--quick", action="store_true", help="smoke profile: cloth, K 8, control none, 64-ray baseline")
+    ap.add_argument("--quick", action="store_true", help="smoke profile: bend, K 8, control none, 64-ray baseline, order 3")
     ap.add_argument("--out", default=None, help="output directory (default benchmarks/results; required with --quick)")
     ap.add_argument("--scenes", default=",".join(SCENES))
     ap.add_argument("--samples", default="8,16,32,64", help="rays per vertex per frame of hybrid.trace")
@@ -117,7 +117,7 @@ def main(argv=None) -> int:
     if args.quick and args.out is None:
         ap.error("--quick writes only into --out DIR (never benchmarks/results)")
     if args.quick:
-        args.scenes, args.samples, args.controls, args.reference_rays = "cloth", "8", "none", 64
+        args.scenes, args.samples, args.controls, args.reference_rays = "bend", "8", "none", 64
         args.gt_samples, args.noise_frame, args.seeds, args.order = 32, 2, 2, 3
     out_dir = Path(args.out or ROOT / "benchmarks" / "results")
     out_dir.mkdir(parents=True, exist_ok=True)
