@@ -17,7 +17,7 @@ frames, the history cut where the surface moves fast or fresh rays disagree with
 
 from .mirror import cycle_directions_f64, estimate_f64, filter_f64, residual_f64, temporal_f64
 from .model import SurfaceNeighbours, surface_neighbours
-from .rows import harness_rows, stages_for
+from .rows import glossy_stages_for, harness_rows, stages_for
 from .stages import HybridTraceStage
 
 __all__ = [
@@ -26,6 +26,7 @@ __all__ = [
     "cycle_directions_f64",
     "estimate_f64",
     "filter_f64",
+    "glossy_stages_for",
     "harness_rows",
     "residual_f64",
     "stages_for",

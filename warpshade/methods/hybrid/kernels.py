@@ -22,7 +22,9 @@ fixed point set under a uniform random rotation, so every frame's estimate is un
       m2  = (4 pi)^2 mean_k e_k^2 |y(w_k')|^2 = 4 pi C mean_k e_k^2      (addition theorem)
       var = max(0, m2 - |r|^2) / (K - 1)    (K > 1; m2 for K = 1: an upper bound)
 
-  ``var`` is the trace of the covariance of ``r`` (the sum over coefficients). With
+  ``var`` is the trace of the covariance of ``r`` (the sum over coefficients). For the SH
+  visibility (``quantity`` 1, what ``rpo.shade`` reads) the integrand is ``V(w_k)`` above the
+  horizon and 1 below it (open below the horizon: no ray), as ``rpo.visibility_traced``. With
   ``add_control`` the kernel writes ``T_hat + r`` (the full one-frame estimate) instead of ``r``. Only rays above the
   horizon are traced (``max(0, n.w)`` is zero below it); ``V`` is 1 for a ray that hits nothing.
 * :func:`filter_kernel` -- one Jacobi pass of an edge-aware filter over the mesh neighbours:
@@ -50,10 +52,13 @@ from ...transfer.raytrace import random_rotation
 
 wp.set_module_options({"enable_backward": False})
 
-__all__ = ["STEP_STRIDE", "RESET_NONE", "RESET_VARIANCE", "RESET_MOTION", "RESET_NONFINITE"]
+__all__ = ["QUANTITY_TRANSFER", "QUANTITY_VISIBILITY", "STEP_STRIDE", "RESET_NONE", "RESET_VARIANCE", "RESET_MOTION", "RESET_NONFINITE"]
 
 #: Added to the seed per frame step: consecutive frames draw unrelated rotations.
 STEP_STRIDE = 7919
+#: What the rays estimate: the diffuse transfer, or the SH visibility open below the horizon.
+QUANTITY_TRANSFER = wp.constant(0)
+QUANTITY_VISIBILITY = wp.constant(1)
 #: Per-vertex reset codes written by the temporal kernel (what the diagnostics count).
 RESET_NONE = wp.constant(0)
 RESET_VARIANCE = wp.constant(1)
@@ -120,6 +125,7 @@ def residual_kernel(order: int):
         control: wp.array2d(dtype=wp.float32),
         use_control: int,
         add_control: int,
+        quantity: int,
         count: int,
         cycle: int,
         seed: int,
@@ -148,9 +154,15 @@ def residual_kernel(order: int):
             y = sh_eval(to_space * d)
             f = float(0.0)
             c = wp.dot(n, d)
-            if c > 0.0:
-                if not wp.mesh_query_ray_anyhit(mesh_id, origin, d, _RAY_MAX):
-                    f = c
+            if quantity == QUANTITY_TRANSFER:
+                if c > 0.0:
+                    if not wp.mesh_query_ray_anyhit(mesh_id, origin, d, _RAY_MAX):
+                        f = c
+            else:  # visibility, open below the horizon (no ray there)
+                f = 1.0
+                if c > 0.0:
+                    if wp.mesh_query_ray_anyhit(mesh_id, origin, d, _RAY_MAX):
+                        f = 0.0
             e = f - wp.dot(t_hat, y)
             acc += e * y
             m2 += e * e

@@ -28,7 +28,8 @@ def cycle_directions_f64(count: int, step: int, cycle: int) -> np.ndarray:
     return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=-1)
 
 
-def residual_f64(normals, rotations, samples, occluded, order: int, control=None, frames=None, add_control: bool = False):
+def residual_f64(normals, rotations, samples, occluded, order: int, control=None, frames=None, add_control: bool = False,
+                 quantity: str = "transfer"):
     """The control-variate residual and the variance of that one-frame estimate per vertex.
 
     Args:
@@ -52,7 +53,10 @@ def residual_f64(normals, rotations, samples, occluded, order: int, control=None
     ds = d if frames is None else np.einsum("vij,vkj->vki", np.asarray(frames, np.float64), d)
     y = sh.basis(ds, order)  # (V, K, C)
     cos = np.einsum("vki,vi->vk", d, n)
-    f = np.where((cos > 0) & ~np.asarray(occluded, bool), cos, 0.0)
+    if quantity == "transfer":
+        f = np.where((cos > 0) & ~np.asarray(occluded, bool), cos, 0.0)
+    else:
+        f = np.where((cos > 0) & np.asarray(occluded, bool), 0.0, 1.0)
     f_hat = 0.0 if control is None else np.einsum("vkc,vc->vk", y, np.asarray(control, np.float64))
     e = f - f_hat
     w = 4.0 * np.pi / k

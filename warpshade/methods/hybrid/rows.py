@@ -51,6 +51,26 @@ def stages_for(control: str, samples: int, order: int = 6, training: str | None 
     raise ValueError(f"stages_for: unknown control {control!r}")
 
 
+def glossy_stages_for(samples: int, order: int = 4, control: str = "static", bake_samples: int = 256,
+                      shade: dict | None = None, trace: dict | None = None) -> tuple:
+    """The SH visibility (open below the horizon, tangent frames) from ``samples`` rays per vertex
+    and frame with ``rpo.visibility_static`` (``control = "static"``), the last estimate
+    (``"previous"``) or nothing (``"none"``) as control, shaded by ``rpo.shade`` (glossy)."""
+    params = {"order": order, "samples": samples, "quantity": "visibility", "space": "local", **(trace or {})}
+    wires = {"frames": "frames.frames"}
+    pre = [("frames", "ldprt.frames", {}, {})]
+    if control == "static":
+        pre.append(("static", "rpo.visibility_static", {"order": order, "samples": bake_samples}, {}))
+        params["control"], wires["control"] = "model", "static.visibility"
+    elif control in ("previous", "none"):
+        params["control"] = control
+    else:
+        raise ValueError(f"glossy_stages_for: unknown control {control!r}")
+    shade_params = {"order": order, "rank": 8, "brdf": "ggx", "roughness": 0.5, **(shade or {})}
+    return (*pre, ("trace", "hybrid.trace", params, wires),
+            ("shade", "rpo.shade", shade_params, {"visibility": "trace.visibility", "frames": "frames.frames"}))
+
+
 def harness_rows(quick: bool = False) -> list:
     """K in {8, 16, 32, 64} rays per vertex per frame with each control, on the animated scenes."""
     rows = []

@@ -24,7 +24,9 @@
   filter's alternating modes grow from frame to frame); ``none`` -- plain tracing with reuse.
   Output: ``transfer`` (V, C) for ``prt.shade`` (world frame), or for ``ldprt.shade_rotated``
   (local frame). The frame counter that draws new rotations is a device array advanced inside the
-  recorded frame. :meth:`HybridTraceStage.diagnostics` reports the effective samples per vertex,
+  recorded frame. With ``quantity = "visibility"`` the same estimator gives the SH visibility
+  (open below the horizon, tangent frames with ``space = "local"``) that ``rpo.shade`` reads,
+  with e.g. ``rpo.visibility_static`` as control. :meth:`HybridTraceStage.diagnostics` reports the effective samples per vertex,
   the history cuts of the last frame and the variance estimate.
 """
 
@@ -59,6 +61,9 @@ class HybridTraceStage(FrameStage):
         "seed": Param(0, int, "seed of the per-vertex, per-frame sample rotations"),
         "control": Param("model", str, "control variate: a model's transfer on port 'control', the last estimate, "
                          "or none", choices=CONTROLS),
+        "quantity": Param("transfer", str, "what the rays estimate: diffuse transfer (for prt.shade) or SH "
+                          "visibility open below the horizon (output 'visibility', for rpo.shade)",
+                          choices=("transfer", "visibility")),
         "space": Param("world", str, "frame of the coefficients (local: per-vertex tangent frames on port 'frames')",
                        choices=SPACES),
         "cycle": Param(1, int, "frames per cycle of shifted Fibonacci sets (stratified together; one random "
@@ -84,13 +89,17 @@ class HybridTraceStage(FrameStage):
         space = self.params["space"]
         ports = {"points": Port("vec3", ("V",)), "normals": Port("vec3", ("V",))}
         if self.params["control"] == "model":
-            ports["control"] = Port("float32", ("V", "C"), f"control model's diffuse transfer, {space} frame", space=space)
+            ports["control"] = Port("float32", ("V", "C"), f"control model's {self.params['quantity']}, {space} frame",
+                                    space=space)
         if space == "local":
             ports["frames"] = Port("mat33", ("V",), "tangent frames, world space, rows (t, b, n)")
         return ports
 
     def output_ports(self):
         space = self.params["space"]
+        if self.params["quantity"] == "visibility":
+            return {"visibility": Port("float32", ("V", "C"), f"SH visibility (open below the horizon), {space} frame",
+                                       space=space)}
         return {"transfer": Port("float32", ("V", "C"), f"diffuse transfer vectors, {space} frame", space=space)}
 
     def setup(self, ctx, inputs):
@@ -150,7 +159,7 @@ class HybridTraceStage(FrameStage):
         self._filter_kernel = kernels.filter_kernel(p["order"])
         self._temporal_kernel = kernels.temporal_kernel(p["order"])
         self._workers = cpu_workers() if dev.is_cpu else 1
-        return {"transfer": self._transfer}
+        return {"visibility" if p["quantity"] == "visibility" else "transfer": self._transfer}
 
     def launch(self, state):
         p, dev = self.params, self._dev
@@ -159,7 +168,8 @@ class HybridTraceStage(FrameStage):
 
         def ray_inputs(start, stop):
             return [mesh_id, self._points, self._normals, self._frames_in, self._use_local, self._control,
-                    self._use_control, self._params.in_control, p["samples"], p["cycle"], p["seed"], self._step, offset, start, self._raw, self._variance]
+                    self._use_control, self._params.in_control,
+                    1 if p["quantity"] == "visibility" else 0, p["samples"], p["cycle"], p["seed"], self._step, offset, start, self._raw, self._variance]
 
         launch_parallel(self._residual_kernel, v, ray_inputs, dev, self._workers, min_count=_CHUNK_MIN_VERTICES)
         src = self._raw
