@@ -341,3 +341,36 @@ def test_visibility_for_rpo_is_bounded_and_close_to_traced(device):
     spec = GraphSpec([StageSpec(n, t, p, i) for n, t, p, i in stages], "shade.radiance", name="hybrid-rpo-shade")
     out = spec.compile(scene, device=device, cache_dir=None, progress=False).step(scene.frames[0]).numpy()
     assert np.all(np.isfinite(out))
+
+
+@pytest.mark.parametrize("control", ["none", "previous"])
+def test_recorded_frames_equal_launches_from_python(device, monkeypatch, control):
+    """The frame counter, the rays, the filter and the history all live in the recorded frame:
+    replaying it gives what launching every kernel from Python gives, with no launch from Python."""
+    import warp
+
+    from warpshade.scene.state import CPU_REFIT_NOTE
+
+    from tolerances import REPLAY_RTOL
+
+    monkeypatch.setenv("WARPSHADE_THREADS", "1")  # no chunked CPU launches: the frame is one replay
+    scene = _plane_box(frames=6, teleport_at=4)
+    runs = {}
+    for capture in (False, True):
+        rt = _graph(samples=4, control=control, filter_iterations=2).compile(scene, device=device, cache_dir=None,
+                                                                             progress=False, capture=capture)
+        rt.step(0.0)
+        rt.step(0.0)
+        if capture:
+            assert rt.program is not None
+            assert rt.program.uncaptured == ([CPU_REFIT_NOTE] if wp.get_device(device).is_cpu else [])
+            launches = []
+            original = warp.launch
+            monkeypatch.setattr(warp, "launch", lambda *a, **k: launches.append(1) or original(*a, **k))
+        runs[capture] = [rt.step(f).numpy().copy() for f in (1.0, 2.0, 5.0, 3.0)]
+        if capture:
+            assert not launches, "a replayed frame makes no kernel launches from Python"
+    size = max(np.abs(a).max() for a in runs[False])
+    for a, b in zip(runs[True], runs[False]):
+        np.testing.assert_allclose(a, b, rtol=0, atol=REPLAY_RTOL * size)
+    assert not np.allclose(runs[False][0], runs[False][1]), "new rays every frame"
