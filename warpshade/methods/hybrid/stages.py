@@ -14,7 +14,8 @@
   exponential moving average, uniform for the first ``1 / alpha`` frames); a vertex's history is
   cut where it moved more than ``motion`` mean edge lengths or its normal turned more than
   ``normal_turn`` degrees since the last frame, or where the fresh residual disagrees with the
-  history by more than ``threshold`` times their combined variance (:mod:`.kernels`).
+  history by more than ``threshold`` times their combined variance, and fades as the
+  disagreement grows towards that (:mod:`.kernels`).
 
   Controls (``control``): ``model`` -- a transfer on the input port ``control`` (the data-driven
   transfer, LDPRT's local transfer with ``space = "local"`` and the tangent frames on ``frames``,
@@ -23,11 +24,14 @@
   ``B`` the filter: filtering the correction ``r`` alone and adding it to the state would let the
   filter's alternating modes grow from frame to frame); ``none`` -- plain tracing with reuse.
   Output: ``transfer`` (V, C) for ``prt.shade`` (world frame), or for ``ldprt.shade_rotated``
-  (local frame). The frame counter that draws new rotations is a device array advanced inside the
+  (local frame). The filter averages coefficients of neighbours as they are: in the tangent
+  frames, whose axes turn from vertex to vertex, that blurs more (measured on the blockers and
+  the cloth: ``previous`` in the local frame has about twice the error of the world frame), so the
+  local frame suits a control that leaves a small residual (LDPRT's transfer). The frame counter that draws new rotations is a device array advanced inside the
   recorded frame. With ``quantity = "visibility"`` the same estimator gives the SH visibility
   (open below the horizon, tangent frames with ``space = "local"``) that ``rpo.shade`` reads,
-  with e.g. ``rpo.visibility_static`` as control. :meth:`HybridTraceStage.diagnostics` reports the effective samples per vertex,
-  the history cuts of the last frame and the variance estimate.
+  with e.g. ``rpo.visibility_static`` as control. :meth:`HybridTraceStage.diagnostics` reports
+  the effective samples per vertex, the history cuts of the last frame and the variance estimate.
 """
 
 from __future__ import annotations
