@@ -64,6 +64,10 @@ def settings(scene_key, order, samples_list, controls, reference_rays, training_
     return out
 
 
+#: One colour per setting family in every panel.
+COLORS = {"hybrid none": "C1", "hybrid previous": "C2", "hybrid ldprt": "C0", "hybrid datadriven": "C3"}
+
+
 def chart(results, path):
     import matplotlib
 
@@ -77,8 +81,9 @@ def chart(results, path):
         ref = next((r for r in rs if r["method"] == "traced"), None)
         for method in sorted({r["method"] for r in rs if r["method"] != "traced"}):
             m = sorted((r for r in rs if r["method"] == method), key=lambda r: r["rays"])
-            axes[0, j].plot([r["rays"] for r in m], [r["error"] for r in m], "o-", label=method)
-            axes[1, j].plot([r["rays"] for r in m], [r["frame_ms"] for r in m], "o-", label=method)
+            color = COLORS.get(method)
+            axes[0, j].plot([r["rays"] for r in m], [r["error"] for r in m], "o-", color=color, label=method)
+            axes[1, j].plot([r["rays"] for r in m], [r["frame_ms"] for r in m], "o-", color=color, label=method)
         if ref is not None:
             axes[0, j].axhline(ref["error"], color="k", ls="--", label=f"prt.trace {ref['rays']} rays")
             axes[0, j].axhline(1.2 * ref["error"], color="k", ls=":", label="1.2x prt.trace")
@@ -91,7 +96,8 @@ def chart(results, path):
         axes[1, j].set_xlabel("rays per vertex per frame")
         axes[0, j].set_ylabel("relative RMS error (clip mean)")
         axes[1, j].set_ylabel("ms per frame")
-    axes[0, 0].legend(fontsize=7)
+    for ax in axes[0]:
+        ax.legend(fontsize=6)
     fig.tight_layout()
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png", dpi=90)
@@ -113,7 +119,14 @@ def main(argv=None) -> int:
     ap.add_argument("--training-frames", default="0:600:20", help="data-driven control: training frames")
     ap.add_argument("--training-samples", type=int, default=32, help="data-driven control: rays per training frame")
     ap.add_argument("--device", default="cpu")
+    ap.add_argument("--replot", default=None, metavar="JSON", help="redraw the chart of an earlier results JSON")
     args = ap.parse_args(argv)
+    if args.replot:
+        import json
+
+        data = json.loads(Path(args.replot).read_text())
+        chart([r for r in data["results"] if "failed" not in r], Path(args.replot).with_suffix(".png"))
+        return 0
     if args.quick and args.out is None:
         ap.error("--quick writes only into --out DIR (never benchmarks/results)")
     if args.quick:
