@@ -72,7 +72,8 @@ def glossy_stages_for(samples: int, order: int = 4, control: str = "static", bak
 
 
 def harness_rows(quick: bool = False) -> list:
-    """K in {8, 16, 32, 64} rays per vertex per frame with each control, on the animated scenes."""
+    """K in {8, 16, 32, 64} rays per vertex per frame with each control, on the animated scenes;
+    and the SH visibility for RPO (glossy) with the static bake as control."""
     rows = []
     for samples in SAMPLES:
         for control in ("none", "previous", "ldprt"):
@@ -87,4 +88,11 @@ def harness_rows(quick: bool = False) -> list:
                 "shade.radiance", scenes=(scene,), quick=False,
                 notes=f"{samples} rays per vertex per frame, control: data-driven transfer trained on {training.split(':')[-1]}",
             ))
+    for samples in (16, 32):
+        rows.append(HarnessRow(
+            "hybrid-glossy", f"n4 K{samples} static", glossy_stages_for(samples, bake_samples=1024), "shade.radiance",
+            scenes=("skinned", "deforming"), quick=False,
+            notes=f"RPO k8 GGX 0.5 over SH visibility from {samples} rays per vertex per frame, control: the visibility "
+                  "baked at the first frame (as rpo static n4 k8)",
+        ))
     return rows
