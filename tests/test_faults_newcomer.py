@@ -101,15 +101,19 @@ def test_readme_rpo_example_reads_only_files_it_writes():
     assert read and read <= written
 
 
-def test_read_merl_warns_that_a_coloured_table_renders_grey(tmp_path):
+def test_read_merl_keeps_colour_by_default_and_warns_when_asked_for_grey(tmp_path):
     gold = write_merl(tmp_path / "gold.binary", Microfacet(roughness=0.4), dims=(8, 8, 8), rgb=(1.0, 0.78, 0.34))
-    with pytest.warns(UserWarning, match=r"gold\.binary: the table is coloured .* specular = \[1\.\d+, 0\.\d+, 0\.\d+\]"):
-        brdf = read_merl(gold)
-    assert brdf.channel == "luminance"
-    grey = write_merl(tmp_path / "grey.binary", Microfacet(roughness=0.4), dims=(8, 8, 8))
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        read_merl(grey)
+        brdf = read_merl(gold)
+    assert brdf.channel == "rgb" and [c.channel for c in brdf.color_channels()] == ["r", "g", "b"]
+    with pytest.warns(UserWarning, match=r"gold\.binary: the table is coloured .* specular = \[1\.\d+, 0\.\d+, 0\.\d+\]"):
+        grey = read_merl(gold, channel="luminance")
+    assert grey.color_channels() is None
+    plain = write_merl(tmp_path / "grey.binary", Microfacet(roughness=0.4), dims=(8, 8, 8))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        read_merl(plain, channel="luminance")
         read_merl(gold, channel="r")
 
 
