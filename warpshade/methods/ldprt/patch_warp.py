@@ -1,0 +1,261 @@
+"""Warp kernels of LDPRT texture patches (:mod:`.patch`), per vertex and per pixel.
+
+A point of a patched surface with UV ``uv`` looks up the patch at ``uv * tiling`` (periodic):
+the four texels around it (bilinear weights over texel centres) each give the exit radiance of
+their ZH lobes rotated into the point's tangent frame ``F`` (rows t, b, n; a patch-frame
+direction ``a`` is ``F^T a`` in world space) and dotted with the frame's world SH lighting::
+
+    radiance_c = albedo_c / pi * sum_k w_k (stored_k . e_c + sum_i g*_ki . e^_c(F^T a_ki))
+
+(the stored DC and linear band as :func:`.kernels.stored_term`). Blending the four radiances,
+not the lobes, keeps the interpolation exact for lobes that do not correspond between texels.
+The frame: ``t`` the surface's dP/du (accumulated per vertex over its triangles, UV-area
+weighted, interpolated at the pixel) made orthogonal to the shading normal, ``b = +-n x t`` on
+the side of dP/dv; a degenerate or non-finite dP/du gives any tangent perpendicular to ``n`` and
+a degenerate normal +z, so a frame is always orthonormal and finite. Points of meshes without
+the patch get the unshadowed diffuse shading (the clamped cosine about ``n``).
+"""
+
+import functools
+
+from ..._wp import wp
+from ...basis.sh_warp import sh_kernels
+from .kernels import stored_term
+
+wp.set_module_options({"enable_backward": False})
+
+INV_PI = 0.3183098861837907
+#: |dP/du| (after removing its normal part) below which the tangent is taken as degenerate.
+TANGENT_EPS = 1e-12
+#: UV magnitude beyond which (or non-finite) a look-up falls back to uv = 0.
+UV_LIMIT = 1e6
+
+
+@wp.struct
+class PatchTexture:
+    """The patch on the device: per texel (``j * R + i``) ZH lobes in the patch frame.
+
+    Fields:
+        axes: (T, L) vec3 lobe axes; coeffs: (T, L, n) float ``g*``; counts: (T,) int32 lobes;
+        stored: (T, 4) float DC + linear SH; cosine: (n,) float clamped-cosine ``A_l`` (the
+        unpatched shading); resolution: R; tiling: patches per unit of UV.
+    """
+
+    axes: wp.array2d(dtype=wp.vec3)
+    coeffs: wp.array3d(dtype=wp.float32)
+    counts: wp.array(dtype=wp.int32)
+    stored: wp.array2d(dtype=wp.float32)
+    cosine: wp.array(dtype=wp.float32)
+    resolution: int
+    tiling: float
+
+
+@wp.struct
+class PatchSurface:
+    """The surface the patch is mapped on (per vertex of the scene).
+
+    Fields:
+        faces: (F, 3) int32; uvs: (V,) vec2 (0 on unpatched meshes); patched: (V,) int32, 1 on
+        meshes carrying the patch; tangents, bitangents: (V,) vec3 accumulated dP/du, dP/dv of
+        the current frame; albedo: (V, 3) float diffuse albedo.
+    """
+
+    faces: wp.array2d(dtype=wp.int32)
+    uvs: wp.array(dtype=wp.vec2)
+    patched: wp.array(dtype=wp.int32)
+    tangents: wp.array(dtype=wp.vec3)
+    bitangents: wp.array(dtype=wp.vec3)
+    albedo: wp.array2d(dtype=wp.float32)
+
+
+@wp.func
+def any_perpendicular(n: wp.vec3) -> wp.vec3:
+    """A unit vector perpendicular to the unit vector n."""
+    a = wp.vec3(1.0, 0.0, 0.0)
+    if wp.abs(n[0]) > 0.9:
+        a = wp.vec3(0.0, 1.0, 0.0)
+    return wp.normalize(a - n * wp.dot(n, a))
+
+
+@wp.func
+def tangent_frame(normal: wp.vec3, tangent: wp.vec3, bitangent: wp.vec3) -> wp.mat33:
+    """Orthonormal frame, rows (t, b, n), from a shading normal and raw dP/du, dP/dv (module docstring)."""
+    nl = wp.length(normal)
+    n = wp.vec3(0.0, 0.0, 1.0)
+    if nl > TANGENT_EPS and nl < 1.0e30:
+        n = normal / nl
+    t = tangent - n * wp.dot(n, tangent)
+    tl = wp.length(t)
+    if tl > TANGENT_EPS and tl < 1.0e30:
+        t = t / tl
+    else:
+        t = any_perpendicular(n)
+    b = wp.cross(n, t)
+    if wp.dot(b, bitangent) < 0.0:
+        b = -b
+    return wp.mat33(t[0], t[1], t[2], b[0], b[1], b[2], n[0], n[1], n[2])
+
+
+@wp.func
+def wrap_texel(k: int, r: int) -> int:
+    m = k % r
+    if m < 0:
+        m += r
+    return m
+
+
+@wp.kernel
+def clear_tangents_kernel(surface: PatchSurface):
+    v = wp.tid()
+    surface.tangents[v] = wp.vec3(0.0)
+    surface.bitangents[v] = wp.vec3(0.0)
+
+
+@wp.kernel
+def accumulate_tangents_kernel(points: wp.array(dtype=wp.vec3), surface: PatchSurface):
+    """Per triangle of a patched mesh: dP/du and dP/dv times the UV area, added to its corners."""
+    f = wp.tid()
+    a = surface.faces[f, 0]
+    b = surface.faces[f, 1]
+    c = surface.faces[f, 2]
+    if surface.patched[a] == 0:
+        return
+    e1 = points[b] - points[a]
+    e2 = points[c] - points[a]
+    d1 = surface.uvs[b] - surface.uvs[a]
+    d2 = surface.uvs[c] - surface.uvs[a]
+    det = d1[0] * d2[1] - d2[0] * d1[1]
+    s = wp.sign(det)
+    dpdu = (e1 * d2[1] - e2 * d1[1]) * s
+    dpdv = (e2 * d1[0] - e1 * d2[0]) * s
+    for k in range(3):
+        v = surface.faces[f, k]
+        wp.atomic_add(surface.tangents, v, dpdu)
+        wp.atomic_add(surface.bitangents, v, dpdv)
+
+
+@functools.cache
+def patch_kernels(order: int):
+    """(shade_vertices, shade_pixels) specialised to an SH order.
+
+    * ``shade_vertices(points_normals, surface, patch, light, radiance)``: per vertex, the patch at
+      the vertex's UV (radiance (V, 3) float32);
+    * ``shade_pixels(hit, normal, face, bary, surface, patch, light, pixel_albedo, use_albedo, out)``:
+      per G-buffer ray, UV, dP/du, dP/dv and albedo interpolated with the hit's barycentrics (or
+      the per-pixel albedo when ``use_albedo``), out (N,) vec3, 0 for misses.
+    """
+    shk = sh_kernels(order)
+    sh_eval = shk.eval
+    ORDER = order
+
+    @wp.func
+    def lobes_dot_light(patch: PatchTexture, texel: int, rot: wp.mat33, light: wp.array2d(dtype=wp.float32)) -> wp.vec3:
+        acc = wp.vec3(stored_term(patch.stored, texel, rot, light, 0), stored_term(patch.stored, texel, rot, light, 1),
+                      stored_term(patch.stored, texel, rot, light, 2))
+        for k in range(patch.counts[texel]):
+            y = sh_eval(rot * patch.axes[texel, k])
+            for l in range(ORDER):
+                gl = patch.coeffs[texel, k, l]
+                for m in range(-l, l + 1):
+                    i = l * l + l + m
+                    yg = gl * y[i]
+                    acc += wp.vec3(yg * light[0, i], yg * light[1, i], yg * light[2, i])
+        return acc
+
+    @wp.func
+    def unshadowed(patch: PatchTexture, n: wp.vec3, light: wp.array2d(dtype=wp.float32)) -> wp.vec3:
+        y = sh_eval(n)
+        acc = wp.vec3(0.0)
+        for l in range(ORDER):
+            al = patch.cosine[l]
+            for m in range(-l, l + 1):
+                i = l * l + l + m
+                ya = al * y[i]
+                acc += wp.vec3(ya * light[0, i], ya * light[1, i], ya * light[2, i])
+        return acc
+
+    @wp.func
+    def patch_lookup(patch: PatchTexture, uv: wp.vec2, frame: wp.mat33, light: wp.array2d(dtype=wp.float32)) -> wp.vec3:
+        r = patch.resolution
+        u = uv[0] * patch.tiling
+        v = uv[1] * patch.tiling
+        if not (wp.abs(u) < UV_LIMIT):
+            u = 0.0
+        if not (wp.abs(v) < UV_LIMIT):
+            v = 0.0
+        x = (u - wp.floor(u)) * float(r) - 0.5
+        y = (v - wp.floor(v)) * float(r) - 0.5
+        x0 = wp.floor(x)
+        y0 = wp.floor(y)
+        fx = x - x0
+        fy = y - y0
+        i0 = wrap_texel(int(x0), r)
+        j0 = wrap_texel(int(y0), r)
+        i1 = wrap_texel(i0 + 1, r)
+        j1 = wrap_texel(j0 + 1, r)
+        rot = wp.transpose(frame)
+        acc = lobes_dot_light(patch, j0 * r + i0, rot, light) * ((1.0 - fx) * (1.0 - fy))
+        acc += lobes_dot_light(patch, j0 * r + i1, rot, light) * (fx * (1.0 - fy))
+        acc += lobes_dot_light(patch, j1 * r + i0, rot, light) * ((1.0 - fx) * fy)
+        acc += lobes_dot_light(patch, j1 * r + i1, rot, light) * (fx * fy)
+        return acc
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def shade_vertices(
+        normals: wp.array(dtype=wp.vec3),
+        surface: PatchSurface,
+        patch: PatchTexture,
+        light: wp.array2d(dtype=wp.float32),
+        radiance: wp.array2d(dtype=wp.float32),
+    ):
+        v = wp.tid()
+        frame = tangent_frame(normals[v], surface.tangents[v], surface.bitangents[v])
+        e = wp.vec3(0.0)
+        if surface.patched[v] != 0:
+            e = patch_lookup(patch, surface.uvs[v], frame, light)
+        else:
+            e = unshadowed(patch, wp.vec3(frame[2, 0], frame[2, 1], frame[2, 2]), light)
+        for c in range(3):
+            radiance[v, c] = surface.albedo[v, c] * INV_PI * e[c]
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def shade_pixels(
+        hit: wp.array(dtype=wp.int32),
+        normal: wp.array(dtype=wp.vec3),
+        face: wp.array(dtype=wp.int32),
+        bary: wp.array(dtype=wp.vec2),
+        surface: PatchSurface,
+        patch: PatchTexture,
+        light: wp.array2d(dtype=wp.float32),
+        pixel_albedo: wp.array(dtype=wp.vec3),
+        use_albedo: int,
+        out: wp.array(dtype=wp.vec3),
+    ):
+        p = wp.tid()
+        if hit[p] == 0:
+            out[p] = wp.vec3(0.0)
+            return
+        f = face[p]
+        a = surface.faces[f, 0]
+        b = surface.faces[f, 1]
+        c = surface.faces[f, 2]
+        wa = bary[p][0]
+        wb = bary[p][1]
+        wc = 1.0 - wa - wb
+        t = surface.tangents[a] * wa + surface.tangents[b] * wb + surface.tangents[c] * wc
+        bt = surface.bitangents[a] * wa + surface.bitangents[b] * wb + surface.bitangents[c] * wc
+        frame = tangent_frame(normal[p], t, bt)
+        e = wp.vec3(0.0)
+        if surface.patched[a] != 0:
+            uv = surface.uvs[a] * wa + surface.uvs[b] * wb + surface.uvs[c] * wc
+            e = patch_lookup(patch, uv, frame, light)
+        else:
+            e = unshadowed(patch, wp.vec3(frame[2, 0], frame[2, 1], frame[2, 2]), light)
+        albedo = pixel_albedo[p]
+        if use_albedo == 0:
+            albedo = wp.vec3(0.0)
+            for k in range(3):
+                albedo[k] = (surface.albedo[a, k] * wa + surface.albedo[b, k] * wb + surface.albedo[c, k] * wc)
+        out[p] = wp.cw_mul(albedo, e) * INV_PI
+
+    return shade_vertices, shade_pixels
