@@ -309,7 +309,7 @@ class PatchGeometry:
     Each mesh of ``prims`` is subdivided ``levels`` times (midpoint; chosen, when None, so that
     a fine edge is at most one texel of the tiled patch in UV), and at every frame its fine
     vertices are the coarse surface interpolated (points, normals, UVs, albedo) and moved along
-    the normal by ``heights(uv * tiling) * patch_size``, with ``patch_size`` the world length of
+    the normal by ``(heights(uv * tiling) - mean height) * patch_size``, with ``patch_size`` the world length of
     one patch: the mesh's rest-pose world-to-UV scale ``sqrt(area / uv area)`` over ``tiling``.
     Other meshes are copied as they are at the frame. Seams in the UVs (split vertices) are not
     welded: a displaced seam may open.
@@ -340,7 +340,10 @@ class PatchGeometry:
             scale = math.sqrt(area / uv_area) if uv_area > 0 else 0.0
             faces, w = _subdivide(m.faces, m.vertex_count, lv)
             fine_uv = w @ uv
-            offset = sample_heights(self.heights, fine_uv * self.tiling) * scale / self.tiling
+            # about the patch's mean height: the transfer does not depend on a constant offset, and
+            # the mean plane is the displaced surface closest to the undisplaced one (least parallax)
+            rel = sample_heights(self.heights - self.heights.mean(), fine_uv * self.tiling)
+            offset = rel * scale / self.tiling
             self._fine[m.path] = {"faces": faces, "weights": w, "offset": offset, "levels": int(lv),
                                   "patch_size": scale / self.tiling}
 

@@ -259,3 +259,42 @@ def patch_kernels(order: int):
         out[p] = wp.cw_mul(albedo, e) * INV_PI
 
     return shade_vertices, shade_pixels
+
+
+def patch_texture(model, tiling: float, device) -> PatchTexture:
+    """A :class:`PatchTexture` on ``device`` from a :class:`~.patch.PatchModel` and its tiling."""
+    import numpy as np
+
+    from ...basis import sh
+
+    t = PatchTexture()
+    t.axes = wp.array(model.axes, dtype=wp.vec3, device=device)
+    t.coeffs = wp.array(model.coeffs, dtype=wp.float32, device=device)
+    t.counts = wp.array(model.counts, dtype=wp.int32, device=device)
+    t.stored = wp.array(model.stored, dtype=wp.float32, device=device)
+    t.cosine = wp.array(sh.clamped_cosine_zh(model.order).astype(np.float32), dtype=wp.float32, device=device)
+    t.resolution, t.tiling = int(model.resolution), float(tiling)
+    return t
+
+
+def patch_surface(faces, uvs, patched, albedo, device) -> PatchSurface:
+    """A :class:`PatchSurface` on ``device``: faces (F, 3), uvs (V, 2), patched (V,) flags, albedo
+    (V, 3) (NumPy, or for albedo a bound ``wp.array2d``); tangent accumulators zeroed."""
+    import numpy as np
+
+    s = PatchSurface()
+    s.faces = wp.array(np.asarray(faces, np.int32), dtype=wp.int32, device=device)
+    s.uvs = wp.array(np.asarray(uvs, np.float32), dtype=wp.vec2, device=device)
+    s.patched = wp.array(np.asarray(patched, np.int32), dtype=wp.int32, device=device)
+    count = s.uvs.shape[0]
+    s.tangents = wp.zeros(count, dtype=wp.vec3, device=device)
+    s.bitangents = wp.zeros(count, dtype=wp.vec3, device=device)
+    s.albedo = albedo if isinstance(albedo, wp.array) else wp.array(np.asarray(albedo, np.float32), dtype=wp.float32,
+                                                                     device=device)
+    return s
+
+
+def update_tangents(points, surface: PatchSurface, device) -> None:
+    """Per-vertex dP/du, dP/dv of the current points (two launches; recordable)."""
+    wp.launch(clear_tangents_kernel, dim=surface.tangents.shape[0], inputs=[surface], device=device)
+    wp.launch(accumulate_tangents_kernel, dim=surface.faces.shape[0], inputs=[points, surface], device=device)

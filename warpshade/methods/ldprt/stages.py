@@ -631,8 +631,6 @@ class LdprtPatchShadeStage(FrameStage):
         return {"radiance": Port("float32", ("V", 3), "outgoing radiance, linear RGB")}
 
     def setup(self, ctx, inputs):
-        from ...basis import sh
-
         dev = ctx.device
         try:
             self.patch = PatchModel.from_arrays(inputs["patch"])
@@ -647,19 +645,8 @@ class LdprtPatchShadeStage(FrameStage):
             if m.path in self.prims:
                 uvs[m.vertex_offset:m.vertex_offset + m.vertex_count] = m.uvs
                 patched[m.vertex_offset:m.vertex_offset + m.vertex_count] = self.params["detail"] == "patch"
-        s = patch_warp.PatchSurface()
-        s.faces = wp.array(ctx.scene.faces.astype(np.int32), dtype=wp.int32, device=dev)
-        s.uvs, s.patched = wp.array(uvs, dtype=wp.vec2, device=dev), wp.array(patched, dtype=wp.int32, device=dev)
-        s.tangents, s.bitangents = (wp.zeros(ctx.dims["V"], dtype=wp.vec3, device=dev) for _ in range(2))
-        s.albedo = inputs["albedo"]
-        t = patch_warp.PatchTexture()
-        t.axes = wp.array(self.patch.axes, dtype=wp.vec3, device=dev)
-        t.coeffs = wp.array(self.patch.coeffs, dtype=wp.float32, device=dev)
-        t.counts = wp.array(self.patch.counts, dtype=wp.int32, device=dev)
-        t.stored = wp.array(self.patch.stored, dtype=wp.float32, device=dev)
-        t.cosine = wp.array(sh.clamped_cosine_zh(order).astype(np.float32), dtype=wp.float32, device=dev)
-        t.resolution, t.tiling = self.patch.resolution, float(self.params["tiling"])
-        self._surface, self._texture = s, t
+        self._surface = patch_warp.patch_surface(ctx.scene.faces, uvs, patched, inputs["albedo"], dev)
+        self._texture = patch_warp.patch_texture(self.patch, self.params["tiling"], dev)
         self._points, self._normals = inputs["points"], inputs["normals"]
         self._shade_vertices, self._shade_pixels = patch_warp.patch_kernels(order)
         self._radiance = wp.zeros((ctx.dims["V"], 3), dtype=wp.float32, device=dev)
@@ -668,8 +655,7 @@ class LdprtPatchShadeStage(FrameStage):
     def launch(self, state):
         dev, s = self._device, self._surface
         self._lighting.launch()
-        wp.launch(patch_warp.clear_tangents_kernel, dim=s.tangents.shape[0], inputs=[s], device=dev)
-        wp.launch(patch_warp.accumulate_tangents_kernel, dim=s.faces.shape[0], inputs=[self._points, s], device=dev)
+        patch_warp.update_tangents(self._points, s, dev)
         wp.launch(self._shade_vertices, dim=s.tangents.shape[0],
                   inputs=[self._normals, s, self._texture, self._lighting.light, self._radiance], device=dev)
 
