@@ -40,7 +40,7 @@ ROOT = Path(__file__).resolve().parent.parent
 DATE = "2026-12-02"
 GRAPH = ROOT / "stages" / "cloth_ldprt_patch.toml"
 #: A camera framing the cloth (the scene's shows the whole ground).
-CAMERA = {"position": (1.5, -1.9, 2.4), "target": (0.0, 0.0, 0.8), "up": (0.0, 0.0, 1.0), "vertical_fov": 40.0}
+CAMERA = {"position": (0.9, -1.2, 3.3), "target": (0.0, 0.0, 0.8), "up": (0.0, 0.0, 1.0), "vertical_fov": 40.0}
 #: Seeds of the two ground truths (independent streams).
 SEED_DISPLACED, SEED_SMOOTH = 11, 23
 

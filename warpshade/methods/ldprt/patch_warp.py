@@ -22,6 +22,15 @@ from ..._wp import wp
 from ...basis.sh_warp import sh_kernels
 from .kernels import stored_term
 
+__all__ = [
+    "PatchSurface",
+    "PatchTexture",
+    "patch_kernels",
+    "patch_surface",
+    "patch_texture",
+    "update_tangents",
+]
+
 wp.set_module_options({"enable_backward": False})
 
 INV_PI = 0.3183098861837907
