@@ -82,7 +82,7 @@ def main(argv=None) -> int:
     from warpshade.measure.pixels import render_frame
     from warpshade.measure.pictures import ERROR_LIMIT
     from warpshade.reference import reference_image
-    from warpshade.render.image import tonemap_f64
+    from warpshade.render import tonemap_f64
     from warpshade.scene import Camera
     from warpshade.scene.materials import Lambert
 

@@ -13,7 +13,7 @@ from warpshade.basis import sh
 from warpshade.methods.ldprt import mirror
 from warpshade.methods.ldprt import patch as lp
 from warpshade.methods.ldprt import patch_warp as pw
-from warpshade.methods.stage import StageError
+from warpshade.graph import StageError
 
 #: Order of the small patches of these tests.
 ORDER = 3
