@@ -4,7 +4,10 @@ On the bundled deforming cloth (``stages/cloth_ldprt_patch.toml``: a tileable 32
 ZH lobes per texel from a 5% budget, tiled 4x over the UVs), through the stage-graph runtime on
 the CPU, per pixel from a camera framing the cloth, at frames 0 and 30 (the cloth moves between):
 
-* ``patch``: ``ldprt.patch_shade`` (lobes rotated into the deformed UV tangent frame per pixel);
+* ``patch``: ``ldprt.patch_shade`` (lobes rotated into the deformed UV tangent frame per pixel,
+  the texel found by marching the view ray through the heights: ``parallax = true``);
+* ``patch without parallax``: the same with ``parallax = false`` (the texel at the pixel's UV, the
+  paper's look-up);
 * ``undisplaced, unshadowed``: the same stage with ``detail = "none"`` (the smooth surface, no
   patch: what the surface looks like without it, shaded the same way);
 * ``undisplaced, ray traced``: ground truth of the smooth cloth (the best any shading of the
@@ -107,12 +110,15 @@ def main(argv=None) -> int:
     rows, panels = {}, None
     for f in frames:
         print(f"frame {f:g}: shading", flush=True)
-        rt.set_parameter("shade", "detail", "patch")
+        rt.set_parameter("shade", "parallax", False)
+        im_lookup = render_frame(rt, f, width, height, ss, camera=camera)
+        rt.set_parameter("shade", "parallax", True)
         im = render_frame(rt, f, width, height, ss, camera=camera)
         shade = next(s for s in rt.stages if s.type_name == "ldprt.patch_shade")
         model = shade.pixel_reference_model()
         rt.set_parameter("shade", "detail", "none")
         im_flat = render_frame(rt, f, width, height, ss, camera=camera)
+        rt.set_parameter("shade", "detail", "patch")
         lights = rt.lighting.lights_at(f)
         t1 = time.perf_counter()
         geometry = model["geometry"](f)
@@ -136,6 +142,7 @@ def main(argv=None) -> int:
         rows[f"{f:g}"] = {
             "pixels": int(mask.sum()),
             "patch": _rel(im.linear, ref.radiance, mask),
+            "patch_without_parallax": _rel(im_lookup.linear, ref.radiance, mask),
             "undisplaced_unshadowed": _rel(im_flat.linear, ref.radiance, mask),
             "undisplaced_ray_traced": _rel(smooth.radiance, ref.radiance, mask),
             "reference_noise": noise,
@@ -167,7 +174,8 @@ def main(argv=None) -> int:
 
     r = rows[f"{f:g}"]
     fig, axes = plt.subplots(1, 5, figsize=(17, 3.4))
-    for ax, img, title in ((axes[0], lin, f"LDPRT patch, per pixel\nrel RMS {r['patch']:.3f}"),
+    for ax, img, title in ((axes[0], lin, f"LDPRT patch, per pixel (parallax)\nrel RMS {r['patch']:.3f} "
+                                          f"(without parallax {r['patch_without_parallax']:.3f})"),
                            (axes[1], ref_rad, f"ray traced, displaced geometry\n{spp} spp (noise {r['reference_noise']:.3f})"),
                            (axes[2], flat, f"undisplaced (unshadowed)\nrel RMS {r['undisplaced_unshadowed']:.3f}")):
         ax.imshow(tonemap_f64(img, exposure=exposure))

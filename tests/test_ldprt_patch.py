@@ -23,6 +23,11 @@ ATOL_PATCH_FLOAT32 = 20 * ATOL_ZH_FLOAT32
 #: Monte Carlo transfer of an almost flat patch (256 rays per texel) against the exact clamped
 #: cosine: the spherical Fibonacci estimate of the DC and linear coefficients (measured 2e-3).
 ATOL_TRACED_FLAT = 1e-2
+#: Height of the parallax march's hit against the height field there, in patch widths: one secant
+#: step over a march step of a bilinear 8^2 patch of relief 0.3 (measured 8.2e-3 at 80 degrees).
+ATOL_PARALLAX_HIT = 1.5e-2
+#: float32 march against float64: coordinates of order 1 through 32 steps and a secant step.
+ATOL_PARALLAX_FLOAT32 = 2e-4
 
 
 def _random_frames(rng, count):
@@ -244,3 +249,54 @@ def test_stage_refuses_nan_texture_and_uvless_scene(tmp_path):
     toml.write_text(toml.read_text().replace('shape = "texture"\ntexture = "nan.npy"\n', 'shape = "flat"\n'))
     with pytest.raises(StageError, match="stage 'shade'.*no mesh .* has UVs"):
         graph.load(toml).compile(device="cpu", progress=False)
+
+
+def _parallax_kernel(model, tiling, uvs, frames, directions, device):
+    """UVs after the per-pixel parallax march (a one-off kernel over ``patch_warp.parallax_uv``)."""
+    texture = pw.patch_texture(model, tiling, device, parallax=True)
+
+    @wp.kernel
+    def march(patch: pw.PatchTexture, uv: wp.array(dtype=wp.vec2), frame: wp.array(dtype=wp.mat33),
+              direction: wp.array(dtype=wp.vec3), out: wp.array(dtype=wp.vec2)):
+        i = wp.tid()
+        out[i] = pw.parallax_uv(patch, uv[i], frame[i], direction[i])
+
+    count = uvs.shape[0]
+    out = wp.zeros(count, dtype=wp.vec2, device=device)
+    wp.launch(march, dim=count, device=device,
+              inputs=[texture, wp.array(uvs.astype(np.float32), dtype=wp.vec2, device=device),
+                      wp.array(frames.astype(np.float32), dtype=wp.mat33, device=device),
+                      wp.array(directions.astype(np.float32), dtype=wp.vec3, device=device), out])
+    return out.numpy()
+
+
+def test_parallax_march_matches_mirror_and_lands_on_the_surface(device, weave, rng):
+    count = 64
+    frames = _random_frames(rng, count)
+    uvs = rng.uniform(0.0, 1.0, size=(count, 2))
+    # view rays toward the surface, 20-80 degrees from the normal
+    theta, phi = rng.uniform(0.35, 1.4, count), rng.uniform(0, 2 * np.pi, count)
+    local = np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), -np.cos(theta)], 1)
+    directions = np.einsum("nji,nj->ni", frames, local)
+    got = _parallax_kernel(weave, 2.0, uvs, frames, directions, device)
+    want = mirror.parallax_uv_f64(weave.heights, uvs, frames, directions, 2.0)
+    assert_close(got, want, atol=ATOL_PARALLAX_FLOAT32, what="parallax UV, kernel vs float64")
+    # the point found lies on the displaced surface: ray height == patch height there
+    shift = (want - uvs) * 2.0
+    along = np.sum(shift * local[:, :2], axis=1) / np.sum(local[:, :2] ** 2, axis=1)  # ray parameter s
+    ray_z = along * local[:, 2]
+    surface_z = lp.sample_heights(weave.heights, want * 2.0) - weave.heights.mean()
+    assert_close(ray_z, surface_z, atol=ATOL_PARALLAX_HIT, what="march lands on the height field")
+
+
+def test_parallax_is_no_shift_from_straight_above_or_on_a_flat_patch(device, weave, rng):
+    count = 16
+    frames = _random_frames(rng, count)
+    uvs = rng.uniform(0.0, 1.0, size=(count, 2))
+    got = _parallax_kernel(weave, 3.0, uvs, frames, -frames[:, 2], device)
+    # straight down: the march moves along the normal only
+    assert_close(got, uvs, atol=1e-5, what="view along -n")
+    flat, _ = lp.bake_patch(lp.patch_heights("flat", 8, 0.0), ORDER, 16, 2, 0.05)
+    oblique = -frames[:, 2] + 0.8 * frames[:, 0]
+    got = _parallax_kernel(flat, 3.0, uvs, frames, oblique / np.linalg.norm(oblique, axis=1, keepdims=True), device)
+    assert_close(got, uvs, atol=1e-5, what="flat patch")

@@ -15,6 +15,7 @@ from .glossy import GlossyModel
 from .model import LDPRTModel
 
 __all__ = [
+    "parallax_uv_f64",
     "patch_tangent_frames_f64",
     "patch_vertex_tangents_f64",
     "rotate_stored",
@@ -163,3 +164,36 @@ def shade_unshadowed_f64(normals, light, albedo) -> np.ndarray:
     a = sh.clamped_cosine_zh(order)[sh.band_of(order)]
     y = sh.basis(np.asarray(normals, np.float64).reshape(-1, 3), order)
     return np.asarray(albedo, np.float64) / np.pi * ((y * a) @ np.asarray(light, np.float64).T)
+
+
+def parallax_uv_f64(heights, uv, frames, directions, tiling: float, steps: int = 32, min_cosine: float = 0.1):
+    """Float64 mirror of ``patch_warp.parallax_uv``: (N, 2) UVs of the first point of the displaced
+    patch (heights about their mean) that view rays ``directions`` (N, 3) through the base points
+    ``uv`` (N, 2) meet, in tangent frames (N, 3, 3) rows (t, b, n)."""
+    from .patch import sample_heights
+
+    h = np.asarray(heights, np.float64)
+    mean, top, bottom = h.mean(), h.max() - h.mean(), h.min() - h.mean()
+    uv = np.asarray(uv, np.float64).reshape(-1, 2) * tiling
+    uv = np.where(np.abs(uv) < 1e6, uv, 0.0)
+    d = np.einsum("nij,nj->ni", np.asarray(frames, np.float64), np.asarray(directions, np.float64))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    dz = np.minimum(d[:, 2], -min_cosine)
+    s0, s1 = top / dz, bottom / dz
+
+    def f(s):
+        return dz * s - (sample_heights(h, uv + s[:, None] * d[:, :2]) - mean)
+
+    prev_s, prev_f = s0, f(s0)
+    hit = s1.copy()
+    found = np.zeros(uv.shape[0], bool)
+    for k in range(1, steps + 1):
+        s = s0 + (s1 - s0) * k / steps
+        fs = f(s)
+        new = ~found & (fs <= 0.0)
+        denom = prev_f - fs
+        t = np.where(denom > 0.0, prev_f / np.where(denom > 0.0, denom, 1.0), 1.0)
+        hit = np.where(new, prev_s + (s - prev_s) * t, hit)
+        found |= new
+        prev_s, prev_f = s, fs
+    return (uv + hit[:, None] * d[:, :2]) / tiling

@@ -38,6 +38,11 @@ INV_PI = 0.3183098861837907
 TANGENT_EPS = 1e-12
 #: UV magnitude beyond which (or non-finite) a look-up falls back to uv = 0.
 UV_LIMIT = 1e6
+#: Steps of the per-pixel parallax march through the height field (then one secant step).
+PARALLAX_STEPS = 32
+#: Largest |n . d| treated as grazing: the march's view ray is steepened to this (bounds the shift
+#: to (height range) / PARALLAX_MIN_COSINE patch widths).
+PARALLAX_MIN_COSINE = 0.1
 
 
 @wp.struct
@@ -47,7 +52,9 @@ class PatchTexture:
     Fields:
         axes: (T, L) vec3 lobe axes; coeffs: (T, L, n) float ``g*``; counts: (T,) int32 lobes;
         stored: (T, 4) float DC + linear SH; cosine: (n,) float clamped-cosine ``A_l`` (the
-        unpatched shading); resolution: R; tiling: patches per unit of UV.
+        unpatched shading); resolution: R; tiling: patches per unit of UV; heights: (R, R) float
+        texel heights (patch widths) with their mean, min and max; parallax: 1 to march the view
+        ray through the heights per pixel (the texel seen), 0 for the paper's look-up at the UV.
     """
 
     axes: wp.array2d(dtype=wp.vec3)
@@ -57,6 +64,11 @@ class PatchTexture:
     cosine: wp.array(dtype=wp.float32)
     resolution: int
     tiling: float
+    heights: wp.array2d(dtype=wp.float32)
+    height_mean: float
+    height_min: float
+    height_max: float
+    parallax: int
 
 
 @wp.struct
@@ -113,6 +125,68 @@ def wrap_texel(k: int, r: int) -> int:
     return m
 
 
+@wp.func
+def finite_coordinate(x: float) -> float:
+    if wp.abs(x) < UV_LIMIT:
+        return x
+    return 0.0
+
+
+@wp.func
+def patch_height(patch: PatchTexture, x: float, y: float) -> float:
+    """Bilinear, periodic height at patch coordinates (x, y) (patch widths; period 1)."""
+    r = patch.resolution
+    fx = (x - wp.floor(x)) * float(r) - 0.5
+    fy = (y - wp.floor(y)) * float(r) - 0.5
+    x0 = wp.floor(fx)
+    y0 = wp.floor(fy)
+    tx = fx - x0
+    ty = fy - y0
+    i0 = wrap_texel(int(x0), r)
+    j0 = wrap_texel(int(y0), r)
+    i1 = wrap_texel(i0 + 1, r)
+    j1 = wrap_texel(j0 + 1, r)
+    h = patch.heights
+    return ((1.0 - tx) * (1.0 - ty) * h[j0, i0] + tx * (1.0 - ty) * h[j0, i1] + (1.0 - tx) * ty * h[j1, i0]
+            + tx * ty * h[j1, i1])
+
+
+@wp.func
+def parallax_uv(patch: PatchTexture, uv: wp.vec2, frame: wp.mat33, direction: wp.vec3) -> wp.vec2:
+    """The UV of the point of the displaced surface (heights about their mean, along the frame's
+    normal) a view ray through the base point ``uv`` meets first: ``PARALLAX_STEPS`` steps from
+    the highest to the lowest height, then a secant step (ray directions with ``n . d`` above
+    ``-PARALLAX_MIN_COSINE`` are steepened to it)."""
+    u = finite_coordinate(uv[0] * patch.tiling)
+    v = finite_coordinate(uv[1] * patch.tiling)
+    d = frame * direction
+    dl = wp.length(d)
+    if not (dl > TANGENT_EPS and dl < 1.0e30):
+        return wp.vec2(u / patch.tiling, v / patch.tiling)
+    d = d / dl
+    dz = wp.min(d[2], -PARALLAX_MIN_COSINE)
+    top = patch.height_max - patch.height_mean
+    bottom = patch.height_min - patch.height_mean
+    s0 = top / dz
+    s1 = bottom / dz
+    prev_s = s0
+    prev_f = dz * s0 - (patch_height(patch, u + s0 * d[0], v + s0 * d[1]) - patch.height_mean)
+    hit_s = s1
+    found = int(0)
+    for k in range(1, PARALLAX_STEPS + 1):
+        s = s0 + (s1 - s0) * float(k) / float(PARALLAX_STEPS)
+        f = dz * s - (patch_height(patch, u + s * d[0], v + s * d[1]) - patch.height_mean)
+        if found == 0 and f <= 0.0:
+            t = float(1.0)
+            if prev_f - f > 0.0:
+                t = prev_f / (prev_f - f)
+            hit_s = prev_s + (s - prev_s) * t
+            found = 1
+        prev_s = s
+        prev_f = f
+    return wp.vec2((u + hit_s * d[0]) / patch.tiling, (v + hit_s * d[1]) / patch.tiling)
+
+
 @wp.kernel
 def clear_tangents_kernel(surface: PatchSurface):
     v = wp.tid()
@@ -149,9 +223,10 @@ def patch_kernels(order: int):
 
     * ``shade_vertices(points_normals, surface, patch, light, radiance)``: per vertex, the patch at
       the vertex's UV (radiance (V, 3) float32);
-    * ``shade_pixels(hit, normal, face, bary, surface, patch, light, pixel_albedo, use_albedo, out)``:
-      per G-buffer ray, UV, dP/du, dP/dv and albedo interpolated with the hit's barycentrics (or
-      the per-pixel albedo when ``use_albedo``), out (N,) vec3, 0 for misses.
+    * ``shade_pixels(hit, normal, face, bary, direction, surface, patch, light, pixel_albedo,
+      use_albedo, out)``: per G-buffer ray, UV, dP/du, dP/dv and albedo interpolated with the
+      hit's barycentrics (or the per-pixel albedo when ``use_albedo``), the UV moved along the
+      ray ``direction`` through the heights when ``patch.parallax``; out (N,) vec3, 0 for misses.
     """
     shk = sh_kernels(order)
     sh_eval = shk.eval
@@ -233,6 +308,7 @@ def patch_kernels(order: int):
         normal: wp.array(dtype=wp.vec3),
         face: wp.array(dtype=wp.int32),
         bary: wp.array(dtype=wp.vec2),
+        direction: wp.array(dtype=wp.vec3),
         surface: PatchSurface,
         patch: PatchTexture,
         light: wp.array2d(dtype=wp.float32),
@@ -257,6 +333,8 @@ def patch_kernels(order: int):
         e = wp.vec3(0.0)
         if surface.patched[a] != 0:
             uv = surface.uvs[a] * wa + surface.uvs[b] * wb + surface.uvs[c] * wc
+            if patch.parallax != 0:
+                uv = parallax_uv(patch, uv, frame, direction[p])
             e = patch_lookup(patch, uv, frame, light)
         else:
             e = unshadowed(patch, wp.vec3(frame[2, 0], frame[2, 1], frame[2, 2]), light)
@@ -270,8 +348,9 @@ def patch_kernels(order: int):
     return shade_vertices, shade_pixels
 
 
-def patch_texture(model, tiling: float, device) -> PatchTexture:
-    """A :class:`PatchTexture` on ``device`` from a :class:`~.patch.PatchModel` and its tiling."""
+def patch_texture(model, tiling: float, device, parallax: bool = False) -> PatchTexture:
+    """A :class:`PatchTexture` on ``device`` from a :class:`~.patch.PatchModel`, its tiling and
+    whether pixels march their view ray through the heights (``parallax``)."""
     import numpy as np
 
     from ...basis import sh
@@ -283,6 +362,10 @@ def patch_texture(model, tiling: float, device) -> PatchTexture:
     t.stored = wp.array(model.stored, dtype=wp.float32, device=device)
     t.cosine = wp.array(sh.clamped_cosine_zh(model.order).astype(np.float32), dtype=wp.float32, device=device)
     t.resolution, t.tiling = int(model.resolution), float(tiling)
+    h = np.asarray(model.heights, np.float32)
+    t.heights = wp.array(h, dtype=wp.float32, device=device)
+    t.height_mean, t.height_min, t.height_max = float(h.mean()), float(h.min()), float(h.max())
+    t.parallax = int(bool(parallax))
     return t
 
 

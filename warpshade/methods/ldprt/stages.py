@@ -619,6 +619,8 @@ class LdprtPatchShadeStage(FrameStage):
         "prims": Param("", str, "meshes carrying the patch, comma-separated paths (default: every mesh with UVs)"),
         "detail": Param("patch", str, "'patch', or 'none': the undisplaced surface, unshadowed (to compare)",
                         choices=("patch", "none")),
+        "parallax": Param(True, bool, "per pixel, march the view ray through the heights and shade the texel it "
+                          "meets (false: the texel at the UV, the paper's look-up, no parallax or masking)"),
         "reference_levels": Param(None, int, "midpoint subdivisions of the displaced surface the per-pixel ground "
                                   "truth is traced on (default: a fine edge per patch texel)", minimum=0, maximum=6),
     }
@@ -646,7 +648,7 @@ class LdprtPatchShadeStage(FrameStage):
                 uvs[m.vertex_offset:m.vertex_offset + m.vertex_count] = m.uvs
                 patched[m.vertex_offset:m.vertex_offset + m.vertex_count] = self.params["detail"] == "patch"
         self._surface = patch_warp.patch_surface(ctx.scene.faces, uvs, patched, inputs["albedo"], dev)
-        self._texture = patch_warp.patch_texture(self.patch, self.params["tiling"], dev)
+        self._texture = patch_warp.patch_texture(self.patch, self.params["tiling"], dev, self.params["parallax"])
         self._points, self._normals = inputs["points"], inputs["normals"]
         self._shade_vertices, self._shade_pixels = patch_warp.patch_kernels(order)
         self._radiance = wp.zeros((ctx.dims["V"], 3), dtype=wp.float32, device=dev)
@@ -682,7 +684,7 @@ class LdprtPatchShadeStage(FrameStage):
             raise StageError(f"stage {self.name!r}: render_pixels albedo must be finite, non-negative, shape {(n, 3)}")
         out = wp.zeros(n, dtype=wp.vec3, device=dev)
         wp.launch(self._shade_pixels, dim=n, device=dev,
-                  inputs=[gbuffer.hit, normal, gbuffer.face, gbuffer.bary, self._surface, self._texture,
+                  inputs=[gbuffer.hit, normal, gbuffer.face, gbuffer.bary, gbuffer.direction, self._surface, self._texture,
                           self._lighting.light, wp.array(px, dtype=wp.vec3, device=dev), int(use), out])
         return out
 
