@@ -17,9 +17,12 @@ each measured against the ground truth ray traced on the displaced geometry (the
 subdivided to about one edge per patch texel and moved along its normals by the patch heights:
 :class:`warpshade.methods.ldprt.patch.PatchGeometry`), over the pixels of the cloth, as relative
 RMS (``sqrt(mean |d|^2) / sqrt(mean |ref|^2)`` over RGB) with the part the reference's own noise
-explains. Also: the patch's precompute time and lobe histogram, the per-pixel shading time.
+explains, over all those pixels and over those at least two pixels inside the cloth's outline
+(``*_interior``: without the silhouettes, where the displaced outline differs from the smooth
+one). Also: the patch's precompute time and lobe histogram, the per-pixel shading time.
+``--scene-camera`` measures through the scene's camera (as ``--validate`` does) instead.
 
-Writes ``ldprt-patch-<date>-cpu.json`` and ``.png`` (patch | displaced reference | undisplaced |
+Writes ``ldprt-patch-<date>-cpu[-scene-camera].json`` and ``.png`` (patch | displaced reference | undisplaced |
 the two error maps, frame 30) into ``--out`` (default ``benchmarks/results``).
 
 Usage::
@@ -73,6 +76,8 @@ def main(argv=None) -> int:
     ap.add_argument("--supersample", type=int, default=2, help="rays per pixel along each axis (box-filtered)")
     ap.add_argument("--tiling", type=float, default=None, help="patch repeats per UV unit (default: the graph's)")
     ap.add_argument("--frames", default="0,30", help="frames measured, comma-separated")
+    ap.add_argument("--scene-camera", action="store_true", help="measure through the scene's camera (as --validate "
+                    "does: the cloth seen at about 20 degrees above its plane) instead of the framing camera")
     ap.add_argument("--out", default=None, help="output directory (default benchmarks/results; required with --quick)")
     args = ap.parse_args(argv)
     if args.quick and args.out is None:
@@ -81,6 +86,7 @@ def main(argv=None) -> int:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from scipy import ndimage
 
     from warpshade.measure.pixels import render_frame
     from warpshade.measure.pictures import ERROR_LIMIT
@@ -97,7 +103,7 @@ def main(argv=None) -> int:
     frames = [0.0] if quick else [float(f) for f in args.frames.split(",")]
     out = Path(args.out) if args.out else ROOT / "benchmarks" / "results"
     out.mkdir(parents=True, exist_ok=True)
-    stem = f"ldprt-patch-{DATE}-cpu" + ("-quick" if quick else "")
+    stem = f"ldprt-patch-{DATE}-cpu" + ("-scene-camera" if args.scene_camera else "") + ("-quick" if quick else "")
 
     spec = _spec(quick, args.tiling)
     t0 = time.perf_counter()
@@ -107,6 +113,10 @@ def main(argv=None) -> int:
     patch_stage = next(s for s in rt.stages if s.type_name == "ldprt.patch")
     camera = Camera(position=np.array(CAMERA["position"]), target=np.array(CAMERA["target"]),
                     up=np.array(CAMERA["up"]), vertical_fov=CAMERA["vertical_fov"])
+    if args.scene_camera:
+        from warpshade.render import camera_for
+
+        camera = camera_for(rt.scene, frames[0], aspect=width / height)
     rows, panels = {}, None
     for f in frames:
         print(f"frame {f:g}: shading", flush=True)
@@ -136,6 +146,8 @@ def main(argv=None) -> int:
         tri = ref.hits.triangles
         on = (ref.hits.hit & (tri >= 0) & keep[owner[np.maximum(tri, 0)]]).reshape(height, ss, width, ss).all(axis=(1, 3))
         mask = on & ref.mask & (im.coverage >= 1.0) & smooth.mask
+        # pixels at least two pixels inside the cloth's outline: what silhouettes leave
+        interior = ndimage.binary_erosion(mask, iterations=2)
         denom = float(np.sqrt(np.mean(ref.radiance[mask] ** 2)))
         noise = float(np.sqrt(np.mean(ref.stderr[mask] ** 2)) / denom)
         noise_smooth = float(np.sqrt(np.mean(smooth.stderr[mask] ** 2)) / denom)
@@ -145,6 +157,10 @@ def main(argv=None) -> int:
             "patch_without_parallax": _rel(im_lookup.linear, ref.radiance, mask),
             "undisplaced_unshadowed": _rel(im_flat.linear, ref.radiance, mask),
             "undisplaced_ray_traced": _rel(smooth.radiance, ref.radiance, mask),
+            "interior_pixels": int(interior.sum()),
+            "patch_interior": _rel(im.linear, ref.radiance, interior),
+            "patch_without_parallax_interior": _rel(im_lookup.linear, ref.radiance, interior),
+            "undisplaced_unshadowed_interior": _rel(im_flat.linear, ref.radiance, interior),
             "reference_noise": noise,
             "undisplaced_ray_traced_noise": noise_smooth,
             "shade_s": im.seconds["shade"],
@@ -157,7 +173,8 @@ def main(argv=None) -> int:
         panels = (f, im.linear, ref.radiance, im_flat.linear, smooth.radiance, mask)
     report = {
         "graph": str(GRAPH.relative_to(ROOT)), "date": DATE, "machine": platform.processor() or platform.machine(),
-        "quick": quick, "width": width, "height": height, "supersample": ss, "spp": spp, "camera": CAMERA,
+        "quick": quick, "width": width, "height": height, "supersample": ss, "spp": spp,
+        "camera": "scene" if args.scene_camera else CAMERA,
         "frames": rows, "patch": {**patch_stage.params, "report": getattr(patch_stage, "report", None)},
         "shade": dict(shade.params), "diagnostics": shade.diagnostics(), "compile_and_precompute_s": compile_s,
         "metric": "relative RMS over the cloth's fully covered pixels vs ground truth on the displaced fine mesh",
