@@ -300,3 +300,100 @@ def test_parallax_is_no_shift_from_straight_above_or_on_a_flat_patch(device, wea
     oblique = -frames[:, 2] + 0.8 * frames[:, 0]
     got = _parallax_kernel(flat, 3.0, uvs, frames, oblique / np.linalg.norm(oblique, axis=1, keepdims=True), device)
     assert_close(got, uvs, atol=1e-5, what="flat patch")
+
+
+def _wavy_sheet(n=12, size=2.0, with_block=False):
+    """A deforming, UV-mapped sheet (two frames: flat, then waved) and optionally a UV-less box."""
+    from warpshade.scene import Mesh, Scene
+
+    g = np.stack(np.meshgrid(np.arange(n), np.arange(n), indexing="xy"), -1).reshape(-1, 2) / (n - 1)
+    idx = np.arange(n * n).reshape(n, n)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, 1:].ravel(), idx[1:, :-1].ravel()
+    faces = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+    flat = np.concatenate([(g - 0.5) * size, np.zeros((n * n, 1))], 1)
+    waved = flat.copy()
+    waved[:, 2] = 0.15 * np.sin(2.0 * np.pi * g[:, 0]) * np.cos(np.pi * g[:, 1])
+    meshes = [Mesh("/sheet", flat, faces, animation="deforming", point_samples=np.stack([flat, waved]), uvs=g,
+                   albedo=np.full((n * n, 3), 0.7, np.float32))]
+    if with_block:
+        box = np.array([[x, y, z] for x in (-0.2, 0.2) for y in (-0.2, 0.2) for z in (0.5, 0.9)], np.float64)
+        box_faces = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1], [2, 3, 7], [2, 7, 6],
+                              [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
+        meshes.append(Mesh("/block", box, box_faces))
+    return Scene.from_meshes(meshes, frames=[0.0, 1.0])
+
+
+def _patch_run(scene, device, parallax=True):
+    from warpshade.graph import GraphSpec, StageSpec
+    from warpshade.scene import Environment, LightingSource
+
+    spec = GraphSpec(stages=[
+        StageSpec("patch", "ldprt.patch", {"shape": "waffle", "resolution": 8, "height": 0.3, "order": ORDER, "lobes": 3,
+                                           "samples": 64, "tiles": 3}),
+        StageSpec("shade", "ldprt.patch_shade", {"tiling": 2.0, "parallax": parallax, "prims": "/sheet"}),
+    ], output="shade.radiance")
+    return spec.compile(scene, device=device, cache_dir=None, progress=False,
+                        lighting=LightingSource([Environment.sky(height=16, width=32)], "Z"))
+
+
+@pytest.mark.parametrize("parallax", [False, True])
+def test_stage_shades_pixels_like_the_mirror(device, parallax):
+    """``render_pixels`` on a deformed frame: UVs, dP/du, dP/dv and albedo interpolated at the hits,
+    the frame from the G-buffer normal, (the parallax march), the four texels -- against float64."""
+    from warpshade.geometry.bvh import Visibility
+    from warpshade.measure.protocols import PixelStage
+    from warpshade.render import render_gbuffer
+    from warpshade.scene import Camera
+
+    scene = _wavy_sheet()
+    rt = _patch_run(scene, device, parallax)
+    stage = next(s for s in rt.stages if s.name == "shade")
+    assert isinstance(stage, PixelStage)
+    rt.step(1.0)
+    state = rt.state
+    bvh = Visibility.from_scene(scene, device=device)
+    bvh.update(state.points)
+    cam = Camera(position=np.array([0.3, -1.6, 1.8]), target=np.zeros(3), up=np.array([0.0, 0.0, 1.0]), vertical_fov=45.0)
+    gb = render_gbuffer(bvh, state.normals, cam, 24, 18)
+    got = stage.render_pixels(gb).numpy()
+    hit = gb.hit.numpy().astype(bool)
+    assert hit.sum() > 100
+    face, bary = gb.face.numpy()[hit], gb.bary.numpy()[hit].astype(np.float64)
+    w = np.stack([bary[:, 0], bary[:, 1], 1.0 - bary[:, 0] - bary[:, 1]], 1)
+    tri = scene.faces[face]
+    points = state.points.numpy().astype(np.float64)
+    uvs = scene.meshes[0].uvs
+    t, b = mirror.patch_vertex_tangents_f64(points, scene.faces, uvs, np.ones(scene.vertex_count))
+    frames = mirror.patch_tangent_frames_f64(gb.normal.numpy()[hit], np.einsum("pk,pkc->pc", w, t[tri]),
+                                             np.einsum("pk,pkc->pc", w, b[tri]))
+    uv = np.einsum("pk,pkc->pc", w, uvs[tri])
+    model = stage.patch
+    if parallax:
+        uv = mirror.parallax_uv_f64(model.heights, uv, frames, gb.direction.numpy()[hit].astype(np.float64), 2.0)
+    albedo = np.einsum("pk,pkc->pc", w, np.asarray(scene.albedo, np.float64)[tri])
+    light = state.lighting.sh(ORDER).numpy().astype(np.float64)
+    want = mirror.shade_patch_f64(model, uv, frames, light, albedo, 2.0)
+    assert_close(got[hit], want, atol=ATOL_PATCH_FLOAT32 * 10, what="per-pixel patch shading vs float64")
+    assert np.all(got[~hit] == 0.0)
+
+
+def test_pixels_are_measured_on_the_displaced_geometry(device, tmp_path):
+    """``measure_pixels`` traces the stage's displaced sheet (the UV-less block copied as it is) and
+    measures the patched prims' pixels; the patch beats the undisplaced shading."""
+    from warpshade.measure.pixels import measure_pixels
+
+    scene = _wavy_sheet(with_block=True)
+    rt = _patch_run(scene, device)
+    model = next(s for s in rt.stages if s.name == "shade").pixel_reference_model()
+    assert model["prims"] == ["/sheet"] and model["include"] == ("diffuse",)
+    displaced = model["geometry"](1.0)
+    assert [m.path for m in displaced.meshes] == ["/sheet", "/block"]
+    assert displaced.meshes[0].faces.shape[0] > scene.meshes[0].faces.shape[0]
+    rt.spec.name = "sheet"
+    errors = {}
+    for detail in ("patch", "none"):
+        rt.set_parameter("shade", "detail", detail)
+        rep = measure_pixels(rt, tmp_path, [1.0], width=32, height=24, samples=32, seed=5)
+        errors[detail] = rep["frames"][1.0]["rel_rms"]
+        assert 0 < rep["frames"][1.0]["pixels"] < 32 * 24
+    assert np.isfinite(errors["patch"]) and errors["patch"] < errors["none"]
