@@ -245,10 +245,21 @@ def test_stage_refuses_nan_texture_and_uvless_scene(tmp_path):
                     'resolution = 8\nsamples = 16\n'
                     '[[stage]]\nname = "shade"\ntype = "ldprt.patch_shade"\n')
     with pytest.raises(StageError, match="parameter 'texture'.*non-finite"):
-        graph.load(toml).compile(device="cpu", progress=False)
+        graph.load(toml).compile(device="cpu", progress=False, cache_dir=None)
+    # heights from an albedo image (PNG, the paper's way): the bright half is high
+    from PIL import Image
+
+    img = np.zeros((16, 16, 3), np.uint8)
+    img[:, 8:] = 200
+    Image.fromarray(img).save(tmp_path / "albedo.png")
+    toml2 = tmp_path / "g2.toml"
+    toml2.write_text(toml.read_text().replace("nan.npy", "albedo.png").replace("bundled:bend", "bundled:cloth"))
+    rt = graph.load(toml2).compile(device="cpu", progress=False, cache_dir=None)
+    heights = next(s for s in rt.stages if s.name == "shade").patch.heights
+    assert np.all(heights[:, 4:] > heights[:, :4].max())
     toml.write_text(toml.read_text().replace('shape = "texture"\ntexture = "nan.npy"\n', 'shape = "flat"\n'))
     with pytest.raises(StageError, match="stage 'shade'.*no mesh .* has UVs"):
-        graph.load(toml).compile(device="cpu", progress=False)
+        graph.load(toml).compile(device="cpu", progress=False, cache_dir=None)
 
 
 def _parallax_kernel(model, tiling, uvs, frames, directions, device):

@@ -576,7 +576,8 @@ class LdprtPatchStage(PrecomputeStage):
         return {k: v for k, v in self.params.items() if k != "texture"}
 
     def _image(self, ctx):
-        from ...io.images import read_image
+        """The ``texture`` file's pixels (any texture format, or a .npy height array), float64."""
+        from ...io.textures import read_texture_file
 
         path = self.params["texture"]
         if path is None:
@@ -584,7 +585,10 @@ class LdprtPatchStage(PrecomputeStage):
         p = ctx.resolve_path(path)
         if not p.exists():
             raise StageError(f"stage {self.name!r}: parameter 'texture': no such file {p}")
-        img = np.asarray(read_image(p) if p.suffix != ".npy" else np.load(p), np.float64)
+        try:
+            img = np.asarray(np.load(p) if p.suffix == ".npy" else read_texture_file(p)[0], np.float64)
+        except (OSError, ValueError) as exc:
+            raise StageError(f"stage {self.name!r}: parameter 'texture': {exc}") from None
         if not np.all(np.isfinite(img)):
             raise StageError(f"stage {self.name!r}: parameter 'texture' ({p}) holds {int(np.sum(~np.isfinite(img)))} "
                              "non-finite values (NaN or inf): no height can be derived from them")
