@@ -365,7 +365,7 @@ def test_stage_shades_pixels_like_the_mirror(device, parallax):
     bvh = Visibility.from_scene(scene, device=device)
     bvh.update(state.points)
     cam = Camera(position=np.array([0.3, -1.6, 1.8]), target=np.zeros(3), up=np.array([0.0, 0.0, 1.0]), vertical_fov=45.0)
-    gb = render_gbuffer(bvh, state.normals, cam, 24, 18)
+    gb = render_gbuffer(bvh, state.normals, cam, 96, 72)  # past PIXEL_CHUNK_MIN: CPU chunks
     got = stage.render_pixels(gb).numpy()
     hit = gb.hit.numpy().astype(bool)
     assert hit.sum() > 100

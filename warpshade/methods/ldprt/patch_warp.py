@@ -224,7 +224,7 @@ def patch_kernels(order: int):
     * ``shade_vertices(points_normals, surface, patch, light, radiance)``: per vertex, the patch at
       the vertex's UV (radiance (V, 3) float32);
     * ``shade_pixels(hit, normal, face, bary, direction, surface, patch, light, pixel_albedo,
-      use_albedo, out)``: per G-buffer ray, UV, dP/du, dP/dv and albedo interpolated with the
+      use_albedo, start, out)``: per G-buffer ray (``start`` + thread: CPU chunks), UV, dP/du, dP/dv and albedo interpolated with the
       hit's barycentrics (or the per-pixel albedo when ``use_albedo``), the UV moved along the
       ray ``direction`` through the heights when ``patch.parallax``; out (N,) vec3, 0 for misses.
     """
@@ -314,9 +314,10 @@ def patch_kernels(order: int):
         light: wp.array2d(dtype=wp.float32),
         pixel_albedo: wp.array(dtype=wp.vec3),
         use_albedo: int,
+        start: int,
         out: wp.array(dtype=wp.vec3),
     ):
-        p = wp.tid()
+        p = wp.tid() + start
         if hit[p] == 0:
             out[p] = wp.vec3(0.0)
             return

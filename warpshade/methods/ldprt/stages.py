@@ -32,7 +32,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..._limits import MAX_FIT_RESTARTS, MAX_LOOKUP_TABLE_WIDTH, MAX_VIEW_RESOLUTION
-from ..._wp import wp
+from ..._wp import launch_parallel, wp
 from ...basis.zh import DEFAULT_RIDGE as _RIDGE
 from ...basis.sh_warp import sh_kernels
 from ..common import ShLighting, order_param, rays_param
@@ -54,6 +54,8 @@ __all__ = [
 ]
 
 _ORDER = order_param(4, minimum=1, maximum=8)
+#: Pixels per CPU chunk below which a per-pixel patch launch is not split over cores.
+PIXEL_CHUNK_MIN = 4096
 _LOBES = Param(4, int, "lobes per vertex (the maximum when target_error is set)", minimum=1, maximum=8)
 _SAMPLES = rays_param(256, "rays per vertex of the transfer simulation")
 _FRAME = Param(None, float, "time code of the bake pose (default: the scene's first frame)")
@@ -687,9 +689,13 @@ class LdprtPatchShadeStage(FrameStage):
         if px.shape != (n, 3) or not np.all(np.isfinite(px)) or np.any(px < 0):
             raise StageError(f"stage {self.name!r}: render_pixels albedo must be finite, non-negative, shape {(n, 3)}")
         out = wp.zeros(n, dtype=wp.vec3, device=dev)
-        wp.launch(self._shade_pixels, dim=n, device=dev,
-                  inputs=[gbuffer.hit, normal, gbuffer.face, gbuffer.bary, gbuffer.direction, self._surface, self._texture,
-                          self._lighting.light, wp.array(px, dtype=wp.vec3, device=dev), int(use), out])
+        pixel_albedo = wp.array(px, dtype=wp.vec3, device=dev)
+
+        def chunk(start, stop):
+            return [gbuffer.hit, normal, gbuffer.face, gbuffer.bary, gbuffer.direction, self._surface, self._texture,
+                    self._lighting.light, pixel_albedo, int(use), start, out]
+
+        launch_parallel(self._shade_pixels, n, chunk, dev, min_count=PIXEL_CHUNK_MIN)
         return out
 
     def pixel_reference_model(self, materials=None) -> dict:
