@@ -62,7 +62,12 @@ def _shade_vertices(model, tiling, normals, tangents, bitangents, uvs, patched, 
     return out.numpy()
 
 
-def test_patch_kernel_matches_float64_mirror(device, weave, light, rng):
+@pytest.mark.parametrize("textured", [False, True])
+def test_patch_kernel_matches_float64_mirror(device, weave, light, rng, textured):
+    from dataclasses import replace
+
+    if textured:  # a per-texel albedo factor (a 'texture' patch)
+        weave = replace(weave, albedo=rng.uniform(0.1, 1.0, size=weave.albedo.shape).astype(np.float32))
     count = 64
     frames = _random_frames(rng, count)
     uvs = rng.uniform(-2.0, 3.0, size=(count, 2))
@@ -201,6 +206,11 @@ def test_displaced_geometry_moves_the_surface_by_the_heights():
     uv_fine = fine.points[:, :2] / 2.0
     want = (lp.sample_heights(heights, uv_fine * 2.0) - heights.mean()) * 1.0
     assert_close(fine.points[:, 2], want, atol=1e-9, what="displacement along +z")
+    # a patch albedo multiplies the fine vertices' albedo (bilinear at their UVs)
+    tex = np.random.default_rng(3).uniform(0.2, 1.0, size=(8, 8, 3))
+    tinted = lp.PatchGeometry(scene, heights, 2.0, ["/plane"], albedo=tex).scene_at(0.0).meshes[0]
+    want = np.stack([lp.sample_heights(tex[..., c], uv_fine * 2.0) for c in range(3)], 1) * fine.albedo
+    assert_close(tinted.albedo, want, atol=1e-6, what="tinted albedo")
 
 
 def test_bad_inputs_are_named():
@@ -217,7 +227,7 @@ def test_bad_inputs_are_named():
     with pytest.raises(ValueError, match="'tiles'"):
         lp.tiled_mesh(np.zeros((4, 4)), 2)
     bad = {"heights": np.zeros((4, 4)), "axes": np.zeros((16, 2, 3)), "coeffs": np.zeros((16, 2, 3)),
-           "counts": np.full(16, 3), "stored": np.zeros((16, 4)), "fit_error": np.zeros(16)}
+           "counts": np.full(16, 3), "stored": np.zeros((16, 4)), "fit_error": np.zeros(16), "albedo": np.ones((16, 3))}
     with pytest.raises(ValueError, match="lobe counts"):
         lp.PatchModel.from_arrays(bad)
 
@@ -255,8 +265,12 @@ def test_stage_refuses_nan_texture_and_uvless_scene(tmp_path):
     toml2 = tmp_path / "g2.toml"
     toml2.write_text(toml.read_text().replace("nan.npy", "albedo.png").replace("bundled:bend", "bundled:cloth"))
     rt = graph.load(toml2).compile(device="cpu", progress=False, cache_dir=None)
-    heights = next(s for s in rt.stages if s.name == "shade").patch.heights
-    assert np.all(heights[:, 4:] > heights[:, :4].max())
+    patch = next(s for s in rt.stages if s.name == "shade").patch
+    assert np.all(patch.heights[:, 4:] > patch.heights[:, :4].max())
+    # and its albedo, sRGB-decoded: 200/255 -> 0.578 on the bright half, 0 on the dark half
+    albedo = patch.albedo.reshape(8, 8, 3)
+    assert_close(albedo[:, 4:], np.full((8, 4, 3), ((200 / 255 + 0.055) / 1.055) ** 2.4), atol=1e-5, what="albedo")
+    assert np.all(albedo[:, :4] == 0.0)
     toml.write_text(toml.read_text().replace('shape = "texture"\ntexture = "nan.npy"\n', 'shape = "flat"\n'))
     with pytest.raises(StageError, match="stage 'shade'.*no mesh .* has UVs"):
         graph.load(toml).compile(device="cpu", progress=False, cache_dir=None)

@@ -152,7 +152,7 @@ def shade_patch_f64(patch, uv, frames, light, albedo, tiling: float) -> np.ndarr
         mask = np.arange(patch.axes.shape[1])[None, :] < patch.counts[sel][:, None]
         t = zh.to_sh(axes, patch.coeffs[sel].astype(np.float64) * mask[:, :, None])
         t = t + rotate_stored(patch.stored[sel], rot, patch.order)
-        out += weights[:, k:k + 1] * (t @ light.T)
+        out += weights[:, k:k + 1] * patch.albedo[sel].astype(np.float64) * (t @ light.T)
     return np.asarray(albedo, np.float64) / np.pi * out
 
 

@@ -16,6 +16,8 @@ UVs (tangent along dP/du, bitangent along dP/dv, the shading normal), the patch 
   is the clamped cosine about +z exactly (nothing to trace);
 * :func:`bake_patch` -- heights, transfer and the per-texel ZH fit (lobe counts from an error
   budget) as a :class:`PatchModel` (the ``ldprt.patch`` artifact);
+* :func:`patch_albedo` -- the albedo texture of a ``texture`` patch resampled per texel (the
+  shading multiplies the surface albedo by it, as the paper's patches carry their albedo);
 * :func:`sample_heights` -- bilinear, periodic look-up of the heights (float64);
 * :func:`PatchGeometry` -- the displaced fine mesh the per-pixel ground truth is traced on: the
   surface subdivided (midpoint, ``levels`` times), moved along its interpolated normals by the
@@ -37,6 +39,7 @@ __all__ = [
     "PatchModel",
     "bake_patch",
     "interpolate_at_hits",
+    "patch_albedo",
     "patch_heights",
     "patch_prims",
     "patch_transfer",
@@ -136,6 +139,24 @@ def _resample(img: np.ndarray, r: int) -> np.ndarray:
     return sample_heights(img, np.stack([u.ravel(), v.ravel()], 1)).reshape(r, r)
 
 
+def patch_albedo(image, resolution: int, eight_bit: bool = False) -> np.ndarray:
+    """Per-texel albedo of an image, (R, R, 3) float64 linear RGB in [0, 1] (texel ``[j, i]`` as
+    the heights): the image resampled like :func:`patch_heights` does, sRGB-decoded first when
+    it came from 8-bit values; a one-channel image is grey."""
+    from ...scene.textures import srgb_to_linear
+
+    img = np.asarray(image, np.float64)
+    if img.ndim == 2:
+        img = img[..., None]
+    if img.ndim != 3 or not np.all(np.isfinite(img)):
+        raise ValueError(f"ldprt.patch: parameter 'texture' must be a finite image, got shape {np.shape(image)}")
+    rgb = np.repeat(img[..., :1], 3, axis=-1) if img.shape[-1] < 3 else img[..., :3]
+    if eight_bit:
+        rgb = srgb_to_linear(rgb)
+    out = np.stack([_resample(rgb[..., c], int(resolution)) for c in range(3)], axis=-1)
+    return np.clip(out, 0.0, 1.0)
+
+
 def sample_heights(heights, uv) -> np.ndarray:
     """Bilinear, periodic look-up of (R, R) texel-centre heights at patch coordinates ``uv`` (S, 2)
     (any real numbers; the patch repeats with period 1). Returns (S,) float64."""
@@ -203,7 +224,9 @@ class PatchModel:
         heights: (R, R) float32, patch widths (texel ``[j, i]`` at ``((i + .5) / R, (j + .5) / R)``).
         axes: (R*R, L, 3) float32 lobe axes, patch frame; coeffs: (R*R, L, n) float32 ``g*``;
         counts: (R*R,) int32 lobes per texel; stored: (R*R, 4) float32 DC + linear SH;
-        fit_error: (R*R,) float32 per-texel fit error relative to the RMS transfer norm.
+        fit_error: (R*R,) float32 per-texel fit error relative to the RMS transfer norm;
+        albedo: (R*R, 3) float32 linear albedo per texel, multiplying the surface's (ones for the
+        procedural shapes).
     """
 
     heights: np.ndarray
@@ -212,6 +235,7 @@ class PatchModel:
     counts: np.ndarray
     stored: np.ndarray
     fit_error: np.ndarray
+    albedo: np.ndarray
 
     @property
     def resolution(self) -> int:
@@ -223,12 +247,12 @@ class PatchModel:
 
     def arrays(self) -> dict:
         return {"heights": self.heights, "axes": self.axes, "coeffs": self.coeffs, "counts": self.counts,
-                "stored": self.stored, "fit_error": self.fit_error}
+                "stored": self.stored, "fit_error": self.fit_error, "albedo": self.albedo}
 
     @classmethod
     def from_arrays(cls, arrays: dict) -> "PatchModel":
         """Rebuild and check (shapes, dtypes, finiteness); ValueError naming the array otherwise."""
-        need = ("heights", "axes", "coeffs", "counts", "stored", "fit_error")
+        need = ("heights", "axes", "coeffs", "counts", "stored", "fit_error", "albedo")
         missing = [k for k in need if k not in arrays]
         if missing:
             raise ValueError(f"ldprt.patch artifact: missing arrays {missing}")
@@ -236,7 +260,7 @@ class PatchModel:
         r = a["heights"].shape[0] if a["heights"].ndim == 2 else -1
         t = r * r
         shapes = {"heights": (r, r), "axes": (t, None, 3), "coeffs": (t, None, None), "counts": (t,),
-                  "stored": (t, 4), "fit_error": (t,)}
+                  "stored": (t, 4), "fit_error": (t,), "albedo": (t, 3)}
         for k, want in shapes.items():
             got = a[k].shape
             if r < 1 or len(got) != len(want) or any(w is not None and w != g for w, g in zip(want, got)):
@@ -246,8 +270,11 @@ class PatchModel:
         lobes = a["axes"].shape[1]
         if a["coeffs"].shape[1] != lobes or np.any(a["counts"] < 0) or np.any(a["counts"] > lobes):
             raise ValueError(f"ldprt.patch artifact: lobe counts outside 0..{lobes}")
+        if np.any(a["albedo"] < 0):
+            raise ValueError("ldprt.patch artifact: 'albedo' holds negative values")
         return cls(a["heights"].astype(np.float32), a["axes"].astype(np.float32), a["coeffs"].astype(np.float32),
-                   a["counts"].astype(np.int32), a["stored"].astype(np.float32), a["fit_error"].astype(np.float32))
+                   a["counts"].astype(np.int32), a["stored"].astype(np.float32), a["fit_error"].astype(np.float32),
+                   a["albedo"].astype(np.float32))
 
     def to_sh(self) -> np.ndarray:
         """Per-texel transfer reconstructed from the lobes, patch frame, (R*R, n*n) float64."""
@@ -261,9 +288,10 @@ class PatchModel:
 
 
 def bake_patch(heights, order: int, samples: int, lobes: int, target_error: float | None, tiles: int = 3,
-               device=None, seed: int = 0, restarts: int = 2) -> tuple[PatchModel, dict]:
+               device=None, seed: int = 0, restarts: int = 2, albedo=None) -> tuple[PatchModel, dict]:
     """Trace the patch's transfer and fit it per texel (:func:`warpshade.methods.ldprt.fit_transfer`,
-    lobe count per texel from ``target_error``, at most ``lobes``). Returns (model, report)."""
+    lobe count per texel from ``target_error``, at most ``lobes``); ``albedo`` (R, R, 3) per texel
+    (default ones). Returns (model, report)."""
     h = np.asarray(heights, np.float64)
     if h.ndim != 2 or h.shape[0] != h.shape[1]:
         raise ValueError(f"ldprt.patch: heights must be a square (R, R) array, got shape {h.shape}")
@@ -272,7 +300,11 @@ def bake_patch(heights, order: int, samples: int, lobes: int, target_error: floa
                          "(NaN or inf); every texel needs a finite height")
     t = patch_transfer(h, order, samples, tiles, device, seed)
     fit = fit_transfer(t, lobes, target_error=target_error, restarts=restarts, seed=seed)
-    model = PatchModel(h.astype(np.float32), fit.axes, fit.coeffs, fit.counts, fit.stored, fit.fit_error)
+    tex = np.ones(h.shape + (3,)) if albedo is None else np.asarray(albedo, np.float64)
+    if tex.shape != h.shape + (3,) or not np.all(np.isfinite(tex)) or np.any(tex < 0):
+        raise ValueError(f"ldprt.patch: albedo must be finite, >= 0, shape {h.shape + (3,)}, got {tex.shape}")
+    model = PatchModel(h.astype(np.float32), fit.axes, fit.coeffs, fit.counts, fit.stored, fit.fit_error,
+                       tex.reshape(-1, 3).astype(np.float32))
     report = {"texels": int(h.size), "histogram": fit.histogram, "total_error": fit.total_error,
               "fit_seconds": fit.seconds, "mean_lobes": float(np.mean(fit.counts))}
     return model, report
@@ -311,13 +343,16 @@ class PatchGeometry:
     vertices are the coarse surface interpolated (points, normals, UVs, albedo) and moved along
     the normal by ``(heights(uv * tiling) - mean height) * patch_size``, with ``patch_size`` the world length of
     one patch: the mesh's rest-pose world-to-UV scale ``sqrt(area / uv area)`` over ``tiling``.
-    Other meshes are copied as they are at the frame. Seams in the UVs (split vertices) are not
+    With ``albedo`` (R, R, 3) the fine vertices' albedo is multiplied by it (bilinear at their
+    UVs). Other meshes are copied as they are at the frame. Seams in the UVs (split vertices) are not
     welded: a displaced seam may open.
     """
 
-    def __init__(self, scene, heights, tiling: float, prims, levels: int | None = None, max_levels: int = 4):
+    def __init__(self, scene, heights, tiling: float, prims, levels: int | None = None, max_levels: int = 4,
+                 albedo=None):
         self.scene = scene
         self.heights = np.asarray(heights, np.float64)
+        self.albedo = None if albedo is None else np.asarray(albedo, np.float64).reshape(self.heights.shape + (3,))
         self.tiling = float(tiling)
         self.prims = list(prims)
         texel_uv = 1.0 / (self.tiling * self.heights.shape[0])
@@ -344,8 +379,11 @@ class PatchGeometry:
             # the mean plane is the displaced surface closest to the undisplaced one (least parallax)
             rel = sample_heights(self.heights - self.heights.mean(), fine_uv * self.tiling)
             offset = rel * scale / self.tiling
+            tint = np.ones((fine_uv.shape[0], 3))
+            if self.albedo is not None:
+                tint = np.stack([sample_heights(self.albedo[..., c], fine_uv * self.tiling) for c in range(3)], 1)
             self._fine[m.path] = {"faces": faces, "weights": w, "offset": offset, "levels": int(lv),
-                                  "patch_size": scale / self.tiling}
+                                  "patch_size": scale / self.tiling, "tint": tint}
 
     @property
     def levels(self) -> dict:
@@ -377,7 +415,7 @@ class PatchGeometry:
             n = w @ normals[sl]
             n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
             pts = w @ p + n * fine["offset"][:, None]
-            meshes.append(Mesh(m.path, pts, fine["faces"], albedo=(w @ albedo).astype(np.float32)))
+            meshes.append(Mesh(m.path, pts, fine["faces"], albedo=((w @ albedo) * fine["tint"]).astype(np.float32)))
         return Scene.from_meshes(meshes, frames=[float(frame)], lights=sc.lights, camera=sc.camera, up_axis=sc.up_axis)
 
 

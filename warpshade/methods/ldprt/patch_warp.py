@@ -5,9 +5,9 @@ the four texels around it (bilinear weights over texel centres) each give the ex
 their ZH lobes rotated into the point's tangent frame ``F`` (rows t, b, n; a patch-frame
 direction ``a`` is ``F^T a`` in world space) and dotted with the frame's world SH lighting::
 
-    radiance_c = albedo_c / pi * sum_k w_k (stored_k . e_c + sum_i g*_ki . e^_c(F^T a_ki))
+    radiance_c = albedo_c / pi * sum_k w_k a_k,c (stored_k . e_c + sum_i g*_ki . e^_c(F^T a_ki))
 
-(the stored DC and linear band as :func:`.kernels.stored_term`). Blending the four radiances,
+(the stored DC and linear band as :func:`.kernels.stored_term`; ``a_k`` the texel's albedo factor). Blending the four radiances,
 not the lobes, keeps the interpolation exact for lobes that do not correspond between texels.
 The frame: ``t`` the surface's dP/du (accumulated per vertex over its triangles, UV-area
 weighted, interpolated at the pixel) made orthogonal to the shading normal, ``b = +-n x t`` on
@@ -51,7 +51,7 @@ class PatchTexture:
 
     Fields:
         axes: (T, L) vec3 lobe axes; coeffs: (T, L, n) float ``g*``; counts: (T,) int32 lobes;
-        stored: (T, 4) float DC + linear SH; cosine: (n,) float clamped-cosine ``A_l`` (the
+        stored: (T, 4) float DC + linear SH; albedo: (T,) vec3 per-texel albedo factor; cosine: (n,) float clamped-cosine ``A_l`` (the
         unpatched shading); resolution: R; tiling: patches per unit of UV; heights: (R, R) float
         texel heights (patch widths) with their mean, min and max; parallax: 1 to march the view
         ray through the heights per pixel (the texel seen), 0 for the paper's look-up at the UV.
@@ -61,6 +61,7 @@ class PatchTexture:
     coeffs: wp.array3d(dtype=wp.float32)
     counts: wp.array(dtype=wp.int32)
     stored: wp.array2d(dtype=wp.float32)
+    albedo: wp.array(dtype=wp.vec3)
     cosine: wp.array(dtype=wp.float32)
     resolution: int
     tiling: float
@@ -278,10 +279,14 @@ def patch_kernels(order: int):
         i1 = wrap_texel(i0 + 1, r)
         j1 = wrap_texel(j0 + 1, r)
         rot = wp.transpose(frame)
-        acc = lobes_dot_light(patch, j0 * r + i0, rot, light) * ((1.0 - fx) * (1.0 - fy))
-        acc += lobes_dot_light(patch, j0 * r + i1, rot, light) * (fx * (1.0 - fy))
-        acc += lobes_dot_light(patch, j1 * r + i0, rot, light) * ((1.0 - fx) * fy)
-        acc += lobes_dot_light(patch, j1 * r + i1, rot, light) * (fx * fy)
+        t00 = j0 * r + i0
+        t01 = j0 * r + i1
+        t10 = j1 * r + i0
+        t11 = j1 * r + i1
+        acc = wp.cw_mul(patch.albedo[t00], lobes_dot_light(patch, t00, rot, light)) * ((1.0 - fx) * (1.0 - fy))
+        acc += wp.cw_mul(patch.albedo[t01], lobes_dot_light(patch, t01, rot, light)) * (fx * (1.0 - fy))
+        acc += wp.cw_mul(patch.albedo[t10], lobes_dot_light(patch, t10, rot, light)) * ((1.0 - fx) * fy)
+        acc += wp.cw_mul(patch.albedo[t11], lobes_dot_light(patch, t11, rot, light)) * (fx * fy)
         return acc
 
     @wp.kernel(enable_backward=False, module="unique")
@@ -361,6 +366,7 @@ def patch_texture(model, tiling: float, device, parallax: bool = False) -> Patch
     t.coeffs = wp.array(model.coeffs, dtype=wp.float32, device=device)
     t.counts = wp.array(model.counts, dtype=wp.int32, device=device)
     t.stored = wp.array(model.stored, dtype=wp.float32, device=device)
+    t.albedo = wp.array(np.asarray(model.albedo, np.float32), dtype=wp.vec3, device=device)
     t.cosine = wp.array(sh.clamped_cosine_zh(model.order).astype(np.float32), dtype=wp.float32, device=device)
     t.resolution, t.tiling = int(model.resolution), float(tiling)
     h = np.asarray(model.heights, np.float32)

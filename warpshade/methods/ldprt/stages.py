@@ -41,7 +41,8 @@ from . import kernels
 from .glossy import BRDF_KINDS
 from . import patch_warp
 from .model import STORED_BANDS, fit_transfer, local_transfer
-from .patch import PATCH_SHAPES, PatchGeometry, PatchModel, bake_patch, interpolate_at_hits, patch_heights, patch_prims
+from .patch import (PATCH_SHAPES, PatchGeometry, PatchModel, bake_patch, interpolate_at_hits, patch_albedo, patch_heights,
+                    patch_prims)
 
 __all__ = [
     "LdprtGlossyFitStage",
@@ -551,11 +552,14 @@ class LdprtWrinkleShadeStage(FrameStage):
 @register_stage
 class LdprtPatchStage(PrecomputeStage):
     type_name = "ldprt.patch"
+    version = 2  # 2: per-texel albedo
     description = "tileable height-field patch: transfer ray traced per texel over its tiled copies, ZH lobes per texel"
     parameters = {
         "shape": Param("bumps", str, "height field", choices=PATCH_SHAPES),
         "texture": Param(None, str, "albedo image (relative to the graph) whose luminance is the height, for "
                          "shape = 'texture' (dark = low)"),
+        "texture_albedo": Param(True, bool, "shape = 'texture': the image is also the patch's albedo (multiplying "
+                                "the surface's), as the paper's patches"),
         "resolution": Param(32, int, "texels per side", minimum=4, maximum=256),
         "height": Param(0.15, float, "peak-to-valley relief in patch widths", minimum=0.0, maximum=4.0),
         "tiles": Param(3, int, "copies per side the transfer is traced over (odd)", minimum=1, maximum=9),
@@ -588,9 +592,11 @@ class LdprtPatchStage(PrecomputeStage):
         if not p.exists():
             raise StageError(f"stage {self.name!r}: parameter 'texture': no such file {p}")
         try:
-            img = np.asarray(np.load(p) if p.suffix == ".npy" else read_texture_file(p)[0], np.float64)
+            img, eight_bit = (np.load(p), False) if p.suffix == ".npy" else read_texture_file(p)
+            img = np.asarray(img, np.float64)
         except (OSError, ValueError) as exc:
             raise StageError(f"stage {self.name!r}: parameter 'texture': {exc}") from None
+        self._eight_bit = bool(eight_bit)
         if not np.all(np.isfinite(img)):
             raise StageError(f"stage {self.name!r}: parameter 'texture' ({p}) holds {int(np.sum(~np.isfinite(img)))} "
                              "non-finite values (NaN or inf): no height can be derived from them")
@@ -605,9 +611,12 @@ class LdprtPatchStage(PrecomputeStage):
     def precompute(self, ctx, inputs):
         p = self.params
         try:
-            heights = patch_heights(p["shape"], p["resolution"], p["height"], self._image(ctx))
+            image = self._image(ctx)
+            heights = patch_heights(p["shape"], p["resolution"], p["height"], image)
+            albedo = (patch_albedo(image, p["resolution"], self._eight_bit)
+                      if p["shape"] == "texture" and p["texture_albedo"] else None)
             model, self.report = bake_patch(heights, p["order"], p["samples"], p["lobes"], p["target_error"], p["tiles"],
-                                            ctx.device, p["seed"])
+                                            ctx.device, p["seed"], albedo=albedo)
         except ValueError as exc:
             raise StageError(f"stage {self.name!r}: {exc}") from None
         return {"patch": model.arrays()}
@@ -704,7 +713,7 @@ class LdprtPatchShadeStage(FrameStage):
         over the pixels of the patched ``prims``."""
         if self._geometry is None:
             self._geometry = PatchGeometry(self._scene, self.patch.heights, self.params["tiling"], self.prims,
-                                           self.params["reference_levels"])
+                                           self.params["reference_levels"], albedo=self.patch.albedo)
         return {"include": ("diffuse",), "geometry": self._geometry.scene_at, "prims": list(self.prims)}
 
     def diagnostics(self) -> dict:
