@@ -28,6 +28,7 @@ the two error maps, frame 30) into ``--out`` (default ``benchmarks/results``).
 Usage::
 
     python benchmarks/bench_ldprt_patch.py [--width 160] [--spp 256] [--supersample 2] [--out DIR]
+    python benchmarks/bench_ldprt_patch.py --texture warpshade/usd_assets/sunlit_ground_diffuse.png
     python benchmarks/bench_ldprt_patch.py --quick --out /tmp/patch   # smoke profile (8^2 patch, 32x24)
 """
 
@@ -51,11 +52,13 @@ CAMERA = {"position": (0.9, -1.2, 3.3), "target": (0.0, 0.0, 0.8), "up": (0.0, 0
 SEED_DISPLACED, SEED_SMOOTH = 11, 23
 
 
-def _spec(quick: bool, tiling: float | None):
+def _spec(quick: bool, tiling: float | None, texture: str | None = None):
     from warpshade.graph import load
 
     spec = copy.deepcopy(load(GRAPH))
     patch, shade = spec.stages
+    if texture is not None:  # heights (and albedo) from an image, the paper's way
+        patch.params.update({"shape": "texture", "texture": str(Path(texture).resolve())})
     if quick:
         patch.params.update({"resolution": 8, "samples": 32, "lobes": 2})
     if tiling is not None:
@@ -76,6 +79,8 @@ def main(argv=None) -> int:
     ap.add_argument("--supersample", type=int, default=2, help="rays per pixel along each axis (box-filtered)")
     ap.add_argument("--tiling", type=float, default=None, help="patch repeats per UV unit (default: the graph's)")
     ap.add_argument("--frames", default="0,30", help="frames measured, comma-separated")
+    ap.add_argument("--texture", default=None, help="an albedo image (tileable) whose luminance is the height and "
+                    "which is the patch's albedo, instead of the graph's weave (results file: -texture)")
     ap.add_argument("--scene-camera", action="store_true", help="measure through the scene's camera (as --validate "
                     "does: the cloth seen at about 20 degrees above its plane) instead of the framing camera")
     ap.add_argument("--out", default=None, help="output directory (default benchmarks/results; required with --quick)")
@@ -103,9 +108,10 @@ def main(argv=None) -> int:
     frames = [0.0] if quick else [float(f) for f in args.frames.split(",")]
     out = Path(args.out) if args.out else ROOT / "benchmarks" / "results"
     out.mkdir(parents=True, exist_ok=True)
-    stem = f"ldprt-patch-{DATE}-cpu" + ("-scene-camera" if args.scene_camera else "") + ("-quick" if quick else "")
+    stem = (f"ldprt-patch-{DATE}-cpu" + ("-texture" if args.texture else "") + ("-scene-camera" if args.scene_camera else "")
+            + ("-quick" if quick else ""))
 
-    spec = _spec(quick, args.tiling)
+    spec = _spec(quick, args.tiling, args.texture)
     t0 = time.perf_counter()
     rt = spec.compile(device="cpu", progress=not quick)
     compile_s = time.perf_counter() - t0
@@ -205,7 +211,8 @@ def main(argv=None) -> int:
     for ax in axes:
         ax.set_axis_off()
     fig.colorbar(h, ax=axes[3:], fraction=0.03)
-    fig.suptitle(f"cloth, frame {f:g}: weave patch tiled {shade.params['tiling']:g}x, {width}x{height} px x{ss}^2", fontsize=10)
+    shape = patch_stage.params["shape"]
+    fig.suptitle(f"cloth, frame {f:g}: {shape} patch tiled {shade.params['tiling']:g}x, {width}x{height} px x{ss}^2", fontsize=10)
     fig.savefig(out / f"{stem}.png", dpi=110, bbox_inches="tight")
     print(f"wrote {out / (stem + '.json')} and .png")
     return 0

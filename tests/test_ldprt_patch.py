@@ -105,6 +105,13 @@ def test_flat_patch_is_unshadowed_shading(device, light, rng):
     got = _shade_vertices(flat, 3.0, frames[:, 2], frames[:, 0], frames[:, 1], uvs, np.ones(count), albedo, light, device)
     want = mirror.shade_unshadowed_f64(frames[:, 2], light, albedo)
     assert_close(got, want, atol=ATOL_PATCH_FLOAT32, what="flat patch vs unshadowed")
+    # a patch flattened (detail = "none") is the same
+    from dataclasses import replace
+
+    flattened = replace(flat, axes=flat.axes * 0 + np.array([1.0, 0.0, 0.0], np.float32)).flattened()
+    got_flattened = _shade_vertices(flattened, 3.0, frames[:, 2], frames[:, 0], frames[:, 1], uvs, np.ones(count), albedo,
+                                    light, device)
+    assert_close(got_flattened, want, atol=ATOL_PATCH_FLOAT32, what="flattened patch vs unshadowed")
     # unpatched vertices take the same unshadowed shading
     got0 = _shade_vertices(flat, 3.0, frames[:, 2], frames[:, 0], frames[:, 1], uvs, np.zeros(count), albedo, light, device)
     assert_close(got0, want, atol=ATOL_PATCH_FLOAT32, what="unpatched vertices")

@@ -276,6 +276,21 @@ class PatchModel:
                    a["counts"].astype(np.int32), a["stored"].astype(np.float32), a["fit_error"].astype(np.float32),
                    a["albedo"].astype(np.float32))
 
+    def flattened(self) -> "PatchModel":
+        """The same patch without relief: every texel's transfer the clamped cosine about +z
+        (stored DC and linear band, one lobe along +z for the rest), its albedo kept."""
+        from ...basis import sh
+
+        order, texels = self.order, self.counts.size
+        cosine = sh.zh_to_sh(np.array([0.0, 0.0, 1.0]), sh.clamped_cosine_zh(order, "zh"))
+        coeffs = np.zeros((texels, 1, order), np.float32)
+        coeffs[:, 0, 2:] = sh.clamped_cosine_zh(order)[2:]
+        stored = np.zeros((texels, 4), np.float32)
+        stored[:, : min(4, order * order)] = cosine[:4]
+        axes = np.tile(np.array([0.0, 0.0, 1.0], np.float32), (texels, 1, 1))
+        return PatchModel(np.zeros_like(self.heights), axes, coeffs, np.ones(texels, np.int32), stored,
+                          np.zeros(texels, np.float32), self.albedo.copy())
+
     def to_sh(self) -> np.ndarray:
         """Per-texel transfer reconstructed from the lobes, patch frame, (R*R, n*n) float64."""
         from ...basis import zh

@@ -632,7 +632,8 @@ class LdprtPatchShadeStage(FrameStage):
     parameters = {
         "tiling": Param(4.0, float, "patch repeats per unit of UV", minimum=1e-3, maximum=1e4),
         "prims": Param("", str, "meshes carrying the patch, comma-separated paths (default: every mesh with UVs)"),
-        "detail": Param("patch", str, "'patch', or 'none': the undisplaced surface, unshadowed (to compare)",
+        "detail": Param("patch", str, "'patch', or 'none': the surface without the relief (unshadowed, the patch's "
+                        "albedo kept), to compare",
                         choices=("patch", "none")),
         "parallax": Param(True, bool, "per pixel, march the view ray through the heights and shade the texel it "
                           "meets (false: the texel at the UV, the paper's look-up, no parallax or masking)"),
@@ -661,9 +662,10 @@ class LdprtPatchShadeStage(FrameStage):
         for m in ctx.scene.meshes:
             if m.path in self.prims:
                 uvs[m.vertex_offset:m.vertex_offset + m.vertex_count] = m.uvs
-                patched[m.vertex_offset:m.vertex_offset + m.vertex_count] = self.params["detail"] == "patch"
+                patched[m.vertex_offset:m.vertex_offset + m.vertex_count] = 1
         self._surface = patch_warp.patch_surface(ctx.scene.faces, uvs, patched, inputs["albedo"], dev)
-        self._texture = patch_warp.patch_texture(self.patch, self.params["tiling"], dev, self.params["parallax"])
+        shaded = self.patch if self.params["detail"] == "patch" else self.patch.flattened()
+        self._texture = patch_warp.patch_texture(shaded, self.params["tiling"], dev, self.params["parallax"])
         self._points, self._normals = inputs["points"], inputs["normals"]
         self._shade_vertices, self._shade_pixels = patch_warp.patch_kernels(order)
         self._radiance = wp.zeros((ctx.dims["V"], 3), dtype=wp.float32, device=dev)
