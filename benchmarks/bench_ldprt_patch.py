@@ -10,8 +10,8 @@ the CPU, per pixel from a camera framing the cloth, at frames 0 and 30 (the clot
   paper's look-up);
 * ``undisplaced, unshadowed``: the same stage with ``detail = "none"`` (the smooth surface, no
   patch: what the surface looks like without it, shaded the same way);
-* ``undisplaced, ray traced``: ground truth of the smooth cloth (the best any shading of the
-  surface without the patch can do);
+* ``undisplaced, ray traced``: ground truth of the smooth cloth with the patch's albedo (the best
+  any shading of the surface without the relief can do);
 
 each measured against the ground truth ray traced on the displaced geometry (the cloth
 subdivided to about one edge per patch texel and moved along its normals by the patch heights:
@@ -64,6 +64,26 @@ def _spec(quick: bool, tiling: float | None, texture: str | None = None):
     if tiling is not None:
         shade.params["tiling"] = float(tiling)
     return spec
+
+
+def _smooth_albedo(scene, frame, camera, width, height, ss, shade):
+    """Albedo per ray on the smooth surface: the surface's times the patch's at the UVs (ones for
+    the procedural patches), so the smooth ground truth differs from the displaced one only in
+    the relief."""
+    from warpshade.methods.ldprt.patch import sample_heights
+    from warpshade.reference import pixel_hits
+
+    hits = pixel_hits(scene, frame, camera, width, height, ss, device="cpu")
+    tri = scene.faces[np.maximum(hits.triangles, 0)]
+    albedo = np.einsum("pk,pkc->pc", hits.barycentrics.astype(np.float64), np.asarray(scene.albedo, np.float64)[tri])
+    owner = np.concatenate([np.full(m.triangle_count, k) for k, m in enumerate(scene.meshes)])
+    on = hits.hit & np.array([m.path in shade.prims for m in scene.meshes])[owner[np.maximum(hits.triangles, 0)]]
+    r = shade.patch.resolution
+    tex = shade.patch.albedo.reshape(r, r, 3).astype(np.float64)
+    uv = hits.uvs[on].astype(np.float64) * float(shade.params["tiling"])
+    albedo[on] *= np.stack([sample_heights(tex[..., c], uv) for c in range(3)], 1)
+    albedo[~hits.hit] = 0.0
+    return albedo.astype(np.float32)
 
 
 def _rel(est, ref, mask):
@@ -146,7 +166,8 @@ def main(argv=None) -> int:
         ref_s = time.perf_counter() - t1
         print(f"frame {f:g}: ground truth on the smooth cloth", flush=True)
         smooth = reference_image(rt.scene, f, Lambert(), camera=camera, width=width, height=height, samples=spp,
-                                 supersample=ss, lighting=lights, include=("diffuse",), seed=SEED_SMOOTH, device="cpu")
+                                 supersample=ss, lighting=lights, include=("diffuse",), seed=SEED_SMOOTH, device="cpu",
+                                 albedo=_smooth_albedo(rt.scene, f, camera, width, height, ss, shade))
         owner = np.concatenate([np.full(m.triangle_count, k) for k, m in enumerate(geometry.meshes)])
         keep = np.array([m.path in model["prims"] for m in geometry.meshes])
         tri = ref.hits.triangles
