@@ -62,4 +62,4 @@ def diffuse_f64(visibility: np.ndarray, frames: np.ndarray, light: np.ndarray, a
     cos = cosine_sh(order)
     t = sh.product(v, np.broadcast_to(cos, v.shape))
     tw = sh.rotate(t, np.swapaxes(np.asarray(frames, np.float64), -1, -2))
-    return np.asarray(albedo, np.float64) / np.pi * (tw @ np.asarray(light, np.float64).T)
+    return np.asarray(albedo, np.float64) / np.pi * np.maximum(tw @ np.asarray(light, np.float64).T, 0.0)
