@@ -136,7 +136,7 @@ def test_network_learns_a_nonlinear_map_that_ridge_cannot(rng):
     x = rng.uniform(-1.5, 1.5, size=(160, 2))
     basis = np.linalg.qr(rng.normal(size=(40, 2)))[0]
     y = np.tanh(2.0 * x[:, :1] * x[:, 1:2] + x[:, :1]) @ basis[:, :1].T + 0.3 * x[:, 1:2] @ basis[:, 1:].T
-    task = {"x": x, "y": y, "model": "network", "variance": 0.999, "k_max": 8, "hidden": (8,),
+    task = {"x": x, "y": y, "model": "network", "variance": 0.999, "predictable": 1.0, "k_max": 8, "hidden": (8,),
             "max_iterations": 300, "seed": 0, "cluster": 0, "vertices": 10}
     r = fit_cluster(task)
     lin = fit_cluster({**task, "model": "linear"})
@@ -147,7 +147,7 @@ def test_network_learns_a_nonlinear_map_that_ridge_cannot(rng):
 def test_network_that_does_not_beat_ridge_falls_back_and_says_so(rng):
     x = rng.normal(size=(60, 3))
     y = x @ rng.normal(size=(3, 12))  # exactly linear: ridge is exact, a network cannot beat it
-    r = fit_cluster({"x": x, "y": y, "model": "network", "variance": 0.999, "k_max": 8, "hidden": (4,),
+    r = fit_cluster({"x": x, "y": y, "model": "network", "variance": 0.999, "predictable": 1.0, "k_max": 8, "hidden": (4,),
                      "max_iterations": 5, "seed": 0, "cluster": 3, "vertices": 4})
     assert r["report"]["model_used"] == "linear" and "not below" in r["report"]["fallback"]
     assert "w1" not in r and np.all(np.isfinite(r["w2"]))
@@ -295,3 +295,20 @@ def test_diffuse_kernel_matches_mirror(device, rng):
                       sh_kernels(order).tables(device), 0, out])
     want = diffuse_f64(vis, frames, light, albedo)
     np.testing.assert_allclose(out.numpy(), want, rtol=50 * RTOL_FLOAT32, atol=50 * ATOL_FLOAT32)
+
+
+def test_components_no_input_explains_are_cut_after_the_fit(rng):
+    x = rng.normal(size=(200, 3))
+    basis = np.linalg.qr(rng.normal(size=(30, 6)))[0]
+    signal = x @ rng.normal(size=(3, 2))
+    noise = rng.normal(scale=[1.5, 1.2, 1.0, 0.9], size=(200, 4))  # more variance than the signal, unexplained
+    y = np.c_[signal, noise] @ basis.T
+    task = {"x": x, "y": y, "model": "linear", "variance": 0.999, "predictable": 0.95, "k_max": 8, "hidden": (4,),
+            "max_iterations": 5, "seed": 0, "cluster": 0, "vertices": 3}
+    r = fit_cluster(task)
+    assert r["report"]["components_fitted"] == 6 and r["report"]["components"] <= 3
+    # what is kept still predicts the explained part (the cut loses < 5 % of the predicted variance)
+    full = fit_cluster({**task, "predictable": 1.0})
+    pred = r["mean"] + (x @ r["w2"].T + r["b2"]) @ r["basis"].T
+    pred_full = full["mean"] + (x @ full["w2"].T + full["b2"]) @ full["basis"].T
+    assert np.linalg.norm(pred - pred_full) < 0.25 * np.linalg.norm(pred_full - pred_full.mean(0))

@@ -4,7 +4,11 @@ Per cluster ``c`` with ``n_c`` vertices, the training visibility in the cluster 
 ``p x (n_c C)`` matrix ``Y``. Its PCA (centred, the mean kept) keeps the fewest components ``k_c``
 holding ``variance`` of its variance (the error budget; at most ``k_max`` and ``p - 1``), so the
 model predicts ``k_c`` weights ``y`` and the visibility is ``mean + U y``. A cluster whose
-visibility does not vary keeps ``k_c = 0`` (its mean).
+visibility does not vary keeps ``k_c = 0`` (its mean). After the fit, the components are cut
+again to the fewest holding ``predictable`` of the variance the model *predicts* over the
+training inputs: with noisy training visibility (a few hundred rays per vertex and frame) most of
+the variance of the later components is ray noise no input explains, which a model maps to
+~0 at the cost of a product per vertex.
 
 The inputs ``x`` are the standardised input-PCA coordinates of the frame (:mod:`.model`). Models
 (the stage parameter ``model``):
@@ -215,7 +219,7 @@ def fit_cluster(task: dict) -> dict:
     """PCA and model of one cluster (an executor task; everything it needs is in ``task``).
 
     Task keys: ``x`` (p, D) standardised inputs, ``y`` (p, n_c * C) visibility, ``model``,
-    ``variance``, ``k_max``, ``hidden`` (candidate neuron counts), ``max_iterations``, ``seed``,
+    ``variance``, ``predictable``, ``k_max``, ``hidden`` (candidate neuron counts), ``max_iterations``, ``seed``,
     ``cluster``. Returns the PCA (``mean``, ``basis`` (n_c C, k)), the output layer ``w2`` (k,
     D' or H), ``b2``, and for a network ``w1`` (H, D), ``b1``; ``report`` says what was chosen.
     """
@@ -286,6 +290,37 @@ def fit_cluster(task: dict) -> dict:
                 report.update(model_used="network", hidden=int(hidden), penalty=float(lam),
                               cv_error=float(np.sqrt((err + truncation) / norm)), iterations=info["iterations"],
                               stopped_early=info["stopped_early"])
+    _keep_predictable(out, x, model, task["predictable"], report)
     report["fit_s"] = time.perf_counter() - t0
     out["report"] = report
     return out
+
+
+def _keep_predictable(out: dict, x: np.ndarray, model: str, budget: float, report: dict) -> None:
+    """Keep the fewest PCA components holding ``budget`` of the variance the fitted model
+    predicts over the training inputs (components it cannot predict, the training data's ray
+    noise among them, cost a product per vertex and add nothing); in place."""
+    if budget >= 1.0 or out["basis"].shape[1] == 0:
+        return
+    if "w1" in out:
+        pred = network_forward(x, out["w1"].astype(np.float64), out["b1"].astype(np.float64),
+                               out["w2"].astype(np.float64), out["b2"].astype(np.float64))
+    else:
+        pred = expand_features(x, model) @ out["w2"].T.astype(np.float64) + out["b2"]
+    var = pred.var(0)
+    total = float(var.sum())
+    if total <= 0.0:
+        keep = np.zeros(0, np.int64)
+    else:
+        order = np.argsort(-var, kind="stable")
+        count = int(np.searchsorted(np.cumsum(var[order]) / total, budget - 1e-12) + 1)
+        keep = np.sort(order[:count])
+    dropped = np.setdiff1d(np.arange(var.size), keep)
+    # a dropped component's constant prediction (its mean over the training inputs) stays in the mean
+    out["mean"] = (out["mean"] + out["basis"][:, dropped].astype(np.float64) @ pred[:, dropped].mean(0)).astype(np.float32)
+    out["basis"] = np.ascontiguousarray(out["basis"][:, keep])
+    out["w2"] = np.ascontiguousarray(out["w2"][keep])
+    out["b2"] = np.ascontiguousarray(out["b2"][keep])
+    report["components_fitted"] = int(var.size)
+    report["components"] = int(keep.size)
+    report["predicted_variance_kept"] = float(var[keep].sum() / total) if total > 0 else 1.0

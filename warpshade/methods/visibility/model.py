@@ -100,7 +100,7 @@ def _quadratic_pairs(k: int) -> tuple[np.ndarray, np.ndarray]:
 
 def fit_visibility(data: dict, *, model: str = "network", frames: str = "cluster", pose: str = "quaternion",
                    root: str = "exclude", input_variance: float = 0.99, input_max: int = 24, variance: float = 0.95,
-                   k_max: int = 32, bandwidth: float = 0.3, min_cluster: int = 8, hidden=(8, 16),
+                   predictable: float = 0.99, k_max: int = 32, bandwidth: float = 0.3, min_cluster: int = 8, hidden=(8, 16),
                    max_iterations: int = 300, margin: float = 0.25, seed: int = 0, labels=None, executor=None,
                    progress: bool = False) -> VisibilityModel:
     """Fit the model to a ``visibility.data`` artifact (module docstring). ValueError on bad input."""
@@ -137,7 +137,7 @@ def fit_visibility(data: dict, *, model: str = "network", frames: str = "cluster
     for cl in range(kc):
         rows = np.flatnonzero(labels == cl)
         tasks.append({"x": x, "y": local[:, rows, :].reshape(pcount, -1), "model": model, "variance": variance,
-                      "k_max": k_max, "hidden": tuple(int(h) for h in hidden), "max_iterations": max_iterations,
+                      "predictable": predictable, "k_max": k_max, "hidden": tuple(int(h) for h in hidden), "max_iterations": max_iterations,
                       "seed": seed, "cluster": cl, "vertices": int(rows.size)})
     tasks_order = sorted(range(kc), key=lambda i: -tasks[i]["vertices"])
     own = executor is None

@@ -157,7 +157,7 @@ class VisibilityDataStage(PrecomputeStage):
 @register_stage
 class VisibilityFitStage(PrecomputeStage):
     type_name = "visibility.fit"
-    version = 1
+    version = 2
     uses_scene = False
     description = ("clusters, cluster frames, input PCA, per-cluster visibility PCA and a linear / quadratic / "
                    "network model per cluster (sizes from the error budget, cross-validated)")
@@ -175,6 +175,8 @@ class VisibilityFitStage(PrecomputeStage):
         "input_max": Param(24, int, "input PCA: most components", minimum=1),
         "variance": Param(0.95, float, "per-cluster visibility PCA: variance kept (the budget)", minimum=0.5,
                           maximum=1.0),
+        "predictable": Param(0.99, float, "per-cluster components kept after the fit: variance of the model's "
+                             "predictions kept (the budget; 1 keeps every fitted component)", minimum=0.5, maximum=1.0),
         "k_max": Param(32, int, "per-cluster visibility PCA: most components", minimum=1),
         "bandwidth": Param(0.3, float, "mean-shift radius in skinning-weight space", minimum=1e-3),
         "min_cluster": Param(8, int, "smallest cluster (smaller ones are merged into the nearest)", minimum=1),
@@ -208,7 +210,7 @@ class VisibilityFitStage(PrecomputeStage):
             with ctx.executor() as ex:
                 model = fit_visibility(data, model=p["model"], frames=p["frames"], pose=p["pose"], root=p["root"],
                                        input_variance=p["input_variance"], input_max=p["input_max"],
-                                       variance=p["variance"], k_max=p["k_max"], bandwidth=p["bandwidth"],
+                                       variance=p["variance"], predictable=p["predictable"], k_max=p["k_max"], bandwidth=p["bandwidth"],
                                        min_cluster=p["min_cluster"], hidden=hidden,
                                        max_iterations=p["max_iterations"], margin=p["margin"], seed=p["seed"],
                                        labels=labels, executor=ex, progress=ctx.progress)
@@ -223,7 +225,7 @@ class VisibilityFitStage(PrecomputeStage):
 
 # ---- per frame -------------------------------------------------------------------------------------
 #: Vertices per CPU chunk below which a launch is not split over cores.
-_CHUNK_MIN = 4096
+_CHUNK_MIN = 2048
 
 
 def _f32(a, dev, dtype=None):
