@@ -69,7 +69,7 @@ def _spec(name, quick, model=None, data=None, fit=None):
     return spec
 
 
-def _measure(spec, quick, scene=None):
+def _measure(spec, quick, scene=None, timed_frames=TIMED_FRAMES):
     """Compile, time replayed frames, profile the stages, measure the error on [validate] frames."""
     from warpshade.measure import measure_error
 
@@ -79,7 +79,7 @@ def _measure(spec, quick, scene=None):
     frames = [float(f) for f in spec.validate_spec["frames"]]
     n = len(rt.scene.frames)
     timed = frames if quick else sorted(set(frames) | {float(rt.scene.frames[i]) for i in
-                                                       np.linspace(0, n - 1, TIMED_FRAMES).astype(int)})
+                                                       np.linspace(0, n - 1, timed_frames).astype(int)})
     rt.run(timed, warmup=True)
     summary = rt.timing_summary()
     prof = rt.profile(frames=[timed[0]] if quick else timed[:4])
@@ -96,13 +96,13 @@ def _measure(spec, quick, scene=None):
                 "novelty": None if pred is None else pred.diagnostics()}
 
 
-def part_glossy(scene_name, quick):
+def part_glossy(scene_name, quick, timed_frames=TIMED_FRAMES, models=MODELS):
     out = {}
-    for model in (("linear",) if quick else MODELS):
+    for model in (("linear",) if quick else models):
         print(f"== {scene_name}: {model}", flush=True)
-        _, out[model] = _measure(_spec(f"{scene_name}_visibility", quick, model), quick)
+        _, out[model] = _measure(_spec(f"{scene_name}_visibility", quick, model), quick, timed_frames=timed_frames)
     print(f"== {scene_name}: RPO over traced visibility", flush=True)
-    _, out["traced"] = _measure(_spec(f"{scene_name}_rpo_traced", quick), quick)
+    _, out["traced"] = _measure(_spec(f"{scene_name}_rpo_traced", quick), quick, timed_frames=timed_frames)
     base = out["traced"]
     for model in MODELS:
         if model in out:
@@ -127,7 +127,7 @@ def part_diffuse(quick):
 
 def part_studies(quick, rt):
     """Visibility-space error on the held-out frames (module docstring, part 3)."""
-    from warpshade.methods.datadriven.pose import pose_features, pose_layout
+    from warpshade.methods.datadriven import pose_features, pose_layout
     from warpshade.methods.visibility import cluster_frame_rule, cluster_vertices, fit_visibility, predict_f64
     from warpshade.methods.visibility.clusters import cluster_frames_f64
     from warpshade.methods.visibility.mirror import inputs_f64
@@ -232,6 +232,9 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true",
                     help="smoke profile: every 60th training frame at 16 rays, ridge only, one frame, 64-ray truths")
     ap.add_argument("--scenes", default="figure", help="held-out clips with a stages/<scene>_visibility.toml")
+    ap.add_argument("--models", default=",".join(MODELS), help="models of part 1")
+    ap.add_argument("--timed-frames", type=int, default=TIMED_FRAMES, help="replayed frames timed per graph")
+    ap.add_argument("--tag", default="", help="suffix of the output names (e.g. the scene of a separate run)")
     ap.add_argument("--skip-diffuse", action="store_true")
     ap.add_argument("--skip-studies", action="store_true")
     ap.add_argument("--out", default=None, help="output directory (default benchmarks/results; required with --quick)")
@@ -240,12 +243,12 @@ def main(argv=None) -> int:
         ap.error("--quick writes only into --out DIR (never benchmarks/results)")
     out_dir = Path(args.out or RESULTS)
     out_dir.mkdir(parents=True, exist_ok=True)
-    tag = f"visibility-{datetime.date.today().isoformat()}-cpu" + ("-quick" if args.quick else "")
+    tag = f"visibility-{datetime.date.today().isoformat()}-cpu" + ("-quick" if args.quick else "") + (f"-{args.tag}" if args.tag else "")
     result = {"machine": platform.platform(), "cpu_count": os.cpu_count(), "quick": args.quick,
               "load_average_start": os.getloadavg(), "glossy": {}}
     t_all = time.perf_counter()
     for scene in args.scenes.split(","):
-        result["glossy"][scene] = part_glossy(scene, args.quick)
+        result["glossy"][scene] = part_glossy(scene, args.quick, args.timed_frames, tuple(args.models.split(",")))
         (out_dir / f"{tag}.json").write_text(json.dumps(result, indent=1, default=str))
     if not args.skip_diffuse:
         result["diffuse"] = part_diffuse(args.quick)

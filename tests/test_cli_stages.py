@@ -15,8 +15,8 @@ from goldens import golden_mismatch, golden_path, write_golden
 STAGES = sorted((Path(__file__).resolve().parent.parent / "stages").glob("*.toml"))
 #: Training frames of the data-driven graphs in this test (their own selection takes minutes).
 TRAINING_SUBSET = "0:600:50"
-#: Training frames of the data-driven visibility graphs here (at least 8 poses for the 4 folds).
-VISIBILITY_SUBSET = "0:600:40"
+#: Training frames of the data-driven visibility graphs here (10 poses: at least 8 for the 4 folds).
+VISIBILITY_SUBSET = "0:600:60"
 
 
 @pytest.fixture(autouse=True)
@@ -38,11 +38,11 @@ def test_stage_graph_runs(device, graph_file, tmp_path, update_goldens):
             # few rays run the same stages here
             st.params.update(samples=16, frames=TRAINING_SUBSET)
         if st.type == "visibility.data":
-            # the same for the visibility graphs (every 40th training frame, 16 rays), and one
+            # the same for the visibility graphs (every 60th training frame, 16 rays), and one
             # network size with a short fit
             st.params.update(samples=16, frames=VISIBILITY_SUBSET)
         if st.type == "visibility.fit":
-            st.params.update(hidden=(4,), max_iterations=20)
+            st.params.update(hidden=(4,), max_iterations=10)
     lighting = None
     if any(st.type.startswith("sg.") for st in spec.stages) or "sunlit" in spec.name:
         # the sunlit graphs as written bake 512^2 visibility per vertex and prefilter a 256 x 512

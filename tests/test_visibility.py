@@ -12,11 +12,11 @@ from tolerances import ATOL_FLOAT32, ATOL_FLOAT64, RTOL_FLOAT32
 from warpshade._wp import wp
 from warpshade.geometry.frames import frame_rule, tangent_frames_f64
 from warpshade.io import load_scene
-from warpshade.methods.visibility import (cluster_frame_rule, cluster_frames_f64, cluster_vertices, fit_cluster,
-                                          fit_visibility, kernels, mean_shift, model_from_arrays, predict_f64,
-                                          to_local)
-from warpshade.methods.visibility.fit import _loss_grad, fit_network, network_forward, warm_start
-from warpshade.methods.visibility.mirror import diffuse_f64, inputs_f64
+from warpshade.methods.visibility import (cluster_frame_rule, cluster_frames_f64, cluster_vertices, diffuse_f64,
+                                          fit_cluster, fit_visibility, kernels, mean_shift, model_from_arrays,
+                                          predict_f64, to_local)
+from warpshade.methods.visibility.fit import _loss_grad, network_forward, warm_start
+from warpshade.methods.visibility.mirror import inputs_f64
 from warpshade.transfer import compute
 
 #: A network warm start reproduces the linear map up to O(eps^2) of the tanh: first-layer
@@ -312,3 +312,53 @@ def test_components_no_input_explains_are_cut_after_the_fit(rng):
     pred = r["mean"] + (x @ r["w2"].T + r["b2"]) @ r["basis"].T
     pred_full = full["mean"] + (x @ full["w2"].T + full["b2"]) @ full["basis"].T
     assert np.linalg.norm(pred - pred_full) < 0.25 * np.linalg.norm(pred_full - pred_full.mean(0))
+
+
+def _bend_graph(model="linear", fit=None):
+    from warpshade.graph import GraphSpec, StageSpec
+    from warpshade.methods.visibility.rows import stages_for
+
+    stages = list(stages_for("", "0:60:4", model, order=3, samples=32, fit={"hidden": (4,), "max_iterations": 20,
+                                                                           **(fit or {})}))
+    stages[-1] = ("shade", "rpo.shade", {"order": 3, "rank": 4, "brdf": "ggx", "roughness": 0.5}, {})
+    return GraphSpec([StageSpec(n, t, dict(p), dict(i)) for (n, t, p, i) in stages], "shade.radiance", name="vis")
+
+
+def test_stage_frame_is_the_float64_model_and_beats_the_rest_pose(device, bend, tmp_path):
+    """The recorded frame's visibility and frames equal the float64 model at the frame's pose
+    and the cluster frames of its points; held-out odd frames are closer to the traced
+    visibility than the rest-pose bake is."""
+    from warpshade.methods.datadriven import pose_features, pose_layout
+
+    rt = _bend_graph().compile(bend, device=device, cache_dir=tmp_path, progress=False, scheduler="serial")
+    pred = next(s for s in rt.stages if s.type_name == "visibility.predict")
+    a = pred.model.arrays
+    rule = cluster_frame_rule(a["rest_points"], a["labels"])
+    layout = pose_layout(bend, "quaternion", "include")
+    static = None
+    for frame in (0.0, 17.0, 43.0):
+        rt.step(frame, record=True)
+        got = pred._vis.numpy()
+        pose = pose_features(bend, [bend.frame_index(frame)], layout, root_reference=a["root_reference"])
+        want = predict_f64(a, inputs_f64(a, pose)[0])
+        np.testing.assert_allclose(got, want, atol=1e-4 * np.abs(want).max())
+        frames = cluster_frames_f64(bend.points_at(frame), bend.normals_at(frame), rule)
+        np.testing.assert_allclose(pred._frames.numpy(), frames, atol=1e-3)
+        truth = to_local(compute(bend, frame, 3, 512, space="world", seed=9, below_horizon="visible").visibility, frames)
+        if static is None:
+            static = truth  # the rest pose (frame 0) in its own frames
+            continue
+        err = np.linalg.norm(got - truth) / np.linalg.norm(truth)
+        err_static = np.linalg.norm(static - truth) / np.linalg.norm(truth)
+        assert err < err_static, (frame, err, err_static)
+    assert np.all(np.isfinite(rt.output.numpy()))
+    diag = pred.diagnostics()
+    assert diag["frames"] == len(bend.frames) and diag["novelty_max"] >= 0.0
+
+
+def test_world_frame_model_is_refused_by_the_frame_stage(device, bend, tmp_path):
+    from warpshade.graph import StageError
+
+    with pytest.raises(StageError, match="world frame"):
+        _bend_graph(fit={"frames": "world"}).compile(bend, device=device, cache_dir=tmp_path, progress=False,
+                                                    scheduler="serial")

@@ -38,7 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-__all__ = ["BLEND", "ClusterFrames", "cluster_frames_f64", "cluster_frame_rule", "cluster_vertices", "mean_shift"]
+__all__ = ["BLEND", "ClusterFrames"]
 
 #: Below this |P_n(A_1)| the tangent blends toward the second cluster direction.
 BLEND = 0.25

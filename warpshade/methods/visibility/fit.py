@@ -36,7 +36,7 @@ import time
 import numpy as np
 from scipy.optimize import minimize
 
-__all__ = ["FOLDS", "RIDGE_GRID", "expand_features", "fit_cluster", "folds", "pca_size"]
+__all__ = ["FOLDS", "RIDGE_GRID", "expand_features", "fit_network", "folds", "network_forward", "pca_size", "warm_start"]
 
 #: Cross-validation folds.
 FOLDS = 4
@@ -86,7 +86,8 @@ def _ridge_path(x, y, penalties):
     proj = u.T @ (y - my)
     out = []
     for lam in penalties:
-        d = s / (s * s + lam)
+        den = s * s + lam
+        d = np.divide(s, den, out=np.zeros_like(s), where=den > 0.0)
         w = (vt.T * d) @ proj  # (D, K)
         out.append((w.T, my - mx @ w))
     return out, float(s[0] ** 2) if s.size else 0.0

@@ -12,7 +12,7 @@ import numpy as np
 from ...basis import sh
 from ..rpo.model import cosine_sh
 
-__all__ = ["diffuse_f64", "inputs_f64", "predict_f64"]
+__all__ = ["inputs_f64"]
 
 
 def inputs_f64(arrays: dict, features: np.ndarray) -> np.ndarray:

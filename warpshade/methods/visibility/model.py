@@ -37,7 +37,7 @@ from .clusters import cluster_frame_rule, cluster_frames_f64, cluster_vertices
 from .fit import expand_features, fit_cluster
 from .training import to_local
 
-__all__ = ["FRAME_KINDS", "MODELS", "VisibilityModel", "fit_visibility", "input_space", "local_frames_f64"]
+__all__ = ["FRAME_KINDS", "input_space", "local_frames_f64"]
 
 MODELS = ("linear", "quadratic", "network")
 FRAME_KINDS = ("cluster", "one_ring", "world")

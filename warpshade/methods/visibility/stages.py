@@ -41,11 +41,13 @@ def _load_training(ctx, stage):
 
 
 def _dihedral_module():
+    """The cloth inputs and clusters (:mod:`warpshade.methods.visibility.cloth`), or None."""
+    import importlib
+
     try:
-        from . import cloth
+        return importlib.import_module(__name__.rsplit(".", 1)[0] + ".cloth")
     except ImportError:
         return None
-    return cloth
 
 
 @register_stage

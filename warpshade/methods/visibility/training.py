@@ -24,7 +24,7 @@ import numpy as np
 
 from ...basis import sh
 
-__all__ = ["FEATURE_SOURCES", "dense_skin_weights", "mesh_ids", "rest_points", "to_local"]
+__all__ = ["FEATURE_SOURCES", "dense_skin_weights", "mesh_ids", "rest_points"]
 
 #: Where the model's inputs come from.
 FEATURE_SOURCES = ("joints", "dihedral")
