@@ -262,7 +262,10 @@ def test_constant_inputs_are_a_clear_error(rng):
 
 def test_tiny_clusters_fit_without_nan(rng):
     data = _synthetic_data(rng, p=12)
-    labels = np.arange(data["mesh_ids"].size) % 97  # clusters of 8-9 vertices, and one with k = 0
+    labels = np.arange(data["mesh_ids"].size) % 3  # three clusters, and tiny ones:
+    labels[:3] = 3  # 3 vertices
+    labels[3] = 4  # 1 vertex
+    labels[10:19] = 5  # 9 vertices whose visibility does not vary (k = 0)
     data["visibility"][:, labels == 5] = 0.0  # constant over the poses: no component
     data["visibility"][:, labels == 5, 0] = 0.5  # (rotation invariant: the same in every frame)
     model = fit_visibility(data, model="network", hidden=(2,), max_iterations=5, labels=labels, executor=_serial())
@@ -362,3 +365,13 @@ def test_world_frame_model_is_refused_by_the_frame_stage(device, bend, tmp_path)
     with pytest.raises(StageError, match="world frame"):
         _bend_graph(fit={"frames": "world"}).compile(bend, device=device, cache_dir=tmp_path, progress=False,
                                                     scheduler="serial")
+
+
+def test_bad_training_selection_names_the_stage(device, bend, tmp_path):
+    from warpshade.graph import GraphSpec, StageError, StageSpec
+
+    stages = [StageSpec(s.name, s.type, dict(s.params), dict(s.inputs)) for s in _bend_graph().stages]
+    stages[0].params["frames"] = "0:3"
+    with pytest.raises(StageError, match="stage 'data'.*at least 4"):
+        GraphSpec(stages, "shade.radiance", name="vis").compile(bend, device=device, cache_dir=tmp_path, progress=False,
+                                                                scheduler="serial")
