@@ -231,7 +231,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true",
                     help="smoke profile: every 60th training frame at 16 rays, ridge only, one frame, 64-ray truths")
-    ap.add_argument("--scenes", default="figure", help="held-out clips with a stages/<scene>_visibility.toml")
+    ap.add_argument("--scenes", default="figure", help="held-out clips with a stages/<scene>_visibility.toml "
+                    "('' skips part 1)")
     ap.add_argument("--models", default=",".join(MODELS), help="models of part 1")
     ap.add_argument("--timed-frames", type=int, default=TIMED_FRAMES, help="replayed frames timed per graph")
     ap.add_argument("--tag", default="", help="suffix of the output names (e.g. the scene of a separate run)")
@@ -247,7 +248,7 @@ def main(argv=None) -> int:
     result = {"machine": platform.platform(), "cpu_count": os.cpu_count(), "quick": args.quick,
               "load_average_start": os.getloadavg(), "glossy": {}}
     t_all = time.perf_counter()
-    for scene in args.scenes.split(","):
+    for scene in [s for s in args.scenes.split(",") if s]:
         result["glossy"][scene] = part_glossy(scene, args.quick, args.timed_frames, tuple(args.models.split(",")))
         (out_dir / f"{tag}.json").write_text(json.dumps(result, indent=1, default=str))
     if not args.skip_diffuse:

@@ -99,7 +99,7 @@ def _quadratic_pairs(k: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def fit_visibility(data: dict, *, model: str = "network", frames: str = "cluster", pose: str = "quaternion",
-                   root: str = "exclude", input_variance: float = 0.99, input_max: int = 24, variance: float = 0.95,
+                   root: str = "include", input_variance: float = 0.99, input_max: int = 24, variance: float = 0.95,
                    predictable: float = 0.99, k_max: int = 32, bandwidth: float = 0.3, min_cluster: int = 8, hidden=(8, 16),
                    max_iterations: int = 300, margin: float = 0.25, seed: int = 0, labels=None, executor=None,
                    progress: bool = False) -> VisibilityModel:
