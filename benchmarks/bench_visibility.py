@@ -186,13 +186,7 @@ def part_studies(quick, rt):
     return out
 
 
-def _plot(result, path_models, path_studies):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    glossy = result["glossy"]
+def _plot_models(plt, glossy, path_models):
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
     for name, res in glossy.items():
         labels = [k for k in (*MODELS, "traced") if k in res]
@@ -209,6 +203,17 @@ def _plot(result, path_models, path_studies):
     fig.tight_layout()
     fig.savefig(path_models, dpi=110)
     plt.close(fig)
+
+
+def _plot(result, path_models, path_studies):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    glossy = result["glossy"]
+    if glossy:
+        _plot_models(plt, glossy, path_models)
     st = result.get("studies")
     if not st:
         return
