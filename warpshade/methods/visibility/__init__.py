@@ -1,0 +1,1 @@
+"""Data-driven visibility (Nowrouzezahrai, Kalogerakis, Fiume 2009, sec. 5)."""
