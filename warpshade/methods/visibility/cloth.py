@@ -528,12 +528,12 @@ class RotationClusters:
 
 
 def rotation_clusters(points, faces, tolerance: float = 0.01, seed: int = 0, max_clusters: int = 64,
-                      rest=None) -> RotationClusters:
+                      rest=None, counts=CLUSTER_COUNTS) -> RotationClusters:
     """Cluster triangles by their rotation sequences; the fewest clusters that fit the budget.
 
     Each triangle's feature is its rotation from the rest pose at every frame, concatenated
     (:func:`triangle_rotations_f64`, 9 T numbers); k-means (``scipy.cluster.vq.kmeans2``, k-means++
-    start, seeded) groups them for each count in :data:`CLUSTER_COUNTS` up to ``max_clusters``,
+    start, seeded) groups them for each count in ``counts`` up to ``max_clusters``,
     and the first count whose per-vertex labels fit rigid motions within ``tolerance``
     (:func:`rigid_fit_residual`) is kept (the largest tried otherwise, ``within_budget`` False).
 
@@ -544,6 +544,8 @@ def rotation_clusters(points, faces, tolerance: float = 0.01, seed: int = 0, max
         seed: k-means seed; the labels are deterministic for a seed.
         max_clusters: the largest count tried.
         rest: (V, 3) rest points (default: the first frame).
+        counts: the cluster counts to try, increasing (default :data:`CLUSTER_COUNTS`); one
+            count gives exactly that clustering (for charts of clusters against residual).
 
     Returns:
         :class:`RotationClusters`.
@@ -558,9 +560,11 @@ def rotation_clusters(points, faces, tolerance: float = 0.01, seed: int = 0, max
     rest = points[0] if rest is None else _check_points(rest, "rest")
     rotations = triangle_rotations_f64(points, faces, rest)  # (T, F, 3, 3)
     data = np.ascontiguousarray(np.moveaxis(rotations, 1, 0).reshape(len(faces), -1))
-    counts = [k for k in CLUSTER_COUNTS if k <= max(1, min(max_clusters, len(faces)))]
+    asked = [int(k) for k in counts if 1 <= k <= max(1, min(max_clusters, len(faces)))]
+    if not asked:
+        raise ValueError(f"rotation_clusters: no cluster count in {tuple(counts)} is between 1 and {max_clusters}")
     tried, best = [], None
-    for k in counts:
+    for k in asked:
         if k == 1:
             tri = np.zeros(len(faces), dtype=np.int64)
         else:
