@@ -8,6 +8,7 @@ The Newton simulation itself runs only in the asset generator: here the bundled 
 """
 
 import os
+import types
 
 import numpy as np
 import pytest
@@ -19,6 +20,9 @@ from warpshade.io import bundled_asset_directory, load_usd
 from warpshade.methods.visibility.cloth import (
     DEGENERATE_RELATIVE_AREA,
     DihedralFeatures,
+    DihedralInputs,
+    cluster_labels,
+    dihedral_angles,
     dihedral_angles_f64,
     dihedral_angles_kernel,
     interior_edges,
@@ -382,3 +386,27 @@ def test_the_clips_are_written_on_request_with_their_own_wind():
     times = np.linspace(0.2, 2.5, 24)
     gap = [np.linalg.norm(HELDOUT_WIND.mean(t) - TRAIN_WIND.mean(t)) for t in times]
     assert min(gap) > 1.0
+
+
+def test_scene_inputs_for_the_visibility_stages(clips, device):
+    """DihedralInputs (every interior edge of the scene, ground included) against dihedral_angles."""
+    scene = clips["cloth_heldout"][0]
+    inputs = DihedralInputs(scene, device)
+    points = scene.points_at(40.0).astype(np.float32)
+    inputs.launch(types.SimpleNamespace(points=wp.array(points, dtype=wp.vec3, device=device)))
+    expected = dihedral_angles(points.astype(np.float64), scene.faces)
+    assert expected.shape == (inputs.features.shape[0],) and inputs.quads.max() < scene.vertex_count
+    assert_close(inputs.features.numpy(), expected, atol=ATOL_ANGLE_FLOAT32, what="scene dihedral angles")
+
+
+def test_cluster_labels_of_a_training_artifact_keep_static_meshes_apart():
+    clip, faces, rest = _hinged_halves()
+    ground, ground_faces = _grid(3, 3)
+    ground = ground - [0.0, 0.0, 1.0]
+    v = len(rest)
+    data = {"points": np.concatenate([clip, np.broadcast_to(ground, (len(clip), *ground.shape))], axis=1).astype(np.float32),
+            "faces": np.concatenate([faces, ground_faces + v]), "rest_points": np.concatenate([rest, ground])}
+    labels = cluster_labels(data, tolerance=1e-5)
+    left, right = rest[:, 0] < 0.5 - 1e-9, rest[:, 0] > 0.5 + 1e-9
+    assert len(set(labels[:v][left])) == 1 and len(set(labels[:v][right])) == 1 and labels[:v][left][0] != labels[:v][right][0]
+    assert set(labels[v:]) == {2}  # the static grid: one label after the two moving clusters

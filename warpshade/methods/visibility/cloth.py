@@ -16,7 +16,11 @@ Twigg 2005). This module holds both, for any triangle mesh with time-sampled poi
 * :func:`triangle_rotations_f64` -- per-triangle rotation from the rest pose to each frame (polar
   factor of the triangle's deformation gradient);
 * :func:`rotation_clusters` -- k-means clusters of triangles by their rotation sequences, the count
-  chosen from a rigid-fit residual budget, with per-vertex labels (:class:`RotationClusters`).
+  chosen from a rigid-fit residual budget (:func:`rigid_fit_residual`), with per-vertex labels
+  (:class:`RotationClusters`);
+* what the visibility stages call: :func:`dihedral_angles` (angles alone), :class:`DihedralInputs`
+  (a scene's raw angles on the device, per frame from ``state.points``) and :func:`cluster_labels`
+  (clusters of a training artifact's moving triangles).
 
 Conventions. Points are (T, V, 3) or (V, 3), metres, any frame; faces (F, 3) integer vertex
 indices. An interior edge ``(a, b)`` has wings ``c`` (the third vertex of the triangle in which
@@ -47,11 +51,15 @@ __all__ = [
     "DEGENERATE_RELATIVE_AREA",
     "DihedralFeatures",
     "DihedralFeatureProgram",
+    "DihedralInputs",
     "RotationClusters",
+    "cluster_labels",
+    "dihedral_angles",
     "dihedral_angles_f64",
     "dihedral_angles_kernel",
     "dihedral_features_kernel",
     "interior_edges",
+    "rigid_fit_residual",
     "rotation_clusters",
     "triangle_rotations_f64",
 ]
@@ -201,6 +209,33 @@ def dihedral_features_kernel(angles: wp.array(dtype=wp.float32), mean: wp.array(
 
 
 # ---- PCA of the angles ----------------------------------------------------------------------------
+def _principal_directions(centred: np.ndarray):
+    """PCA of centred rows (T, E): variances (min(T, E),) decreasing, and ``basis_of(k)``, the
+    leading k orthonormal directions (k, E).
+
+    Eigen-decomposes the smaller Gram matrix (T x T for T <= E: 120 frames x 3,000 edges takes
+    milliseconds, where LAPACK's SVD of the (T, E) matrix took seconds here); directions with zero
+    variance are never asked for, except the one of a constant input (then the first edge).
+    """
+    frames, edges = centred.shape
+    if frames <= edges:
+        w, u = np.linalg.eigh(centred @ centred.T)
+        w, u = np.maximum(w[::-1], 0.0), u[:, ::-1]
+
+        def basis_of(k):
+            if w[0] <= 0.0:
+                return np.eye(1, edges)
+            rows = u[:, :k].T @ centred
+            return rows / np.linalg.norm(rows, axis=1, keepdims=True)
+    else:
+        w, v = np.linalg.eigh(centred.T @ centred)
+        w, v = np.maximum(w[::-1], 0.0), v[:, ::-1]
+
+        def basis_of(k):
+            return np.eye(1, edges) if w[0] <= 0.0 else v[:, :k].T.copy()
+    return w / frames, basis_of
+
+
 @dataclasses.dataclass
 class DihedralFeatures:
     """PCA of a training clip's dihedral angles: the per-frame input of cloth visibility models.
@@ -260,18 +295,17 @@ class DihedralFeatures:
         quads = np.concatenate([edges, wings], axis=1).astype(np.int32)
         mean = angles.mean(axis=0)
         centred = angles - mean
-        _, sing, vt = np.linalg.svd(centred, full_matrices=False)
-        var = sing**2 / points.shape[0]
+        var, basis_of = _principal_directions(centred)
         total = float(var.sum())
         limit = len(var) if max_components is None else max(1, min(int(max_components), len(var)))
         if total <= 0.0:
             count = 1
         else:
             kept = np.cumsum(var) / total
-            count = min(int(np.searchsorted(kept, variance - 1e-12) + 1), limit)
-        basis = vt[:count]
+            count = min(int(np.searchsorted(kept, variance - 1e-12) + 1), limit, int(np.count_nonzero(var > 0.0)))
+        basis = basis_of(count)
         peak = np.argmax(np.abs(basis), axis=1)
-        basis = basis * np.sign(basis[np.arange(count), peak])[:, None]
+        basis = basis * np.where(basis[np.arange(count), peak] < 0.0, -1.0, 1.0)[:, None]
         feats = centred @ basis.T
         return cls(quads=quads, mean=mean, basis=basis, variances=var[:count], total_variance=total,
                    feature_min=feats.min(axis=0), feature_max=feats.max(axis=0), variance_target=float(variance))
@@ -578,3 +612,71 @@ def rotation_clusters(points, faces, tolerance: float = 0.01, seed: int = 0, max
     tri, labels, count, residual = best
     return RotationClusters(labels=labels, triangle_labels=tri, count=count, residual=residual, tolerance=float(tolerance),
                             tried=tried, within_budget=residual <= tolerance)
+
+
+# ---- what the visibility stages call --------------------------------------------------------------
+def dihedral_angles(points, faces) -> np.ndarray:
+    """The angles of :func:`dihedral_angles_f64` alone: (E,) for points (V, 3), (T, E) for (T, V, 3),
+    float64 radians, edges in the order of :func:`interior_edges` of ``faces``."""
+    return dihedral_angles_f64(points, faces)[1]
+
+
+class DihedralInputs:
+    """A scene's dihedral angles on the device, each frame: the raw input of a cloth visibility model.
+
+    Covers every interior edge of ``scene.faces`` (all meshes, in the order of
+    :func:`dihedral_angles` on ``scene.points_at(t)``, ``scene.faces``); static meshes give
+    constant angles, which an input PCA drops. ``launch(state)`` is one kernel launch on arrays
+    allocated here and ``state.points`` (recordable).
+
+    Attributes:
+        features: (E,) float32 device array, the angles of the last launch (radians).
+        quads: (E, 4) int32 host array, ``(a, b, c, d)`` of each edge (scene vertex indices).
+    """
+
+    def __init__(self, scene, device=None):
+        self.device = wp.get_device(device)
+        edges, wings = interior_edges(np.asarray(scene.faces))
+        if len(edges) == 0:
+            raise ValueError(f"DihedralInputs: scene {getattr(scene, 'source', None) or '<arrays>'} has no interior edge")
+        self.quads = np.concatenate([edges, wings], axis=1).astype(np.int32)
+        self._quads = wp.array(self.quads, dtype=wp.int32, device=self.device)
+        self.features = wp.zeros(len(self.quads), dtype=wp.float32, device=self.device)
+
+    def launch(self, state) -> None:
+        """Fill ``features`` from ``state.points`` (wp.array of vec3, every scene vertex)."""
+        wp.launch(dihedral_angles_kernel, dim=self.features.shape[0], inputs=[state.points, self._quads, 0],
+                  outputs=[self.features], device=self.device)
+
+
+def cluster_labels(data, tolerance: float = 0.01, seed: int = 0, max_clusters: int = 64) -> np.ndarray:
+    """Per-vertex rotation-sequence clusters of a training artifact's moving triangles.
+
+    Args:
+        data: a mapping with ``points`` (T, V, 3) (every scene vertex at each training frame),
+            ``faces`` (F, 3) and optionally ``rest_points`` (V, 3) (default: the first frame).
+        tolerance, seed, max_clusters: as :func:`rotation_clusters` (the budget in metres is
+            measured over the moving vertices only).
+
+    Returns:
+        (V,) int64 labels: the clusters of :func:`rotation_clusters` over the triangles that move
+        (a vertex moves more than 1e-9 m over the clip), and one more label for every vertex of
+        the static triangles.
+    """
+    points = _check_points(np.asarray(data["points"], np.float64), "data['points']")
+    points = points.reshape(-1, *points.shape[-2:])
+    faces = _check_faces(data["faces"], points.shape[1])
+    rest = np.asarray(data["rest_points"], np.float64) if "rest_points" in data else points[0]
+    moving_vertex = np.ptp(points, axis=0).max(axis=1) > 1e-9
+    moving = moving_vertex[faces].any(axis=1)
+    labels = np.zeros(points.shape[1], np.int64)
+    if not moving.any():
+        return labels
+    used = np.unique(faces[moving])
+    local = np.full(points.shape[1], -1, np.int64)
+    local[used] = np.arange(len(used))
+    clusters = rotation_clusters(points[:, used], local[faces[moving]], tolerance=tolerance, seed=seed,
+                                 max_clusters=max_clusters, rest=rest[used])
+    labels[:] = clusters.count
+    labels[used] = clusters.labels
+    return labels
