@@ -71,7 +71,7 @@ def _features(train, test, faces, targets):
                "heldout_novelty_max": round(float(model.novelty(model.transform(test)).max()), 3)}
         print(f"  variance {target:4.2f}: {row['components']:3d} components, held-out angle error {row['heldout_rel_error']:.3f}", flush=True)
         rows.append(row)
-    return rows, model
+    return rows
 
 
 def _timing(model, test):
@@ -169,7 +169,7 @@ def main(argv=None) -> int:
         train, test, targets, counts = train[:24], test[:12], (0.9,), (1, 2, 4, 8)
     t_start = time.perf_counter()
     print(f"dihedral features: {len(train)} training frames, {len(test)} held out", flush=True)
-    features, last = _features(train, test, faces, targets)
+    features = _features(train, test, faces, targets)
     from warpshade.methods.visibility.cloth import DihedralFeatures
 
     timing = _timing(DihedralFeatures.fit(train, faces, variance=0.9), test)

@@ -352,7 +352,7 @@ def test_two_rigid_halves_cluster_into_two():
     assert set(np.unique(clusters.labels)) == {0, 1} and clusters.labels[0] == 0
 
 
-def test_cluster_labels_are_deterministic_for_a_seed(rng):
+def test_cluster_labels_are_deterministic_for_a_seed():
     points, faces = _grid(8, 8, size=1.6)
     t = np.linspace(0.0, 1.0, 10)[:, None]
     x, y = points[:, 0][None], points[:, 1][None]
@@ -410,3 +410,25 @@ def test_cluster_labels_of_a_training_artifact_keep_static_meshes_apart():
     left, right = rest[:, 0] < 0.5 - 1e-9, rest[:, 0] > 0.5 + 1e-9
     assert len(set(labels[:v][left])) == 1 and len(set(labels[:v][right])) == 1 and labels[:v][left][0] != labels[:v][right][0]
     assert set(labels[v:]) == {2}  # the static grid: one label after the two moving clusters
+
+
+def test_the_feature_program_replays_recorded(rng, device):
+    """Recorded once (``record_program``, the runtime's frame recording), replayed on new points
+    written into the same array: the same features as a direct launch."""
+    from tolerances import REPLAY_RTOL
+    from warpshade._wp import record_program
+
+    clip, faces, _ = _folded_strip(rng.uniform(-1, 1, 12), rng.uniform(-1, 1, 12))
+    model = DihedralFeatures.fit(clip, faces, variance=0.99)
+    program = model.bind(device)
+    points = wp.zeros(clip.shape[1], dtype=wp.vec3, device=device)
+    recorded = record_program(lambda recorder: program.launch(points), device)
+    new, _, _ = _folded_strip([0.25], [-0.6])
+    points.assign(new[0].astype(np.float32))
+    recorded.replay()
+    replayed = program.features.numpy().copy()
+    program.features.zero_()
+    program.launch(points)
+    direct = program.features.numpy()
+    assert np.abs(direct).max() > 0.1
+    assert_close(replayed, direct, rtol=REPLAY_RTOL, atol=REPLAY_RTOL * np.abs(direct).max(), what="replayed features")

@@ -38,7 +38,6 @@ bounded, never NaN.
 from __future__ import annotations
 
 import dataclasses
-import functools
 
 import numpy as np
 from scipy.cluster.vq import kmeans2
