@@ -1,1 +1,0 @@
-"""Data-driven visibility (Nowrouzezahrai, Kalogerakis, Fiume 2009, sec. 5)."""
