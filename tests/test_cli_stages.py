@@ -17,6 +17,8 @@ STAGES = sorted((Path(__file__).resolve().parent.parent / "stages").glob("*.toml
 TRAINING_SUBSET = "0:600:50"
 #: Training frames of the data-driven visibility graphs here (10 poses: at least 8 for the 4 folds).
 VISIBILITY_SUBSET = "0:600:60"
+#: The same for the cloth's 120-frame training clip.
+CLOTH_SUBSET = "0:120:12"
 
 
 @pytest.fixture(autouse=True)
@@ -40,7 +42,7 @@ def test_stage_graph_runs(device, graph_file, tmp_path, update_goldens):
         if st.type == "visibility.data":
             # the same for the visibility graphs (every 60th training frame, 16 rays), and one
             # network size with a short fit
-            st.params.update(samples=16, frames=VISIBILITY_SUBSET)
+            st.params.update(samples=16, frames=CLOTH_SUBSET if "cloth" in st.params["training"] else VISIBILITY_SUBSET)
         if st.type == "visibility.fit":
             st.params.update(hidden=(4,), max_iterations=10)
     lighting = None
