@@ -128,11 +128,9 @@ def part_diffuse(quick):
 def part_studies(quick, rt):
     """Visibility-space error on the held-out frames (module docstring, part 3)."""
     from warpshade.methods.datadriven import pose_features, pose_layout
-    from warpshade.methods.visibility import cluster_frame_rule, cluster_vertices, fit_visibility, predict_f64
-    from warpshade.methods.visibility.clusters import cluster_frames_f64
+    from warpshade.methods.visibility import fit_visibility, predict_f64, to_local
     from warpshade.methods.visibility.mirror import inputs_f64
     from warpshade.methods.visibility.model import local_frames_f64
-    from warpshade.methods.visibility.training import to_local
     from warpshade.tasks import executor
     from warpshade.transfer import compute
 
