@@ -7,7 +7,7 @@ import pytest
 from scipy.optimize import check_grad
 from scipy.spatial.transform import Rotation
 
-from tolerances import ATOL_FLOAT32, ATOL_FLOAT64, RTOL_FLOAT32
+from tolerances import ATOL_FLOAT32, ATOL_FLOAT64, REPLAY_RTOL, RTOL_FLOAT32
 
 from warpshade._wp import wp
 from warpshade.geometry.frames import frame_rule, tangent_frames_f64
@@ -355,6 +355,11 @@ def test_stage_frame_is_the_float64_model_and_beats_the_rest_pose(device, bend, 
         err_static = np.linalg.norm(static - truth) / np.linalg.norm(truth)
         assert err < err_static, (frame, err, err_static)
     assert np.all(np.isfinite(rt.output.numpy()))
+    # the recorded frame replays what launching the stages one by one gives
+    rt.step(17.0, record=False)
+    plain = pred._vis.numpy().copy()
+    rt.step(17.0, record=True)
+    np.testing.assert_allclose(pred._vis.numpy(), plain, rtol=REPLAY_RTOL, atol=REPLAY_RTOL * np.abs(plain).max())
     diag = pred.diagnostics()
     assert diag["frames"] == len(bend.frames) and diag["novelty_max"] >= 0.0
 
