@@ -27,8 +27,10 @@ SMOKE = sorted(p.stem for p in BENCHMARKS.glob("*.py"))
 #: suite (``-m "not slow"``). Their cost is precompute their parameters cannot shrink further:
 #: bench_datadriven (70 s: training trace, fit and coefficient PCA), bench_shexp
 #: (59 s: SHEXP tables and sphere blockers per order), bench_rpo (42 s: operator builds and
-#: reference shading), run.py (41 s: one row of every method, SG's environment included).
-SLOW = {"bench_datadriven", "bench_rpo", "bench_shexp", "run"}
+#: reference shading), run.py (41 s: one row of every method, SG's environment included),
+#: bench_visibility (~120 s on a loaded machine: two training traces -- visibility and the 2007
+#: model's transfer --, three graphs, glossy and diffuse truths and the three frame-kind fits).
+SLOW = {"bench_datadriven", "bench_rpo", "bench_shexp", "bench_visibility", "run"}
 #: Seconds one smoke run may take before it counts as hung.
 TIMEOUT_S = 300
 
