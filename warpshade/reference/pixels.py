@@ -348,7 +348,10 @@ def _tangent_rays(scene, state, gb, tangents, count):
             raise ValueError(f"{_CALLER}: tangents = 'uv' needs UVs, and no mesh of {scene.source or '<arrays>'} has them")
         per_vertex = wp.zeros(scene.vertex_count, dtype=wp.vec3, device=dev)
         UVTangents.from_scene(scene, dev).compute(state.points, state.normals, per_vertex)
-        return interpolate_vertex_values(gb, per_vertex.numpy())
+        rays = interpolate_vertex_values(gb, per_vertex).numpy()
+        # misses (and tangents that cancel over a triangle) take +x: projected, or the normal's basis, in the kernel
+        rays[~(np.linalg.norm(rays, axis=1) > 0.0)] = (1.0, 0.0, 0.0)
+        return wp.array(rays, dtype=wp.vec3, device=dev)
     arr = np.asarray(tangents, np.float64)
     if arr.shape == (3,):
         arr = np.broadcast_to(arr, (count, 3))
