@@ -35,7 +35,7 @@ import warpshade.graph as graph
 from warpshade._fileio import write_json_atomic
 from warpshade.measure import ground_truth_model
 from warpshade.measure.pictures import ERROR_LIMIT, write_panels
-from warpshade.measure.pixels import pixel_stage, render_frame
+from warpshade.measure.pixels import exposure_for, pixel_stage, render_frame
 from warpshade.reference import reference_image
 from warpshade.render.image import tonemap_f64
 
@@ -123,7 +123,7 @@ def main(argv=None):
           f"anisotropic / best isotropic = {ratio:.3f}", flush=True)
     date = datetime.date.today().isoformat()
     stem = f"sg-aniso-{date}-cpu" + ("-quick" if args.quick else "")
-    exposure = 0.0
+    exposure = exposure_for(ref.radiance[mask].reshape(-1, 3))
     y_scale = float(np.mean(ref.radiance[mask].sum(-1))) if mask.any() else 1.0
     err = np.where(mask, (im.linear - ref.radiance).sum(-1) / max(y_scale, 1e-30), 0.0)
     import matplotlib
@@ -138,9 +138,9 @@ def main(argv=None):
     png = write_panels(out / f"{stem}.png",
                        [np.concatenate([sg_img, ref_img], 1), np.concatenate([iso_img, ref_img], 1),
                         np.concatenate([err_u8, grey], 1)],
-                       [f"SG anisotropic Ward {ax:g} x {ay:g} | reference\ndish rel RMS {result['rel_rms_dish']:.3f}",
-                        f"best isotropic Ward {best[0]['alpha']:.3f} | reference\ndish rel RMS {best[0]['rel_rms_dish']:.3f}",
-                        "error of the anisotropic SG on the dish"],
+                       [f"SG, Ward {ax:g} x {ay:g} | reference\ndish rel RMS {result['rel_rms_dish']:.3f}",
+                        f"SG, isotropic {best[0]['alpha']:.3f} | ref.\ndish rel RMS {best[0]['rel_rms_dish']:.3f}",
+                        "error (anisotropic SG)"],
                        ERROR_LIMIT, f"{args.width}x{args.height} pixels, reference {args.samples} spp; "
                                     f"anisotropic / best isotropic = {ratio:.2f}")
     report = {"date": date, "device": str(rt.device), "quick": args.quick, "graph": str(GRAPH.relative_to(ROOT)),

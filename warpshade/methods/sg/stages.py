@@ -39,7 +39,7 @@ __all__ = [
 CPU_CHUNK_MIN = 2048
 #: BRDF models of the per-point kernels: isotropic single-lobe NDFs, and fitted NDF lobes in a
 #: tangent frame (anisotropic Ward with ``roughness_y``, Ashikhmin-Shirley; :mod:`.lobes_warp`).
-BRDF_MODELS = tuple(MODEL_IDS) + ("ashikhmin-shirley",)
+BRDF_MODELS = tuple(MODEL_IDS) + ("ashikhmin-shirley", "tabulated-ndf")
 #: BRDF models the glossy reference can shade (what ``--validate`` accepts for the specular term).
 VALIDATED_MODELS = ("beckmann", "blinn-phong", "ward", "ashikhmin-shirley")
 #: Specular of narrow lights: the exact BRDF at the light ("brdf") or the paper's SG product ("sg").
@@ -49,7 +49,8 @@ NARROW_LIGHT_RATIO = 8.0
 #: Largest ``roughness`` per model (parameter, run-time BRDF or per-vertex surface): microfacet
 #: slopes past 2 are no longer a lobe and overflow the float32 lobes (Beckmann alpha 100 shaded
 #: inf, 1e30 NaN); Blinn-Phong exponents past 1e6 are a mirror (measured finite to 1e10, NaN at 1e30).
-ROUGHNESS_MAX = {"beckmann": 2.0, "cook-torrance": 2.0, "ward": 2.0, "blinn-phong": 1e6, "ashikhmin-shirley": 2.0}
+ROUGHNESS_MAX = {"beckmann": 2.0, "cook-torrance": 2.0, "ward": 2.0, "blinn-phong": 1e6, "ashikhmin-shirley": 2.0,
+                 "tabulated-ndf": 2.0}
 #: The exact models of the "brdf" mode: codes of warpshade.scene.materials_warp.BRDF_MODELS.
 EXACT_MODEL_CODES = {"beckmann": 4, "blinn-phong": 2}
 
@@ -165,6 +166,9 @@ MULTI_LOBE_PARAMS = {
                      "UVs, per frame) or 'direction' (tangent_direction projected on each tangent plane)",
                      choices=("uv", "direction")),
     "tangent_direction": Param(None, tuple, "world direction of tangent = 'direction'"),
+    "table": Param(None, str, "tabulated-ndf: a measured isotropic BRDF in the MERL binary layout (relative to the "
+                   "graph, or bundled:NAME); its NDF and shadowing are extracted by eq. 13 (sec. 4.2)"),
+    "eta": Param(1.33, float, "tabulated-ndf: index of refraction of eq. 14's Fresnel factor", minimum=1.0001, maximum=10.0),
 }
 
 
@@ -250,6 +254,7 @@ class SgShadeStage(FrameStage):
         self._vis.frames = self._frames
         st = kernels.Settings()
         st.model = int(MODEL_IDS.get(p["brdf"], 0))  # multi-lobe models: unused (st.lobes)
+        self._read_measured(ctx)
         st.f0 = float(p["f0"])
         cos_axis, cos_lam, cos_mu = sg.clamped_cosine(np.array([0.0, 0.0, 1.0]), p["cosine"])
         st.cos_sharpness, st.cos_amplitude = float(cos_lam), float(cos_mu)
@@ -288,7 +293,34 @@ class SgShadeStage(FrameStage):
             return "ward", {"alpha_x": float(p["roughness"]), "alpha_y": float(p["roughness_y"])}
         if p["brdf"] == "ashikhmin-shirley":
             return "ashikhmin-shirley", {"nu": float(p["nu"]), "nv": float(p["nv"]), "rs": float(p["rs"])}
+        if p["brdf"] == "tabulated-ndf":
+            if getattr(self, "measured", None) is None:
+                raise StageError(f"stage {self.name!r}: brdf = 'tabulated-ndf' is read from its table at set-up")
+            return "tabulated-ndf", self.measured.parameters()
         return None
+
+    def _read_measured(self, ctx) -> None:
+        """brdf = 'tabulated-ndf': eq. 13's D and S extracted from ``table`` (:mod:`.measured`)."""
+        from pathlib import Path
+
+        from .measured import measured_material
+
+        p = self.params
+        self.measured = None
+        if p["brdf"] != "tabulated-ndf":
+            return
+        if p["table"] is None:
+            raise StageError(f"stage {self.name!r}: brdf = 'tabulated-ndf' needs 'table' (a MERL-layout file)")
+        if p["table"].startswith("bundled:"):
+            from ...io import bundled_asset_directory
+
+            path = Path(bundled_asset_directory()) / p["table"][len("bundled:"):]
+        else:
+            path = ctx.resolve_path(p["table"])
+        try:
+            self.measured = measured_material(path, eta=p["eta"])
+        except (OSError, ValueError) as exc:
+            raise StageError(f"stage {self.name!r}: table {str(path)!r}: {exc}") from None
 
     def _fit_lobes(self, model: str, params: dict):
         """The NDF as SG lobes: ``lobes`` when given, else the fewest (up to ``max_lobes``) whose fit
@@ -300,7 +332,8 @@ class SgShadeStage(FrameStage):
         if getattr(microfacet_brdf(model, **params), "isotropic", False):
             mix = ndf_lobes(model, **params)
             return mix, {"model": model, "lobes": 1, "fit_error": None, "closed_form": True}
-        counts = [p["lobes"]] if p["lobes"] is not None else range(1, p["max_lobes"] + 1)
+        most = min(p["max_lobes"], 2) if model == "tabulated-ndf" else p["max_lobes"]  # lobes about z+: 1 or 2
+        counts = [p["lobes"]] if p["lobes"] is not None else range(1, most + 1)
         best, tried = None, []
         for k in counts:
             fit = fit_model_ndf(model, **params, lobes=int(k))
@@ -343,11 +376,12 @@ class SgShadeStage(FrameStage):
         model, params = multi
         try:
             mixture, self.lobe_report = self._fit_lobes(model, params)
-            exact = materials_warp.upload_brdf(_exact_brdf(model, params))
+            # narrow lights: the exact BRDF (Ward, Ashikhmin-Shirley); a tabulated one has none on the device
+            exact = None if model == "tabulated-ndf" else materials_warp.upload_brdf(_exact_brdf(model, params))
         except ValueError as exc:
             raise StageError(f"stage {self.name!r}: {exc}") from None
         st.lobes = upload_lobes(mixture, model, params, dev, exact)
-        st.exact_model = LOBE_MODELS[model] if p["narrow_lights"] == "brdf" else -1
+        st.exact_model = LOBE_MODELS[model] if (p["narrow_lights"] == "brdf" and exact is not None) else -1
         if p["tangent"] == "uv":
             from ...geometry.uv_tangents import UVTangents
 

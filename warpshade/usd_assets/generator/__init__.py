@@ -18,7 +18,7 @@ Modules: :mod:`.writing` (stages, meshes, ground, camera, rounding, saving), :mo
 (range-of-motion clips and motion libraries), and one module per scene, whose docstring
 describes it: :mod:`.blockers`, :mod:`.figure` (``figure``, ``figure_train``, ``figure_walk``),
 :mod:`.figure_orbit`, :mod:`.cloth`, :mod:`.bend`, :mod:`.wanderer` (``wanderer_train``,
-``wanderer_test``), :mod:`.ripples`, :mod:`.sunlit`, :mod:`.dish`.
+``wanderer_test``), :mod:`.ripples`, :mod:`.sunlit`, :mod:`.dish`, :mod:`.measured` (a MERL-layout table, not a USD scene).
 
 Output is deterministic: coordinates, weights and quaternions are rounded to 1e-4 (camera
 matrices to 1e-6) before they are written, so the files only change when the generator changes;
@@ -40,6 +40,7 @@ from .bend import make_bend
 from .blockers import make_blockers
 from .cloth import make_cloth
 from .dish import make_dish
+from .measured import make_measured
 from .figure import make_figure, make_figure_train, make_figure_walk
 from .figure_orbit import make_figure_orbit
 from .ripples import make_ripples
@@ -49,7 +50,7 @@ from .wanderer import make_wanderer_test, make_wanderer_train
 
 #: The scenes written by default (``ripples`` and ``sunlit`` are written on request).
 SCENES = ("blockers", "figure", "figure_train", "figure_walk", "figure_orbit", "cloth", "bend", "wanderer_train", "wanderer_test",
-          "dish")
+          "dish", "measured")
 
 #: Scene name -> the function that writes it into a directory (returns the written path(s)).
 MAKERS = {
@@ -65,6 +66,7 @@ MAKERS = {
     "wanderer_test": make_wanderer_test,
     "sunlit": make_sunlit,
     "dish": make_dish,
+    "measured": make_measured,
 }
 
 

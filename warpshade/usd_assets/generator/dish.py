@@ -30,7 +30,7 @@ DISH_AROUND = 96
 DISH_BOWL_RINGS = 20
 BALL_RADIUS = 0.14
 BALL_CENTRE_RZ = (0.42, 0.35)  # radius from the axis and azimuth (rad) of the ball's contact point
-CAMERA_DISTANCE = 3.4
+CAMERA_DISTANCE = 2.7
 
 
 def dish_profile() -> np.ndarray:
