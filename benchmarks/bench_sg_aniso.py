@@ -37,7 +37,7 @@ from warpshade.measure import ground_truth_model
 from warpshade.measure.pictures import ERROR_LIMIT, write_panels
 from warpshade.measure.pixels import exposure_for, pixel_stage, render_frame
 from warpshade.reference import reference_image
-from warpshade.render.image import tonemap_f64
+from warpshade.render import tonemap_f64
 
 ROOT = Path(__file__).resolve().parents[1]
 GRAPH = ROOT / "stages" / "dish_sg_aniso.toml"

@@ -11,12 +11,11 @@ from warpshade.geometry.bvh import Visibility
 from warpshade.geometry.uv_tangents import UVTangents, uv_tangents_f64
 from warpshade.graph import GraphSpec, StageError, StageSpec
 from warpshade.measure import reference_model
-from warpshade.methods.sg import decode_maps, shade_f64
-from warpshade.methods.sg.brdf import Ward, microfacet_brdf
+from warpshade.methods.sg import decode_maps, microfacet_brdf, ndf_lobes, shade_f64
+from warpshade.methods.sg.brdf import Ward
 from warpshade.methods.sg.lights import directional_light_lobe
 from warpshade.methods.sg.lobes_warp import upload_lobes, warped_slices
 from warpshade.methods.sg.mirror import tangent_frame_f64, warped_slices_f64
-from warpshade.methods.sg.ndf import ndf_lobes
 from warpshade.render import render_gbuffer
 from warpshade.scene import Camera, DistantLight, Environment, LightingSource, Mesh, Scene, SphereLight
 from warpshade.scene import materials as M
