@@ -332,3 +332,21 @@ def test_measured_material_kernel_matches_the_mirror(device, blocked):
     rt.set_parameter("shade", "component", "specular")
     with pytest.raises(StageError, match="cannot be validated"):
         reference_model(rt)  # no ray-traced reference shades a tabulated BRDF: refused, never a wrong reference
+
+
+def test_per_vertex_reference_takes_uv_tangents(device):
+    """The glossy reference per vertex (what --validate measures) orients an anisotropic BRDF by the
+    meshes' UV tangents of the frame: on a plane with u along +x they are +x, so the result is the
+    one for the explicit direction (same seed, same random streams: equal to float32 rounding)."""
+    from warpshade.reference import shade_glossy
+
+    pts, faces = ground_grid(np.linspace(-1.0, 1.0, 4))
+    scene = Scene.from_meshes([Mesh("/ground", pts, faces, uvs=pts[:, :2] * 0.3)])
+    brdf = Ward(alpha_x=0.1, alpha_y=0.4)
+    uv = shade_glossy(scene, 0.0, brdf, eye=EYE, lighting=[SKY], samples=64, device=device, tangents="uv")
+    fixed = shade_glossy(scene, 0.0, brdf, eye=EYE, lighting=[SKY], samples=64, device=device, tangents=(1.0, 0.0, 0.0))
+    turned = shade_glossy(scene, 0.0, brdf, eye=EYE, lighting=[SKY], samples=64, device=device, tangents=(0.0, 1.0, 0.0))
+    np.testing.assert_allclose(uv.radiance, fixed.radiance, rtol=1e-5, atol=1e-6)
+    assert np.abs(turned.radiance - fixed.radiance).max() > 0.05 * fixed.radiance.max()  # the frame matters
+    with pytest.raises(ValueError, match="isotropic|anisotropic"):
+        shade_glossy(scene, 0.0, M.Microfacet(0.3), eye=EYE, lighting=[SKY], samples=8, device=device, tangents="uv")

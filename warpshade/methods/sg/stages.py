@@ -5,7 +5,9 @@
   paper), compressed by PCA with the term count chosen from an RMS budget in radians
   (:func:`.model.bake_ssdf_model`);
 * ``sg.shade`` (per frame): eq. 39 + 41 (environment) and 42 + 43 (sphere and distant lights) per
-  vertex toward the eye (:mod:`.kernels`): the BRDF's NDF as an SG warped to the view slice, the
+  vertex toward the eye (:mod:`.kernels`): the BRDF's NDF as an SG (or, for anisotropic Ward,
+  Ashikhmin-Shirley and measured tables, fitted SG lobes in per-point tangent frames,
+  :mod:`.lobes_warp`) warped to the view slice, the
   clamped cosine as an SG, the environment as an SG mixture (diffuse) and a prefiltered table
   (specular), visibility from the SSDFs (eq. 30-31). Its BRDF parameters give every mesh's
   material, or, with ``textures = true``, the meshes' UsdPreviewSurface textures sampled at the
