@@ -35,6 +35,10 @@ def test_stage_graph_runs(device, graph_file, tmp_path, update_goldens):
             # the graph as written traces hundreds of training poses (minutes): a few poses with
             # few rays run the same stages here
             st.params.update(samples=16, frames=TRAINING_SUBSET)
+        if st.type == "ldprt.patch":
+            # a 32^2 patch traced at 256 rays and fitted per texel takes ~20 s: an 8^2 patch with
+            # few rays runs the same stages here
+            st.params.update(resolution=8, samples=32)
     lighting = None
     if any(st.type.startswith("sg.") for st in spec.stages) or "sunlit" in spec.name:
         # the sunlit graphs as written bake 512^2 visibility per vertex and prefilter a 256 x 512

@@ -81,6 +81,12 @@ class BRDF:
     def describe(self) -> dict:
         return {"model": self.name, **{k: v for k, v in vars(self).items() if not k.startswith("_")}}
 
+    def color_channels(self) -> tuple | None:
+        """Three single-channel BRDFs (red, green, blue) when the BRDF's shape differs per colour
+        channel (a coloured measured table), else None: one BRDF for all three channels, times
+        the shader's RGB colour."""
+        return None
+
     def lobe_exponent(self) -> float:
         """The Phong exponent of a lobe about the mirror direction as sharp as this BRDF's
         (0: no lobe), what :func:`brdf_matrix` compares with what its quadrature resolves."""
