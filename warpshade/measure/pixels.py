@@ -255,7 +255,7 @@ def measure_pixels(runtime, out_dir, frames, width: int = 160, height: int = 120
                                   samples=samples, supersample=supersample, eye=model["eye"],
                                   lighting=runtime.lighting.lights_at(float(f)),
                                   roughness=mats["roughness"] if uses_roughness else None, specular=mats["specular"],
-                                  include=("specular",), seed=seed, device=runtime.device)
+                                  include=("specular",), seed=seed, device=runtime.device, tangents=model.get("tangents"))
             mask = ref.mask & (im.coverage >= 1.0)
         d = (im.linear - ref.radiance)[mask]
         r = ref.radiance[mask]
