@@ -15,6 +15,10 @@ from goldens import golden_mismatch, golden_path, write_golden
 STAGES = sorted((Path(__file__).resolve().parent.parent / "stages").glob("*.toml"))
 #: Training frames of the data-driven graphs in this test (their own selection takes minutes).
 TRAINING_SUBSET = "0:600:50"
+#: Training frames of the data-driven visibility graphs here (10 poses: at least 8 for the 4 folds).
+VISIBILITY_SUBSET = "0:600:60"
+#: The same for the cloth's 120-frame training clip.
+CLOTH_SUBSET = "0:120:12"
 
 
 @pytest.fixture(autouse=True)
@@ -35,6 +39,16 @@ def test_stage_graph_runs(device, graph_file, tmp_path, update_goldens):
             # the graph as written traces hundreds of training poses (minutes): a few poses with
             # few rays run the same stages here
             st.params.update(samples=16, frames=TRAINING_SUBSET)
+        if st.type == "ldprt.patch":
+            # a 32^2 patch traced at 256 rays and fitted per texel takes ~20 s: an 8^2 patch with
+            # few rays runs the same stages here
+            st.params.update(resolution=8, samples=32)
+        if st.type == "visibility.data":
+            # the same for the visibility graphs (every 60th training frame, 16 rays), and one
+            # network size with a short fit
+            st.params.update(samples=16, frames=CLOTH_SUBSET if "cloth" in st.params["training"] else VISIBILITY_SUBSET)
+        if st.type == "visibility.fit":
+            st.params.update(hidden=(4,), max_iterations=10)
     lighting = None
     if any(st.type.startswith("sg.") for st in spec.stages) or "sunlit" in spec.name:
         # the sunlit graphs as written bake 512^2 visibility per vertex and prefilter a 256 x 512
@@ -46,6 +60,10 @@ def test_stage_graph_runs(device, graph_file, tmp_path, update_goldens):
         for st in spec.stages:
             if st.type == "sg.ssdf":
                 st.params.update(resolution=16, supersample=2)
+            if st.type == "sg.shade" and (st.params.get("roughness_y") is not None or st.params.get("table") is not None):
+                # fitted NDF lobes: the graph's error budget fits up to 8 lobes in turn (seconds
+                # each); two lobes run the same stages
+                st.params.update(lobes=2)
         scene = spec.load_scene()
         lamps = [light for light in scene.lights if isinstance(light, SphereLight)]
         if (spec.lighting or {}).get("source") == "distant":

@@ -130,6 +130,14 @@ def test_bad_training_input_names_the_stage(device, bend, tmp_path):
                                                                      scheduler="serial")
 
 
+def test_pose_components_beyond_the_training_poses_are_refused(device, bend, tmp_path):
+    """ka = 100000 was once cut silently to what the poses allow; it is refused, naming ka and the limit."""
+    with pytest.raises(StageError, match=r"stage 'fit' \(datadriven.fit\): parameter 'ka' = 100000 exceeds the \d+ pose "
+                                         r"components .* set ka <= \d+"):
+        _graph(data={"frames": "0:60:20"}, fit={"ka": 100000}).compile(bend, device=device, cache_dir=tmp_path,
+                                                                      progress=False, scheduler="serial")
+
+
 def test_model_order_must_match_the_transfer_stage(device, bend, tmp_path):
     spec = _graph()
     spec.stages[2] = StageSpec("transfer", "datadriven.transfer", {"order": 4}, {"model": "fit.model"})

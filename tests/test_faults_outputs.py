@@ -218,6 +218,30 @@ def test_component_both_with_validate_is_refused_before_any_work(tmp_path, capsy
     assert not list(out.iterdir())
 
 
+def test_tabulated_brdfs_with_validate_are_refused_before_any_work(tmp_path, capsys, monkeypatch):
+    """The glossy reference shades analytic BRDFs only: a tabulated BRDF as the stage's BRDF or
+    in the material track is refused under --validate before any work, naming it."""
+    from warpshade.scene.materials import Microfacet
+    from warpshade.scene.tabulated import write_merl
+
+    (tmp_path / "cube.usda").write_text(CUBE)
+    write_merl(tmp_path / "gold.binary", Microfacet(roughness=0.4), dims=(8, 8, 8), rgb=(1.0, 0.78, 0.34))
+    vis = '[[stage]]\nname = "vis"\ntype = "rpo.visibility_traced"\norder = 3\nsamples = 16\n\n'
+    shade = 'type = "rpo.shade"\norder = 3\nrank = 4\neye = [0.0, -3.0, 1.0]'
+    _no_work(monkeypatch)
+    g = _graph(tmp_path / "stage.toml", "tab_stage", "cube.usda", shade + '\nbrdf = "tabulated"\nfile = "gold.binary"')
+    g.write_text(g.read_text().replace("[[stage]]", vis + "[[stage]]", 1))
+    rc, err = _run(capsys, "run", str(g), "--out", str(tmp_path / "o1"), "--validate", "--device", "cpu")
+    assert rc == 2 and "stage 'shade': brdf = 'tabulated'" in err and "cannot be validated" in err, err
+    g = _graph(tmp_path / "track.toml", "tab_track", "cube.usda", shade)
+    g.write_text(g.read_text().replace("[[stage]]", '[[material]]\nbrdf = "tabulated"\nfile = "gold.binary"\n\n' + vis +
+                                       "[[stage]]", 1))
+    rc, err = _run(capsys, "run", str(g), "--out", str(tmp_path / "o2"), "--validate", "--device", "cpu")
+    assert rc == 2 and "[[material]] #1 is a tabulated BRDF" in err and "gold.binary" in err, err
+    for o in ("o1", "o2"):
+        assert not (tmp_path / o).exists() or not list((tmp_path / o).iterdir())
+
+
 def test_an_unwritable_cache_names_the_directory_and_variable_before_any_work(tmp_path, capsys, monkeypatch):
     (tmp_path / "cube.usda").write_text(CUBE)
     blocked = tmp_path / "a_file"

@@ -247,6 +247,23 @@ def test_non_finite_frames_name_the_stage_and_frame(sheets):
     assert sorted(rt.results) == [0.0]
 
 
+def test_a_black_frame_is_not_silent(sheets):
+    """An eye below every vertex's horizon shades the whole frame black: a recorded step warns,
+    naming the frame, the output and the cause; a lit frame again re-arms the warning."""
+    rt = _compile(_rpo(), sheets)
+    rt.step(0.0, record=True)
+    rt.set_parameter("shade", "eye", (0.0, 0.0, -3.0))  # under the sheet and the plate: every view below the horizon
+    with pytest.warns(UserWarning, match=r"frame 1: the output 'shade.radiance' is black at every vertex: 29 of 29 "
+                                         r"vertices see the eye at or below their horizon"):
+        rt.step(1.0, record=True)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        rt.step(2.0, record=True)  # still black: said once
+        rt.set_parameter("shade", "eye", tuple(EYE))
+        rt.step(2.0, record=True)
+    assert rt.results[2.0].max() > 0.0
+
+
 # ---- SG roughness through set_parameter ---------------------------------------------------------
 
 @pytest.fixture(scope="module")

@@ -32,11 +32,14 @@ GRAPHS = {
     "shexp": [("tables", "shexp.tables", {"order": 3}), ("blockers", "shexp.blockers", {"budget": 6, **SHEXP_FIT}),
               ("shade", "shexp.shade", {"order": 3})],
     "traced": [("shade", "prt.trace", {"order": 3, "samples": 16})],
+    # UV tangents accumulated per frame from the points (atomic adds), then the patch per vertex
+    "patch": [("patch", "ldprt.patch", {"resolution": 8, "samples": 16, "order": 3, "lobes": 2}),
+              ("shade", "ldprt.patch_shade", {"tiling": 4.0})],
 }
 CASES = [
     ("blockers", "unshadowed"), ("blockers", "traced"), ("blockers", "shexp"),
     ("figure", "ldprt"), ("figure", "shexp"), ("figure", "traced"),
-    ("cloth", "unshadowed"), ("cloth", "traced"),
+    ("cloth", "unshadowed"), ("cloth", "traced"), ("cloth", "patch"),
 ]
 
 

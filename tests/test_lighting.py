@@ -117,3 +117,17 @@ def test_sky_environment_matches_sky_radiance():
     np.testing.assert_allclose(env.image, sky_radiance(quadrature.latlong_directions(8, 16)), rtol=1e-6)
     assert np.linalg.det(up_rotation("Y")) == pytest.approx(1.0)
     np.testing.assert_allclose(up_rotation("Y") @ [0, 0, 1], [0, 1, 0])
+
+
+def test_environment_values_and_sizes_are_checked():
+    """Negative radiance in a map, and map sizes below one texel, are named errors (a negative
+    texel would shade negative light; a zero size once divided by zero)."""
+    img = np.ones((4, 8, 3), np.float32)
+    img[1, 2, 0] = -0.5
+    with pytest.raises(ValueError, match=r"environment <array>: image has 1 negative values .* \(1, 2, 0\)"):
+        Environment(img)
+    for kw in ({"height": 0, "width": 8}, {"height": 4, "width": -1}, {"height": 2.5, "width": 8}):
+        with pytest.raises(ValueError, match=r"Environment.sky: (height|width) must be an integer >= 1"):
+            Environment.sky(**kw)
+    with pytest.raises(ValueError, match=r"Environment.constant: height must be an integer >= 1"):
+        Environment.constant(height=0)

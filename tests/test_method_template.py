@@ -33,6 +33,7 @@ CLASS_PREFIX = {
     "rpo": "Rpo",
     "sg": "Sg",
     "shexp": "Shexp",
+    "visibility": "Visibility",
 }
 #: Longest module, in lines.
 MAX_MODULE_LINES = 800

@@ -13,6 +13,7 @@ from warpshade.geometry.bvh import trace_occlusion_f64
 from warpshade.reference import shade, shade_glossy
 from warpshade.scene import DistantLight, Environment, Mesh, Scene, SphereLight, materials
 from warpshade.scene.materials_warp import BRDFParams, brdf_eval, brdf_pdf, brdf_sample, upload_brdf
+from warpshade.methods.sg.brdf import AshikhminShirley, Ward
 
 from tolerances import STDERR_SIGMAS, assert_within_stderr
 
@@ -36,6 +37,10 @@ MODELS = {
     "blinn-phong": materials.BlinnPhong(exponent=50.0),
     "ggx": materials.Microfacet(roughness=0.3, distribution="ggx", f0=0.1),
     "beckmann": materials.Microfacet(roughness=0.5, distribution="beckmann", f0=0.04),
+    # anisotropic models in the tangent frame of the default tangent (+x; the floor's normal is +z)
+    "ward-anisotropic": Ward(alpha_x=0.15, alpha_y=0.4, specular=0.8),
+    "ashikhmin-shirley": AshikhminShirley(nu=30.0, nv=150.0, rs=0.1),
+    "beckmann-anisotropic": materials.AnisotropicMicrofacet(roughness=0.15, roughness_y=0.45, f0=0.2),
 }
 EYE = np.array([0.3, -2.0, 1.5])
 UP = wp.constant(wp.vec3(0.0, 0.0, 1.0))

@@ -128,7 +128,9 @@ def test_exact_brdf_oracle_agrees_with_full_rank_operators_on_shadowed_points(rn
 ])
 def test_kernel_matches_the_float64_reference(device, rng, lighting, cosine, space, evaluation):
     v = 64
-    ops = [build_operator(M.Microfacet(0.4), N, 6, cosine=cosine), build_operator(M.Phong(8.0), N, 6, cosine=cosine)]
+    # slots 0-2: a colour material (red, green and blue BRDFs of their own); slot 3: one BRDF for all
+    ops = [build_operator(b, N, 6, cosine=cosine) for b in (M.Microfacet(0.4), M.Phong(8.0), M.Microfacet(0.7), M.Phong(8.0))]
+    channels = np.array([3, 1, 1, 1], np.int32)
     frames = _random_frames(rng, v)
     points = rng.normal(size=(v, 3)) * 0.2
     eye = np.array([0.5, 0.3, 3.0])
@@ -136,9 +138,10 @@ def test_kernel_matches_the_float64_reference(device, rng, lighting, cosine, spa
     vis[:, 0] += 2.5
     light = rng.normal(size=(3, N * N)) * 0.5
     light[:, 0] += 3.0
-    material = np.arange(v) % 2
+    material = (np.arange(v) % 2) * 3
     zh = fit_zh_lighting(light, 3) if lighting == "zh" else None
-    want, stats = shade_f64(frames, points, eye, vis, ops, material, light, (1.0, 0.8, 0.6), zh, space, evaluation)
+    want, stats = shade_f64(frames, points, eye, vis, ops, material, light, (1.0, 0.8, 0.6), zh, space, evaluation,
+                            channels)
 
     dev = device
     k, nv2 = 6, ops[0].view_sh.shape[1]
@@ -156,8 +159,9 @@ def test_kernel_matches_the_float64_reference(device, rng, lighting, cosine, spa
     surface.material = wp.array(material.astype(np.int32), device=dev)
     table = kernels.Operators()
     table.light_sh = wp.array(np.stack([op.light_sh for op in ops]).astype(f32), device=dev)
-    table.view_sh = wp.array(np.stack([op.view_sh for op in ops]).astype(f32).reshape(2, k, nv2), device=dev)
-    table.rank = wp.array(np.array([k, k], np.int32), device=dev)
+    table.view_sh = wp.array(np.stack([op.view_sh for op in ops]).astype(f32).reshape(len(ops), k, nv2), device=dev)
+    table.rank = wp.array(np.full(len(ops), k, np.int32), device=dev)
+    table.channels = wp.array(channels, device=dev)
     table.matrices = wp.array(mats, device=dev)
     table.cos_sh = wp.array(cosine_sh(N).astype(f32), device=dev)
     table.specular = wp.vec3(1.0, 0.8, 0.6)
@@ -353,6 +357,36 @@ def test_bad_brdf_files_name_the_file(device, two_sheets, tmp_path):
     assert np.sqrt(np.mean((tab - ana) ** 2) / np.mean(ana**2)) < 0.15
     with pytest.raises(StageError, match="rank"):
         _compile(device, _spec({"rank": 10}), two_sheets)
+
+
+def test_colour_table_shades_each_channel_with_its_own_brdf(device, two_sheets, tmp_path):
+    """A coloured table (channel shapes differ: red GGX 0.3, green GGX 0.5, blue Phong) read by
+    default keeps its colour: channel c of the shaded frame is channel c of a run with that
+    channel's BRDF alone (three operator sets in three slots), not the luminance."""
+    from warpshade.scene.tabulated import TabulatedBRDF, tabulate
+
+    dims = (16, 16, 32)
+    table = np.stack([tabulate(M.Microfacet(0.3), dims)[0], tabulate(M.Microfacet(0.5), dims)[1] * 0.7,
+                      tabulate(M.Phong(6.0), dims)[2] * 0.3])
+    colour = TabulatedBRDF(table, source="<colour>")
+    rt = _compile(device, _spec(), two_sheets)
+    rt.set_material(colour)
+    got = rt.step(0.0).numpy().copy()
+    assert list(rt.output_stage().slot_channels) == [3, 1, 1]
+    for c, part in enumerate(colour.color_channels()):
+        one = _compile(device, _spec(), two_sheets)
+        one.set_material(part)
+        want = one.step(0.0).numpy()[:, c]
+        np.testing.assert_allclose(got[:, c], want, rtol=1e-5, atol=1e-6 * want.max())
+    grey = _compile(device, _spec(), two_sheets)
+    grey.set_material(TabulatedBRDF(table, "luminance", source="<colour>"))
+    lum = grey.step(0.0).numpy()
+    # the grey luminance is one BRDF for all channels: its channel ratios are the sky's, not the table's
+    ratio = lambda x: np.mean(x[:, 2]) / np.mean(x[:, 0])  # noqa: E731
+    assert abs(ratio(got) / ratio(lum) - 1.0) > 0.5
+    # three slots per colour table: too many for the slots is named
+    with pytest.raises(StageError, match="materials"):
+        _compile(device, _spec({"materials": 2}), two_sheets).set_material(colour)
 
 
 def test_zh_lighting_turns_with_the_environment(device, two_sheets):

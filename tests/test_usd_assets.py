@@ -16,7 +16,8 @@ from warpshade.usd_assets.generator.bend import bend_joint_rotations
 from warpshade.usd_assets.generator.cloth import cloth_points
 
 ASSETS = bundled_asset_directory()
-FILES = ["sky.hdr", "blockers.usda", "figure.usda", "figure_orbit.usda", "cloth.usda", "bend.usda"]
+FILES = ["sky.hdr", "blockers.usda", "figure.usda", "figure_orbit.usda", "cloth.usda", "bend.usda", "dish.usda",
+         "measured_coating.binary"]
 MAX_BYTES = 2 * 1024 * 1024  # issue 3: each bundled file < 2 MB
 #: The clips of the data-driven PRT characters: (training clip, held-out clips) per character.
 CLIPS = {

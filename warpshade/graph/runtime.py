@@ -196,9 +196,37 @@ class Runtime(RunChanges):
                     self.check_finite()
                     raise GraphError(f"frame {float(self.state.frame):g}: the output {self.spec.output!r} is not finite")
                 self.results[float(self.state.frame)] = result
+                self._check_lit(result)
         finally:
             self._stepping.release()
         return self.output
+
+    def _check_lit(self, result: np.ndarray) -> None:
+        """Warn (once, until a frame is lit again) when a recorded frame is black at every
+        vertex: an eye inside or behind the surface, a zero colour or zero lighting give a frame
+        that looks like a failure; the warning names what the output stage's diagnostics and
+        parameters show."""
+        import warnings
+
+        if result.any():
+            self._black_warned = False
+            return
+        if getattr(self, "_black_warned", False):
+            return
+        self._black_warned = True
+        why = []
+        st = self.output_stage()
+        diag = st.diagnostics() if hasattr(st, "diagnostics") else {}
+        below = diag.get("below_horizon") if isinstance(diag, dict) else None
+        if below:
+            why.append(f"{below} of {self.scene.vertex_count} vertices see the eye at or below their horizon "
+                       "(the eye is inside or behind the surface: Runtime.set_eye or the stage's 'eye')")
+        spec = getattr(st, "params", {}).get("specular")
+        if spec is not None and not np.any(np.asarray(spec, np.float64)):
+            why.append("the stage's 'specular' colour is zero")
+        warnings.warn(f"frame {float(self.state.frame):g}: the output {self.spec.output!r} is black at every vertex"
+                      + (f": {'; '.join(why)}" if why else " (no cause found in the stage's diagnostics)"),
+                      UserWarning, stacklevel=3)
 
     def check_finite(self) -> None:
         """Check the last frame's arrays for NaN and infinities, in the order they were made:

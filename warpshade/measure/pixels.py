@@ -245,14 +245,18 @@ def measure_pixels(runtime, out_dir, frames, width: int = 160, height: int = 120
     for f in frames:
         im = render_frame(runtime, f, width, height, supersample, textures)
         model = ground_truth_model(st, runtime.state.materials, runtime.state.eye.numpy()[0], per_pixel=True)
-        brdf = model["brdf"]
-        mats = im.materials
-        uses_roughness = hasattr(brdf, "roughness")
-        ref = reference_image(runtime.scene, float(f), brdf, camera=im.camera, width=width, height=height, samples=samples,
-                              supersample=supersample, eye=model["eye"], lighting=runtime.lighting.lights_at(float(f)),
-                              roughness=mats["roughness"] if uses_roughness else None, specular=mats["specular"],
-                              include=("specular",), seed=seed, device=runtime.device)
-        mask = ref.mask & (im.coverage >= 1.0)
+        if model is not None and "geometry" in model:
+            ref, mask = _geometry_reference(runtime, model, im, float(f), width, height, samples, supersample, seed)
+        else:
+            brdf = model["brdf"]
+            mats = im.materials
+            uses_roughness = hasattr(brdf, "roughness")
+            ref = reference_image(runtime.scene, float(f), brdf, camera=im.camera, width=width, height=height,
+                                  samples=samples, supersample=supersample, eye=model["eye"],
+                                  lighting=runtime.lighting.lights_at(float(f)),
+                                  roughness=mats["roughness"] if uses_roughness else None, specular=mats["specular"],
+                                  include=("specular",), seed=seed, device=runtime.device, tangents=model.get("tangents"))
+            mask = ref.mask & (im.coverage >= 1.0)
         d = (im.linear - ref.radiance)[mask]
         r = ref.radiance[mask]
         denom = float(np.sqrt(np.mean(r * r))) if r.size else 0.0
@@ -269,3 +273,27 @@ def measure_pixels(runtime, out_dir, frames, width: int = 160, height: int = 120
                             error_image], titles, ERROR_LIMIT, f"frame {float(f):g}, {width}x{height} pixels")
         report["frames"][float(f)] = {"rel_rms": rel, "noise": noise, "pixels": int(mask.sum()), "image": str(path)}
     return report
+
+
+def _geometry_reference(runtime, model, im, frame, width, height, samples, supersample, seed):
+    """The diffuse ground truth of a pixel stage whose surface detail is geometry the run does not
+    have (an LDPRT patch: ``model["geometry"](frame)`` is the displaced fine mesh's scene), traced
+    through the method's camera; the mask keeps fully covered pixels of both images whose reference
+    hit lies on one of ``model["prims"]`` (all meshes when absent). Returns (reference, mask)."""
+    from ..reference.pixels import reference_image
+    from ..scene.materials import Lambert
+
+    scene = model["geometry"](frame)
+    ref = reference_image(scene, frame, Lambert(), camera=im.camera, width=width, height=height, samples=samples,
+                          supersample=supersample, lighting=runtime.lighting.lights_at(frame),
+                          include=tuple(model.get("include", ("diffuse",))), seed=seed, device=runtime.device)
+    mask = ref.mask & (im.coverage >= 1.0)
+    prims = model.get("prims")
+    if prims:
+        owner = _mesh_of_triangle(scene)
+        keep = np.array([m.path in prims for m in scene.meshes])
+        tri = ref.hits.triangles
+        on = ref.hits.hit & (tri >= 0) & keep[owner[np.maximum(tri, 0)]]
+        ss = int(supersample)
+        mask &= on.reshape(height, ss, width, ss).all(axis=(1, 3))
+    return ref, mask

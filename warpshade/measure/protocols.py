@@ -70,7 +70,11 @@ class PixelStage(Protocol):
 
     def pixel_reference_model(self, materials=None) -> dict | None:
         """:meth:`MeasuredStage.reference_model` for a per-pixel reference (which takes
-        roughness and colours per pixel, so textured materials can be measured)."""
+        roughness and colours per pixel, so textured materials can be measured). A stage whose
+        detail is geometry the run does not have returns ``geometry`` instead (a callable: time
+        code -> the :class:`~warpshade.scene.Scene` the diffuse ground truth is traced on, e.g.
+        an LDPRT patch's displaced fine mesh), ``include`` (``("diffuse",)``) and optionally
+        ``prims`` (the mesh paths whose pixels are measured)."""
 
 
 @runtime_checkable

@@ -65,6 +65,11 @@ def _model_description(model) -> dict:
         from .._hashing import hash_arrays
 
         out["roughness"] = hash_arrays({"roughness": np.asarray(model["roughness"], np.float64)})
+    if model.get("tangents") is not None:
+        from .._hashing import hash_arrays
+
+        t = model["tangents"]
+        out["tangents"] = t if isinstance(t, str) else hash_arrays({"tangents": np.asarray(t, np.float64)})
     if model.get("groups"):
         from .._hashing import hash_arrays
 

@@ -5,18 +5,21 @@
 * :class:`ShLighting` -- the frame's world-frame SH lighting at a stage's order, optionally
   scaled per band (a window, the clamped-cosine convolution, a band truncation), in a fixed
   device buffer that a per-frame kernel refreshes from the
-  :class:`~warpshade.scene.lighting_warp.FrameLighting` of the state.
+  :class:`~warpshade.scene.lighting_warp.FrameLighting` of the state;
+* :func:`launch_parallel` -- a per-receiver launch split over the CPU cores (one launch on a
+  GPU); inside a recorded CPU frame it runs between the recorded segments.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from .._wp import wp
+from .._wp import launch_parallel, wp
 from ..basis import sh
 from .stage import Param
 
-__all__ = ["order_param", "rays_param", "WINDOW", "WINDOW_SIZE", "WINDOW_PARAMS", "window_args", "band_weights", "ShLighting"]
+__all__ = ["order_param", "rays_param", "WINDOW", "WINDOW_SIZE", "WINDOW_PARAMS", "window_args", "band_weights", "ShLighting",
+           "launch_parallel"]
 
 wp.set_module_options({"enable_backward": False})
 

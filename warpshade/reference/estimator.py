@@ -76,7 +76,8 @@ from ..geometry.frames import onb_tangent
 from ..scene.lighting import DistantLight, Environment, SphereLight
 from ..scene.lighting_warp import EnvironmentMap, disabled_environment, env_pdf, env_radiance, env_sample, upload_environment
 from ..scene.materials import Lambert
-from ..scene.materials_warp import BRDFParams, brdf_eval, brdf_pdf, brdf_sample, brdf_with_roughness, check_roughness, upload_brdf
+from ..scene.materials_warp import (ANISOTROPIC_MODELS, BRDF_MODELS, BRDFParams, brdf_eval, brdf_pdf, brdf_sample, brdf_with_roughness,
+                                    brdf_with_tangent, check_roughness, upload_brdf)
 from ..transfer.interreflection import check_albedo, check_bounces, hit_corners, hit_weights, interpolate_vec3
 from ..transfer.raytrace import CHUNK_MIN_RAYS, receiver_indices
 
@@ -402,6 +403,7 @@ def _estimator_kernel(
     receiver_start: int,
     brdf_uniform: BRDFParams,
     roughness: wp.array(dtype=float),
+    tangents: wp.array(dtype=wp.vec3),
     has_eye: int,
     eye: wp.vec3,
     env: EnvironmentMap,
@@ -420,7 +422,8 @@ def _estimator_kernel(
 
     ``points``, ``normals`` (unit), ``tint`` and -- when it is not empty -- ``roughness`` (the
     microfacet alpha replacing ``brdf_uniform.roughness``) are indexed by ``receivers[r]``; with
-    an empty ``roughness`` every receiver has ``brdf_uniform`` unchanged; ``has_eye`` 0
+    an empty ``roughness`` every receiver has ``brdf_uniform`` unchanged; a non-empty ``tangents``
+    gives each receiver the tangent direction of the anisotropic models (world); ``has_eye`` 0
     evaluates the BRDF with ``v = n`` (``eye`` unused); ``method`` 0 / 1 / 2 = BRDF / light / MIS
     sampling; ``bounces`` > 0 adds one path of that many diffuse bounces per sample point over
     ``surfaces``; ``offset`` (world units) lifts shadow-ray origins along ``n``. Writes
@@ -444,6 +447,8 @@ def _estimator_kernel(
     if roughness.shape[0] > 0:
         alpha = roughness[vi]
     brdf = brdf_with_roughness(brdf_uniform, alpha)
+    if tangents.shape[0] > 0:
+        brdf = brdf_with_tangent(brdf, tangents[vi])
     origin = p + offset * n
     base = int(wp.rand_init(seed, vi))
 
@@ -574,6 +579,9 @@ class MonteCarloShader:
         roughness: per-vertex microfacet alpha overriding ``brdf.roughness`` (GGX / Beckmann only),
             shape (vertex_count,), values in (0, 2]; None (default) shades every vertex with
             ``brdf`` unchanged. Used by :meth:`shade_state`; :meth:`shade_points` takes its own.
+        tangents: the tangent direction of an anisotropic BRDF per vertex for :meth:`shade_state`:
+            ``"uv"`` (the meshes' UV tangents of each frame, :mod:`warpshade.geometry.uv_tangents`),
+            3 floats (one world direction) or (vertex_count, 3); None: the BRDF's own (+x).
 
     Attributes:
         bvh: :class:`~warpshade.geometry.bvh.Visibility` of the scene (refit per frame).
@@ -588,7 +596,7 @@ class MonteCarloShader:
 
     def __init__(self, scene, brdf, tint, method: str, methods: tuple[str, ...], caller: str, eye=None, lighting=None,
                  samples: int = 256, device=None, seed: int = 0, vertices=None, workers=None, offset=None,
-                 bounces: int = 0, roughness=None):
+                 bounces: int = 0, roughness=None, tangents=None):
         self.caller = caller
         self.strategy = strategy_index(method, methods, caller)
         self.bounces = check_bounces(bounces, caller)
@@ -611,7 +619,23 @@ class MonteCarloShader:
         tint = np.broadcast_to(np.asarray(tint, np.float32).reshape(-1, 3), (scene.vertex_count, 3))
         self.tint = wp.array(np.ascontiguousarray(tint), dtype=wp.vec3, device=self.device)
         self._no_roughness = wp.zeros(0, dtype=float, device=self.device)
+        self._no_tangents = wp.zeros(0, dtype=wp.vec3, device=self.device)
         self.roughness = self._no_roughness if roughness is None else self.upload_roughness(roughness, scene.vertex_count, "roughness")
+        self._uv_tangents = None
+        self.tangents = None
+        if isinstance(tangents, str):
+            from ..geometry.uv_tangents import UVTangents
+
+            if tangents != "uv" or all(m.uvs is None for m in scene.meshes):
+                raise ValueError(f"{caller}: tangents must be 'uv' (on a scene with UVs), 3 floats or (vertex_count, 3) rows, "
+                                 f"got {tangents!r}")
+            self.upload_tangents(np.ones((1, 3)), 1)  # refuses an isotropic BRDF
+            self._uv_tangents = UVTangents.from_scene(scene, self.device)
+            self.tangents = wp.zeros(scene.vertex_count, dtype=wp.vec3, device=self.device)
+        elif tangents is not None:
+            arr = np.asarray(tangents, np.float64)
+            arr = np.broadcast_to(arr, (scene.vertex_count, 3)) if arr.shape == (3,) else arr
+            self.tangents = self.upload_tangents(arr, scene.vertex_count)
         self.radiance = wp.zeros(self.vertices.shape[0], dtype=wp.vec3, device=self.device)
         self.stderr = wp.zeros(self.vertices.shape[0], dtype=wp.vec3, device=self.device)
         self.surfaces = DiffuseSurfaces()
@@ -648,7 +672,27 @@ class MonteCarloShader:
             return values
         return wp.array(arr, dtype=float, device=self.device)
 
-    def shade_points(self, points, normals, tint, receivers, radiance, stderr, seed=None, roughness=None) -> None:
+    def upload_tangents(self, values, count: int, name: str = "tangents"):
+        """Validate per-point tangent directions (finite, nonzero, shape (count, 3)) for an
+        anisotropic BRDF and return them as wp.array(vec3) on the shader's device.
+
+        Raises:
+            ValueError: naming ``name``: the BRDF is isotropic, a bad shape or a bad value.
+        """
+        if self.brdf.model not in ANISOTROPIC_MODELS:
+            raise ValueError(f"{self.caller}: {name} orient an anisotropic BRDF, but the BRDF is "
+                             f"{BRDF_MODELS[self.brdf.model]!r}")
+        arr = values.numpy() if isinstance(values, wp.array) else np.asarray(values, np.float64)
+        if arr.shape != (count, 3):
+            raise ValueError(f"{self.caller}: {name} must have shape ({count}, 3), got {arr.shape}")
+        if not np.all(np.isfinite(arr)) or np.any(np.linalg.norm(arr, axis=1) == 0.0):
+            raise ValueError(f"{self.caller}: {name} must be finite and nonzero")
+        if isinstance(values, wp.array) and values.dtype == wp.vec3 and values.device == self.device:
+            return values
+        return wp.array(np.ascontiguousarray(arr, np.float32), dtype=wp.vec3, device=self.device)
+
+    def shade_points(self, points, normals, tint, receivers, radiance, stderr, seed=None, roughness=None,
+                     tangents=None) -> None:
         """Shade arbitrary receivers (e.g. camera hit points) against the current BVH.
 
         With ``bounces > 0`` the paths bounce off the scene as last set by :meth:`update` (or
@@ -665,9 +709,13 @@ class MonteCarloShader:
                 wp.array(float) or array-like indexed like ``points``, values in (0, 2]
                 (validated on the host); None (default): the BRDF's own for every point, with
                 results bit-identical to a shader without per-point parameters.
+            tangents: per-point tangent directions of an anisotropic BRDF (ward,
+                ashikhmin-shirley, beckmann-anisotropic), wp.array(vec3) indexed like ``points``,
+                world (projected on each normal's tangent plane in the kernel); None: the BRDF's
+                own tangent (+x) for every point.
 
         Raises:
-            ValueError: a bad ``roughness`` (named), or ``bounces > 0`` before :meth:`update`.
+            ValueError: a bad ``roughness`` or ``tangents`` (named), or ``bounces > 0`` before :meth:`update`.
         """
         lit = self.lighting
         seed = self.seed if seed is None else int(seed)
@@ -679,10 +727,11 @@ class MonteCarloShader:
             rough = roughness  # the per-vertex array, validated when the shader was built
         else:
             rough = self.upload_roughness(roughness, points.shape[0], "roughness")
+        tang = self._no_tangents if tangents is None else self.upload_tangents(tangents, points.shape[0])
 
         def inputs(start, stop):
             return [
-                self.bvh.id, points, normals, tint, receivers, start, self.brdf, rough, self.has_eye, self.eye,
+                self.bvh.id, points, normals, tint, receivers, start, self.brdf, rough, tang, self.has_eye, self.eye,
                 lit.environment, lit.lights, self.strategy, self.replicates, self.points_per_replicate, self.bounces,
                 self.surfaces, seed, self.bvh.offset, radiance, stderr,
             ]
@@ -701,7 +750,10 @@ class MonteCarloShader:
         """
         self.update(points, normals)
         roughness = self.roughness if self.roughness.shape[0] > 0 else None
-        self.shade_points(points, normals, self.tint, self.receivers, self.radiance, self.stderr, roughness=roughness)
+        if self._uv_tangents is not None:
+            self._uv_tangents.compute(points, normals, self.tangents)
+        self.shade_points(points, normals, self.tint, self.receivers, self.radiance, self.stderr, roughness=roughness,
+                          tangents=self.tangents)
 
     def shade(self, frame) -> ShadingResult:
         """Evaluate the scene at ``frame`` (a time code), shade and return host copies."""

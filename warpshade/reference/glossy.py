@@ -50,6 +50,9 @@ class GlossyReferenceShader(MonteCarloShader):
             (vertex_count, 3), finite and >= 0 (a specular colour texture sampled at the vertices).
         roughness: per-vertex microfacet alpha overriding ``brdf.roughness`` (GGX / Beckmann),
             shape (vertex_count,), in (0, 2]; None (default): ``brdf``'s own everywhere.
+        tangents: the tangent direction of an anisotropic BRDF (``ward``, ``ashikhmin-shirley``,
+            ``beckmann-anisotropic``): ``"uv"``, one world direction or one per vertex
+            (:class:`~warpshade.reference.estimator.MonteCarloShader`).
 
     Attributes:
         color: the RGB factor, wp.vec3 (None when it is given per vertex: see ``tint``); eye:
@@ -61,7 +64,7 @@ class GlossyReferenceShader(MonteCarloShader):
     """
 
     def __init__(self, scene, brdf, eye=None, lighting=None, samples: int = 256, method: str = "mis", color=(1.0, 1.0, 1.0),
-                 device=None, seed: int = 0, vertices=None, workers=None, roughness=None):
+                 device=None, seed: int = 0, vertices=None, workers=None, roughness=None, tangents=None):
         strategy_index(method, GLOSSY_METHODS, _CALLER)  # a bad method is reported before a missing camera
         if eye is None:
             if scene.camera is None:
@@ -71,7 +74,8 @@ class GlossyReferenceShader(MonteCarloShader):
         self.color = rows if isinstance(rows, wp.vec3) else None
         tint = np.asarray(rows, np.float32)
         super().__init__(scene, brdf, tint, method, GLOSSY_METHODS, _CALLER, eye=eye, lighting=lighting, samples=samples,
-                         device=device, seed=seed, vertices=vertices, workers=workers, roughness=roughness)
+                         device=device, seed=seed, vertices=vertices, workers=workers, roughness=roughness,
+                         tangents=tangents)
 
 
 def _color_rows(color, vertex_count: int):
@@ -88,7 +92,8 @@ def _color_rows(color, vertex_count: int):
 
 
 def shade_glossy(scene, frame, brdf, eye=None, lighting=None, samples: int = 256, color=(1.0, 1.0, 1.0), device=None,
-                 method: str = "mis", seed: int = 0, vertices=None, workers=None, roughness=None) -> ShadingResult:
+                 method: str = "mis", seed: int = 0, vertices=None, workers=None, roughness=None,
+                 tangents=None) -> ShadingResult:
     """Ray-traced glossy radiance towards ``eye`` of every (or the selected) vertex at one frame.
 
     See the module docstring for the integral and the estimators; arguments as
@@ -97,4 +102,4 @@ def shade_glossy(scene, frame, brdf, eye=None, lighting=None, samples: int = 256
     (receiver_count, 3), float32, linear RGB).
     """
     return GlossyReferenceShader(scene, brdf, eye, lighting, samples, method, color, device, seed, vertices,
-                                 workers, roughness).shade(frame)
+                                 workers, roughness, tangents).shade(frame)

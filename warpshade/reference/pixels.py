@@ -336,9 +336,35 @@ def _check_include(include):
     return tuple(p for p in PARTS if p in parts)
 
 
+def _tangent_rays(scene, state, gb, tangents, count):
+    """Per-ray tangent directions (wp.array(vec3), (count,)) of ``reference_image``'s ``tangents``."""
+    dev = gb.hit.device
+    if isinstance(tangents, str):
+        if tangents != "uv":
+            raise ValueError(f"{_CALLER}: tangents must be 'uv', 3 floats or one row per ray, got {tangents!r}")
+        from ..geometry.uv_tangents import UVTangents
+
+        if all(m.uvs is None for m in scene.meshes):
+            raise ValueError(f"{_CALLER}: tangents = 'uv' needs UVs, and no mesh of {scene.source or '<arrays>'} has them")
+        per_vertex = wp.zeros(scene.vertex_count, dtype=wp.vec3, device=dev)
+        UVTangents.from_scene(scene, dev).compute(state.points, state.normals, per_vertex)
+        rays = interpolate_vertex_values(gb, per_vertex).numpy()
+        # misses (and tangents that cancel over a triangle) take +x: projected, or the normal's basis, in the kernel
+        rays[~(np.linalg.norm(rays, axis=1) > 0.0)] = (1.0, 0.0, 0.0)
+        return wp.array(rays, dtype=wp.vec3, device=dev)
+    arr = np.asarray(tangents, np.float64)
+    if arr.shape == (3,):
+        arr = np.broadcast_to(arr, (count, 3))
+    if arr.shape != (count, 3) or not np.all(np.isfinite(arr)) or np.any(np.linalg.norm(arr, axis=-1) == 0.0):
+        raise ValueError(f"{_CALLER}: tangents must be 'uv', 3 finite floats or ({count}, 3) finite nonzero rows, "
+                         f"got shape {arr.shape}")
+    return wp.array(np.ascontiguousarray(arr, np.float32), dtype=wp.vec3, device=dev)
+
+
 def reference_image(scene, frame, brdf, camera=None, width: int = 160, height: int = 120, samples: int = 256,
                     supersample: int = 1, eye=None, lighting=None, roughness=None, specular=None, albedo=None,
-                    include=PARTS, seed: int = 0, device=None, workers=None, method: str = "mis") -> PixelReference:
+                    include=PARTS, seed: int = 0, device=None, workers=None, method: str = "mis",
+                    tangents=None) -> PixelReference:
     """Per-pixel ray-traced reference of the surface a camera sees (module docstring).
 
     Args:
@@ -362,6 +388,11 @@ def reference_image(scene, frame, brdf, camera=None, width: int = 160, height: i
         device: Warp device (None = Warp's default); workers: CPU launch threads.
         method: environment estimator, "brdf", "light" or "mis" (for the diffuse part the
             same strategy: "cosine", "light" or "mis").
+        tangents: the tangent direction of an anisotropic BRDF (``ward``, ``ashikhmin-shirley``,
+            ``beckmann-anisotropic``) at every hit: ``"uv"`` (the direction of increasing u of the
+            meshes' UVs, :mod:`warpshade.geometry.uv_tangents`, interpolated at the hit), one
+            world direction (3 floats), or one per ray (ray_count, 3); projected on each hit's
+            tangent plane. None: the BRDF's own frame about each normal (isotropic BRDFs).
 
     Returns:
         :class:`PixelReference` with (height, width) images.
@@ -394,15 +425,17 @@ def reference_image(scene, frame, brdf, camera=None, width: int = 160, height: i
         rough = glossy.upload_roughness(rough, count, "roughness")
     diffuse_albedo = None if albedo is None else _per_ray(albedo, ray_height, ray_width, 3, "albedo", hits.hit)
 
+    tangent_rays = None if tangents is None else _tangent_rays(scene, state, gb, tangents, count)
+
     receivers_np = np.nonzero(hits.hit)[0].astype(np.int32)
     receivers = wp.array(receivers_np, dtype=wp.int32, device=dev)
 
-    def shade(shader, tint_rays, part_seed, roughness_rays=None):
+    def shade(shader, tint_rays, part_seed, roughness_rays=None, tangent_rays=None):
         out_r = wp.zeros(receivers.shape[0], dtype=wp.vec3, device=dev)
         out_s = wp.zeros(receivers.shape[0], dtype=wp.vec3, device=dev)
         if receivers.shape[0] > 0:
             shader.shade_points(gb.position, gb.normal, tint_rays, receivers, out_r, out_s, seed=part_seed,
-                                roughness=roughness_rays)
+                                roughness=roughness_rays, tangents=tangent_rays)
         images = []
         for values, rss in ((out_r, 0), (out_s, 1)):
             full = wp.zeros(count, dtype=wp.vec3, device=dev)
@@ -416,7 +449,7 @@ def reference_image(scene, frame, brdf, camera=None, width: int = 160, height: i
     results = {}
     if "specular" in parts:
         tint_rays = wp.array(np.ones((count, 3), np.float32) if tint is None else tint, dtype=wp.vec3, device=dev)
-        results["specular"] = shade(glossy, tint_rays, int(seed), rough)
+        results["specular"] = shade(glossy, tint_rays, int(seed), rough, tangent_rays)
     if "diffuse" in parts:
         diffuse = ReferenceShader(scene, lighting, samples, METHODS[GLOSSY_METHODS.index(method)], dev, int(seed) + DIFFUSE_SEED_OFFSET,
                                   vertices=[0], workers=workers)

@@ -25,7 +25,7 @@ BRDF_USES = {
     "tabulated": ("file", "channel", "interpolation"),
 }
 _DEFAULTS = {"roughness": 0.3, "exponent": 30.0, "f0": 0.04, "specular": 1.0, "albedo": 1.0, "file": None,
-             "channel": "luminance", "interpolation": "nearest"}
+             "channel": "rgb", "interpolation": "nearest"}
 
 
 def make_brdf(kind: str, roughness: float | None = None, exponent: float | None = None, f0: float | None = None,

@@ -93,6 +93,18 @@ def sky_radiance(
     return img + w[..., None] * np.asarray(sun_radiance)
 
 
+def _check_size(height, width, caller: str) -> None:
+    """A lat-long map size: integers >= 1 each, within the texel limit of environment maps."""
+    from .._limits import MAX_IMAGE_PIXELS
+
+    for name, value in (("height", height), ("width", width)):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+            raise ValueError(f"{caller}: {name} must be an integer >= 1, got {value!r}")
+    if int(height) * int(width) > MAX_IMAGE_PIXELS:
+        raise ValueError(f"{caller}: {height} x {width} texels exceed the {MAX_IMAGE_PIXELS} an environment map "
+                         "may have")
+
+
 def up_rotation(up_axis: str) -> np.ndarray:
     """Rotation taking the z-up map frame to a world whose up axis is ``up_axis`` ("Y" or "Z").
 
@@ -174,6 +186,11 @@ class Environment:
             raise ValueError(f"environment {self.path or '<array>'}: image must be (H, W, 3), got {img.shape}")
         if not np.all(np.isfinite(img)):
             raise ValueError(f"environment {self.path or '<array>'}: image has NaN or infinite texels")
+        if np.any(img < 0.0):
+            bad = img < 0.0
+            first = tuple(int(i) for i in np.unravel_index(int(np.argmax(bad)), img.shape))
+            raise ValueError(f"environment {self.path or '<array>'}: image has {int(bad.sum())} negative values (radiance "
+                             f"is >= 0), the first at (row, column, channel) = {first}")
         self.image = img
         self.to_world = np.asarray(self.to_world, dtype=np.float64).reshape(3, 3)
 
@@ -181,6 +198,7 @@ class Environment:
     @classmethod
     def constant(cls, rgb=(1.0, 1.0, 1.0), height: int = 8, width: int = 16) -> "Environment":
         """A uniform environment of radiance ``rgb``."""
+        _check_size(height, width, "Environment.constant")
         img = np.broadcast_to(np.asarray(rgb, np.float32).reshape(1, 1, 3), (height, width, 3)).copy()
         return cls(img)
 
@@ -201,6 +219,7 @@ class Environment:
 
         See :func:`sky_radiance`; ``sun_direction`` is given in the map frame.
         """
+        _check_size(height, width, "Environment.sky")
         img = sky_radiance(
             quadrature.latlong_directions(height, width),
             sun_direction=sun_direction,

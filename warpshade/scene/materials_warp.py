@@ -16,6 +16,17 @@ isotropic, so only dot products with ``n`` matter):
   ``pdf_h / (4 |v.h|)``. Samples may fall below the horizon (their ``b`` is 0).
 * :func:`brdf_pdf` -- that pdf for any ``s``.
 
+Anisotropic models (:data:`ANISOTROPIC_MODELS`): anisotropic Ward (``ward``), the specular lobe
+of Ashikhmin and Shirley (``ashikhmin-shirley``) and the anisotropic Beckmann microfacet BRDF
+(``beckmann-anisotropic``: :class:`~warpshade.scene.materials.AnisotropicMicrofacet`) are
+evaluated in the tangent frame ``(t, n x t, n)`` of a tangent direction ``b.tangent`` (world;
+projected on the tangent plane of ``n`` and normalised inside, an orthonormal-basis tangent
+where it is parallel to ``n``), which a receiver may override (:func:`brdf_with_tangent`). All
+three sample a half vector from the anisotropic Beckmann slope distribution
+(``phi_h = atan2(a_y sin 2 pi u2, a_x cos 2 pi u2)``, ``tan^2 theta_h = -ln(1 - u1) /
+(cos^2 phi_h / a_x^2 + sin^2 phi_h / a_y^2)``, density ``D_B(h) cos theta_h``), with Ward's and
+Beckmann's own ``a_x, a_y`` and, for Ashikhmin-Shirley, ``a = sqrt(2 / (n + 2))`` of its exponents.
+
 Spatially varying microfacet roughness: :func:`brdf_with_roughness` is a copy of a
 :class:`BRDFParams` with its ``roughness`` replaced (a per-receiver value read from an array),
 and :func:`check_roughness` validates such an array on the host (only the GGX and Beckmann
@@ -30,6 +41,7 @@ from .._wp import wp
 from . import materials
 
 __all__ = [
+    "ANISOTROPIC_MODELS",
     "BRDF_MODELS",
     "BRDFParams",
     "ROUGHNESS_MAX",
@@ -38,6 +50,7 @@ __all__ = [
     "brdf_pdf",
     "brdf_sample",
     "brdf_with_roughness",
+    "brdf_with_tangent",
     "check_roughness",
     "concentric_footprint",
     "hemisphere_to_concentric",
@@ -47,7 +60,9 @@ __all__ = [
 wp.set_module_options({"enable_backward": False})
 
 #: Model codes of :class:`BRDFParams` (``model`` field), in this order.
-BRDF_MODELS = ("lambert", "phong", "blinn-phong", "ggx", "beckmann")
+BRDF_MODELS = ("lambert", "phong", "blinn-phong", "ggx", "beckmann", "ward", "ashikhmin-shirley", "beckmann-anisotropic")
+#: Model codes evaluated in a tangent frame (``roughness``/``roughness_y`` or ``exponent``/``exponent_y``).
+ANISOTROPIC_MODELS = (5, 6, 7)
 #: Model codes whose ``roughness`` (microfacet alpha) a per-receiver array may override.
 ROUGH_MODELS = (3, 4)
 #: Valid microfacet alpha, as :class:`~warpshade.scene.materials.Microfacet` accepts it: (0, 2].
@@ -62,7 +77,12 @@ class BRDFParams:
         model: index into :data:`BRDF_MODELS`.
         scale: the model's overall factor (Lambert albedo, ``specular`` of the others).
         exponent: Phong / Blinn-Phong exponent.
-        roughness: microfacet alpha; f0: Schlick's reflectance at normal incidence.
+        roughness: microfacet alpha (Ward, anisotropic Beckmann: along the tangent);
+        f0: Schlick's reflectance at normal incidence (Ashikhmin-Shirley: ``rs``).
+        roughness_y: Ward's / anisotropic Beckmann's alpha along the bitangent.
+        exponent_y: Ashikhmin-Shirley's ``nv`` (``exponent`` its ``nu``).
+        tangent: the tangent direction of the anisotropic models, world (per receiver:
+            :func:`brdf_with_tangent`).
     """
 
     model: int
@@ -70,13 +90,28 @@ class BRDFParams:
     exponent: float
     roughness: float
     f0: float
+    roughness_y: float
+    exponent_y: float
+    tangent: wp.vec3
 
 
 def upload_brdf(brdf: materials.BRDF) -> BRDFParams:
     """The :class:`BRDFParams` of a :mod:`~warpshade.scene.materials` BRDF."""
     p = BRDFParams()
     p.exponent, p.roughness, p.f0 = 0.0, 1.0, 0.0
-    if isinstance(brdf, materials.Lambert):
+    p.roughness_y, p.exponent_y, p.tangent = 0.0, 0.0, wp.vec3(1.0, 0.0, 0.0)
+    name = getattr(brdf, "name", "")
+    if isinstance(brdf, materials.AnisotropicMicrofacet):
+        p.model, p.scale, p.f0 = 7, float(brdf.specular), float(brdf.f0)
+        p.roughness, p.roughness_y = float(brdf.roughness), float(brdf.roughness_y)
+    elif name == "ward" and hasattr(brdf, "alpha_x"):
+        # warpshade.methods.sg.brdf.Ward (a layer above: recognised by its attributes)
+        p.model, p.scale = 5, float(brdf.specular)
+        p.roughness, p.roughness_y = float(brdf.alpha_x), float(brdf.alpha_y)
+    elif name == "ashikhmin-shirley" and hasattr(brdf, "nu"):
+        p.model, p.scale, p.f0 = 6, float(brdf.specular), float(brdf.rs)
+        p.exponent, p.exponent_y = float(brdf.nu), float(brdf.nv)
+    elif isinstance(brdf, materials.Lambert):
         p.model, p.scale = 0, float(brdf.albedo)
     elif isinstance(brdf, materials.Phong):
         p.model, p.scale, p.exponent = 1, float(brdf.specular), float(brdf.exponent)
@@ -87,7 +122,7 @@ def upload_brdf(brdf: materials.BRDF) -> BRDFParams:
         p.scale, p.roughness, p.f0 = float(brdf.specular), float(brdf.roughness), float(brdf.f0)
     else:
         raise ValueError(f"upload_brdf: unsupported BRDF {type(brdf).__name__} (models: {', '.join(BRDF_MODELS)})")
-    if not all(np.isfinite([p.scale, p.exponent, p.roughness, p.f0])):
+    if not all(np.isfinite([p.scale, p.exponent, p.roughness, p.f0, p.roughness_y, p.exponent_y])):
         raise ValueError(f"upload_brdf: non-finite parameters in {brdf!r}")
     return p
 
@@ -132,7 +167,129 @@ def brdf_with_roughness(b: BRDFParams, roughness: float) -> BRDFParams:
     out.exponent = b.exponent
     out.roughness = roughness
     out.f0 = b.f0
+    out.roughness_y = b.roughness_y
+    out.exponent_y = b.exponent_y
+    out.tangent = b.tangent
     return out
+
+
+@wp.func
+def brdf_with_tangent(b: BRDFParams, tangent: wp.vec3) -> BRDFParams:
+    """A copy of ``b`` with its tangent direction (anisotropic models) replaced."""
+    out = brdf_with_roughness(b, b.roughness)
+    out.tangent = tangent
+    return out
+
+
+@wp.func
+def tangent_frame(b: BRDFParams, n: wp.vec3) -> wp.mat33:
+    """Rows (t, n x t, n): ``b.tangent`` projected on the tangent plane of ``n``, normalised (an
+    orthonormal-basis tangent where it is parallel to ``n``)."""
+    t = b.tangent - wp.dot(b.tangent, n) * n
+    tl = wp.length(t)
+    if tl > 1.0e-6:
+        t = t / tl
+    else:
+        sign = wp.where(n[2] >= 0.0, 1.0, -1.0)
+        a = -1.0 / (sign + n[2])
+        t = wp.vec3(1.0 + sign * n[0] * n[0] * a, sign * n[0] * n[1] * a, -sign * n[0])
+    bt = wp.cross(n, t)
+    return wp.mat33(t[0], t[1], t[2], bt[0], bt[1], bt[2], n[0], n[1], n[2])
+
+
+@wp.func
+def _slope_alphas(b: BRDFParams) -> wp.vec2:
+    """(a_x, a_y) of the anisotropic Beckmann slope distribution the anisotropic models sample."""
+    if b.model == 6:
+        return wp.vec2(wp.sqrt(2.0 / (b.exponent + 2.0)), wp.sqrt(2.0 / (b.exponent_y + 2.0)))
+    return wp.vec2(b.roughness, b.roughness_y)
+
+
+@wp.func
+def _beckmann_aniso_d(h: wp.vec3, ax: float, ay: float) -> float:
+    """Anisotropic Beckmann ``exp(-(h_x^2 / a_x^2 + h_y^2 / a_y^2) / h_z^2) / (pi a_x a_y h_z^4)`` (local h)."""
+    z = h[2]
+    if z <= 1.0e-6:
+        return 0.0
+    z2 = z * z
+    q = (h[0] * h[0] / (ax * ax) + h[1] * h[1] / (ay * ay)) / z2
+    return wp.exp(-q) / (wp.pi * ax * ay * z2 * z2)
+
+
+@wp.func
+def _beckmann_aniso_lambda(w: wp.vec3, ax: float, ay: float) -> float:
+    """Smith's Lambda of the anisotropic Beckmann distribution (rational fit) for a local direction."""
+    c = wp.clamp(w[2], 1.0e-6, 1.0)
+    s2 = wp.max(1.0 - c * c, 0.0)
+    if s2 <= 0.0:
+        return 0.0
+    alpha = wp.sqrt((w[0] * w[0] * ax * ax + w[1] * w[1] * ay * ay) / s2)
+    a = c / (alpha * wp.sqrt(s2))
+    if a >= 1.6:
+        return 0.0
+    return (1.0 - 1.259 * a + 0.396 * a * a) / (3.535 * a + 2.181 * a * a)
+
+
+@wp.func
+def _anisotropic_eval(b: BRDFParams, n: wp.vec3, v: wp.vec3, s: wp.vec3) -> float:
+    """Models 5-7 (``v``, ``s`` above the horizon of ``n``)."""
+    frame = tangent_frame(b, n)
+    vl = frame * v
+    sl = frame * s
+    h = vl + sl
+    hl = wp.length(h)
+    if hl <= 1.0e-12:
+        return 0.0
+    h = h / hl
+    co = wp.max(vl[2], 1.0e-6)
+    ci = wp.max(sl[2], 1.0e-6)
+    if b.model == 5:
+        if h[2] <= 0.0:
+            return 0.0
+        q = (h[0] * h[0] / (b.roughness * b.roughness) + h[1] * h[1] / (b.roughness_y * b.roughness_y)) / (h[2] * h[2])
+        return b.scale * wp.exp(-q) / (4.0 * wp.pi * b.roughness * b.roughness_y * wp.sqrt(co * ci))
+    oh = wp.clamp(wp.dot(vl, h), 0.0, 1.0)
+    if b.model == 6:
+        z = wp.clamp(h[2], 0.0, 1.0)
+        if z <= 0.0:
+            return 0.0
+        r2 = h[0] * h[0] + h[1] * h[1]
+        e = 0.5 * (b.exponent + b.exponent_y)
+        if r2 > 1.0e-12:
+            e = (b.exponent * h[0] * h[0] + b.exponent_y * h[1] * h[1]) / r2
+        norm = b.scale * wp.sqrt((b.exponent + 1.0) * (b.exponent_y + 1.0)) / (8.0 * wp.pi)
+        x = 1.0 - oh
+        x2 = x * x
+        f = b.f0 + (1.0 - b.f0) * x2 * x2 * x
+        return norm * wp.exp(e * wp.log(z)) * f / (wp.max(oh, 1.0e-6) * wp.max(co, ci))
+    d = _beckmann_aniso_d(h, b.roughness, b.roughness_y)
+    fresnel = b.f0 + (1.0 - b.f0) * wp.pow(1.0 - oh, 5.0)
+    g = 1.0 / ((1.0 + _beckmann_aniso_lambda(vl, b.roughness, b.roughness_y)) *
+               (1.0 + _beckmann_aniso_lambda(sl, b.roughness, b.roughness_y)))
+    return b.scale * d * fresnel * g / (4.0 * co * ci)
+
+
+@wp.func
+def _anisotropic_half(b: BRDFParams, n: wp.vec3, u1: float, u2: float) -> wp.vec3:
+    """A world half vector from the anisotropic Beckmann slope distribution of :func:`_slope_alphas`."""
+    al = _slope_alphas(b)
+    ang = 2.0 * wp.pi * u2
+    phi = wp.atan2(al[1] * wp.sin(ang), al[0] * wp.cos(ang))
+    cp = wp.cos(phi)
+    sp = wp.sin(phi)
+    tan2 = -wp.log(wp.max(1.0 - u1, 1.0e-30)) / (cp * cp / (al[0] * al[0]) + sp * sp / (al[1] * al[1]))
+    cos_t = 1.0 / wp.sqrt(1.0 + tan2)
+    sin_t = wp.sqrt(wp.max(0.0, 1.0 - cos_t * cos_t))
+    frame = tangent_frame(b, n)
+    return wp.normalize(wp.transpose(frame) * wp.vec3(sin_t * cp, sin_t * sp, cos_t))
+
+
+@wp.func
+def _anisotropic_half_pdf(b: BRDFParams, n: wp.vec3, h: wp.vec3) -> float:
+    """Density per steradian of :func:`_anisotropic_half` at the world half vector ``h``."""
+    al = _slope_alphas(b)
+    hl = tangent_frame(b, n) * h
+    return _beckmann_aniso_d(hl, al[0], al[1]) * wp.max(hl[2], 0.0)
 
 
 @wp.func
@@ -175,6 +332,8 @@ def brdf_eval(b: BRDFParams, n: wp.vec3, v: wp.vec3, s: wp.vec3) -> float:
         r = 2.0 * nv * n - v
         c = wp.max(wp.dot(r, s), 0.0)
         return b.scale * (b.exponent + 2.0) / (2.0 * wp.pi) * wp.pow(c, b.exponent)
+    if b.model >= 5:
+        return _anisotropic_eval(b, n, v, s)
     h = v + s
     hl = wp.length(h)
     if hl <= 1.0e-12:
@@ -232,6 +391,9 @@ def brdf_sample(b: BRDFParams, n: wp.vec3, v: wp.vec3, u1: float, u2: float) -> 
     if b.model == 1:
         r = 2.0 * wp.dot(n, v) * n - v
         return _about(wp.normalize(r), wp.pow(wp.max(u1, 1.0e-30), 1.0 / (b.exponent + 1.0)), phi)
+    if b.model >= 5:
+        ha = _anisotropic_half(b, n, u1, u2)
+        return wp.normalize(2.0 * wp.dot(v, ha) * ha - v)
     h = _about(n, _half_cos(b, u1), phi)
     return wp.normalize(2.0 * wp.dot(v, h) * h - v)
 
@@ -253,6 +415,8 @@ def brdf_pdf(b: BRDFParams, n: wp.vec3, v: wp.vec3, s: wp.vec3) -> float:
     vh = wp.abs(wp.dot(v, h))
     if vh <= 1.0e-12:
         return 0.0
+    if b.model >= 5:
+        return _anisotropic_half_pdf(b, n, h) / (4.0 * vh)
     return _half_pdf(b, wp.dot(n, h)) / (4.0 * vh)
 
 

@@ -83,8 +83,8 @@ on (the SH projections sum values times quadrature weights and lighting)."""
 LUMINANCE_WEIGHTS = (0.2126, 0.7152, 0.0722)
 """Rec. 709 luminance of linear RGB."""
 
-_CHANNELS = {"luminance": None, "r": 0, "g": 1, "b": 2, 0: 0, 1: 1, 2: 2}
-_CHANNEL_NAMES = {None: "luminance", 0: "r", 1: "g", 2: "b"}
+_CHANNELS = {"rgb": "rgb", "luminance": None, "r": 0, "g": 1, "b": 2, 0: 0, 1: 1, 2: 2}
+_CHANNEL_NAMES = {"rgb": "rgb", None: "luminance", 0: "r", 1: "g", 2: "b"}
 _INTERPOLATIONS = ("nearest", "linear")
 
 
@@ -195,7 +195,7 @@ def _periodic_axis(u, n: int):
 def _canonical_channel(channel):
     key = channel.lower() if isinstance(channel, str) else channel
     if isinstance(key, (bool, np.bool_)) or key not in _CHANNELS:
-        raise ValueError(f"TabulatedBRDF: channel must be 'luminance', 'r', 'g', 'b', 0, 1 or 2, got {channel!r}")
+        raise ValueError(f"TabulatedBRDF: channel must be 'rgb', 'luminance', 'r', 'g', 'b', 0, 1 or 2, got {channel!r}")
     return _CHANNELS[key]
 
 
@@ -208,8 +208,10 @@ class TabulatedBRDF(BRDF):
         table: BRDF values (already times the channel scales), shape (3, n_theta_h, n_theta_d,
             n_phi_d), float64; negative entries are invalid (unmeasured) cells. Stored as a
             read-only copy.
-        channel: what :meth:`evaluate` returns: "luminance" (``LUMINANCE_WEIGHTS . rgb``), or one
-            channel, "r" / "g" / "b" (or 0 / 1 / 2; stored as the letter).
+        channel: the colour it shades: "rgb" (each channel its own BRDF: :meth:`color_channels`
+            gives the three, and :meth:`evaluate` returns their luminance, the scalar shape),
+            "luminance" (``LUMINANCE_WEIGHTS . rgb``, grey), or one channel, "r" / "g" / "b"
+            (or 0 / 1 / 2; stored as the letter).
         interpolation: "nearest" (the MERL reference lookup) or "linear" (trilinear in the cell
             index space).
         source: the file it came from, or "<array>".
@@ -218,7 +220,7 @@ class TabulatedBRDF(BRDF):
     """
 
     table: np.ndarray = field(repr=False)
-    channel: str = "luminance"
+    channel: str = "rgb"
     interpolation: str = "nearest"
     source: str = "<array>"
     name = "tabulated"
@@ -244,7 +246,7 @@ class TabulatedBRDF(BRDF):
         object.__setattr__(self, "_hash", digest)
 
     @classmethod
-    def from_brdf(cls, brdf: BRDF, dims=MERL_DIMS, rgb=(1.0, 1.0, 1.0), channel="luminance",
+    def from_brdf(cls, brdf: BRDF, dims=MERL_DIMS, rgb=(1.0, 1.0, 1.0), channel="rgb",
                   interpolation="nearest") -> TabulatedBRDF:
         """Tabulate ``brdf`` in memory (:func:`tabulate`); invalid cells hold -1."""
         return cls(tabulate(brdf, dims, rgb), channel, interpolation, "<array>")
@@ -262,6 +264,13 @@ class TabulatedBRDF(BRDF):
         return {"model": self.name, "source": self.source, "channel": self.channel,
                 "interpolation": self.interpolation, "dims": list(self.dims), "table_sha1": self.content_hash}
 
+    def color_channels(self) -> tuple | None:
+        """The three single-channel BRDFs ("r", "g", "b") of a colour table (``channel = "rgb"``),
+        which shaders that honour colour use one per channel; None for a grey one."""
+        if self.channel != "rgb":
+            return None
+        return tuple(TabulatedBRDF(self.table, c, self.interpolation, self.source) for c in ("r", "g", "b"))
+
     def rgb(self, view, light) -> np.ndarray:
         """All three channels, (..., 3), float64; 0 below the horizon."""
         v = _unit(view, f"{self.name}: view")
@@ -273,7 +282,7 @@ class TabulatedBRDF(BRDF):
 
     def _eval(self, v, s):
         c = _CHANNELS[self.channel]
-        if c is not None:
+        if c is not None and c != "rgb":
             return self._lookup(v, s, (c,))[0]
         r, g, b = self._lookup(v, s, (0, 1, 2))
         wr, wg, wb = LUMINANCE_WEIGHTS
@@ -370,12 +379,13 @@ def write_merl(path, brdf: BRDF, dims=MERL_DIMS, rgb=(1.0, 1.0, 1.0)) -> Path:
     return path
 
 
-def read_merl(path, channel="luminance", interpolation="nearest") -> TabulatedBRDF:
+def read_merl(path, channel="rgb", interpolation="nearest") -> TabulatedBRDF:
     """Read a MERL ``.binary`` file into a :class:`TabulatedBRDF` (values times the scales).
 
-    The glossy stages shade one channel of a BRDF (``channel``: its luminance by default) times
-    their RGB ``specular`` colour; a coloured table read as its luminance warns (UserWarning)
-    with the colour to give ``specular``.
+    By default (``channel = "rgb"``) the table keeps its colour: a glossy stage shades each
+    channel with that channel's BRDF (RPO builds one set of operators per channel), times its RGB
+    ``specular`` factor. ``"luminance"`` shades the grey luminance (a coloured table read so warns,
+    UserWarning, with the colour to give ``specular``); ``"r"``, ``"g"`` or ``"b"`` one channel.
 
     Raises:
         ValueError: naming the file, when it is missing or not a file, shorter than the header,

@@ -11,6 +11,11 @@ rotations differ from pose to pose, so the Monte Carlo noise of the training tra
 independent across poses and the least-squares fit averages it down (a fixed seed would give
 every pose the same noise pattern, which the bias term would then learn).
 
+Quantity: ``"transfer"`` (the diffuse transfer, with or without bounces: this model's training
+data) or ``"visibility"`` (SH of the binary visibility alone, no cosine, directions below the
+tangent plane counted open as in :mod:`warpshade.methods.rpo`: the training data of the
+data-driven visibility model, :mod:`warpshade.methods.visibility`).
+
 Resuming: given a cache, each task's transfer is stored there as soon as the task finishes,
 under a key of everything that determines it (:func:`task_key`), so that a run interrupted
 (Ctrl-C, a failing task, a killed process) traces only the tasks it had not finished when run
@@ -99,15 +104,26 @@ def parse_frame_selection(spec, scene, where: str) -> np.ndarray:
     return idx
 
 
+#: What a task traces (:func:`trace_task`).
+QUANTITIES = ("transfer", "visibility")
+
+
 def trace_task(task: dict) -> np.ndarray:
     """Transfer of the task's frames: (frames, V, C) for the direct transfer, (frames, V, 3 * C)
-    with bounces (channel-major per vertex: ``[r coefficients, g ..., b ...]``), float32."""
+    with bounces (channel-major per vertex: ``[r coefficients, g ..., b ...]``), float32; or, with
+    ``task["quantity"] == "visibility"``, the SH visibility (frames, V, C), open below the horizon."""
     from ...transfer import compute
 
     scene = task["scene"]
     out = []
+    quantity = task.get("quantity", "transfer")
     for index, seed in zip(task["frame_indices"], task["seeds"]):
         frame = float(scene.frames[int(index)])
+        if quantity == "visibility":
+            res = compute(scene, frame, task["order"], task["samples"], space=task["space"], seed=int(seed),
+                          below_horizon="visible")
+            out.append(np.asarray(res.visibility, np.float32))
+            continue
         res = compute(scene, frame, task["order"], task["samples"], space=task["space"], seed=int(seed),
                       bounces=task["bounces"]) if task["bounces"] else \
             compute(scene, frame, task["order"], task["samples"], space=task["space"], seed=int(seed))
@@ -120,11 +136,14 @@ def trace_task(task: dict) -> np.ndarray:
 
 def task_key(scene_fingerprint: str, task: dict) -> str:
     """The cache key of one task's transfer: the training scene's content, the task's frames and
-    their seeds, order, samples, bounces, space and :data:`TASK_VERSION`."""
-    return "datadriven-task-" + hash_json({
-        "scene": scene_fingerprint, "frame_indices": [int(i) for i in task["frame_indices"]],
-        "seeds": [int(s) for s in task["seeds"]], "order": task["order"], "samples": task["samples"],
-        "space": task["space"], "bounces": task["bounces"], "version": TASK_VERSION})[:32]
+    their seeds, order, samples, bounces, space, the quantity (when not the transfer) and
+    :data:`TASK_VERSION`."""
+    key = {"scene": scene_fingerprint, "frame_indices": [int(i) for i in task["frame_indices"]],
+           "seeds": [int(s) for s in task["seeds"]], "order": task["order"], "samples": task["samples"],
+           "space": task["space"], "bounces": task["bounces"], "version": TASK_VERSION}
+    if task.get("quantity", "transfer") != "transfer":
+        key["quantity"] = task["quantity"]
+    return "datadriven-task-" + hash_json(key)[:32]
 
 
 def _cached_transfer(cache, key: str, task: dict, vertex_count: int) -> np.ndarray | None:
@@ -144,10 +163,11 @@ def _cached_transfer(cache, key: str, task: dict, vertex_count: int) -> np.ndarr
 
 def trace_training(scene, frame_indices, order: int, samples: int, seed: int = 0, bounces: int = 0,
                    space: str = "world", executor=None, progress: bool = False, cache=None,
-                   report: dict | None = None) -> np.ndarray:
+                   report: dict | None = None, quantity: str = "transfer") -> np.ndarray:
     """Training transfer at ``frame_indices`` of ``scene``, (p, V, C or 3C) float32.
 
     Args:
+        quantity: ``"transfer"`` or ``"visibility"`` (:data:`QUANTITIES`; visibility has no bounces).
         executor: a :class:`warpshade.tasks.Executor` (default: :func:`warpshade.tasks.executor`,
             closed afterwards).
         cache: where each finished task's transfer is kept until all are assembled (an
@@ -160,13 +180,16 @@ def trace_training(scene, frame_indices, order: int, samples: int, seed: int = 0
     """
     from ...tasks import TaskError, executor as new_executor
 
+    if quantity not in QUANTITIES or (quantity == "visibility" and bounces):
+        raise ValueError(f"trace_training: quantity must be one of {QUANTITIES} (visibility without bounces), "
+                         f"got {quantity!r} with bounces={bounces}")
     frame_indices = np.asarray(frame_indices, np.int64)
     seeds = [frame_seed(seed, i) for i in frame_indices]
     tasks = []
     for lo in range(0, len(frame_indices), FRAMES_PER_TASK):
         tasks.append({"scene": scene, "frame_indices": frame_indices[lo:lo + FRAMES_PER_TASK].tolist(),
                       "seeds": seeds[lo:lo + FRAMES_PER_TASK], "order": int(order), "samples": int(samples),
-                      "space": space, "bounces": int(bounces)})
+                      "space": space, "bounces": int(bounces), "quantity": quantity})
     if cache is not None and not getattr(cache, "enabled", True):
         cache = None
     keys, parts = [], [None] * len(tasks)
@@ -178,7 +201,7 @@ def trace_training(scene, frame_indices, order: int, samples: int, seed: int = 0
     cached = len(tasks) - len(missing)
     if report is not None:
         report.update(tasks=len(tasks), tasks_cached=cached)
-    desc = f"training transfer ({len(frame_indices)} frames" + (f", {cached} of {len(tasks)} tasks from an "
+    desc = f"training {quantity} ({len(frame_indices)} frames" + (f", {cached} of {len(tasks)} tasks from an "
                                                                "interrupted run)" if cached else ")")
 
     def keep(j: int, transfer) -> None:

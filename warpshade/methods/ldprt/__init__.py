@@ -3,13 +3,15 @@
 Transfer is ray traced once in each vertex's tangent frame, fitted with a few ZH lobes, and
 rotated with the surface every frame (``ldprt.fit`` -> ``ldprt.frames`` -> ``ldprt.shade``);
 parametric models (thin membrane, sinusoidal wrinkles) and glossy LDPRT build on the same
-lobes. Captures local shadowing that moves with the surface; distant occlusion that changes
+lobes, and so do texture patches (Sec. 5): a tileable height field's transfer fitted per texel
+(``ldprt.patch``) and mapped by UV onto a deforming surface, per vertex and per pixel
+(``ldprt.patch_shade``, :mod:`.patch`, :mod:`.patch_warp`). Captures local shadowing that moves with the surface; distant occlusion that changes
 with the pose (an arm over the torso) is not modelled.
 
 Modules, in the shape of every method (see :mod:`warpshade.methods.prt`): :mod:`.stages`,
 :mod:`.kernels`, :mod:`.model` (the fitted lobes), :mod:`.mirror` (float64 mirrors),
 :mod:`.rows` (harness settings), :mod:`.budget` (candidate settings); and the variants
-:mod:`.glossy`, :mod:`.membrane`, :mod:`.wrinkle`.
+:mod:`.glossy`, :mod:`.membrane`, :mod:`.wrinkle`, :mod:`.patch` (with its kernels :mod:`.patch_warp`).
 """
 
 from .model import LDPRTModel, fit_transfer, local_transfer

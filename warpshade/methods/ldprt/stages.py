@@ -32,24 +32,31 @@ from __future__ import annotations
 import numpy as np
 
 from ..._limits import MAX_FIT_RESTARTS, MAX_LOOKUP_TABLE_WIDTH, MAX_VIEW_RESOLUTION
-from ..._wp import wp
+from ..._wp import launch_parallel, wp
 from ...basis.zh import DEFAULT_RIDGE as _RIDGE
 from ...basis.sh_warp import sh_kernels
 from ..common import ShLighting, order_param, rays_param
 from ..stage import FrameStage, Param, Port, PrecomputeStage, StageError, register_stage
 from . import kernels
 from .glossy import BRDF_KINDS
+from . import patch_warp
 from .model import STORED_BANDS, fit_transfer, local_transfer
+from .patch import (PATCH_SHAPES, PatchGeometry, PatchModel, bake_patch, interpolate_at_hits, patch_albedo, patch_heights,
+                    patch_prims)
 
 __all__ = [
     "LdprtGlossyFitStage",
     "LdprtGlossyShadeStage",
     "LdprtMembraneStage",
+    "LdprtPatchShadeStage",
+    "LdprtPatchStage",
     "LdprtWrinkleShadeStage",
     "LdprtWrinkleTableStage",
 ]
 
 _ORDER = order_param(4, minimum=1, maximum=8)
+#: Pixels per CPU chunk below which a per-pixel patch launch is not split over cores.
+PIXEL_CHUNK_MIN = 4096
 _LOBES = Param(4, int, "lobes per vertex (the maximum when target_error is set)", minimum=1, maximum=8)
 _SAMPLES = rays_param(256, "rays per vertex of the transfer simulation")
 _FRAME = Param(None, float, "time code of the bake pose (default: the scene's first frame)")
@@ -540,3 +547,185 @@ class LdprtWrinkleShadeStage(FrameStage):
                                                      self._depth], device=dev)
         wp.launch(self._shade, dim=v, inputs=[self._vertices, self._wrinkle_table, self._lighting.light, self._radiance],
                   device=dev)
+
+
+@register_stage
+class LdprtPatchStage(PrecomputeStage):
+    type_name = "ldprt.patch"
+    version = 2  # 2: per-texel albedo
+    description = "tileable height-field patch: transfer ray traced per texel over its tiled copies, ZH lobes per texel"
+    parameters = {
+        "shape": Param("bumps", str, "height field", choices=PATCH_SHAPES),
+        "texture": Param(None, str, "albedo image (relative to the graph) whose luminance is the height, for "
+                         "shape = 'texture' (dark = low)"),
+        "texture_albedo": Param(True, bool, "shape = 'texture': the image is also the patch's albedo (multiplying "
+                                "the surface's), as the paper's patches"),
+        "resolution": Param(32, int, "texels per side", minimum=4, maximum=256),
+        "height": Param(0.15, float, "peak-to-valley relief in patch widths", minimum=0.0, maximum=4.0),
+        "tiles": Param(3, int, "copies per side the transfer is traced over (odd)", minimum=1, maximum=9),
+        "order": _ORDER,
+        "lobes": _LOBES,
+        "samples": _SAMPLES,
+        "target_error": Param(0.05, float, "per-texel fit error target relative to the RMS transfer norm (None: "
+                              "'lobes' lobes everywhere)", minimum=0.0),
+        "seed": Param(0, int, "seed of the per-texel sample rotations and the fit's restarts"),
+    }
+
+    def __init__(self, name, params=None):
+        super().__init__(name, params)
+        self.uses_scene = False  # the patch is the same on every surface
+
+    def output_ports(self):
+        return {"patch": Port("arrays", (), "per-texel heights and ZH lobes (patch frame: x along u, y along v, z up)")}
+
+    def cache_params(self):
+        return {k: v for k, v in self.params.items() if k != "texture"}
+
+    def _image(self, ctx):
+        """The ``texture`` file's pixels (any texture format, or a .npy height array), float64."""
+        from ...io.textures import read_texture_file
+
+        path = self.params["texture"]
+        if path is None:
+            return None
+        p = ctx.resolve_path(path)
+        if not p.exists():
+            raise StageError(f"stage {self.name!r}: parameter 'texture': no such file {p}")
+        try:
+            img, eight_bit = (np.load(p), False) if p.suffix == ".npy" else read_texture_file(p)
+            img = np.asarray(img, np.float64)
+        except (OSError, ValueError) as exc:
+            raise StageError(f"stage {self.name!r}: parameter 'texture': {exc}") from None
+        self._eight_bit = bool(eight_bit)
+        if not np.all(np.isfinite(img)):
+            raise StageError(f"stage {self.name!r}: parameter 'texture' ({p}) holds {int(np.sum(~np.isfinite(img)))} "
+                             "non-finite values (NaN or inf): no height can be derived from them")
+        return img
+
+    def cache_key(self, ctx):
+        import hashlib
+
+        path = self.params["texture"]
+        return {} if path is None else {"texture": hashlib.sha256(ctx.resolve_path(path).read_bytes()).hexdigest()}
+
+    def precompute(self, ctx, inputs):
+        p = self.params
+        try:
+            image = self._image(ctx)
+            heights = patch_heights(p["shape"], p["resolution"], p["height"], image)
+            albedo = (patch_albedo(image, p["resolution"], self._eight_bit)
+                      if p["shape"] == "texture" and p["texture_albedo"] else None)
+            model, self.report = bake_patch(heights, p["order"], p["samples"], p["lobes"], p["target_error"], p["tiles"],
+                                            ctx.device, p["seed"], albedo=albedo)
+        except ValueError as exc:
+            raise StageError(f"stage {self.name!r}: {exc}") from None
+        return {"patch": model.arrays()}
+
+    def check_artifact(self, outputs):
+        PatchModel.from_arrays(outputs["patch"])
+
+
+@register_stage
+class LdprtPatchShadeStage(FrameStage):
+    type_name = "ldprt.patch_shade"
+    description = "an LDPRT patch mapped by UV onto the deforming surface, lobes in the UV tangent frame (per pixel)"
+    parameters = {
+        "tiling": Param(4.0, float, "patch repeats per unit of UV", minimum=1e-3, maximum=1e4),
+        "prims": Param("", str, "meshes carrying the patch, comma-separated paths (default: every mesh with UVs)"),
+        "detail": Param("patch", str, "'patch', or 'none': the surface without the relief (unshadowed, the patch's "
+                        "albedo kept), to compare",
+                        choices=("patch", "none")),
+        "parallax": Param(True, bool, "per pixel, march the view ray through the heights and shade the texel it "
+                          "meets (false: the texel at the UV, the paper's look-up, no parallax or masking)"),
+        "reference_levels": Param(None, int, "midpoint subdivisions of the displaced surface the per-pixel ground "
+                                  "truth is traced on (default: a fine edge per patch texel)", minimum=0, maximum=6),
+    }
+
+    def input_ports(self):
+        return {"patch": Port("arrays"), "points": Port("vec3", ("V",)), "normals": Port("vec3", ("V",)),
+                "albedo": Port("float32", ("V", 3)), "lighting": Port("lighting")}
+
+    def output_ports(self):
+        return {"radiance": Port("float32", ("V", 3), "outgoing radiance, linear RGB")}
+
+    def setup(self, ctx, inputs):
+        dev = ctx.device
+        try:
+            self.patch = PatchModel.from_arrays(inputs["patch"])
+            self.prims = patch_prims(ctx.scene, self.params["prims"])
+        except ValueError as exc:
+            raise StageError(f"stage {self.name!r}: {exc}") from None
+        self._scene, self._device, self._geometry = ctx.scene, dev, None
+        order = self.patch.order
+        self._lighting = ShLighting(inputs["lighting"], order)
+        uvs, patched = np.zeros((ctx.dims["V"], 2), np.float32), np.zeros(ctx.dims["V"], np.int32)
+        for m in ctx.scene.meshes:
+            if m.path in self.prims:
+                uvs[m.vertex_offset:m.vertex_offset + m.vertex_count] = m.uvs
+                patched[m.vertex_offset:m.vertex_offset + m.vertex_count] = 1
+        self._surface = patch_warp.patch_surface(ctx.scene.faces, uvs, patched, inputs["albedo"], dev)
+        shaded = self.patch if self.params["detail"] == "patch" else self.patch.flattened()
+        self._texture = patch_warp.patch_texture(shaded, self.params["tiling"], dev, self.params["parallax"])
+        self._points, self._normals = inputs["points"], inputs["normals"]
+        self._shade_vertices, self._shade_pixels = patch_warp.patch_kernels(order)
+        self._radiance = wp.zeros((ctx.dims["V"], 3), dtype=wp.float32, device=dev)
+        return {"radiance": self._radiance}
+
+    def launch(self, state):
+        dev, s = self._device, self._surface
+        self._lighting.launch()
+        patch_warp.update_tangents(self._points, s, dev)
+        wp.launch(self._shade_vertices, dim=s.tangents.shape[0],
+                  inputs=[self._normals, s, self._texture, self._lighting.light, self._radiance], device=dev)
+
+    def pixel_materials(self, gbuffer) -> dict:
+        """The per-vertex albedo interpolated at every ray of a G-buffer: ``{"albedo": (N, 3) float32}``."""
+        return {"albedo": interpolate_at_hits(gbuffer, self._surface.albedo.numpy())}
+
+    def render_pixels(self, gbuffer, albedo=None, specular=None, roughness=None, normals=None):
+        """Shade every ray of a G-buffer of the current frame (:mod:`.patch_warp`); ``albedo``
+        (N, 3) and ``normals`` (N, 3) unit vectors replace the interpolated ones (``specular`` and
+        ``roughness`` have no meaning for this diffuse stage and are refused). Returns wp.array(vec3)."""
+        dev, n = self._device, gbuffer.pixel_count
+        if specular is not None or roughness is not None:
+            raise StageError(f"stage {self.name!r}: render_pixels takes no specular or roughness (diffuse patch shading)")
+        normal = gbuffer.normal
+        if normals is not None:
+            a = np.asarray(normals, np.float32)
+            if a.shape != (n, 3) or not np.all(np.isfinite(a)):
+                raise StageError(f"stage {self.name!r}: render_pixels normals must be finite, shape {(n, 3)}; got {a.shape}")
+            normal = wp.array(a, dtype=wp.vec3, device=dev)
+        use = albedo is not None
+        px = np.zeros((n, 3), np.float32) if albedo is None else np.asarray(albedo, np.float32)
+        if px.shape != (n, 3) or not np.all(np.isfinite(px)) or np.any(px < 0):
+            raise StageError(f"stage {self.name!r}: render_pixels albedo must be finite, non-negative, shape {(n, 3)}")
+        out = wp.zeros(n, dtype=wp.vec3, device=dev)
+        pixel_albedo = wp.array(px, dtype=wp.vec3, device=dev)
+
+        def chunk(start, stop):
+            return [gbuffer.hit, normal, gbuffer.face, gbuffer.bary, gbuffer.direction, self._surface, self._texture,
+                    self._lighting.light, pixel_albedo, int(use), start, out]
+
+        launch_parallel(self._shade_pixels, n, chunk, dev, min_count=PIXEL_CHUNK_MIN)
+        return out
+
+    def pixel_reference_model(self, materials=None) -> dict:
+        """The per-pixel ground truth: the diffuse reference traced on the displaced fine mesh
+        (:class:`.patch.PatchGeometry`: ``geometry(frame)`` is its scene at a frame), measured
+        over the pixels of the patched ``prims``."""
+        if self._geometry is None:
+            self._geometry = PatchGeometry(self._scene, self.patch.heights, self.params["tiling"], self.prims,
+                                           self.params["reference_levels"], albedo=self.patch.albedo)
+        return {"include": ("diffuse",), "geometry": self._geometry.scene_at, "prims": list(self.prims)}
+
+    def diagnostics(self) -> dict:
+        counts = np.bincount(self.patch.counts)
+        out = {"texels": int(self.patch.counts.size), "lobes": {int(k): int(c) for k, c in enumerate(counts) if c},
+               "prims": list(self.prims)}
+        if self._geometry is not None:
+            out["reference_levels"], out["patch_size"] = self._geometry.levels, self._geometry.patch_size
+        return out
+
+    def model_bytes(self) -> int:
+        p = self.patch
+        return int(p.axes.nbytes + p.coeffs.nbytes + p.counts.nbytes + p.stored.nbytes)

@@ -4,7 +4,8 @@ Per receiver ``v`` with tangent frame ``F`` (rows tangent, bitangent, normal; a 
 ``a`` is ``F^T a`` in the world), position ``p`` and the eye ``e``:
 
 1. ``wo = F normalize(e - p)`` (local); a view at or below the horizon gives 0 (counted);
-2. the material slot ``s = material[v]``: view weights ``u_b = w_b . y(wo)`` (view order m) and
+2. the material slot ``s = material[v]`` (a colour BRDF: slots ``s, s+1, s+2``, one per channel,
+   steps 2-5 once per channel): view weights ``u_b = w_b . y(wo)`` (view order m) and
    ``F(wo) = sum_b u_b u_b^light`` (the operator form, ``evaluation = "gaunt"``), or
    ``t = sum_b u_b (M_b v)`` with the dense operators (``"matrices"``, the paper's shader);
 3. the visibility ``v`` (local SH; world-frame input is turned by ``F`` first), times the clamped
@@ -22,8 +23,6 @@ evaluations at the lobe axes and is still cheaper: 0.52x / 0.61x / 0.75x the ker
 n = 3 / 4 / 6 (k = 8, 2-core CPU, ``benchmarks/bench_rpo.py``), while the dense matrices cost
 1.06-1.09x the one-product form and re-applying the cosine by eq. 14 1.07-1.58x.
 """
-
-from __future__ import annotations
 
 import functools
 
@@ -66,6 +65,9 @@ class Operators:
         light_sh: light factors ``w_b^light`` per slot, (slots, k, n*n) float32 (``"gaunt"``).
         view_sh: view factors ``w_b``, (slots, k, view_order^2) float32.
         rank: factors used per slot, (slots,) int32 (entries at and after it are ignored).
+        channels: 1 for a slot whose BRDF shades all three colour channels, 3 for the first of
+            three consecutive slots holding a colour BRDF's red, green and blue operators,
+            (slots,) int32.
         matrices: dense operators ``M_b``, (slots, k, n*n, n*n) float32 (``"matrices"``; a
             (1, 1, 1, 1) placeholder otherwise).
         cos_sh: clamped cosine SH, (n*n,) float32 (read when ``cosine = "product"``).
@@ -75,6 +77,7 @@ class Operators:
     light_sh: wp.array3d(dtype=wp.float32)
     view_sh: wp.array3d(dtype=wp.float32)
     rank: wp.array(dtype=wp.int32)
+    channels: wp.array(dtype=wp.int32)
     matrices: wp.array4d(dtype=wp.float32)
     cos_sh: wp.array(dtype=wp.float32)
     specular: wp.vec3
@@ -141,31 +144,10 @@ def shade_kernel(order: int, view_order: int, lighting: str = "rotate", cosine: 
     VIS_WORLD = 1 if visibility_space == "world" else 0
     MATRICES = 1 if evaluation == "matrices" else 0
 
-    @wp.kernel(enable_backward=False, module="unique")
-    def kernel(surface: Receivers, ops: Operators, light: ViewLighting, tables: SHTables, start: int, out: ShadeOutputs):
-        v = wp.tid() + start
-        f = surface.frames[v]
-        d = light.eye[0] - surface.points[v]
-        dl = wp.length(d)
-        wo = wp.vec3(0.0, 0.0, 1.0)
-        if dl > 0.0:
-            wo = f * (d / dl)
-        if wo[2] <= 0.0:
-            out.radiance[v, 0] = 0.0
-            out.radiance[v, 1] = 0.0
-            out.radiance[v, 2] = 0.0
-            wp.atomic_add(out.stats, STAT_BELOW_HORIZON, 1)
-            return
-        s = surface.material[v]
-        yo = view_eval(wo)
-        vis = sh_load(surface.visibility, v)
-        if VIS_WORLD == 1:
-            vis = sh_rotate(vis, f, tables)
-        if COS_PRODUCT == 1:
-            c = vec_t()
-            for i in range(N2):
-                c[i] = ops.cos_sh[i]
-            vis = sh_product(vis, c, tables)
+    @wp.func
+    def _channel_radiance(ops: Operators, light: ViewLighting, tables: SHTables, f: wp.mat33, yo: svk.vec,
+                          vis: vec_t, s: int):
+        """Steps 2-5 for material slot ``s``: the RGB radiance before the colour and the clamp."""
         t = vec_t()
         if MATRICES == 1:
             for b in range(ops.rank[s]):
@@ -199,6 +181,41 @@ def shade_kernel(order: int, view_order: int, lighting: str = "rotate", cosine: 
             tw = sh_rotate(t, wp.transpose(f), tables)
             for i in range(N2):
                 r = r + tw[i] * wp.vec3(light.sh[0, i], light.sh[1, i], light.sh[2, i])
+        return r
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def kernel(surface: Receivers, ops: Operators, light: ViewLighting, tables: SHTables, start: int, out: ShadeOutputs):
+        v = wp.tid() + start
+        f = surface.frames[v]
+        d = light.eye[0] - surface.points[v]
+        dl = wp.length(d)
+        wo = wp.vec3(0.0, 0.0, 1.0)
+        if dl > 0.0:
+            wo = f * (d / dl)
+        if wo[2] <= 0.0:
+            out.radiance[v, 0] = 0.0
+            out.radiance[v, 1] = 0.0
+            out.radiance[v, 2] = 0.0
+            wp.atomic_add(out.stats, STAT_BELOW_HORIZON, 1)
+            return
+        s = surface.material[v]
+        yo = view_eval(wo)
+        vis = sh_load(surface.visibility, v)
+        if VIS_WORLD == 1:
+            vis = sh_rotate(vis, f, tables)
+        if COS_PRODUCT == 1:
+            c = vec_t()
+            for i in range(N2):
+                c[i] = ops.cos_sh[i]
+            vis = sh_product(vis, c, tables)
+        nch = ops.channels[s]
+        r = wp.vec3(0.0, 0.0, 0.0)
+        for ch in range(nch):
+            rc = _channel_radiance(ops, light, tables, f, yo, vis, s + ch)
+            if nch == 1:
+                r = rc
+            else:
+                r[ch] = rc[ch]
         neg = int(0)
         for c in range(3):
             x = r[c]

@@ -32,7 +32,7 @@ def _local_visibility(frames, visibility, visibility_space: str) -> np.ndarray:
 
 
 def shade_f64(frames, points, eye, visibility, operators, material, light, specular=(1.0, 1.0, 1.0),
-                    zh=None, visibility_space: str = "local", evaluation: str = "gaunt") -> tuple[np.ndarray, dict]:
+              zh=None, visibility_space: str = "local", evaluation: str = "gaunt", channels=None) -> tuple[np.ndarray, dict]:
     """Eq. 11 per receiver, float64.
 
     Args:
@@ -40,6 +40,8 @@ def shade_f64(frames, points, eye, visibility, operators, material, light, specu
         visibility: (V, n*n) SH visibility, local or world frame (``visibility_space``).
         operators: list of :class:`.model.ReflectanceOperator`, one per material slot.
         material: (V,) slot index per receiver.
+        channels: per slot, 1 (its operator shades all three channels) or 3 (slots s, s+1, s+2
+            shade red, green and blue); None: 1 everywhere.
         light: (3, n*n) world-frame SH lighting (used when ``zh`` is None).
         specular: RGB factor.
         zh: a :class:`.lighting.ZHLighting` to shade with its lobes instead of the full rotation.
@@ -53,21 +55,28 @@ def shade_f64(frames, points, eye, visibility, operators, material, light, specu
     vis = _local_visibility(frames, visibility, visibility_space)
     material = np.asarray(material, np.int64)
     n2 = vis.shape[1]
-    t = np.zeros_like(vis)
-    for s, op in enumerate(operators):
-        m = material == s
-        if not np.any(m):
-            continue
-        pv = op.prepare_visibility(vis[m])
-        if evaluation == "matrices":
-            t[m] = np.einsum("vb,bij,vj->vi", op.view_weights(views[m]), op.matrices(), pv)
-        else:
-            t[m] = op.local_transfer(views[m], pv)
     if zh is None:
         lo = sh.rotate(np.asarray(light, np.float64)[:, :n2][None], frames[:, None])  # (V, 3, n*n) local lighting
     else:
         lo = zh.local(frames)
-    r = np.einsum("vi,vci->vc", t, lo)
+    nch = np.ones(len(operators), np.int64) if channels is None else np.asarray(channels, np.int64)
+    r = np.zeros((vis.shape[0], 3))
+    for s in range(len(operators)):
+        m = material == s
+        if not np.any(m):
+            continue
+        for ch in range(int(nch[s])):
+            op = operators[s + ch]
+            pv = op.prepare_visibility(vis[m])
+            if evaluation == "matrices":
+                t = np.einsum("vb,bij,vj->vi", op.view_weights(views[m]), op.matrices(), pv)
+            else:
+                t = op.local_transfer(views[m], pv)
+            rc = np.einsum("vi,vci->vc", t, lo[m])
+            if nch[s] == 1:
+                r[m] = rc
+            else:
+                r[m, ch] = rc[:, ch]
     below = views[:, 2] <= 0.0
     r[below] = 0.0
     neg = np.any(r < 0.0, axis=1)

@@ -116,6 +116,14 @@ class GlossyStage(FrameStage):
         self.follows_state_eye = p["eye"] is None
         self._brdf = _stage_brdf(self, ctx)
 
+    def check_measurable(self, per_pixel: bool = False) -> None:
+        """Refuse before any work what the ray-traced glossy reference does not shade: a
+        tabulated BRDF (:class:`warpshade.measure.protocols.MeasurableStage`)."""
+        if self.params["brdf"] == "tabulated":
+            raise StageError(f"stage {self.name!r}: brdf = 'tabulated' ({self.params.get('file')}) cannot be validated: "
+                             "the ray-traced glossy reference shades analytic BRDFs (lambert, phong, blinn-phong, ggx, "
+                             "beckmann)")
+
     def reference_model(self, materials=None):
         """Glossy ground truth with the BRDF of the meshes (of ``materials``, a
         :class:`~warpshade.scene.state.MaterialAssignment`; default the run's current one), the
@@ -164,6 +172,7 @@ class RpoShadeStage(GlossyStage):
         self._light_sh = wp.zeros((slots, k, n2), dtype=wp.float32, device=dev)
         self._view_sh = wp.zeros((slots, k, nv2), dtype=wp.float32, device=dev)
         self._rank = wp.zeros(slots, dtype=wp.int32, device=dev)
+        self._channels = wp.ones(slots, dtype=wp.int32, device=dev)
         msize = (slots, k, n2, n2) if p["evaluation"] == "matrices" else (1, 1, 1, 1)
         self._matrices = wp.zeros(msize, dtype=wp.float32, device=dev)
         self._material = wp.zeros(ctx.dims["V"], dtype=wp.int32, device=dev)
@@ -197,6 +206,7 @@ class RpoShadeStage(GlossyStage):
         surface.visibility, surface.material = self._visibility, self._material
         ops = kernels.Operators()
         ops.light_sh, ops.view_sh, ops.rank, ops.matrices = self._light_sh, self._view_sh, self._rank, self._matrices
+        ops.channels = self._channels
         ops.cos_sh, ops.specular = self._cos, self._specular
         light = kernels.ViewLighting()
         light.eye, light.sh = self._eye, self._lighting.light
@@ -218,23 +228,31 @@ class RpoShadeStage(GlossyStage):
         p = self.params
         mats = self._state.materials
         per_mesh = [mats.brdf_of(m.path, self._brdf) for m in self._scene.meshes]
-        distinct, keys, slot_of = [], [], []
+        distinct, keys, mesh_brdf = [], [], []
         for b in per_mesh:
             key = repr(sorted(b.describe().items(), key=lambda kv: kv[0]))
             if key not in keys:
                 keys.append(key)
                 distinct.append(b)
-            slot_of.append(keys.index(key))
-        if len(distinct) > p["materials"]:
-            raise StageError(f"stage {self.name!r}: {len(distinct)} distinct BRDFs exceed its {p['materials']} material "
-                             "slots (parameter 'materials')")
+            mesh_brdf.append(keys.index(key))
+        # a colour BRDF (a coloured measured table) takes three consecutive slots, one per channel
+        first_slot, slot_brdfs, channels = [], [], []
+        for b in distinct:
+            parts = b.color_channels() or (b,)
+            first_slot.append(len(slot_brdfs))
+            slot_brdfs.extend(parts)
+            channels.extend([len(parts)] + [1] * (len(parts) - 1))
+        if len(slot_brdfs) > p["materials"]:
+            raise StageError(f"stage {self.name!r}: {len(distinct)} distinct BRDFs need {len(slot_brdfs)} material slots "
+                             f"(a colour table takes three), more than its {p['materials']} (parameter 'materials')")
         t0 = time.perf_counter()
-        ops = [self._operator(b) for b in distinct]
+        ops = [self._operator(b) for b in slot_brdfs]
         self.build_s.append(time.perf_counter() - t0)
-        k, n2 = self._light_sh.shape[1], self._light_sh.shape[2]
         light = np.zeros(self._light_sh.shape, np.float32)
         view = np.zeros(self._view_sh.shape, np.float32)
         rank = np.zeros(self._rank.shape, np.int32)
+        nch = np.ones(self._channels.shape, np.int32)
+        nch[: len(channels)] = channels
         mat = np.zeros(self._matrices.shape, np.float32) if p["evaluation"] == "matrices" else None
         for s, op in enumerate(ops):
             light[s, : op.rank] = op.light_sh
@@ -243,15 +261,17 @@ class RpoShadeStage(GlossyStage):
             if mat is not None:
                 mat[s, : op.rank] = op.matrices()
         slots = np.zeros(self._material.shape[0], np.int32)
-        for m, s in zip(self._scene.meshes, slot_of):
-            slots[m.vertex_offset : m.vertex_offset + m.vertex_count] = s
+        for m, d in zip(self._scene.meshes, mesh_brdf):
+            slots[m.vertex_offset : m.vertex_offset + m.vertex_count] = first_slot[d]
         self._light_sh.assign(light)
         self._view_sh.assign(view)
         self._rank.assign(rank)
+        self._channels.assign(nch)
         if mat is not None:
             self._matrices.assign(mat)
         self._material.assign(slots)
-        self.slot_brdfs = distinct
+        self.slot_brdfs = slot_brdfs
+        self.slot_channels = nch[: len(slot_brdfs)].copy()
         self.operators = ops
         self.material_of_vertex = slots
 
@@ -314,7 +334,7 @@ class RpoShadeStage(GlossyStage):
         return out
 
     def model_bytes(self) -> int:
-        arrays = [self._light_sh, self._view_sh, self._rank, self._matrices, self._material, self._zh_axes, self._zh_coeffs]
+        arrays = [self._light_sh, self._view_sh, self._rank, self._channels, self._matrices, self._material, self._zh_axes, self._zh_coeffs]
         return int(sum(a.capacity for a in arrays))
 
 

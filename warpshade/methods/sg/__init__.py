@@ -9,9 +9,17 @@ against SG lobes by the hemisphere integral ``f_h`` (:func:`warpshade.basis.sg.h
 The environment is an SG mixture for the diffuse term and a prefiltered table for the specular
 term; sphere and distant lights are SG lobes (:mod:`.lighting`, :mod:`.lighting_warp`).
 
+Anisotropic and measured materials (sec. 4.2-4.3): anisotropic Ward and Ashikhmin-Shirley NDFs
+fitted with free-axis SG lobes (the lobe count from an error budget) and tabulated (measured)
+materials, whose NDF and 1-D shadowing factor :mod:`.measured` extracts from a MERL-layout table
+by eq. 13, are shaded by :mod:`.lobes_warp`: each lobe warped to the view in the tangent frame of
+every vertex or pixel (tangents from the meshes' UVs, :mod:`warpshade.geometry.uv_tangents`, or a
+direction), the warped lobe taken as isotropic as in the paper.
+
 Modules, in the shape of :mod:`warpshade.methods.prt`: :mod:`.stages` (``sg.ssdf``, ``sg.shade``),
 :mod:`.kernels`, :mod:`.model`, :mod:`.mirror` (float64 mirror of the kernels), :mod:`.rows`,
-:mod:`.budget`, plus :mod:`.brdf`, :mod:`.brdf_warp`, :mod:`.lighting`, :mod:`.lighting_warp`.
+:mod:`.budget`, plus :mod:`.brdf`, :mod:`.brdf_warp`, :mod:`.lobes_warp`, :mod:`.measured`,
+:mod:`.lighting`, :mod:`.lighting_warp`.
 """
 
 from .brdf import microfacet_brdf

@@ -32,10 +32,11 @@ from __future__ import annotations
 
 from ..._wp import wp
 from ...basis.sg_warp import SG, sg_hemisphere_integral, sg_integral, sg_make, sg_product, sg_rotate, sg_visible_fraction
-from ...scene.materials_warp import BRDFParams, brdf_eval, concentric_footprint
+from ...scene.materials_warp import BRDFParams, brdf_eval, brdf_with_tangent, concentric_footprint, tangent_frame
 from ...transfer.ssdf_warp import local_to_concentric, ssdf_eval
 from .brdf_warp import specular_slice
 from .lighting_warp import PrefilteredTable, gamma_lookup, point_light_sg
+from .lobes_warp import NDFLobes, warped_lobe
 
 wp.set_module_options({"enable_backward": False})
 
@@ -94,6 +95,7 @@ class Settings:
     horizon: int
     exact_model: int
     exact_ratio: float
+    lobes: NDFLobes
 
 
 @wp.struct
@@ -121,11 +123,13 @@ class Materials:
 @wp.struct
 class VertexPoints:
     """The vertices shaded by :func:`shade_vertices_kernel`: world positions and unit shading
-    normals, (V,) vec3 each; the viewer, world position, (1,) vec3."""
+    normals, (V,) vec3 each; the viewer, world position, (1,) vec3; tangent directions of the
+    multi-lobe materials (``Settings.lobes``), (V,) vec3, world (read only when it has lobes)."""
 
     position: wp.array(dtype=wp.vec3)
     normal: wp.array(dtype=wp.vec3)
     eye: wp.array(dtype=wp.vec3)
+    tangent: wp.array(dtype=wp.vec3)
 
 
 @wp.struct
@@ -138,6 +142,8 @@ class PixelHits:
         face: hit triangle, (N,) int32; bary: Warp barycentrics of its first two vertices, (N,) vec2.
         faces: the scene's triangles, (F, 3) int32 vertex indices.
         eye: the viewer, world position, (1,) vec3.
+        tangent: per-VERTEX tangent directions of the multi-lobe materials, (V,) vec3, world,
+            interpolated at the hit with the barycentrics (read only when ``Settings.lobes`` has lobes).
     """
 
     hit: wp.array(dtype=wp.int32)
@@ -147,6 +153,7 @@ class PixelHits:
     bary: wp.array(dtype=wp.vec2)
     faces: wp.array2d(dtype=wp.int32)
     eye: wp.array(dtype=wp.vec3)
+    tangent: wp.array(dtype=wp.vec3)
 
 
 @wp.func
@@ -197,9 +204,21 @@ def _basis_of(n: wp.vec3):
 
 
 @wp.func
+def _specular_env(slice_w: SG, lights: Lights, vis: Visibility, st: Settings, i0: int, i1: int, i2: int, w: wp.vec3,
+                  n: wp.vec3):
+    """One slice lobe (times the cosine) against the prefiltered environment, with its visible fraction (eq. 31, 35)."""
+    theta = ssdf_at(vis, st, i0, i1, i2, w, slice_w.axis, n)
+    fraction = sg_visible_fraction(theta, slice_w.sharpness)
+    return fraction * wp.cw_mul(slice_w.amplitude, gamma_lookup(lights.table, wp.transpose(lights.env_to_world[0]), slice_w.axis,
+                                                                slice_w.sharpness))
+
+
+@wp.func
 def shade_point(x: wp.vec3, n: wp.vec3, o: wp.vec3, mat: Material, lights: Lights, vis: Visibility, st: Settings,
-                i0: int, i1: int, i2: int, w: wp.vec3):
-    """Outgoing radiance toward ``o`` at ``x`` (eq. 39, 41, 42, 43), linear RGB."""
+                i0: int, i1: int, i2: int, w: wp.vec3, tangent: wp.vec3):
+    """Outgoing radiance toward ``o`` at ``x`` (eq. 39, 41, 42, 43), linear RGB. With
+    ``st.lobes.count > 0`` the specular slice is the material's NDF lobes warped to the view in the
+    tangent frame of ``tangent`` (:mod:`.lobes_warp`), else the single lobe of ``st.model``."""
     cosine = sg_make(n, st.cos_sharpness, wp.vec3(st.cos_amplitude))
     rd = wp.vec3(0.0)
     rs = wp.vec3(0.0)
@@ -207,15 +226,30 @@ def shade_point(x: wp.vec3, n: wp.vec3, o: wp.vec3, mat: Material, lights: Light
     want_s = st.component != 1
     slice_w = sg_make(n, 0.0, wp.vec3(0.0))
     facing = wp.dot(o, n) > 0.0
+    multi = st.lobes.count > 0
+    frame = _basis_of(n)
+    if multi:
+        probe = BRDFParams()
+        probe.tangent = tangent
+        frame = tangent_frame(probe, n)
+    o_local = frame * o
+    slice_sharpness = float(0.0)
     if want_s and facing:
-        frame = _basis_of(n)
-        local = sg_rotate(specular_slice(frame * o, st.model, mat.roughness, st.f0), wp.transpose(frame))
-        slice_w = sg_product(cosine, local)
-        if lights.has_table != 0:
-            theta = ssdf_at(vis, st, i0, i1, i2, w, slice_w.axis, n)
-            fraction = sg_visible_fraction(theta, slice_w.sharpness)
-            rs += fraction * wp.cw_mul(slice_w.amplitude, gamma_lookup(lights.table, wp.transpose(lights.env_to_world[0]), slice_w.axis,
-                                                                                slice_w.sharpness))
+        if multi:
+            # the sharpest live lobe decides what counts as a narrow light below
+            for k in range(st.lobes.count):
+                g = warped_lobe(st.lobes, k, o_local)
+                if g.amplitude[0] > 0.0:
+                    gw = sg_product(cosine, sg_rotate(g, wp.transpose(frame)))
+                    slice_sharpness = wp.max(slice_sharpness, gw.sharpness)
+                    if lights.has_table != 0:
+                        rs += _specular_env(gw, lights, vis, st, i0, i1, i2, w, n)
+        else:
+            local = sg_rotate(specular_slice(o_local, st.model, mat.roughness, st.f0), wp.transpose(frame))
+            slice_w = sg_product(cosine, local)
+            slice_sharpness = slice_w.sharpness
+            if lights.has_table != 0:
+                rs += _specular_env(slice_w, lights, vis, st, i0, i1, i2, w, n)
     if want_d:
         for k in range(lights.env_count):
             g = sg_product(cosine, sg_make(lights.env_axes[k], lights.env_sharpness[k], lights.env_amplitude[k]))
@@ -234,7 +268,7 @@ def shade_point(x: wp.vec3, n: wp.vec3, o: wp.vec3, mat: Material, lights: Light
             theta = ssdf_at(vis, st, i0, i1, i2, w, lc.axis, n)
             rd += lc.amplitude * sg_hemisphere_integral(theta, lc.sharpness)
         if want_s and facing:
-            if st.exact_model >= 0 and light.sharpness > st.exact_ratio * slice_w.sharpness:
+            if st.exact_model >= 0 and light.sharpness > st.exact_ratio * slice_sharpness:
                 # a light much narrower than the BRDF slice: the BRDF itself at the light's
                 # direction times its irradiance, visibility as the light lobe's visible fraction
                 b = BRDFParams()
@@ -243,9 +277,18 @@ def shade_point(x: wp.vec3, n: wp.vec3, o: wp.vec3, mat: Material, lights: Light
                 b.exponent = mat.roughness
                 b.roughness = mat.roughness
                 b.f0 = st.f0
+                if multi:
+                    b = brdf_with_tangent(st.lobes.exact, tangent)
                 theta = ssdf_at(vis, st, i0, i1, i2, w, light.axis, n)
                 cos_l = wp.max(wp.dot(n, light.axis), 0.0)
                 rs += sg_integral(light) * (brdf_eval(b, n, o, light.axis) * cos_l * sg_visible_fraction(theta, light.sharpness))
+            elif multi:
+                for k in range(st.lobes.count):
+                    g0 = warped_lobe(st.lobes, k, o_local)
+                    if g0.amplitude[0] > 0.0:
+                        g = sg_product(light, sg_product(cosine, sg_rotate(g0, wp.transpose(frame))))
+                        theta = ssdf_at(vis, st, i0, i1, i2, w, g.axis, n)
+                        rs += g.amplitude * sg_hemisphere_integral(theta, g.sharpness)
             else:
                 # eq. 43: the slice already holds the cosine, so the light multiplies it once
                 g = sg_product(light, slice_w)
@@ -273,7 +316,10 @@ def shade_vertices_kernel(points: VertexPoints, mats: Materials, lights: Lights,
     mat.albedo = mats.albedo[v]
     mat.specular = mats.specular[v]
     mat.roughness = mats.roughness[v]
-    c = shade_point(x, points.normal[v], o, mat, lights, vis, st, v, v, v, wp.vec3(1.0, 0.0, 0.0))
+    tangent = wp.vec3(1.0, 0.0, 0.0)
+    if st.lobes.count > 0:
+        tangent = points.tangent[v]
+    c = shade_point(x, points.normal[v], o, mat, lights, vis, st, v, v, v, wp.vec3(1.0, 0.0, 0.0), tangent)
     radiance[v, 0] = c[0]
     radiance[v, 1] = c[1]
     radiance[v, 2] = c[2]
@@ -297,7 +343,13 @@ def shade_pixels_kernel(hits: PixelHits, mats: Materials, lights: Lights, vis: V
     mat.albedo = mats.albedo[p]
     mat.specular = mats.specular[p]
     mat.roughness = mats.roughness[p]
-    out[p] = shade_point(x, hits.normal[p], o, mat, lights, vis, st, hits.faces[f, 0], hits.faces[f, 1], hits.faces[f, 2], w)
+    i0 = hits.faces[f, 0]
+    i1 = hits.faces[f, 1]
+    i2 = hits.faces[f, 2]
+    tangent = wp.vec3(1.0, 0.0, 0.0)
+    if st.lobes.count > 0:
+        tangent = w[0] * hits.tangent[i0] + w[1] * hits.tangent[i1] + w[2] * hits.tangent[i2]
+    out[p] = shade_point(x, hits.normal[p], o, mat, lights, vis, st, i0, i1, i2, w, tangent)
 
 
 @wp.kernel

@@ -19,7 +19,43 @@ from .slices import view_slice
 
 __all__ = [
     "ssdf_value",
+    "tangent_frame_f64",
+    "warped_slices_f64",
 ]
+
+
+def tangent_frame_f64(n, tangent) -> np.ndarray:
+    """Rows (t, n x t, n): ``tangent`` projected on the tangent plane of the unit normal ``n`` and
+    normalised (the orthonormal-basis tangent where it is parallel to ``n``), as
+    :func:`warpshade.scene.materials_warp.tangent_frame`."""
+    n = np.asarray(n, np.float64)
+    t = np.asarray(tangent, np.float64)
+    t = t - (t @ n) * n
+    length = np.linalg.norm(t)
+    t = t / length if length > 1e-6 else _duff_basis(n)[0]
+    return np.stack([t, np.cross(n, t), n])
+
+
+def warped_slices_f64(model: str, params: dict, views, frames):
+    """Float64 mirror of :func:`.lobes_warp.warped_slices`: :func:`.slices.view_slice` of each world
+    view in its tangent frame (rows t, b, n), lobes turned back to world.
+
+    Returns:
+        (axes (N, K, 3), sharpness (N, K), amplitude (N, K)); culled lobes as the kernel writes
+        them (axis z+ of the frame, sharpness 1, amplitude 0).
+    """
+    views = np.asarray(views, np.float64).reshape(-1, 3)
+    frames = np.asarray(frames, np.float64).reshape(-1, 3, 3)
+    out = None
+    for i, (v, f) in enumerate(zip(views, frames)):
+        sl = view_slice(model, f @ (v / np.linalg.norm(v)), **params)
+        axes = np.where(sl.culled[:, None], np.array([0.0, 0.0, 1.0]), sl.axes) @ f
+        lam = np.where(sl.culled, 1.0, sl.sharpness)
+        if out is None:
+            out = (np.zeros((len(views), sl.lobe_count, 3)), np.zeros((len(views), sl.lobe_count)),
+                   np.zeros((len(views), sl.lobe_count)))
+        out[0][i], out[1][i], out[2][i] = axes, lam, np.asarray(sl.amplitude).reshape(-1)
+    return out
 
 
 def _duff_basis(n: np.ndarray) -> np.ndarray:
@@ -40,6 +76,15 @@ def _exact_brdf(model: str, roughness: float, f0: float):
     if model == "blinn-phong":
         return BlinnPhong(exponent=roughness)
     return None
+
+
+def _exact_lobe_brdf(model: str, params: dict):
+    """The exact BRDF of a multi-lobe model's narrow-light path (Ward, Ashikhmin-Shirley; None for tabulated)."""
+    from .brdf import microfacet_brdf, split_params
+
+    if model == "tabulated-ndf":
+        return None
+    return microfacet_brdf(model, **split_params(model, params, "shade_f64")[0])
 
 
 def ssdf_value(maps: np.ndarray, v: int, frame: np.ndarray, d_world: np.ndarray) -> float:
@@ -65,7 +110,8 @@ def ssdf_value(maps: np.ndarray, v: int, frame: np.ndarray, d_world: np.ndarray)
 def shade_f64(points, normals, eye, albedo, specular, roughness, maps, frames, model: str, f0: float,
                     env_mixture=None, table=None, env_to_world=np.eye(3), sphere_lights=(), distant_lobes=(),
                     component: str = "specular", cosine: str = "paper", corners=None, weights=None,
-                    horizon: bool = True, narrow_lights: str = "brdf", narrow_ratio: float = 8.0) -> np.ndarray:
+                    horizon: bool = True, narrow_lights: str = "brdf", narrow_ratio: float = 8.0,
+                    lobe_model: str | None = None, lobe_params: dict | None = None, tangents=None) -> np.ndarray:
     """Radiance (P, 3) float64 at P receivers, as :func:`.kernels.shade_point`.
 
     Args:
@@ -82,6 +128,10 @@ def shade_f64(points, normals, eye, albedo, specular, roughness, maps, frames, m
         narrow_lights, narrow_ratio: as the kernel: with "brdf", the specular of a light lobe more
             than ``narrow_ratio`` times sharper than the slice is the exact BRDF at its direction
             (Beckmann, Blinn-Phong) times its irradiance, cosine and visible fraction.
+        lobe_model, lobe_params: a fitted multi-lobe model of :mod:`.lobes_warp` (``ward``,
+            ``ashikhmin-shirley``, ``tabulated-ndf``) and its :func:`.slices.view_slice`
+            parameters, shaded in the tangent frame of ``tangents`` (P, 3) world directions
+            (narrow lights: the exact Ward / Ashikhmin-Shirley BRDF); ``model`` is then unused.
     """
     points = np.asarray(points, np.float64)
     count = points.shape[0]
@@ -112,15 +162,24 @@ def shade_f64(points, normals, eye, albedo, specular, roughness, maps, frames, m
         rs = np.zeros(3)
         facing = float(o @ n) > 0.0
         slice_w = None
+        slices = []
         if want_s and facing:
-            frame = _duff_basis(n)
-            lobes = view_slice(model, frame @ o, **slice_parameters(model, float(roughness[i]), f0))
-            axis_l, lam_l, mu_l = lobes.axes[0], float(lobes.sharpness[0]), float(np.asarray(lobes.amplitude).reshape(-1)[0])
-            ax, lam, mu = sg.product(n, cos_lam, cos_mu, frame.T @ axis_l, lam_l, mu_l)
-            slice_w = (ax, float(lam), float(mu))
-            if table is not None:
-                f = sg.visible_fraction(vis(ax), lam)
-                rs += mu * f * table.lookup((env_to_world.T @ ax)[None], np.array([lam]))[0]
+            if lobe_model is None:
+                frame = _duff_basis(n)
+                lobes = view_slice(model, frame @ o, **slice_parameters(model, float(roughness[i]), f0))
+            else:
+                frame = tangent_frame_f64(n, tangents[i])
+                lobes = view_slice(lobe_model, frame @ o, **lobe_params)
+            for k in range(lobes.lobe_count):
+                if lobes.culled[k]:
+                    continue
+                axis_l, lam_l, mu_l = lobes.axes[k], float(lobes.sharpness[k]), float(np.asarray(lobes.amplitude).reshape(-1)[k])
+                ax, lam, mu = sg.product(n, cos_lam, cos_mu, frame.T @ axis_l, lam_l, mu_l)
+                slices.append((ax, float(lam), float(mu)))
+                if table is not None:
+                    f = sg.visible_fraction(vis(ax), lam)
+                    rs += mu * f * table.lookup((env_to_world.T @ ax)[None], np.array([lam]))[0]
+            slice_w = (None, max([g[1] for g in slices], default=0.0)) if (slices or lobe_model) else None
         if want_d:
             for axis_k, lam_k, amp_k in env:
                 ax, lam, mu = sg.product(n, cos_lam, cos_mu, axis_k, lam_k, 1.0)
@@ -135,14 +194,17 @@ def shade_f64(points, normals, eye, albedo, specular, roughness, maps, frames, m
             if want_d:
                 rd += amp_k * mu * sg.hemisphere_integral(vis(ax), lam)
             if slice_w is not None:
-                exact = _exact_brdf(model, float(roughness[i]), f0) if narrow_lights == "brdf" else None
+                if lobe_model is None:
+                    exact = _exact_brdf(model, float(roughness[i]), f0) if narrow_lights == "brdf" else None
+                else:
+                    exact = _exact_lobe_brdf(lobe_model, lobe_params) if narrow_lights == "brdf" else None
                 if exact is not None and lam_k > narrow_ratio * slice_w[1]:
-                    frame = _duff_basis(n)
                     cos_l = max(float(axis_k @ n), 0.0)
                     b = float(exact.evaluate(frame @ o, frame @ axis_k)) if cos_l > 0 else 0.0
                     rs += amp_k * float(sg.integral(lam_k)) * b * cos_l * float(sg.visible_fraction(vis(axis_k), lam_k))
                 else:
-                    ax2, lam2, mu2 = sg.product(axis_k, lam_k, 1.0, slice_w[0], slice_w[1], slice_w[2])
-                    rs += amp_k * mu2 * sg.hemisphere_integral(vis(ax2), lam2)
+                    for g in slices:
+                        ax2, lam2, mu2 = sg.product(axis_k, lam_k, 1.0, g[0], g[1], g[2])
+                        rs += amp_k * mu2 * sg.hemisphere_integral(vis(ax2), lam2)
         out[i] = np.asarray(albedo[i], np.float64) * rd / np.pi + np.asarray(specular[i], np.float64) * rs
     return out

@@ -5,7 +5,9 @@
   paper), compressed by PCA with the term count chosen from an RMS budget in radians
   (:func:`.model.bake_ssdf_model`);
 * ``sg.shade`` (per frame): eq. 39 + 41 (environment) and 42 + 43 (sphere and distant lights) per
-  vertex toward the eye (:mod:`.kernels`): the BRDF's NDF as an SG warped to the view slice, the
+  vertex toward the eye (:mod:`.kernels`): the BRDF's NDF as an SG (or, for anisotropic Ward,
+  Ashikhmin-Shirley and measured tables, fitted SG lobes in per-point tangent frames,
+  :mod:`.lobes_warp`) warped to the view slice, the
   clamped cosine as an SG, the environment as an SG mixture (diffuse) and a prefiltered table
   (specular), visibility from the SSDFs (eq. 30-31). Its BRDF parameters give every mesh's
   material, or, with ``textures = true``, the meshes' UsdPreviewSurface textures sampled at the
@@ -22,11 +24,12 @@ import numpy as np
 
 from ..._wp import launch_parallel, wp
 from ...basis import sg
-from ...scene import materials
+from ...scene import materials, materials_warp
 from ..stage import FrameStage, Param, Port, PrecomputeStage, StageError, register_stage
 from . import kernels
 from .brdf_warp import MODEL_IDS
 from .lights import directional_light_lobe
+from .lobes_warp import LOBE_MODELS
 from .model import (SUN_MODES, EnvironmentLighting, bake_ssdf_model, decode_maps, empty_table, environment_hash,
                     environment_lighting, remember)
 
@@ -36,10 +39,11 @@ __all__ = [
 
 #: Receivers per CPU chunk below which a launch is not split over cores.
 CPU_CHUNK_MIN = 2048
-#: BRDF models of the per-point kernels (isotropic single-lobe NDFs).
-BRDF_MODELS = tuple(MODEL_IDS)
+#: BRDF models of the per-point kernels: isotropic single-lobe NDFs, and fitted NDF lobes in a
+#: tangent frame (anisotropic Ward with ``roughness_y``, Ashikhmin-Shirley; :mod:`.lobes_warp`).
+BRDF_MODELS = tuple(MODEL_IDS) + ("ashikhmin-shirley", "tabulated-ndf")
 #: BRDF models the glossy reference can shade (what ``--validate`` accepts for the specular term).
-VALIDATED_MODELS = ("beckmann", "blinn-phong")
+VALIDATED_MODELS = ("beckmann", "blinn-phong", "ward", "ashikhmin-shirley")
 #: Specular of narrow lights: the exact BRDF at the light ("brdf") or the paper's SG product ("sg").
 NARROW_LIGHT_MODES = ("brdf", "sg")
 #: A light lobe this many times sharper than the BRDF slice counts as narrow.
@@ -47,7 +51,8 @@ NARROW_LIGHT_RATIO = 8.0
 #: Largest ``roughness`` per model (parameter, run-time BRDF or per-vertex surface): microfacet
 #: slopes past 2 are no longer a lobe and overflow the float32 lobes (Beckmann alpha 100 shaded
 #: inf, 1e30 NaN); Blinn-Phong exponents past 1e6 are a mirror (measured finite to 1e10, NaN at 1e30).
-ROUGHNESS_MAX = {"beckmann": 2.0, "cook-torrance": 2.0, "ward": 2.0, "blinn-phong": 1e6}
+ROUGHNESS_MAX = {"beckmann": 2.0, "cook-torrance": 2.0, "ward": 2.0, "blinn-phong": 1e6, "ashikhmin-shirley": 2.0,
+                 "tabulated-ndf": 2.0}
 #: The exact models of the "brdf" mode: codes of warpshade.scene.materials_warp.BRDF_MODELS.
 EXACT_MODEL_CODES = {"beckmann": 4, "blinn-phong": 2}
 
@@ -133,11 +138,40 @@ class SgEnvironmentStage(PrecomputeStage):
             EnvironmentLighting.from_arrays(arrays)
 
 
+def _exact_brdf(model: str, params: dict):
+    """The exact BRDF (``ks = 1``) of a multi-lobe model: :class:`.brdf.Ward` or :class:`.brdf.AshikhminShirley`."""
+    from .brdf import microfacet_brdf
+
+    return microfacet_brdf(model, **params)
+
+
 def _rgb(value, name: str, stage: str) -> np.ndarray:
     a = np.asarray(value, np.float64).reshape(-1)
     if a.shape != (3,) or not np.all(np.isfinite(a)) or np.any(a < 0):
         raise StageError(f"stage {stage!r}: parameter {name!r} needs three non-negative numbers, got {value!r}")
     return a
+
+
+#: Parameters of the multi-lobe (anisotropic) materials of ``sg.shade``.
+MULTI_LOBE_PARAMS = {
+    "roughness_y": Param(None, float, "Ward: alpha along the bitangent (anisotropic when it differs from 'roughness', "
+                         "alpha along the tangent)", minimum=1e-3, maximum=1.0),
+    "nu": Param(75.0, float, "Ashikhmin-Shirley exponent along the tangent", minimum=1e-3, maximum=1e5),
+    "nv": Param(1200.0, float, "Ashikhmin-Shirley exponent along the bitangent", minimum=1e-3, maximum=1e5),
+    "rs": Param(0.05, float, "Ashikhmin-Shirley normal-incidence reflectance", minimum=0.0, maximum=1.0),
+    "lobes": Param(None, int, "SG lobes of a fitted NDF (default: the fewest whose fit meets ndf_error_budget)",
+                   minimum=1, maximum=16),
+    "ndf_error_budget": Param(0.15, float, "relative L2 error of the NDF fit the lobe count is chosen for",
+                              minimum=1e-3, maximum=1.0),
+    "max_lobes": Param(8, int, "most lobes the budget may choose", minimum=1, maximum=16),
+    "tangent": Param("uv", str, "tangent of anisotropic materials: 'uv' (direction of increasing u of the meshes' "
+                     "UVs, per frame) or 'direction' (tangent_direction projected on each tangent plane)",
+                     choices=("uv", "direction")),
+    "tangent_direction": Param(None, tuple, "world direction of tangent = 'direction'"),
+    "table": Param(None, str, "tabulated-ndf: a measured isotropic BRDF in the MERL binary layout (relative to the "
+                   "graph, or bundled:NAME); its NDF and shadowing are extracted by eq. 13 (sec. 4.2)"),
+    "eta": Param(1.33, float, "tabulated-ndf: index of refraction of eq. 14's Fresnel factor", minimum=1.0001, maximum=10.0),
+}
 
 
 @register_stage
@@ -162,6 +196,7 @@ class SgShadeStage(FrameStage):
         "ssdf": Param("maps", str, "visibility look-up: decoded maps (bilinear) or PCA per look-up (the paper)",
                       choices=("maps", "pca")),
         "eye": Param(None, tuple, "viewer position, world (default: the scene camera, or Runtime.set_eye)"),
+        **MULTI_LOBE_PARAMS,
     }
 
     def input_ports(self):
@@ -220,7 +255,8 @@ class SgShadeStage(FrameStage):
             self._vis.coeffs = wp.array(self.model.coeffs.astype(np.float32), dtype=float, device=dev)
         self._vis.frames = self._frames
         st = kernels.Settings()
-        st.model = int(MODEL_IDS[p["brdf"]])
+        st.model = int(MODEL_IDS.get(p["brdf"], 0))  # multi-lobe models: unused (st.lobes)
+        self._read_measured(ctx)
         st.f0 = float(p["f0"])
         cos_axis, cos_lam, cos_mu = sg.clamped_cosine(np.array([0.0, 0.0, 1.0]), p["cosine"])
         st.cos_sharpness, st.cos_amplitude = float(cos_lam), float(cos_mu)
@@ -233,6 +269,7 @@ class SgShadeStage(FrameStage):
         st.exact_ratio = float(NARROW_LIGHT_RATIO)
         self._settings = st
         count = ctx.dims["V"]
+        self._setup_lobes(st, count)
         self._albedo = wp.zeros(count, dtype=wp.vec3, device=dev)
         self._spec = wp.zeros(count, dtype=wp.vec3, device=dev)
         self._rough = wp.zeros(count, dtype=float, device=dev)
@@ -241,10 +278,131 @@ class SgShadeStage(FrameStage):
         self._vertex_points = kernels.VertexPoints()
         self._vertex_points.position, self._vertex_points.normal = self._points, self._normals
         self._vertex_points.eye = self._eye
+        self._vertex_points.tangent = self._tangents
         self._vertex_materials = self._materials(self._albedo, self._spec, self._rough)
         self._upload_materials()
         self._setup_lights()
         return {"radiance": self._radiance}
+
+    # ---- multi-lobe materials ---------------------------------------------------------
+    def multi_lobe_model(self):
+        """``(model, parameters)`` of the material when it is shaded as fitted NDF lobes in a tangent
+        frame (anisotropic Ward, Ashikhmin-Shirley), else None (a single-lobe model of :data:`MODEL_IDS`)."""
+        p = self.params
+        if p["brdf"] == "ward" and p["roughness_y"] is not None and p["roughness_y"] != p["roughness"]:
+            if p["roughness"] > 1.0:
+                raise StageError(f"stage {self.name!r}: anisotropic Ward needs roughness (alpha_x) <= 1, got {p['roughness']!r}")
+            return "ward", {"alpha_x": float(p["roughness"]), "alpha_y": float(p["roughness_y"])}
+        if p["brdf"] == "ashikhmin-shirley":
+            return "ashikhmin-shirley", {"nu": float(p["nu"]), "nv": float(p["nv"]), "rs": float(p["rs"])}
+        if p["brdf"] == "tabulated-ndf":
+            if getattr(self, "measured", None) is None:
+                raise StageError(f"stage {self.name!r}: brdf = 'tabulated-ndf' is read from its table at set-up")
+            return "tabulated-ndf", self.measured.parameters()
+        return None
+
+    def _read_measured(self, ctx) -> None:
+        """brdf = 'tabulated-ndf': eq. 13's D and S extracted from ``table`` (:mod:`.measured`)."""
+        from pathlib import Path
+
+        from .measured import measured_material
+
+        p = self.params
+        self.measured = None
+        if p["brdf"] != "tabulated-ndf":
+            return
+        if p["table"] is None:
+            raise StageError(f"stage {self.name!r}: brdf = 'tabulated-ndf' needs 'table' (a MERL-layout file)")
+        if p["table"].startswith("bundled:"):
+            from ...io import bundled_asset_directory
+
+            path = Path(bundled_asset_directory()) / p["table"][len("bundled:"):]
+        else:
+            path = ctx.resolve_path(p["table"])
+        try:
+            self.measured = measured_material(path, eta=p["eta"])
+        except (OSError, ValueError) as exc:
+            raise StageError(f"stage {self.name!r}: table {str(path)!r}: {exc}") from None
+
+    def _fit_lobes(self, model: str, params: dict):
+        """The NDF as SG lobes: ``lobes`` when given, else the fewest (up to ``max_lobes``) whose fit
+        meets ``ndf_error_budget`` (the best fit, reported as over budget, when none does)."""
+        from .brdf import microfacet_brdf
+        from .ndf import fit_model_ndf, ndf_lobes
+
+        p = self.params
+        if getattr(microfacet_brdf(model, **params), "isotropic", False):
+            mix = ndf_lobes(model, **params)
+            return mix, {"model": model, "lobes": 1, "fit_error": None, "closed_form": True}
+        most = min(p["max_lobes"], 2) if model == "tabulated-ndf" else p["max_lobes"]  # lobes about z+: 1 or 2
+        counts = [p["lobes"]] if p["lobes"] is not None else range(1, most + 1)
+        best, tried = None, []
+        for k in counts:
+            fit = fit_model_ndf(model, **params, lobes=int(k))
+            tried.append({"lobes": int(k), "fit_error": round(float(fit.relative_error), 5)})
+            if best is None or fit.relative_error < best.relative_error:
+                best = fit
+            if p["lobes"] is None and fit.relative_error <= p["ndf_error_budget"]:
+                best = fit
+                break
+        met = p["lobes"] is not None or best.relative_error <= p["ndf_error_budget"]
+        report = {"model": model, "lobes": int(best.mixture.lobe_count), "fit_error": float(best.relative_error),
+                  "budget": float(p["ndf_error_budget"]), "budget_met": bool(met), "tried": tried}
+        if not met:
+            import warnings
+
+            warnings.warn(f"stage {self.name!r}: no fit of up to {p['max_lobes']} lobes meets ndf_error_budget "
+                          f"{p['ndf_error_budget']} (best {best.relative_error:.3f} with {best.mixture.lobe_count})",
+                          RuntimeWarning, stacklevel=2)
+        return best.mixture, report
+
+    def _setup_lobes(self, st, count: int) -> None:
+        """The fitted NDF lobes into ``st.lobes`` and the per-vertex tangents they are shaded in."""
+        from .lobes_warp import NDFLobes, upload_lobes
+
+        p, dev = self.params, self._device
+        self._tangents = wp.zeros(count, dtype=wp.vec3, device=dev)
+        self._uv_tangents = None
+        self.lobe_report = None
+        multi = self.multi_lobe_model()
+        if multi is None:
+            empty = NDFLobes()
+            empty.axes = wp.zeros(1, dtype=wp.vec3, device=dev)
+            empty.sharpness = wp.zeros(1, dtype=float, device=dev)
+            empty.amplitude = wp.zeros(1, dtype=float, device=dev)
+            empty.shadow = wp.zeros(0, dtype=float, device=dev)
+            empty.count, empty.model = 0, 0
+            empty.exact = materials_warp.BRDFParams()
+            st.lobes = empty
+            return
+        model, params = multi
+        try:
+            mixture, self.lobe_report = self._fit_lobes(model, params)
+            # narrow lights: the exact BRDF (Ward, Ashikhmin-Shirley); a tabulated one has none on the device
+            exact = None if model == "tabulated-ndf" else materials_warp.upload_brdf(_exact_brdf(model, params))
+        except ValueError as exc:
+            raise StageError(f"stage {self.name!r}: {exc}") from None
+        st.lobes = upload_lobes(mixture, model, params, dev, exact)
+        st.exact_model = LOBE_MODELS[model] if (p["narrow_lights"] == "brdf" and exact is not None) else -1
+        if p["tangent"] == "uv":
+            from ...geometry.uv_tangents import UVTangents
+
+            missing = [m.path for m in self._scene.meshes if m.uvs is None]
+            if missing:
+                raise StageError(f"stage {self.name!r}: tangent = 'uv' needs UVs on every mesh; {missing[0]} has none "
+                                 "(set tangent = 'direction' and tangent_direction)")
+            self._uv_tangents = UVTangents.from_scene(self._scene, dev)
+        else:
+            d = p["tangent_direction"]
+            arr = None if d is None else np.asarray(d, np.float64).reshape(-1)
+            if arr is None or arr.shape != (3,) or not np.all(np.isfinite(arr)) or not np.linalg.norm(arr) > 0:
+                raise StageError(f"stage {self.name!r}: tangent = 'direction' needs tangent_direction, three finite "
+                                 f"numbers not all 0; got {d!r}")
+            self._tangents.assign(np.tile((arr / np.linalg.norm(arr)).astype(np.float32), (count, 1)))
+
+    def _update_tangents(self) -> None:
+        if self._uv_tangents is not None:
+            self._uv_tangents.compute(self._points, self._normals, self._tangents)
 
     # ---- materials --------------------------------------------------------------------
     def _stage_values(self, brdf):
@@ -447,6 +605,7 @@ class SgShadeStage(FrameStage):
         dev = self._device
         lights = self._lights
         self._turn_lights()
+        self._update_tangents()
 
         def inputs(start, stop):
             return [self._vertex_points, self._vertex_materials, lights, self._vis, self._settings, start, self._radiance]
@@ -464,6 +623,7 @@ class SgShadeStage(FrameStage):
         hits = kernels.PixelHits()
         hits.hit, hits.position, hits.normal = gbuffer.hit, gbuffer.position, normals
         hits.face, hits.bary, hits.faces, hits.eye = gbuffer.face, gbuffer.bary, gbuffer.faces, self._eye
+        hits.tangent = self._tangents
         return hits
 
     def _interpolated_materials(self, hits, n: int):
@@ -554,11 +714,18 @@ class SgShadeStage(FrameStage):
         if p["component"] == "diffuse":
             return None
         textured = p["textures"] and not per_pixel
-        if p["brdf"] == "beckmann":
+        multi = self.multi_lobe_model()
+        if multi is not None:
+            brdf = _exact_brdf(*multi)
+        elif p["brdf"] == "beckmann":
             brdf = materials.Microfacet(roughness=p["roughness"], distribution="beckmann", f0=p["f0"])
+        elif p["brdf"] == "ward":
+            brdf = _exact_brdf("ward", {"alpha_x": float(p["roughness"])})
         else:
             brdf = materials.BlinnPhong(exponent=p["roughness"])
         model = {"brdf": brdf, "eye": self._eye.numpy()[0].astype(np.float64), "color": self._specular_rgb.copy()}
+        if multi is not None:
+            model["tangents"] = "uv" if p["tangent"] == "uv" else tuple(float(x) for x in p["tangent_direction"])
         if textured:
             # the materials the vertices were shaded with: roughness and specular colour per vertex
             model["color"] = self._spec.numpy().astype(np.float64)
@@ -568,6 +735,8 @@ class SgShadeStage(FrameStage):
     def diagnostics(self) -> dict:
         out = {"ssdf_terms": int(self.model.coeffs.shape[1]), "ssdf_resolution": int(self.model.resolution),
                "lights_inside_hull": self.lights_inside_hull}
+        if self.lobe_report is not None:
+            out["ndf_lobes"] = self.lobe_report
         if self.environment is not None:
             out["environment_lobes"] = int(self.environment.mixture.lobe_count)
             out["environment_build_s"] = round(self.environment.build_s, 3)

@@ -2,7 +2,8 @@
 
 Run ``python -m warpshade.usd_assets.generator [--scenes NAME ...] [--out DIR]``: by default it
 writes ``sky.hdr`` and every scene of ``SCENES`` into the bundled directory; ``ripples`` and
-``sunlit`` are written only on request (``--scenes ripples sunlit``).
+``sunlit`` are written only on request (``--scenes ripples sunlit``), and so are the Newton-simulated
+cloth clips ``cloth_train`` and ``cloth_heldout`` (they need the ``sim`` extra and minutes of CPU).
 
 Every scene is Z-up, in metres (``metersPerUnit = 1``), 24 frames per second, time codes
 0..59 (60 frames) for animated scenes unless said otherwise below, and has:
@@ -17,8 +18,9 @@ Modules: :mod:`.writing` (stages, meshes, ground, camera, rounding, saving), :mo
 :mod:`.shapes` (mesh builders), :mod:`.skeletons` (rigs, skinning, characters), :mod:`.motions`
 (range-of-motion clips and motion libraries), and one module per scene, whose docstring
 describes it: :mod:`.blockers`, :mod:`.figure` (``figure``, ``figure_train``, ``figure_walk``),
-:mod:`.figure_orbit`, :mod:`.cloth`, :mod:`.bend`, :mod:`.wanderer` (``wanderer_train``,
-``wanderer_test``), :mod:`.ripples`, :mod:`.sunlit`.
+:mod:`.figure_orbit`, :mod:`.cloth`, :mod:`.cloth_clips` (``cloth_train``, ``cloth_heldout``), :mod:`.bend`,
+:mod:`.wanderer` (``wanderer_train``, ``wanderer_test``), :mod:`.ripples`, :mod:`.sunlit`, :mod:`.dish`, :mod:`.measured`
+(a MERL-layout table, not a USD scene).
 
 Output is deterministic: coordinates, weights and quaternions are rounded to 1e-4 (camera
 matrices to 1e-6) before they are written, so the files only change when the generator changes;
@@ -39,6 +41,9 @@ from ...io import bundled_asset_directory
 from .bend import make_bend
 from .blockers import make_blockers
 from .cloth import make_cloth
+from .cloth_clips import make_cloth_heldout, make_cloth_train
+from .dish import make_dish
+from .measured import make_measured
 from .figure import make_figure, make_figure_train, make_figure_walk
 from .figure_orbit import make_figure_orbit
 from .ripples import make_ripples
@@ -46,8 +51,10 @@ from .sky import write_sky
 from .sunlit import make_sunlit
 from .wanderer import make_wanderer_test, make_wanderer_train
 
-#: The scenes written by default (``ripples`` and ``sunlit`` are written on request).
-SCENES = ("blockers", "figure", "figure_train", "figure_walk", "figure_orbit", "cloth", "bend", "wanderer_train", "wanderer_test")
+#: The scenes written by default (``ripples``, ``sunlit``, ``cloth_train`` and ``cloth_heldout`` are
+#: written on request).
+SCENES = ("blockers", "figure", "figure_train", "figure_walk", "figure_orbit", "cloth", "bend", "wanderer_train", "wanderer_test",
+          "dish", "measured")
 
 #: Scene name -> the function that writes it into a directory (returns the written path(s)).
 MAKERS = {
@@ -58,10 +65,14 @@ MAKERS = {
     "figure_train": make_figure_train,
     "figure_walk": make_figure_walk,
     "cloth": make_cloth,
+    "cloth_train": make_cloth_train,
+    "cloth_heldout": make_cloth_heldout,
     "bend": make_bend,
     "wanderer_train": make_wanderer_train,
     "wanderer_test": make_wanderer_test,
     "sunlit": make_sunlit,
+    "dish": make_dish,
+    "measured": make_measured,
 }
 
 

@@ -1,0 +1,273 @@
+"""Data-driven visibility (Nowrouzezahrai, Kalogerakis, Fiume 2009, sec. 5): error, cost, sizes.
+
+Part 1 -- glossy (Table 1, Fig. 7): on each held-out clip, the graph ``stages/<scene>_visibility.toml``
+with ``model`` = linear, quadratic and network (the cached training data shared), against the
+glossy ray-traced reference on the graph's ``[validate]`` frames (``warpshade.measure.measure_error``,
+the same cached reference as ``warpshade run --validate``); next to it, in the same run,
+``stages/<scene>_rpo_traced.toml`` (RPO over visibility ray traced every frame, the baseline):
+error ratio and time-per-frame ratio (median of replayed frames, and each stage from a profile),
+fit time (every cluster, cross-validation included), model size.
+
+Part 2 -- diffuse: ``stages/figure_visibility_diffuse.toml`` against the 2007 linear model
+(``stages/figure_datadriven.toml``) with the *same* training frames and rays as the visibility
+graph (its own graph traces every frame at 256 rays; this is said in the JSON).
+
+Part 3 -- the paper's studies in visibility space, on the held-out frames against visibility
+ray traced there (``--truth-rays``), ridge models fitted in-process on the graph's training data:
+clusters vs error (Fig. 4: the mean-shift bandwidth), retained variance vs error (Fig. 5), the
+frame the visibility is modelled in (Fig. 9: cluster frames, one-ring frames, world), errors
+measured in the world frame (local predictions turned back by their frames).
+
+Writes ``visibility-<date>-cpu[-quick].json`` and ``-models.png``, ``-studies.png`` into ``--out``.
+
+Usage::
+
+    python benchmarks/bench_visibility.py [--quick] [--scenes figure,wanderer] [--out DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import os
+import platform
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+RESULTS = ROOT / "benchmarks" / "results"
+STAGES = ROOT / "stages"
+MODELS = ("linear", "quadratic", "network")
+#: Rays of the visibility the studies of part 3 compare with.
+TRUTH_RAYS = 512
+#: ``--quick``: every 60th training frame at 16 rays, ridge only, 64-ray truths, one frame.
+QUICK = {"frames": "0:600:60", "samples": 16, "truth": 64}
+#: Replayed frames timed per graph (the median is reported).
+TIMED_FRAMES = 12
+
+
+def _spec(name, quick, model=None, data=None, fit=None):
+    from warpshade.graph import load
+
+    spec = load(STAGES / f"{name}.toml")
+    for st in spec.stages:
+        if st.type in ("visibility.data", "datadriven.data"):
+            st.params.update(data or {})
+            if quick:
+                st.params.update(frames=QUICK["frames"], samples=QUICK["samples"])
+        if st.type == "visibility.fit":
+            if model is not None:
+                st.params["model"] = model
+            st.params.update(fit or {})
+            if quick:
+                st.params.update(hidden=(4,), max_iterations=20)
+    if quick:
+        spec.validate_spec["frames"] = spec.validate_spec["frames"][:1]
+    return spec
+
+
+def _measure(spec, quick, scene=None, timed_frames=TIMED_FRAMES):
+    """Compile, time replayed frames, profile the stages, measure the error on [validate] frames."""
+    from warpshade.measure import measure_error
+
+    t0 = time.perf_counter()
+    rt = spec.compile(scene, device="cpu", progress=True)
+    compile_s = time.perf_counter() - t0
+    frames = [float(f) for f in spec.validate_spec["frames"]]
+    n = len(rt.scene.frames)
+    timed = frames if quick else sorted(set(frames) | {float(rt.scene.frames[i]) for i in
+                                                       np.linspace(0, n - 1, timed_frames).astype(int)})
+    rt.run(timed, warmup=True)
+    summary = rt.timing_summary()
+    prof = rt.profile(frames=[timed[0]] if quick else timed[:4])
+    m = measure_error(rt, frames, samples=QUICK["truth"] if quick else None)
+    fit = next((st.report for st in rt.stages if st.type_name == "visibility.fit"), None)
+    pred = next((st for st in rt.stages if st.type_name == "visibility.predict"), None)
+    return rt, {"rel_rms": float(m.error["mean"]["rel_rms"]),
+                "per_frame": [float(e["rel_rms"]) for e in m.error["per_frame"]],
+                "median_frame_s": summary["median_frame_s"], "stage_s": prof, "compile_s": compile_s,
+                "model_bytes": int(rt.model_bytes()),
+                "fit": None if fit is None else {k: fit[k] for k in ("clusters", "components", "input_components",
+                                                                     "models_used", "fallbacks", "cv_error",
+                                                                     "total_fit_s", "stored_floats") if k in fit},
+                "novelty": None if pred is None else pred.diagnostics()}
+
+
+def part_glossy(scene_name, quick, timed_frames=TIMED_FRAMES, models=MODELS):
+    out = {}
+    for model in (("linear",) if quick else models):
+        print(f"== {scene_name}: {model}", flush=True)
+        _, out[model] = _measure(_spec(f"{scene_name}_visibility", quick, model), quick, timed_frames=timed_frames)
+    print(f"== {scene_name}: RPO over traced visibility", flush=True)
+    _, out["traced"] = _measure(_spec(f"{scene_name}_rpo_traced", quick), quick, timed_frames=timed_frames)
+    base = out["traced"]
+    for model in MODELS:
+        if model in out:
+            out[model]["error_ratio_to_traced"] = out[model]["rel_rms"] / base["rel_rms"]
+            out[model]["speedup_over_traced"] = base["median_frame_s"] / out[model]["median_frame_s"]
+    return out
+
+
+def part_diffuse(quick):
+    from warpshade.graph import load
+
+    vis_spec = _spec("figure_visibility_diffuse", quick)
+    data = next(st.params for st in vis_spec.stages if st.type == "visibility.data")
+    _, vis = _measure(vis_spec, quick)
+    dd_spec = _spec("figure_datadriven", quick, data={"frames": data["frames"], "samples": data["samples"]})
+    _, dd = _measure(dd_spec, quick)
+    return {"visibility_network": vis, "datadriven_2007": dd,
+            "note": f"both trained on figure_train frames {data['frames']} at {data['samples']} rays "
+                    "(stages/figure_datadriven.toml as written: every frame at 256 rays)",
+            "error_ratio": vis["rel_rms"] / dd["rel_rms"]}
+
+
+def part_studies(quick, rt):
+    """Visibility-space error on the held-out frames (module docstring, part 3)."""
+    from warpshade.methods.datadriven import pose_features, pose_layout
+    from warpshade.methods.visibility import fit_visibility, predict_f64, to_local
+    from warpshade.methods.visibility.mirror import inputs_f64
+    from warpshade.methods.visibility.model import local_frames_f64
+    from warpshade.tasks import executor
+    from warpshade.transfer import compute
+
+    data = rt.artifacts["data"]["data"]
+    scene = rt.scene
+    frames = [float(f) for f in rt.spec.validate_spec["frames"]]
+    rays = QUICK["truth"] if quick else TRUTH_RAYS
+    truth = {f: compute(scene, f, 4, rays, space="world", seed=77, below_horizon="visible").visibility for f in frames}
+    idx = [scene.frame_index(f) for f in frames]
+    layout = pose_layout(scene, "quaternion", "include")
+    poses = pose_features(scene, idx, layout, root_reference=data["root_reference"])
+
+    def error(model):
+        a = model.arrays
+        x = inputs_f64(a, poses)
+        num = den = 0.0
+        for i, f in enumerate(frames):
+            local = predict_f64(a, x[i])
+            kind = model.frames
+            if kind == "world":
+                world = local
+            else:
+                fr = local_frames_f64(kind, scene.points_at(f)[None], scene.normals_at(f)[None], a["rest_points"],
+                                      a["faces"], a["labels"])[0]
+                world = to_local(local, np.swapaxes(fr, 1, 2))
+            num += float(((world - truth[f]) ** 2).sum())
+            den += float((truth[f] ** 2).sum())
+        return float(np.sqrt(num / den))
+
+    out = {"truth_rays": rays, "frames": frames, "bandwidth": [], "variance": [], "frames_kind": {}}
+    with executor("serial") as ex:
+        def fit(**kw):
+            t0 = time.perf_counter()
+            m = fit_visibility(data, model="linear", executor=ex, **kw)
+            return m, time.perf_counter() - t0
+
+        for kind in ("cluster", "one_ring", "world"):
+            m, s = fit(frames=kind)
+            out["frames_kind"][kind] = {"error": error(m), "fit_s": s, "cv_error": m.report["cv_error"]}
+            print("frames", kind, out["frames_kind"][kind], flush=True)
+        for bw in ((0.3,) if quick else (0.1, 0.2, 0.3, 0.5, 0.8)):
+            m, s = fit(bandwidth=bw)
+            out["bandwidth"].append({"bandwidth": bw, "clusters": m.report["clusters"], "error": error(m),
+                                     "stored_floats": m.report["stored_floats"]})
+            print("bandwidth", out["bandwidth"][-1], flush=True)
+        for var in ((0.95,) if quick else (0.8, 0.9, 0.95, 0.99)):
+            m, s = fit(variance=var, predictable=1.0)
+            out["variance"].append({"variance": var, "components": int(np.sum(m.report["components"])),
+                                    "error": error(m)})
+            print("variance", out["variance"][-1], flush=True)
+    return out
+
+
+def _plot_models(plt, glossy, path_models):
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    for name, res in glossy.items():
+        labels = [k for k in (*MODELS, "traced") if k in res]
+        err = [res[k]["rel_rms"] for k in labels]
+        ms = [1e3 * res[k]["median_frame_s"] for k in labels]
+        axes[0].bar([f"{name}\n{k}" for k in labels], err)
+        axes[1].bar([f"{name}\n{k}" for k in labels], ms)
+    axes[0].set_ylabel("relative RMS vs glossy reference")
+    axes[1].set_ylabel("ms per frame (replayed, 2-core CPU)")
+    axes[1].set_yscale("log")
+    for ax in axes:
+        ax.tick_params(axis="x", labelsize=7)
+    fig.suptitle("data-driven visibility (per-cluster models) vs RPO over per-frame traced visibility")
+    fig.tight_layout()
+    fig.savefig(path_models, dpi=110)
+    plt.close(fig)
+
+
+def _plot(result, path_models, path_studies):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    glossy = result["glossy"]
+    if glossy:
+        _plot_models(plt, glossy, path_models)
+    st = result.get("studies")
+    if not st:
+        return
+    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
+    axes[0].plot([b["clusters"] for b in st["bandwidth"]], [b["error"] for b in st["bandwidth"]], "o-")
+    axes[0].set_xlabel("clusters (mean-shift bandwidth)")
+    axes[1].plot([v["variance"] for v in st["variance"]], [v["error"] for v in st["variance"]], "o-")
+    axes[1].set_xlabel("retained variance per cluster")
+    kinds = list(st["frames_kind"])
+    axes[2].bar(kinds, [st["frames_kind"][k]["error"] for k in kinds])
+    axes[2].set_xlabel("frame of the model")
+    for ax in axes:
+        ax.set_ylabel("held-out visibility rel. error (ridge)")
+    fig.tight_layout()
+    fig.savefig(path_studies, dpi=110)
+    plt.close(fig)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--quick", action="store_true",
+                    help="smoke profile: every 60th training frame at 16 rays, ridge only, one frame, 64-ray truths")
+    ap.add_argument("--scenes", default="figure", help="held-out clips with a stages/<scene>_visibility.toml "
+                    "('' skips part 1)")
+    ap.add_argument("--models", default=",".join(MODELS), help="models of part 1")
+    ap.add_argument("--timed-frames", type=int, default=TIMED_FRAMES, help="replayed frames timed per graph")
+    ap.add_argument("--tag", default="", help="suffix of the output names (e.g. the scene of a separate run)")
+    ap.add_argument("--skip-diffuse", action="store_true")
+    ap.add_argument("--skip-studies", action="store_true")
+    ap.add_argument("--out", default=None, help="output directory (default benchmarks/results; required with --quick)")
+    args = ap.parse_args(argv)
+    if args.quick and args.out is None:
+        ap.error("--quick writes only into --out DIR (never benchmarks/results)")
+    out_dir = Path(args.out or RESULTS)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    tag = f"visibility-{datetime.date.today().isoformat()}-cpu" + ("-quick" if args.quick else "") + (f"-{args.tag}" if args.tag else "")
+    result = {"machine": platform.platform(), "cpu_count": os.cpu_count(), "quick": args.quick,
+              "load_average_start": os.getloadavg(), "glossy": {}}
+    t_all = time.perf_counter()
+    for scene in [s for s in args.scenes.split(",") if s]:
+        result["glossy"][scene] = part_glossy(scene, args.quick, args.timed_frames, tuple(args.models.split(",")))
+        (out_dir / f"{tag}.json").write_text(json.dumps(result, indent=1, default=str))
+    if not args.skip_diffuse:
+        result["diffuse"] = part_diffuse(args.quick)
+        (out_dir / f"{tag}.json").write_text(json.dumps(result, indent=1, default=str))
+    if not args.skip_studies:
+        rt = _spec("figure_visibility", args.quick, "linear").compile(device="cpu", progress=True)
+        result["studies"] = part_studies(args.quick, rt)
+    result["load_average_end"] = os.getloadavg()
+    result["wall_s"] = time.perf_counter() - t_all
+    (out_dir / f"{tag}.json").write_text(json.dumps(result, indent=1, default=str))
+    _plot(result, out_dir / f"{tag}-models.png", out_dir / f"{tag}-studies.png")
+    print(json.dumps({s: {k: (v["rel_rms"], v["median_frame_s"]) for k, v in r.items()}
+                      for s, r in result["glossy"].items()}, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

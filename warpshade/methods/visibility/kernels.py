@@ -1,0 +1,168 @@
+"""Warp kernels of the data-driven visibility model (float64 mirrors: :mod:`.mirror`).
+
+A frame (all launches on buffers bound at set-up, recorded with the rest of the frame):
+
+1. the pose vector from the joint transforms (:func:`warpshade.methods.datadriven.kernels.pose_features_kernel`),
+   or the cloth's dihedral angles (:mod:`.cloth`);
+2. :func:`inputs_kernel` -- ``x = clip((a - mean) W, low, high)`` (thread per input component);
+3. :func:`features_kernel` -- ``phi = [x, x_i x_j]`` into the activations (thread per feature);
+4. :func:`hidden_kernel` -- every network's hidden units, ``tanh(b1 + W1 x)`` (thread per unit, all
+   clusters in one launch);
+5. :func:`outputs_kernel` -- every cluster's PCA weights, ``b2 + w2 . act`` (thread per output);
+6. :func:`reconstruct_kernel` -- per vertex ``mean + U y`` of its cluster (thread per vertex);
+7. the frames: :func:`cluster_axes_kernel` (thread per cluster) and :func:`cluster_frames_kernel`
+   (thread per vertex), or the one-ring frames of :mod:`warpshade.geometry.frames`.
+
+:func:`diffuse_kernel` is the diffuse path (eq. 14): ``albedo / pi * L . R(F^T) (v * cos)``.
+"""
+
+from __future__ import annotations
+
+import functools
+
+from ..._wp import wp
+from ...basis.sh_warp import SHTables, sh_kernels
+from ...geometry.frames import onb_tangent
+from .clusters import BLEND
+
+wp.set_module_options({"enable_backward": False})
+
+_BLEND = wp.constant(BLEND)
+
+
+@wp.kernel
+def inputs_kernel(features: wp.array(dtype=wp.float32), mean: wp.array(dtype=wp.float32),
+                  weights: wp.array2d(dtype=wp.float32), low: wp.array(dtype=wp.float32),
+                  high: wp.array(dtype=wp.float32), x: wp.array(dtype=wp.float32)):
+    """``x[k] = clip(sum_i (features[i] - mean[i]) weights[i, k], low[k], high[k])``."""
+    k = wp.tid()
+    acc = float(0.0)
+    for i in range(features.shape[0]):
+        acc += (features[i] - mean[i]) * weights[i, k]
+    x[k] = wp.clamp(acc, low[k], high[k])
+
+
+@wp.kernel
+def features_kernel(x: wp.array(dtype=wp.float32), quad_i: wp.array(dtype=wp.int32), quad_j: wp.array(dtype=wp.int32),
+                    act: wp.array(dtype=wp.float32)):
+    """``act[f] = x[f]`` for ``f < k_in``, then the products ``x[quad_i] x[quad_j]``."""
+    f = wp.tid()
+    k = x.shape[0]
+    if f < k:
+        act[f] = x[f]
+    else:
+        act[f] = x[quad_i[f - k]] * x[quad_j[f - k]]
+
+
+@wp.kernel
+def hidden_kernel(x: wp.array(dtype=wp.float32), w1: wp.array2d(dtype=wp.float32), b1: wp.array(dtype=wp.float32),
+                  base: int, act: wp.array(dtype=wp.float32)):
+    """Hidden unit ``u`` of every cluster's network: ``act[base + u] = tanh(b1[u] + w1[u] . x)`` (eq. 12)."""
+    u = wp.tid()
+    acc = b1[u]
+    for j in range(x.shape[0]):
+        acc += w1[u, j] * x[j]
+    act[base + u] = wp.tanh(acc)
+
+
+@wp.kernel
+def outputs_kernel(act: wp.array(dtype=wp.float32), w2: wp.array(dtype=wp.float32), b2: wp.array(dtype=wp.float32),
+                   source: wp.array(dtype=wp.int32), length: wp.array(dtype=wp.int32),
+                   w_offset: wp.array(dtype=wp.int32), y: wp.array(dtype=wp.float32)):
+    """Output ``o`` (a PCA weight of one cluster): ``b2[o] + w2[w_offset[o]:] . act[source[o]:]``."""
+    o = wp.tid()
+    acc = b2[o]
+    s = source[o]
+    w = w_offset[o]
+    for j in range(length[o]):
+        acc += w2[w + j] * act[s + j]
+    y[o] = acc
+
+
+@wp.kernel
+def reconstruct_kernel(mean: wp.array2d(dtype=wp.float32), basis: wp.array3d(dtype=wp.float32),
+                       labels: wp.array(dtype=wp.int32), components: wp.array(dtype=wp.int32),
+                       y_offset: wp.array(dtype=wp.int32), y: wp.array(dtype=wp.float32), start: int,
+                       visibility: wp.array2d(dtype=wp.float32)):
+    """``visibility[v] = mean[v] + basis[v] y[cluster]`` (thread per vertex from ``start``)."""
+    v = start + wp.tid()
+    c = labels[v]
+    k = components[c]
+    o = y_offset[c]
+    for i in range(mean.shape[1]):
+        acc = mean[v, i]
+        for j in range(k):
+            acc += basis[v, i, j] * y[o + j]
+        visibility[v, i] = acc
+
+
+@wp.func
+def _unit_or(v: wp.vec3, fallback: wp.vec3) -> wp.vec3:
+    n = wp.length(v)
+    if n > 1.0e-12:
+        return v / n
+    return fallback
+
+
+@wp.kernel
+def cluster_axes_kernel(points: wp.array(dtype=wp.vec3), order: wp.array(dtype=wp.int32),
+                        offsets: wp.array(dtype=wp.int32), weights: wp.array2d(dtype=wp.float32),
+                        rest_axes: wp.array2d(dtype=wp.vec3), axes: wp.array2d(dtype=wp.vec3)):
+    """The cluster's directions of this pose, ``A_k = sum_i w_k,i p_i`` normalised (thread per cluster)."""
+    c = wp.tid()
+    a1 = wp.vec3(0.0, 0.0, 0.0)
+    a2 = wp.vec3(0.0, 0.0, 0.0)
+    for r in range(offsets[c], offsets[c + 1]):
+        p = points[order[r]]
+        a1 += weights[r, 0] * p
+        a2 += weights[r, 1] * p
+    axes[c, 0] = _unit_or(a1, rest_axes[c, 0])
+    axes[c, 1] = _unit_or(a2, rest_axes[c, 1])
+
+
+@wp.kernel
+def cluster_frames_kernel(normals: wp.array(dtype=wp.vec3), labels: wp.array(dtype=wp.int32),
+                          axes: wp.array2d(dtype=wp.vec3), frames: wp.array(dtype=wp.mat33)):
+    """Vertex frame from its cluster's directions (:mod:`.clusters`): rows (t, n x t, n)."""
+    v = wp.tid()
+    n = _unit_or(normals[v], wp.vec3(0.0, 0.0, 1.0))
+    c = labels[v]
+    a1 = axes[c, 0]
+    a2 = axes[c, 1]
+    t_raw = a1 - wp.dot(a1, n) * n
+    blend = wp.clamp(1.0 - wp.length(t_raw) / _BLEND, 0.0, 1.0)
+    t = t_raw + blend * blend * _BLEND * a2
+    t = t - wp.dot(t, n) * n
+    t = _unit_or(t, onb_tangent(n))
+    b = wp.cross(n, t)
+    frames[v] = wp.matrix_from_rows(t, b, n)
+
+
+@functools.lru_cache(maxsize=None)
+def diffuse_kernel(order: int):
+    """``kernel(visibility, frames, albedo, light, cos_sh, tables, start, radiance)``: eq. 14 then
+    the lighting, ``albedo / pi * L . R(F^T)(v * cos)``, negative sums clamped to 0."""
+    shk = sh_kernels(order)
+    N2 = order * order
+    vec_t = shk.vec
+    sh_rotate, sh_product, sh_load = shk.rotate, shk.product, shk.load
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def kernel(visibility: wp.array2d(dtype=wp.float32), frames: wp.array(dtype=wp.mat33),
+               albedo: wp.array2d(dtype=wp.float32), light: wp.array2d(dtype=wp.float32),
+               cos_sh: wp.array(dtype=wp.float32), tables: SHTables, start: int,
+               radiance: wp.array2d(dtype=wp.float32)):
+        v = wp.tid() + start
+        vis = sh_load(visibility, v)
+        c = vec_t()
+        for i in range(N2):
+            c[i] = cos_sh[i]
+        t = sh_product(vis, c, tables)
+        tw = sh_rotate(t, wp.transpose(frames[v]), tables)
+        for ch in range(3):
+            acc = float(0.0)
+            for i in range(N2):
+                acc += tw[i] * light[ch, i]
+            radiance[v, ch] = wp.max(acc, 0.0) * albedo[v, ch] / wp.pi
+
+    return kernel

@@ -1,0 +1,276 @@
+"""The data-driven visibility model (Nowrouzezahrai, Kalogerakis, Fiume 2009, sec. 5): the artifact.
+
+Made by :func:`fit_visibility` from the training data of ``visibility.data``:
+
+1. **Inputs**: the pose vectors (joint rotations, :mod:`warpshade.methods.datadriven.pose`) or the
+   dihedral angles of a point-cached mesh, standardised and reduced by PCA to the fewest
+   components holding ``input_variance`` of their variance (the budget), each divided by its
+   standard deviation: ``x = (a - mean) W`` (a x k_in). At run time ``x`` is clamped to the training
+   range widened by ``margin`` of its width on each side, so that a pose far outside the training
+   range gives a bounded prediction (the novelty is reported, :func:`novelty_report`).
+2. **Clusters** (:mod:`.clusters`) and the **local frames** the visibility is modelled in:
+   ``"cluster"`` (each cluster's principal directions in the vertex tangent planes), ``"one_ring"``
+   (:mod:`warpshade.geometry.frames`) or ``"world"`` (no frame: the paper's Fig. 9 comparison;
+   the frame stages take local frames only).
+3. **Per cluster** (:mod:`.fit`, executor tasks): PCA of its local visibility to the budget
+   ``variance`` and a linear, quadratic or network model from ``x`` to the PCA weights.
+
+Arrays (``arrays()`` / :func:`model_from_arrays`): the input statistics; per vertex its cluster,
+its mean visibility (V, C) and basis (V, C, k_max) (zero past its cluster's ``k``); per cluster its
+output offset and the rest-pose frame rule; the models' layers packed flat:
+
+* ``act`` (the frame's activations) = ``[phi (D), hidden units (sum H)]`` with ``phi = x`` or its
+  quadratic expansion;
+* hidden unit ``u``: ``tanh(b1[u] + w1[u] . x)``;
+* output ``o``: ``b2[o] + w2[w_offset[o] : + length[o]] . act[source[o] : + length[o]]``.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..datadriven.model import PoseSpace, pose_space
+from .clusters import cluster_frame_rule, cluster_frames_f64, cluster_vertices
+from .fit import expand_features, fit_cluster
+from .training import to_local
+
+__all__ = ["FRAME_KINDS", "input_space", "local_frames_f64"]
+
+MODELS = ("linear", "quadratic", "network")
+FRAME_KINDS = ("cluster", "one_ring", "world")
+
+
+@dataclass
+class VisibilityModel:
+    """The fitted model as flat arrays (module docstring); ``report`` is not stored."""
+
+    arrays: dict
+    report: dict = field(default_factory=dict)
+
+    @property
+    def order(self) -> int:
+        return int(self.arrays["meta"][0])
+
+    @property
+    def model(self) -> str:
+        return MODELS[int(self.arrays["meta"][1])]
+
+    @property
+    def frames(self) -> str:
+        return FRAME_KINDS[int(self.arrays["meta"][2])]
+
+    def stored_floats(self) -> int:
+        skip = ("meta", "training_poses", "labels", "rest_points", "faces", "topology")
+        return int(sum(np.asarray(v).size for k, v in self.arrays.items() if k not in skip))
+
+
+def input_space(poses: np.ndarray, variance: float, k_max: int) -> tuple[PoseSpace, np.ndarray]:
+    """Input PCA to the budget: ``(space, W)`` with ``x = (a - space.mean) @ W`` of unit variance."""
+    full = pose_space(poses, pca=True)
+    v = np.asarray(full.variance, np.float64)
+    cum = np.cumsum(v) / max(float(v.sum()), 1e-300)
+    k = int(min(np.searchsorted(cum, variance - 1e-12) + 1, k_max, v.size))
+    k = max(k, 1)
+    space = full.truncated(k)
+    w = space.weights / np.sqrt(np.maximum(space.variance, 1e-300))
+    return space, w
+
+
+def local_frames_f64(kind: str, points, normals, rest, faces, labels):
+    """Frames of every training pose, (p, V, 3, 3) (identity for ``"world"``)."""
+    p = np.asarray(points).shape[0]
+    v = np.asarray(points).shape[1]
+    if kind == "world":
+        return np.broadcast_to(np.eye(3), (p, v, 3, 3))
+    if kind == "one_ring":
+        from ...geometry.frames import frame_rule, tangent_frames_f64
+
+        rule = frame_rule(rest, faces)
+        return np.stack([tangent_frames_f64(points[t], normals[t], rule) for t in range(p)])
+    rule = cluster_frame_rule(rest, labels)
+    return np.stack([cluster_frames_f64(points[t], normals[t], rule) for t in range(p)])
+
+
+def _quadratic_pairs(k: int) -> tuple[np.ndarray, np.ndarray]:
+    return np.triu_indices(k)
+
+
+def fit_visibility(data: dict, *, model: str = "network", frames: str = "cluster", pose: str = "quaternion",
+                   root: str = "include", input_variance: float = 0.99, input_max: int = 24, variance: float = 0.95,
+                   predictable: float = 0.99, k_max: int = 32, bandwidth: float = 0.3, min_cluster: int = 8, hidden=(8, 16),
+                   max_iterations: int = 300, margin: float = 0.25, seed: int = 0, labels=None, executor=None,
+                   progress: bool = False) -> VisibilityModel:
+    """Fit the model to a ``visibility.data`` artifact (module docstring). ValueError on bad input."""
+    from ...tasks import executor as new_executor
+
+    t0 = time.perf_counter()
+    if model not in MODELS or frames not in FRAME_KINDS:
+        raise ValueError(f"model must be one of {MODELS} and frames one of {FRAME_KINDS}")
+    settings = np.asarray(data["settings"]).reshape(-1)
+    order = int(settings[0])
+    source = int(settings[3])
+    vis = np.asarray(data["visibility"], np.float32)
+    pcount, vcount, c = vis.shape
+    if source == 0:
+        from ..datadriven.stages import _select_columns
+
+        a = _select_columns(data, pose, root)
+    else:
+        a = np.asarray(data["dihedral"], np.float64)
+    space, w_in = input_space(a, input_variance, input_max)
+    x = (a - space.mean) @ w_in
+    span = x.max(0) - x.min(0)
+    lo, hi = x.min(0) - margin * span, x.max(0) + margin * span
+    if labels is None:
+        labels = cluster_vertices(data["skin_weights"], data["rest_points"], data["mesh_ids"], bandwidth=bandwidth,
+                                  min_size=min_cluster)
+    labels = np.asarray(labels, np.int32)
+    kc = int(labels.max()) + 1
+    fr = local_frames_f64(frames, data["points"], data["normals"], data["rest_points"], data["faces"], labels)
+    local = np.empty(vis.shape, np.float32)
+    for t in range(pcount):
+        local[t] = vis[t] if frames == "world" else to_local(vis[t], fr[t])
+    tasks = []
+    for cl in range(kc):
+        rows = np.flatnonzero(labels == cl)
+        tasks.append({"x": x, "y": local[:, rows, :].reshape(pcount, -1), "model": model, "variance": variance,
+                      "predictable": predictable, "k_max": k_max, "hidden": tuple(int(h) for h in hidden), "max_iterations": max_iterations,
+                      "seed": seed, "cluster": cl, "vertices": int(rows.size)})
+    tasks_order = sorted(range(kc), key=lambda i: -tasks[i]["vertices"])
+    own = executor is None
+    ex = new_executor() if own else executor
+    try:
+        done = ex.map(fit_cluster, [tasks[i] for i in tasks_order], desc=f"fitting {kc} clusters ({model})",
+                      progress=progress)
+    finally:
+        if own:
+            ex.close()
+    results = [None] * kc
+    for i, r in zip(tasks_order, done):
+        results[i] = r
+    arrays = _pack(results, labels, order, model, frames, source, space, w_in, lo, hi, data, a, pose, root)
+    reports = [r["report"] for r in results]
+    fallbacks = [r for r in reports if "fallback" in r]
+    report = {"clusters": kc, "cluster_sizes": [int(r["vertices"]) for r in reports],
+              "components": [int(r["components"]) for r in reports], "input_components": int(w_in.shape[1]),
+              "input_features": int(a.shape[1]), "model": model, "frames": frames,
+              "models_used": {m: sum(r["model_used"] == m for r in reports) for m in ("constant", "linear", "quadratic", "network")},
+              "fallbacks": [{"cluster": r["cluster"], "reason": r["fallback"]} for r in fallbacks],
+              "cv_error": float(np.sqrt(sum(r["cv_error"] ** 2 * r["vertices"] for r in reports) / vcount)),
+              "cluster_fit_s": [round(r["fit_s"], 3) for r in reports], "total_fit_s": time.perf_counter() - t0,
+              "retained_variance_min": float(min(r["retained_variance"] for r in reports))}
+    out = VisibilityModel(arrays, report)
+    report["stored_floats"] = out.stored_floats()
+    return out
+
+
+def _pack(results, labels, order, model, frames, source, space, w_in, lo, hi, data, a, pose, root) -> dict:
+    from ..datadriven.pose import PARAMETERISATIONS, ROOT_MODES
+
+    vcount = labels.shape[0]
+    c = order * order
+    kc = len(results)
+    kin = w_in.shape[1]
+    d = expand_features(np.zeros((1, kin)), model).shape[1]
+    comps = np.array([r["basis"].shape[1] for r in results], np.int32)
+    kmax = max(int(comps.max()), 1)
+    mean = np.zeros((vcount, c), np.float32)
+    basis = np.zeros((vcount, c, kmax), np.float32)
+    y_offset = np.concatenate([[0], np.cumsum(comps)]).astype(np.int32)
+    hidden = np.array([r["w1"].shape[0] if "w1" in r else 0 for r in results], np.int32)
+    h_offset = np.concatenate([[0], np.cumsum(hidden)]).astype(np.int32)
+    w1 = np.zeros((max(int(h_offset[-1]), 1), kin), np.float32)
+    b1 = np.zeros(max(int(h_offset[-1]), 1), np.float32)
+    source_, length, w_offset, w2, b2 = [], [], [], [], []
+    pos = 0
+    for cl, r in enumerate(results):
+        rows = np.flatnonzero(labels == cl)
+        mean[rows] = r["mean"].reshape(rows.size, c)
+        basis[rows, :, :comps[cl]] = r["basis"].reshape(rows.size, c, comps[cl])
+        if hidden[cl]:
+            w1[h_offset[cl]:h_offset[cl + 1]] = r["w1"]
+            b1[h_offset[cl]:h_offset[cl + 1]] = r["b1"]
+        for o in range(comps[cl]):
+            row = np.asarray(r["w2"][o], np.float32)
+            source_.append(d + int(h_offset[cl]) if hidden[cl] else 0)
+            length.append(row.size)
+            w_offset.append(pos)
+            w2.append(row)
+            b2.append(float(r["b2"][o]))
+            pos += row.size
+    qi, qj = _quadratic_pairs(kin) if model == "quadratic" else (np.zeros(0, np.int64), np.zeros(0, np.int64))
+    rule = cluster_frame_rule(data["rest_points"], labels)
+    kinds = list(PARAMETERISATIONS)
+    return {
+        "meta": np.array([order, MODELS.index(model), FRAME_KINDS.index(frames), source,
+                          kinds.index(pose) if pose in kinds else 0, ROOT_MODES.index(root), kin, d, kmax, kc],
+                         np.int64),
+        "pose_mean": space.mean, "pose_scale": space.scale, "pose_active": space.active.astype(np.int8),
+        "pose_components": space.components, "pose_variance": space.variance,
+        "pose_total_variance": np.array([space.total_variance]), "pose_low": space.low, "pose_high": space.high,
+        "input_weights": w_in, "x_low": lo, "x_high": hi,
+        "quad_i": np.asarray(qi, np.int32), "quad_j": np.asarray(qj, np.int32),
+        "labels": labels, "frame_order": rule.order, "frame_offsets": rule.offsets, "frame_weights": rule.weights,
+        "rest_axes": rule.rest_axes, "rest_points": np.asarray(data["rest_points"], np.float64),
+        "faces": np.asarray(data["faces"], np.int32),
+        "mean": mean, "basis": basis, "components": comps, "y_offset": y_offset,
+        "hidden": hidden, "hidden_offset": h_offset, "w1": w1, "b1": b1,
+        "source": np.asarray(source_, np.int32), "length": np.asarray(length, np.int32),
+        "w_offset": np.asarray(w_offset, np.int32),
+        "w2": np.concatenate(w2).astype(np.float32) if w2 else np.zeros(1, np.float32),
+        "b2": np.asarray(b2, np.float32),
+        "topology": np.asarray(data["topology"], np.int64),
+        "root_reference": np.asarray(data.get("root_reference", np.zeros((0, 3, 3))), np.float64),
+        "training_poses": np.asarray(a, np.float64),
+    }
+
+
+_REQUIRED = ("meta", "pose_mean", "input_weights", "x_low", "x_high", "labels", "frame_order", "frame_offsets",
+             "frame_weights", "rest_axes", "mean", "basis", "components", "y_offset", "hidden", "hidden_offset", "w1",
+             "b1", "source", "length", "w_offset", "w2", "b2", "quad_i", "quad_j")
+
+
+def model_from_arrays(arrays: dict) -> VisibilityModel:
+    """Check the arrays of a model: keys, shapes, offsets within bounds, finite values."""
+    missing = [k for k in _REQUIRED if k not in arrays]
+    if missing:
+        raise ValueError(f"visibility model: missing {missing}")
+    a = {k: np.asarray(v) for k, v in arrays.items()}
+    meta = a["meta"].reshape(-1)
+    if meta.size < 10:
+        raise ValueError("visibility model: malformed meta")
+    order, _, _, _, _, _, kin, d, kmax, kc = (int(v) for v in meta[:10])
+    v = a["labels"].shape[0]
+    c = order * order
+    checks = [
+        (a["mean"].shape == (v, c), f"mean {a['mean'].shape} is not ({v}, {c})"),
+        (a["basis"].shape == (v, c, kmax), f"basis {a['basis'].shape} is not ({v}, {c}, {kmax})"),
+        (a["input_weights"].shape[1] == kin, "input weights do not match the input components"),
+        (a["components"].shape == (kc,) and a["y_offset"].shape == (kc + 1,), "per-cluster arrays"),
+        (int(a["labels"].min(initial=0)) >= 0 and int(a["labels"].max(initial=0)) < kc, "labels out of range"),
+        (int(a["components"].max(initial=0)) <= kmax, "components exceed the basis"),
+        (a["source"].shape[0] == int(a["y_offset"][-1]) == a["b2"].shape[0], "output layer size"),
+        (a["w1"].shape[1] == kin, "hidden layer width"),
+    ]
+    for ok, what in checks:
+        if not ok:
+            raise ValueError(f"visibility model: {what}")
+    if a["length"].size:
+        end = a["w_offset"].astype(np.int64) + a["length"]
+        if end.max() > a["w2"].size or (a["source"].astype(np.int64) + a["length"]).max() > d + a["w1"].shape[0]:
+            raise ValueError("visibility model: output layer offsets out of bounds")
+    for k in ("mean", "basis", "w1", "b1", "w2", "b2", "input_weights", "x_low", "x_high"):
+        if not np.all(np.isfinite(a[k])):
+            raise ValueError(f"visibility model: {k} has NaN or infinite values")
+    return VisibilityModel(a)
+
+
+def pose_space_of(model: VisibilityModel) -> PoseSpace:
+    a = model.arrays
+    return PoseSpace(np.asarray(a["pose_mean"], np.float64), np.asarray(a["pose_scale"], np.float64),
+                     np.asarray(a["pose_active"]).astype(bool), np.asarray(a["pose_components"], np.float64),
+                     np.asarray(a["pose_variance"], np.float64), float(np.asarray(a["pose_total_variance"])[0]),
+                     np.asarray(a["pose_low"], np.float64), np.asarray(a["pose_high"], np.float64))

@@ -1,0 +1,55 @@
+"""Settings of data-driven visibility for the speed-vs-accuracy harness (``benchmarks/run.py``)."""
+
+from __future__ import annotations
+
+from ..rows import HarnessRow
+
+__all__ = [
+    "TRAINING_CLIPS",
+    "stages_for",
+]
+
+#: Held-out test scene -> its training clip and frames (the graphs' selections, so that the cached
+#: training data is shared with stages/*_visibility.toml).
+TRAINING_CLIPS = {"figure": ("bundled:figure_train", "0:600:3"), "figure_walk": ("bundled:figure_train", "0:600:3"),
+                  "wanderer": ("bundled:wanderer_train", "0:1000:8")}
+#: Rays per vertex of the training visibility of each clip (the wanderer's frames cost ~4x).
+TRAINING_RAYS = {"figure": 128, "figure_walk": 128, "wanderer": 64}
+#: The glossy material of the RPO rows (:mod:`warpshade.methods.rpo.rows`).
+GLOSSY = {"brdf": "ggx", "roughness": 0.5}
+
+
+def stages_for(training: str, frames: str | None, model: str = "network", order: int = 4, samples: int = 128,
+               shade: str = "glossy", fit: dict | None = None, features: str = "joints") -> tuple:
+    """Training data, fit, per-frame prediction and shading (``"glossy"``: rpo.shade, ``"diffuse"``:
+    visibility.diffuse)."""
+    data = {"training": training, "order": order, "samples": samples, "features": features}
+    if frames is not None:
+        data["frames"] = frames
+    stages = [("data", "visibility.data", data, {}),
+              ("fit", "visibility.fit", {"model": model, **(fit or {})}, {"data": "data.data"}),
+              ("predict", "visibility.predict", {"order": order}, {"model": "fit.model"})]
+    if shade == "glossy":
+        stages.append(("shade", "rpo.shade", {"order": order, "rank": 8, **GLOSSY}, {}))
+    else:
+        stages.append(("shade", "visibility.diffuse", {"order": order}, {}))
+    return tuple(stages)
+
+
+def harness_rows(quick: bool = False) -> list:
+    """The three models per held-out clip, glossy (against the glossy reference; RPO over traced
+    visibility is the rpo rows' 'traced n4 k8 s256'), and the network diffuse."""
+    rows = []
+    for scene, (training, frames) in TRAINING_CLIPS.items():
+        rays = TRAINING_RAYS[scene]
+        for model in ("linear", "quadratic", "network"):
+            rows.append(HarnessRow(
+                "visibility", f"{model} n4 k8", stages_for(training, frames, model, samples=rays), "shade.radiance",
+                scenes=(scene,), quick=False,
+                notes=f"trained on {training.split(':')[-1]} frames {frames} ({rays} rays); {model} per cluster; "
+                      "RPO GGX 0.5 vs the glossy reference"))
+        rows.append(HarnessRow(
+            "visibility", "network n4 diffuse", stages_for(training, frames, "network", samples=rays, shade="diffuse"),
+            "shade.radiance", scenes=(scene,), quick=False,
+            notes="cosine re-applied to the predicted visibility (eq. 14) vs the diffuse reference"))
+    return rows

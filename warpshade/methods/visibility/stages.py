@@ -1,0 +1,469 @@
+"""Data-driven visibility (Nowrouzezahrai, Kalogerakis, Fiume 2009, sec. 5) as graph stages.
+
+* ``visibility.data`` (precompute): the training data (:mod:`.training`): ray-traced SH
+  visibility (no cosine, open below the horizon), world frame, at every training frame of the
+  clip ``training`` (tasks for an executor, each kept in the run's cache as it finishes), with
+  the frame's points and normals, the inputs (joint rotations or dihedral angles) and what the
+  clustering reads.
+* ``visibility.fit`` (precompute): clusters, cluster tangent frames, input PCA, per-cluster PCA
+  of the local visibility and one model per cluster (linear, quadratic or a tanh network), sizes
+  from an error budget (:mod:`.model`, :mod:`.clusters`, :mod:`.fit`); clusters are executor tasks.
+* ``visibility.predict`` (per frame): pose features -> input PCA -> per-cluster model ->
+  per-vertex local visibility and the tangent frames it is expressed in (:mod:`.kernels`),
+  for ``rpo.shade`` (``visibility_space = "local"``) or ``visibility.diffuse``.
+* ``visibility.diffuse`` (per frame): the clamped cosine re-applied to the local visibility
+  (eq. 14), turned to the world and dotted with the lighting: diffuse radiance
+  ``albedo / pi * L . t``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..common import order_param, rays_param
+from ..datadriven.pose import PARAMETERISATIONS, ROOT_MODES, pose_features, pose_layout, root_references
+from ..datadriven.training import check_same_character, parse_frame_selection, topology_key, trace_training
+from ..stage import FrameStage, Param, Port, PrecomputeStage, StageError, register_stage
+from . import kernels
+from .model import FRAME_KINDS, MODELS, fit_visibility, model_from_arrays
+from .training import FEATURE_SOURCES, dense_skin_weights, mesh_ids, rest_points
+
+__all__: list[str] = []
+
+_ORDER = order_param(4, minimum=2, maximum=6)
+
+
+def _load_training(ctx, stage):
+    """The training scene of a data stage (the graph's scene when ``training`` is empty)."""
+    from ..datadriven.stages import _load_training as load
+
+    return load(ctx, stage)
+
+
+def _dihedral_module():
+    """The cloth inputs and clusters (:mod:`warpshade.methods.visibility.cloth`), or None."""
+    import importlib
+
+    try:
+        return importlib.import_module(__name__.rsplit(".", 1)[0] + ".cloth")
+    except ImportError:
+        return None
+
+
+@register_stage
+class VisibilityDataStage(PrecomputeStage):
+    type_name = "visibility.data"
+    version = 1
+    description = ("ray-traced SH visibility (no cosine), points, normals and inputs at every frame of a training "
+                   "clip (tasks for an executor)")
+    parameters = {
+        "training": Param("", str, "training clip: a USD file relative to the graph, or a scene spec such as "
+                          "'bundled:figure_train' (default: the graph's own scene)"),
+        "frames": Param(None, str, "training frames as 'start:stop[:step]' over frame indices (default: all)"),
+        "order": _ORDER,
+        "samples": rays_param(128, "rays per vertex per training frame"),
+        "seed": Param(0, int, "base seed of the per-frame ray rotations"),
+        "features": Param("joints", str, "inputs: joint rotations of a skinned mesh, or dihedral angles of the "
+                          "interior edges of a point-cached mesh", choices=FEATURE_SOURCES),
+    }
+
+    def __init__(self, name, params=None):
+        super().__init__(name, params)
+        self.uses_scene = not self.params["training"]
+
+    def output_ports(self):
+        return {"data": Port("arrays", (), "training visibility (p, V, C) world frame, points, normals, inputs")}
+
+    def cache_params(self):
+        return {k: v for k, v in self.params.items() if k != "training"}
+
+    def cache_key(self, ctx):
+        if not self.params["training"]:
+            return {}
+        return {"training": _load_training(ctx, self).fingerprint()}
+
+    def precompute(self, ctx, inputs):
+        p = self.params
+        where = f"stage {self.name!r} ({self.type_name})"
+        train = _load_training(ctx, self)
+        try:
+            if p["features"] == "joints":
+                check_same_character(train, ctx.scene, where)
+            elif train.vertex_count != ctx.scene.vertex_count or not np.array_equal(train.faces, ctx.scene.faces):
+                raise ValueError(f"training clip {train.source} and scene {ctx.scene.source} differ in vertices or "
+                                 "faces: a model applies to the same mesh only")
+            idx = parse_frame_selection(p["frames"], train, where + ": parameter 'frames'")
+        except ValueError as exc:
+            raise StageError(str(exc) if str(exc).startswith("stage") else f"{where}: {exc}") from None
+        if idx.size < 4:
+            raise StageError(f"{where}: parameter 'frames' selects {idx.size} frame(s); the model needs at least 4")
+        out = {}
+        if p["features"] == "joints":
+            try:
+                layouts = {kind: pose_layout(train, kind, "include") for kind in PARAMETERISATIONS}
+            except ValueError as exc:
+                raise StageError(f"{where}: {exc} (features = 'joints' needs a skinned mesh; point-cached meshes "
+                                 "take features = 'dihedral')") from None
+            ref = root_references(train, int(idx[0]))
+            out["root_reference"] = ref
+            for kind, layout in layouts.items():
+                out[f"poses_{kind}"] = pose_features(train, idx, layout, root_reference=ref)
+                root = np.zeros(layout.size, np.int8)
+                for j in np.flatnonzero(layout.parents < 0):
+                    if layout.offsets[j] >= 0:
+                        root[layout.offsets[j]:layout.offsets[j] + layout.widths[j]] = 1
+                out[f"root_{kind}"] = root
+        else:
+            cloth = _dihedral_module()
+            if cloth is None:
+                raise StageError(f"{where}: features = 'dihedral' needs warpshade.methods.visibility.cloth, "
+                                 "which this installation does not have")
+            out["dihedral"] = np.stack([cloth.dihedral_angles(train.points_at(float(train.frames[i])), train.faces)
+                                        for i in idx]).astype(np.float64)
+        tasks: dict = {}
+        with ctx.executor() as ex:
+            vis = trace_training(train, idx, p["order"], p["samples"], seed=p["seed"], space="world", executor=ex,
+                                 progress=ctx.progress, cache=ctx.cache, report=tasks, quantity="visibility")
+        frames = train.frames[idx]
+        out.update({
+            "visibility": vis,
+            "points": np.stack([train.points_at(float(f)) for f in frames]).astype(np.float32),
+            "normals": np.stack([train.normals_at(float(f)) for f in frames]).astype(np.float32),
+            "rest_points": rest_points(train), "faces": np.asarray(train.faces, np.int32),
+            "skin_weights": dense_skin_weights(train), "mesh_ids": mesh_ids(train),
+            "frames": np.asarray(frames, np.float64), "frame_indices": idx.astype(np.int64),
+            "topology": topology_key(train),
+            "settings": np.array([p["order"], p["samples"], p["seed"], FEATURE_SOURCES.index(p["features"])], np.int64),
+        })
+        self.report = {"training": train.source, "frames": int(idx.size), "vertices": int(train.vertex_count),
+                       "coefficients": int(vis.shape[2]), "bytes": int(vis.nbytes),
+                       "executor": getattr(ex, "name", "?"), **tasks}
+        return {"data": out}
+
+    def check_artifact(self, outputs):
+        d = outputs["data"]
+        v = d.get("visibility")
+        if v is None or v.ndim != 3 or v.dtype != np.float32 or not np.all(np.isfinite(v)):
+            raise ValueError("visibility.data: visibility must be a finite float32 (p, V, C) array")
+        for key in ("points", "normals"):
+            if d.get(key) is None or d[key].shape != v.shape[:2] + (3,):
+                raise ValueError(f"visibility.data: {key} missing or not (p, V, 3)")
+        source = FEATURE_SOURCES[int(np.asarray(d["settings"]).reshape(-1)[3])]
+        need = [f"poses_{k}" for k in PARAMETERISATIONS] if source == "joints" else ["dihedral"]
+        for key in need:
+            if d.get(key) is None or d[key].shape[0] != v.shape[0]:
+                raise ValueError(f"visibility.data: {key} missing or not one row per training frame")
+
+
+# ---- the fit -------------------------------------------------------------------------------------
+@register_stage
+class VisibilityFitStage(PrecomputeStage):
+    type_name = "visibility.fit"
+    version = 2
+    uses_scene = False
+    description = ("clusters, cluster frames, input PCA, per-cluster visibility PCA and a linear / quadratic / "
+                   "network model per cluster (sizes from the error budget, cross-validated)")
+    parameters = {
+        "model": Param("network", str, "per-cluster model: ridge, ridge on second-order features, or a "
+                       "one-hidden-layer tanh network (eq. 12-13)", choices=MODELS),
+        "frames": Param("cluster", str, "frames the visibility is modelled in: cluster PCA directions in the "
+                        "tangent plane, the one-ring frames of warpshade.geometry.frames, or the world frame "
+                        "(measurements only: the frame stages take local frames)", choices=FRAME_KINDS),
+        "pose": Param("quaternion", str, "joint-angle parameterisation", choices=tuple(PARAMETERISATIONS)),
+        "root": Param("include", str, "root joint: world translation + rotation as inputs, or ignored",
+                      choices=ROOT_MODES),
+        "input_variance": Param(0.99, float, "input PCA: variance of the inputs kept (the budget)", minimum=0.5,
+                                maximum=1.0),
+        "input_max": Param(24, int, "input PCA: most components", minimum=1),
+        "variance": Param(0.95, float, "per-cluster visibility PCA: variance kept (the budget)", minimum=0.5,
+                          maximum=1.0),
+        "predictable": Param(0.99, float, "per-cluster components kept after the fit: variance of the model's "
+                             "predictions kept (the budget; 1 keeps every fitted component)", minimum=0.5, maximum=1.0),
+        "k_max": Param(32, int, "per-cluster visibility PCA: most components", minimum=1),
+        "bandwidth": Param(0.3, float, "mean-shift radius in skinning-weight space", minimum=1e-3),
+        "min_cluster": Param(8, int, "smallest cluster (smaller ones are merged into the nearest)", minimum=1),
+        "hidden": Param((8.0, 16.0), tuple, "network: neuron counts cross-validated"),
+        "max_iterations": Param(300, int, "network: most L-BFGS-B iterations per fit", minimum=1),
+        "margin": Param(0.25, float, "inputs clamped to their training range widened by this fraction",
+                        minimum=0.0),
+        "seed": Param(0, int, "seed of the networks' extra hidden units"),
+    }
+
+    def input_ports(self):
+        return {"data": Port("arrays", (), "training data of visibility.data")}
+
+    def output_ports(self):
+        return {"model": Port("arrays", (), "fitted data-driven visibility model (visibility.model)")}
+
+    def precompute(self, ctx, inputs):
+        p = self.params
+        where = f"stage {self.name!r} ({self.type_name})"
+        hidden = [int(h) for h in p["hidden"]]
+        if not hidden or min(hidden) < 1 or any(h != float(x) for h, x in zip(hidden, p["hidden"])):
+            raise StageError(f"{where}: parameter 'hidden' needs positive whole neuron counts, got {p['hidden']!r}")
+        data = inputs["data"]
+        labels = None
+        if int(np.asarray(data["settings"]).reshape(-1)[3]) == FEATURE_SOURCES.index("dihedral"):
+            cloth = _dihedral_module()
+            if cloth is None:
+                raise StageError(f"{where}: dihedral inputs need warpshade.methods.visibility.cloth")
+            labels = cloth.cluster_labels(data)
+        try:
+            with ctx.executor() as ex:
+                model = fit_visibility(data, model=p["model"], frames=p["frames"], pose=p["pose"], root=p["root"],
+                                       input_variance=p["input_variance"], input_max=p["input_max"],
+                                       variance=p["variance"], predictable=p["predictable"], k_max=p["k_max"], bandwidth=p["bandwidth"],
+                                       min_cluster=p["min_cluster"], hidden=hidden,
+                                       max_iterations=p["max_iterations"], margin=p["margin"], seed=p["seed"],
+                                       labels=labels, executor=ex, progress=ctx.progress)
+        except ValueError as exc:
+            raise StageError(f"{where}: {exc}") from None
+        self.report = model.report
+        return {"model": model.arrays}
+
+    def check_artifact(self, outputs):
+        model_from_arrays(outputs["model"])
+
+
+# ---- per frame -------------------------------------------------------------------------------------
+#: Vertices per CPU chunk below which a launch is not split over cores.
+_CHUNK_MIN = 2048
+
+
+def _f32(a, dev, dtype=None):
+    from ..._wp import wp
+
+    return wp.array(np.ascontiguousarray(np.asarray(a, np.float32)), dtype=dtype or wp.float32, device=dev)
+
+
+def _i32(a, dev):
+    from ..._wp import wp
+
+    return wp.array(np.ascontiguousarray(np.asarray(a, np.int32)), dtype=wp.int32, device=dev)
+
+
+@register_stage
+class VisibilityPredictStage(FrameStage):
+    type_name = "visibility.predict"
+    description = ("per-vertex SH visibility in local frames from the frame's pose by the data-driven model "
+                   "(pose -> input PCA -> per-cluster model -> PCA basis), with the frames")
+    parameters = {"order": _ORDER}
+
+    def dims(self):
+        return {"C": self.params["order"] ** 2}
+
+    def input_ports(self):
+        return {"model": Port("arrays", (), "fitted model of visibility.fit"), "points": Port("vec3", ("V",)),
+                "normals": Port("vec3", ("V",))}
+
+    def output_ports(self):
+        return {"visibility": Port("float32", ("V", "C"), "SH visibility (no cosine, open below the horizon), "
+                                   "tangent frames", space="local"),
+                "frames": Port("mat33", ("V",), "the tangent frames of the visibility, rows (t, b, n)")}
+
+    def setup(self, ctx, inputs):
+        from ..._wp import cpu_workers, wp
+
+        where = f"stage {self.name!r} ({self.type_name})"
+        try:
+            model = model_from_arrays(inputs["model"])
+        except ValueError as exc:
+            raise StageError(f"{where}: {exc}") from None
+        a = model.arrays
+        meta = a["meta"].reshape(-1)
+        order, _, frames_code, source, kind, root, kin, d, _, kc = (int(x) for x in meta[:10])
+        scene, dev = ctx.scene, ctx.device
+        if order != self.params["order"]:
+            raise StageError(f"{where}: the model was trained at order {order}; the stage has order {self.params['order']}")
+        if FRAME_KINDS[frames_code] == "world":
+            raise StageError(f"{where}: the model was fitted in the world frame (frames = 'world', for measurements); "
+                             "fit it with frames = 'cluster' or 'one_ring'")
+        if a["labels"].shape[0] != scene.vertex_count:
+            raise StageError(f"{where}: the model has {a['labels'].shape[0]} vertices, scene "
+                             f"{scene.source or '<arrays>'} has {scene.vertex_count}")
+        self.model, self._device = model, dev
+        self._source = FEATURE_SOURCES[source]
+        if self._source == "joints":
+            if not np.array_equal(a["topology"], topology_key(scene)):
+                raise StageError(f"{where}: scene {scene.source or '<arrays>'} is not the character the model was "
+                                 "trained on (vertex count, faces, skin weights, rest or bind transforms differ)")
+            self._pose = _PoseInputs(scene, list(PARAMETERISATIONS)[kind], ROOT_MODES[root], a["root_reference"], dev)
+            if self._pose.layout.size != a["pose_mean"].size:
+                raise StageError(f"{where}: the model expects {a['pose_mean'].size} inputs, the scene gives "
+                                 f"{self._pose.layout.size}")
+            features = self._pose.features
+            poses = pose_features(scene, np.arange(len(scene.frames)), self._pose.layout,
+                                  root_reference=a["root_reference"])
+        else:
+            cloth = _dihedral_module()
+            if cloth is None:
+                raise StageError(f"{where}: dihedral inputs need warpshade.methods.visibility.cloth")
+            self._pose = cloth.DihedralInputs(scene, dev)
+            features = self._pose.features
+            poses = np.stack([cloth.dihedral_angles(scene.points_at(float(f)), scene.faces) for f in scene.frames])
+        self._mean = _f32(a["pose_mean"], dev)
+        self._w_in = wp.array(np.asarray(a["input_weights"], np.float32), dtype=wp.float32, device=dev)
+        self._low, self._high = _f32(a["x_low"], dev), _f32(a["x_high"], dev)
+        self._x = wp.zeros(kin, dtype=wp.float32, device=dev)
+        self._quad_i, self._quad_j = _i32(a["quad_i"], dev), _i32(a["quad_j"], dev)
+        hidden = int(a["hidden_offset"][-1])
+        self._act = wp.zeros(d + max(hidden, 1), dtype=wp.float32, device=dev)
+        self._hidden = hidden
+        self._d = d
+        self._w1 = wp.array(np.asarray(a["w1"], np.float32), dtype=wp.float32, device=dev)
+        self._b1 = _f32(a["b1"], dev)
+        self._w2, self._b2 = _f32(a["w2"], dev), _f32(a["b2"], dev)
+        self._src, self._len, self._woff = _i32(a["source"], dev), _i32(a["length"], dev), _i32(a["w_offset"], dev)
+        self._y = wp.zeros(max(int(a["y_offset"][-1]), 1), dtype=wp.float32, device=dev)
+        self._outputs = int(a["y_offset"][-1])
+        self._vmean = wp.array(np.asarray(a["mean"], np.float32), dtype=wp.float32, device=dev)
+        self._basis = wp.array(np.asarray(a["basis"], np.float32), dtype=wp.float32, device=dev)
+        self._labels, self._comps, self._yoff = _i32(a["labels"], dev), _i32(a["components"], dev), _i32(a["y_offset"], dev)
+        v = scene.vertex_count
+        self._vis = wp.zeros((v, order * order), dtype=wp.float32, device=dev)
+        self._frames = wp.zeros(v, dtype=wp.mat33, device=dev)
+        self._points, self._normals = inputs["points"], inputs["normals"]
+        self._frame_kind = FRAME_KINDS[frames_code]
+        if self._frame_kind == "cluster":
+            self._order, self._offsets = _i32(a["frame_order"], dev), _i32(a["frame_offsets"], dev)
+            self._fweights = wp.array(np.asarray(a["frame_weights"], np.float32), dtype=wp.float32, device=dev)
+            self._rest_axes = wp.array(np.asarray(a["rest_axes"], np.float32), dtype=wp.vec3, device=dev)
+            self._axes = wp.zeros((kc, 2), dtype=wp.vec3, device=dev)
+        else:
+            from ...geometry.frames import TangentFrames
+
+            self._tf = TangentFrames(a["rest_points"], a["faces"], device=dev)
+        self._workers = cpu_workers() if dev.is_cpu else 1
+        self._features = features
+        self._novelty = novelty_report(model, poses)
+        self._frame_times = np.asarray(scene.frames, np.float64)
+        return {"visibility": self._vis, "frames": self._frames}
+
+    def launch(self, state):
+        from ..._wp import launch_parallel, wp
+
+        dev = self._device
+        self._pose.launch(state)
+        wp.launch(kernels.inputs_kernel, dim=self._x.shape[0], device=dev,
+                  inputs=[self._features, self._mean, self._w_in, self._low, self._high, self._x])
+        wp.launch(kernels.features_kernel, dim=self._d, device=dev, inputs=[self._x, self._quad_i, self._quad_j, self._act])
+        if self._hidden:
+            wp.launch(kernels.hidden_kernel, dim=self._hidden, device=dev,
+                      inputs=[self._x, self._w1, self._b1, self._d, self._act])
+        if self._outputs:
+            wp.launch(kernels.outputs_kernel, dim=self._outputs, device=dev,
+                      inputs=[self._act, self._w2, self._b2, self._src, self._len, self._woff, self._y])
+        launch_parallel(kernels.reconstruct_kernel, self._vis.shape[0],
+                        lambda a, b: [self._vmean, self._basis, self._labels, self._comps, self._yoff, self._y, a,
+                                      self._vis], dev, self._workers, min_count=_CHUNK_MIN)
+        if self._frame_kind == "cluster":
+            wp.launch(kernels.cluster_axes_kernel, dim=self._axes.shape[0], device=dev,
+                      inputs=[self._points, self._order, self._offsets, self._fweights, self._rest_axes, self._axes])
+            wp.launch(kernels.cluster_frames_kernel, dim=self._frames.shape[0], device=dev,
+                      inputs=[self._normals, self._labels, self._axes, self._frames])
+        else:
+            self._tf.compute(self._points, self._normals, out=self._frames)
+
+    def diagnostics(self) -> dict:
+        """Novelty of the scene's inputs against the training inputs, and how many frames clamp."""
+        return dict(self._novelty)
+
+    def model_bytes(self) -> int:
+        return 4 * self.model.stored_floats()
+
+
+class _PoseInputs:
+    """The pose vector of the frame on the device (the layout and kernel of ``datadriven.transfer``)."""
+
+    def __init__(self, scene, kind, root, root_reference, dev):
+        from ..._wp import wp
+        from ..datadriven import kernels as dk
+
+        self.layout = layout = pose_layout(scene, kind, root)
+        rest_t, bind, ref_t = [], [], []
+        roots = iter(np.transpose(np.asarray(root_reference, np.float64), (0, 2, 1)))
+        for skel in scene.skeletons:
+            r = np.transpose(np.asarray(skel.rest_transforms, np.float64)[:, :3, :3], (0, 2, 1))
+            r = r / np.linalg.norm(r, axis=-2, keepdims=True)
+            rest_t.extend(np.transpose(r, (0, 2, 1)))
+            bind.extend(np.transpose(np.asarray(skel.bind_transforms, np.float64), (0, 2, 1)))
+            for parent in np.asarray(skel.parents):
+                ref_t.append(next(roots) if parent < 0 and root == "include" else np.eye(3))
+        self._kernel = dk.pose_features_kernel
+        self._parents, self._offsets = _i32(layout.parents, dev), _i32(layout.offsets, dev)
+        self._rest_t = _f32(rest_t, dev, wp.mat33)
+        self._bind = _f32(bind, dev, wp.mat44)
+        self._ref_t = _f32(ref_t, dev, wp.mat33)
+        self._kind = dk.KIND_CODES[kind]
+        self.features = wp.zeros(max(layout.size, 1), dtype=wp.float32, device=dev)
+        self._dev = dev
+
+    def launch(self, state):
+        from ..._wp import wp
+
+        wp.launch(self._kernel, dim=self.layout.joint_count, device=self._dev,
+                  inputs=[state.joint_transforms, state.skin_matrices, self._parents, self._offsets, self._rest_t,
+                          self._bind, self._ref_t, self._kind, self.features])
+
+
+def novelty_report(model, poses: np.ndarray) -> dict:
+    """How far the scene's inputs lie from the training inputs (:func:`warpshade.methods.datadriven.novelty`)
+    and how many of its frames have an input-PCA coordinate clamped to the widened training range."""
+    from ..datadriven.model import novelty
+    from .mirror import inputs_f64
+    from .model import pose_space_of
+
+    a = model.arrays
+    nov = novelty(pose_space_of(model), poses, a["training_poses"])
+    x = (np.atleast_2d(poses) - a["pose_mean"]) @ a["input_weights"]
+    clamped = np.any(np.abs(inputs_f64(a, poses) - x) > 0, axis=1)
+    return {"novelty_max": float(nov["nearest"].max()), "novelty_mean": float(nov["nearest"].mean()),
+            "range_excess_max": float(nov["range"].max()), "constant_drift_max": float(nov["constant"].max()),
+            "frames_clamped": int(clamped.sum()), "frames": int(clamped.size)}
+
+
+@register_stage
+class VisibilityDiffuseStage(FrameStage):
+    type_name = "visibility.diffuse"
+    description = "diffuse radiance from local SH visibility: the clamped cosine re-applied (eq. 14), lit in the world"
+    parameters = {"order": _ORDER}
+
+    def dims(self):
+        return {"C": self.params["order"] ** 2}
+
+    def input_ports(self):
+        return {"visibility": Port("float32", ("V", "C"), space="local"), "frames": Port("mat33", ("V",)),
+                "albedo": Port("float32", ("V", 3)), "lighting": Port("lighting")}
+
+    def output_ports(self):
+        return {"radiance": Port("float32", ("V", 3), "outgoing diffuse radiance, linear RGB")}
+
+    def setup(self, ctx, inputs):
+        from ..._wp import wp
+        from ...basis.sh_warp import sh_kernels
+        from ..common import ShLighting
+        from ..rpo.model import cosine_sh
+
+        n = self.params["order"]
+        try:
+            self._lighting = ShLighting(inputs["lighting"], n)
+        except ValueError as exc:
+            raise StageError(f"stage {self.name!r}: {exc}") from None
+        if inputs["lighting"].sphere_light_count:
+            raise StageError(f"stage {self.name!r}: shades distant lighting (SH) only; this run has sphere lights")
+        dev = ctx.device
+        self._vis, self._frames, self._albedo = inputs["visibility"], inputs["frames"], inputs["albedo"]
+        self._cos = _f32(cosine_sh(n), dev)
+        self._tables = sh_kernels(n).tables(dev)
+        self._kernel = kernels.diffuse_kernel(n)
+        self._radiance = wp.zeros((ctx.dims["V"], 3), dtype=wp.float32, device=dev)
+        return {"radiance": self._radiance}
+
+    def launch(self, state):
+        from ..._wp import launch_parallel
+
+        self._lighting.launch()
+        launch_parallel(self._kernel, self._radiance.shape[0],
+                        lambda a, b: [self._vis, self._frames, self._albedo, self._lighting.light, self._cos,
+                                      self._tables, a, self._radiance], self._radiance.device,
+                        min_count=_CHUNK_MIN)
