@@ -30,6 +30,13 @@ GOLDEN_MEAN_REL = 1e-4
 #: single vertex whose float32 rounding flips a near-tangent ray moves by at most ~1e-3 of the
 #: peak (one of a few hundred rays changing its hit).
 GOLDEN_MAX_REL = 5e-3
+#: Graphs whose precompute runs a non-convex fit from gradients summed by BLAS: the summation
+#: order differs between CPU kernels of the BLAS library (measured: an AMD EPYC host against the
+#: host the goldens were written on), and the fit settles a little elsewhere. Their limits
+#: (mean, max) are what that spread measured, times two: sunlit_sg_lights (the SG lighting fit)
+#: 8.4e-4 / 1.8e-3; sunlit_ldprt_glossy (the glossy ZH fits) 2.6e-3 / 5.0e-2. Any change of maths
+#: still moves them by more.
+GOLDEN_FIT_SPREAD = {"sunlit_sg_lights": (2e-3, 5e-3), "sunlit_ldprt_glossy": (5e-3, 1e-1)}
 
 
 def golden_path(name: str) -> Path:
@@ -78,9 +85,10 @@ def golden_mismatch(name: str, results: dict) -> str | None:
     diff, ref = np.concatenate([d.ravel() for d in diffs]), np.concatenate([r.ravel() for r in refs])
     mean_rel = diff.mean() / max(ref.mean(), 1e-12)
     max_rel = diff.max() / max(ref.max(), 1e-12)
-    if mean_rel > GOLDEN_MEAN_REL or max_rel > GOLDEN_MAX_REL:
+    mean_limit, max_limit = GOLDEN_FIT_SPREAD.get(name, (GOLDEN_MEAN_REL, GOLDEN_MAX_REL))
+    if mean_rel > mean_limit or max_rel > max_limit:
         return (f"{name}: output differs from tests/golden/{name}.npz: mean |diff| {mean_rel:.2e} of the mean "
-                f"(limit {GOLDEN_MEAN_REL:.0e}), max |diff| {max_rel:.2e} of the max (limit {GOLDEN_MAX_REL:.0e}); "
+                f"(limit {mean_limit:.0e}), max |diff| {max_rel:.2e} of the max (limit {max_limit:.0e}); "
                 "if the change is meant, regenerate with `python -m pytest tests/test_cli_stages.py --update-goldens` "
                 "and say why in the commit")
     return None
