@@ -78,7 +78,7 @@ class GlobalOptions:
     """Knobs of :func:`fit_global` (see the module docstring)."""
 
     candidate_resolution: int = 6  # hemi-cube cells per face edge of the pool
-    beam: int = 8  # distinct sets kept per step of the scan
+    beam: int = 16  # distinct sets kept per step of the scan
     random_sets: int = 128  # random axis sets screened by the restarts
     screen_iterations: int = 15  # BFGS iterations of the screening descent
     starts: int = 3  # BFGS starts from the best scanned sets
@@ -336,25 +336,31 @@ def _best_of(target, starts_axes, order, fitted, mu, options):
 
 
 def _swap_moves(target, axes, order, fitted, mu, resolution, count):
-    """The ``count`` best "replace lobe i by pool axis c" moves per problem: (B, count, N, 3)."""
+    """The ``count`` best re-seatings per problem: one or two lobes removed and put back by the
+    beam scan on the others' residual (pool axes), each scored exactly; (B, count, N, 3).
+
+    A re-seating that puts every removed lobe back within 12 degrees of where it was is no move.
+    """
+    import itertools
+
     b, n_lobes = axes.shape[:2]
-    cand = _candidates(target, fitted, resolution)
-    kc = cand.shape[1]
-    y = basis(cand.reshape(-1, 3), order).reshape(b, kc, -1)
-    r_cand = _band_projections(target, y, fitted)
-    keep = np.stack([np.delete(axes, i, axis=1) for i in range(n_lobes)], axis=1)  # (B, N, N-1, 3)
-    ginv, u, phi = _set_state(target, keep, order, fitted, mu)
-    gain = _extension_gain(ginv, u, keep, cand, r_cand, order, fitted, mu)  # (B, N, K)
-    # a move back to (near) the removed axis is no move
-    near = np.abs(np.einsum("bnc,bkc->bnk", axes, cand)) > np.cos(np.radians(12.0))
-    score = np.where(near, -np.inf, gain - phi[:, :, None]).reshape(b, n_lobes * kc)
-    keys = np.arange(n_lobes * kc)[None].repeat(b, 0)
-    pick = _top_distinct(score, keys, count)
-    lobe, c = pick // kc, pick % kc
-    rows = np.arange(b)[:, None]
-    moved = np.repeat(axes[:, None], count, axis=1).copy()
-    moved[rows, np.arange(count)[None], lobe] = cand[rows, c]
-    return moved
+    moves, phis = [], []
+    near = np.cos(np.radians(12.0))
+    for r in (1, 2):
+        if n_lobes - r < 1 and r > 1:
+            break
+        for removed in itertools.combinations(range(n_lobes), r):
+            kept = np.delete(axes, removed, axis=1)
+            sets, phi = scan_sets(target, order, fitted, n_lobes, 2, resolution, mu, kept)
+            added = sets[:, :, n_lobes - r :]  # (B, 2, r, 3)
+            same = np.all(np.max(np.abs(np.einsum("bwrc,bqc->bwrq", added, axes[:, list(removed)])), axis=-1) > near,
+                          axis=-1)
+            moves.append(sets)
+            phis.append(np.where(same, np.inf, phi))
+    moves = np.concatenate(moves, axis=1)
+    phis = np.concatenate(phis, axis=1)
+    pick = np.argsort(phis, axis=1)[:, :count]
+    return moves[np.arange(b)[:, None], pick]
 
 
 def fit_global(target: np.ndarray, order: int, fitted: np.ndarray, lobe_count: int, ridge: float,
