@@ -213,7 +213,10 @@ def chart(result, path):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, (a, b, c) = plt.subplots(1, 3, figsize=(16, 4.2))
+    if "mesh" in result:
+        fig, (a, b, c) = plt.subplots(1, 3, figsize=(16, 4.2))
+    else:
+        fig, (a, c) = plt.subplots(1, 2, figsize=(11, 4.2))
     rv = result["random"]
     ns = sorted(int(k) for k in rv)
     a.boxplot([[rv[n]["relative_error"][k] for k in ("min", "q1", "median", "q3", "max")] for n in ns],
@@ -225,9 +228,7 @@ def chart(result, path):
     a.set_title(f"random unit order-6 SH vectors ({result['random_count']})")
     a.legend(fontsize=8)
     a.grid(True, which="both", alpha=0.3)
-    if "mesh" not in result:
-        b.axis("off")
-    else:
+    if "mesh" in result:
         me = result["mesh"]["errors"]
         keys = ["linear", "1", "2", "3", "4"]
         ours = [me[k]["error"] if k in me else me[int(k)]["error"] for k in keys]
