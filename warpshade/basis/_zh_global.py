@@ -89,6 +89,10 @@ class GlobalOptions:
     max_iterations: int = 200
     optimizer: str = "batched"
     seed: int = 0
+    gtol: float = 1e-9  # BFGS stops at |grad|_max <= gtol |t|
+    ftol: float = 1e-12  # ... or at a relative decrease of phi below ftol
+    gauss_newton_below: float = 0.1  # scanned relative error below which LM replaces BFGS
+    lm_ftol: float = 1e-8  # LM stops at a relative decrease of phi below this
 
 
 @dataclass
@@ -313,7 +317,7 @@ def _descend(target, axes0, order, fitted, mu, options: GlobalOptions, iteration
         return phi, grad.reshape(x.shape[0], -1)
 
     optimiser = bfgs_scipy if options.optimizer == "scipy" else bfgs_batched
-    x, phi, _ = optimiser(fun, axes0.reshape(b, -1), scale, iterations)
+    x, phi, _ = optimiser(fun, axes0.reshape(b, -1), scale, iterations, gtol=options.gtol, ftol=options.ftol)
     raw = x.reshape(b, n_lobes, 3)
     unit = raw / np.maximum(np.linalg.norm(raw, axis=-1, keepdims=True), 1e-300)
     return unit, phi
@@ -327,10 +331,27 @@ def _descend_sets(target, starts_axes, order, fitted, mu, options, iterations):
     return axes.reshape(b, s, n_lobes, 3), phi.reshape(b, s)
 
 
-def _best_of(target, starts_axes, order, fitted, mu, options):
-    """BFGS from S start sets per problem (B, S, N, 3); the best (axes (B, N, 3), phi (B,))."""
+def _best_of(target, starts_axes, order, fitted, mu, options, small=None):
+    """Descent from S start sets per problem (B, S, N, 3); the best (axes (B, N, 3), phi (B,)).
+
+    BFGS, or Levenberg-Marquardt (:func:`levenberg_marquardt`) for the problems flagged ``small``
+    (B,) bool: near-representable targets, where Gauss-Newton converges fast and BFGS crawls.
+    """
     b, s, n_lobes = starts_axes.shape[:3]
-    axes, phi = _descend_sets(target, starts_axes, order, fitted, mu, options, options.max_iterations)
+    if small is None or not np.any(small):
+        axes, phi = _descend_sets(target, starts_axes, order, fitted, mu, options, options.max_iterations)
+    else:
+        axes = np.empty_like(starts_axes)
+        phi = np.empty((b, s))
+        big = ~small
+        if np.any(big):
+            axes[big], phi[big] = _descend_sets(target[big], starts_axes[big], order, fitted, mu, options,
+                                                options.max_iterations)
+        rep = np.repeat(target[small], s, axis=0)
+        k = int(small.sum())
+        a, p, _ = levenberg_marquardt(rep, starts_axes[small].reshape(k * s, n_lobes, 3), order, fitted, mu,
+                                      options.max_iterations, options.lm_ftol)
+        axes[small], phi[small] = a.reshape(k, s, n_lobes, 3), p.reshape(k, s)
     pick = np.argmin(phi, axis=1)
     return axes[np.arange(b), pick], phi[np.arange(b), pick]
 
@@ -380,7 +401,8 @@ def fit_global(target: np.ndarray, order: int, fitted: np.ndarray, lobe_count: i
     sets = np.concatenate(sets)
     phi_scan = np.concatenate(phis)[:, 0]
     s = min(options.starts, sets.shape[1])
-    axes, phi = _best_of(target, sets[:, :s], order, fitted, mu, options)
+    small = np.sqrt(phi_scan / np.maximum(scale, 1e-300)) < options.gauss_newton_below
+    axes, phi = _best_of(target, sets[:, :s], order, fitted, mu, options, small)
     better = phi > phi_scan  # never lose the best scanned set
     axes[better], phi[better] = sets[better, 0], phi_scan[better]
     descent_axes = axes.copy()
@@ -448,3 +470,100 @@ def fit_lobes_global(target: np.ndarray, problem, options: GlobalOptions, initia
     _, psi_descent = solved(res.descent_axes)
     gain = np.where(res.restarted, np.maximum(psi_descent - psi, 0.0), 0.0)
     return LobeFit(res.axes, coeffs, psi, psi_scan, res.restarted, gain)
+
+
+def _tangent_frames(axes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors orthogonal to each unit axis and to each other, (..., 3) each."""
+    helper = np.where(np.abs(axes[..., :1]) < 0.9, np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]))
+    e1 = np.cross(axes, helper)
+    e1 /= np.linalg.norm(e1, axis=-1, keepdims=True)
+    return e1, np.cross(axes, e1)
+
+
+def _residual_and_jacobian(target, axes, order, fitted, mu, with_jacobian=True):
+    """Projected residual ``r = Y(S) g(S) - t`` over the fitted coefficients, phi, and Kaufman's
+    Jacobian ``P_perp dY/dS g`` in tangent coordinates (two per axis).
+
+    Returns ``(phi (B,), r (B, M), J (B, M, 2N) or None, e1, e2)``.
+    """
+    b, n_lobes = axes.shape[:2]
+    flat = axes.reshape(-1, 3)
+    if with_jacobian:
+        y, dy = basis_and_gradient(flat, order)
+    else:
+        y, dy = basis(flat, order), None
+    y3 = y.reshape(b, n_lobes, -1)
+    coeffs = np.zeros((b, n_lobes, order))
+    eye = np.eye(n_lobes)
+    rows = []
+    jac = []
+    phi = mu * 0.0
+    e1 = e2 = None
+    if with_jacobian:
+        e1, e2 = _tangent_frames(axes)
+        dy4 = dy.reshape(b, n_lobes, -1, 3)
+        d1 = np.einsum("bijk,bik->bij", dy4, e1)  # (B, N, n*n): dy/d(tangent 1)
+        d2 = np.einsum("bijk,bik->bij", dy4, e2)
+    for l in fitted:
+        sl = slice(l * l, (l + 1) * (l + 1))
+        a = y3[:, :, sl]  # (B, N, 2l+1)
+        ginv = np.linalg.inv(np.einsum("bim,bjm->bij", a, a) + mu * eye)
+        g = np.einsum("bij,bj->bi", ginv, np.einsum("bim,bm->bi", a, target[:, sl]))
+        coeffs[:, :, l] = g
+        r = np.einsum("bim,bi->bm", a, g) - target[:, sl]
+        rows.append(r)
+        if with_jacobian:
+            # D[:, m, (i, c)] = g_i d y_lm(s_i) / d tangent_c ; then P_perp D = D - A^T Ginv A D
+            dl = np.stack([d1[:, :, sl], d2[:, :, sl]], axis=-1) * g[:, :, None, None]  # (B, N, 2l+1, 2)
+            dmat = np.moveaxis(dl, 2, 1).reshape(b, 2 * l + 1, n_lobes * 2)  # (B, 2l+1, 2N)
+            proj = np.einsum("bim,bmk->bik", a, dmat)  # (B, N, 2N)
+            dmat = dmat - np.einsum("bim,bij,bjk->bmk", a, ginv, proj)
+            jac.append(dmat)
+    r = np.concatenate(rows, axis=1)
+    phi = np.einsum("bm,bm->b", r, r) + mu * np.einsum("bil,bil->b", coeffs, coeffs)
+    return phi, r, (np.concatenate(jac, axis=1) if with_jacobian else None), e1, e2
+
+
+def levenberg_marquardt(target, axes0, order, fitted, mu, iterations, ftol=1e-10):
+    """Batched Levenberg-Marquardt on the projected objective (variable projection with Kaufman's
+    Jacobian), axes moved in their tangent planes and renormalised.
+
+    Args:
+        target: (B, n*n) stored bands zeroed; axes0: (B, N, 3) unit.
+
+    Returns:
+        ``(axes (B, N, 3), phi (B,), iterations (B,))``.
+    """
+    axes = np.array(axes0, dtype=np.float64)
+    b, n_lobes = axes.shape[:2]
+    scale = np.maximum(np.einsum("bj,bj->b", target, target), 1e-300)
+    phi, r, jac, e1, e2 = _residual_and_jacobian(target, axes, order, fitted, mu)
+    lam = np.full(b, 1e-3)
+    its = np.zeros(b, dtype=np.int64)
+    active = np.flatnonzero(phi > 1e-28 * scale)
+    eye = np.eye(2 * n_lobes)
+    while active.size and its[active].max() < iterations:
+        j, rr = jac[active], r[active]
+        jtj = np.einsum("bmk,bml->bkl", j, j)
+        jtr = np.einsum("bmk,bm->bk", j, rr)
+        diag = np.einsum("bkk->bk", jtj)
+        damp = lam[active, None] * (diag + 1e-12 * scale[active, None])
+        step = -np.linalg.solve(jtj + damp[:, :, None] * eye, jtr[..., None])[..., 0]
+        step = step.reshape(-1, n_lobes, 2)
+        trial = axes[active] + step[..., :1] * e1[active] + step[..., 1:] * e2[active]
+        trial /= np.linalg.norm(trial, axis=-1, keepdims=True)
+        p_t, r_t, j_t, e1_t, e2_t = _residual_and_jacobian(target[active], trial, order, fitted, mu)
+        ok = p_t < phi[active]
+        its[active] += 1
+        good = active[ok]
+        decrease = (phi[good] - p_t[ok]) / np.maximum(phi[good], 1e-300)
+        axes[good], phi[good], r[good], jac[good] = trial[ok], p_t[ok], r_t[ok], j_t[ok]
+        e1[good], e2[good] = e1_t[ok], e2_t[ok]
+        lam[good] = np.maximum(lam[good] / 3.0, 1e-12)
+        lam[active[~ok]] *= 4.0
+        done = np.zeros(b, dtype=bool)
+        done[good[decrease < ftol]] = True
+        done[active[~ok][lam[active[~ok]] > 1e10]] = True
+        done[active[phi[active] <= 1e-28 * scale[active]]] = True
+        active = active[~done[active]]
+    return axes, phi, its
