@@ -22,6 +22,9 @@ ORACLE_STARTS = 48
 EXACT_FIT_REL = 1e-5
 # The default ridge (1e-5) shrinks a fitted DC by mu / (mu + 1 / (4 pi)) = 1.3e-4 relative.
 RIDGE_SHRINK_REL = 5e-4
+# LM and BFGS from one start reach the same local minimum of phi to this relative error (LM stops
+# at a relative decrease of 1e-8 per step).
+LM_BFGS_REL = 1e-3
 # Analytic vs finite-difference gradient of the projected objective, relative to its norm.
 GRAD_REL = 1e-5
 
@@ -154,3 +157,23 @@ def test_scan_scores_extensions_exactly(rng):
         grown = np.concatenate([axes[:, 0], cand[:, c : c + 1]], axis=1)
         np.testing.assert_allclose(after[:, 0, c], _zh_global.projected_value(target, grown, order, fitted, mu),
                                    rtol=1e-9)
+
+
+def test_levenberg_marquardt_reaches_the_bfgs_minimum(rng):
+    """On near-representable targets (a lobe set plus 1 % noise) LM on the projected objective and
+    BFGS from the same start end at the same phi (LM in a fraction of the iterations)."""
+    order, n_lobes, mu = 6, 3, _zh_fit.DEFAULT_RIDGE
+    axes = rng.normal(size=(6, n_lobes, 3))
+    axes /= np.linalg.norm(axes, axis=-1, keepdims=True)
+    t = zh.to_sh(axes, rng.normal(size=(6, n_lobes, order)))
+    t += 0.01 * np.linalg.norm(t, axis=1, keepdims=True) * rng.normal(size=t.shape) / 6.0
+    target = t.copy()
+    target[:, :4] = 0.0
+    fitted = np.arange(2, order)
+    start = axes + 0.15 * rng.normal(size=axes.shape)
+    start /= np.linalg.norm(start, axis=-1, keepdims=True)
+    phi0 = _zh_global.projected_value(target, start, order, fitted, mu)
+    _, phi_lm, its = _zh_global.levenberg_marquardt(target, start, order, fitted, mu, 200)
+    _, phi_bfgs = _zh_global._descend(target, start, order, fitted, mu, _zh_global.GlobalOptions(), 200)
+    assert np.all(phi_lm < phi0)
+    np.testing.assert_allclose(np.sqrt(phi_lm), np.sqrt(phi_bfgs), rtol=LM_BFGS_REL)
