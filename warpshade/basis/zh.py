@@ -421,7 +421,8 @@ def fit(
             float32 shading would turn into noise, at a relative cost of order mu on well-posed
             fits. 0 gives the unregularised paper objective.
         strategy: "global" or "greedy" (see above).
-        screened_sets: random axis sets screened per restarted problem ("global").
+        screened_sets: random axis sets screened per restarted problem ("global") with
+            ``restarts >= 6``; ``screened_sets * restarts / 6`` with fewer restarts.
 
     Returns:
         :class:`ZHFit`; ``notes["max_lobe_norm_ratio"]`` is the largest ``|g*| / |t|`` over the
