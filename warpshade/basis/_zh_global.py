@@ -104,6 +104,7 @@ class GlobalOptions:
     ftol: float = 1e-12  # ... or at a relative decrease of phi below ftol
     gauss_newton_below: float = 0.1  # scanned relative error below which LM replaces BFGS
     lm_ftol: float = 1e-8  # LM stops at a relative decrease of phi below this
+    lm_iterations: int = 200  # LM iterations at most
 
 
 @dataclass
@@ -361,7 +362,7 @@ def _best_of(target, starts_axes, order, fitted, mu, options, small=None):
         rep = np.repeat(target[small], s, axis=0)
         k = int(small.sum())
         a, p, _ = levenberg_marquardt(rep, starts_axes[small].reshape(k * s, n_lobes, 3), order, fitted, mu,
-                                      options.max_iterations, options.lm_ftol)
+                                      options.lm_iterations, options.lm_ftol)
         axes[small], phi[small] = a.reshape(k, s, n_lobes, 3), p.reshape(k, s)
     pick = np.argmin(phi, axis=1)
     return axes[np.arange(b), pick], phi[np.arange(b), pick]
