@@ -548,12 +548,15 @@ def part_ratio(args) -> dict:
     edges = _edges(scene)
     budget = 4 if args.quick else SCENE_BUDGETS["blockers"]
     rows = {}
-    for label, hierarchy, ratio in (("flat list", False, True), ("tree + ratio vectors", True, True),
-                                    ("tree, no ratio vectors", True, False)):
-        stages = graph_stages(4, "hyb", budget, hierarchy=hierarchy, ratio=ratio)
+    for label, hierarchy, ratio, theta in (("flat list", False, True, 25.0), ("tree + ratio vectors", True, True, 25.0),
+                                           ("tree, no ratio vectors", True, False, 25.0),
+                                           ("tree 45 deg + ratio vectors", True, True, 45.0),
+                                           ("tree 45 deg, no ratio vectors", True, False, 45.0)):
+        stages = graph_stages(4, "hyb", budget, hierarchy=hierarchy, ratio=ratio, theta_max=theta)
         res = run_setting(scene, lighting, stages, frames, device="cpu", name=f"shexp-ratio-{label}".replace(" ", "-"))
         err = setting_error(res["radiance"], gt)
-        rows[label] = {"hierarchy": hierarchy, "ratio": ratio, "rel_rms": err["rel_rms"], "rel_p99": err["rel_p99"],
+        rows[label] = {"hierarchy": hierarchy, "ratio": ratio, "theta_max": theta, "rel_rms": err["rel_rms"],
+                       "rel_p99": err["rel_p99"], "diagnostics": res["diagnostics"].get("shade", {}),
                        "seam": seam_error(res["radiance"], gt, edges), "frame_ms": res["frame_ms"],
                        "noise_rel_rms": err.get("noise_rel_rms")}
         rows[label]["_radiance"] = res["radiance"]
@@ -582,12 +585,12 @@ def _ratio_chart(scene, frame, gt, rows, path) -> None:
     axes[0].bar(x - 0.27, [rows[k]["rel_rms"] for k in labels], 0.27, label="relative RMS")
     axes[0].bar(x, [rows[k]["rel_p99"] for k in labels], 0.27, label="99th percentile")
     axes[0].bar(x + 0.27, [rows[k]["seam"] for k in labels], 0.27, label="seam (edge jumps of the error)")
-    axes[0].set_xticks(x, labels, fontsize=8)
+    axes[0].set_xticks(x, [k.replace(" + ", "\n+ ").replace(", ", ",\n") for k in labels], fontsize=7)
     axes[0].set_title("SHEXP n = 4 HYB on blockers vs ray-traced truth")
     axes[0].legend(fontsize=8)
     ref = np.asarray(gt[frame]["radiance"]).mean(axis=1)
     pts = np.concatenate([m.points for m in scene.meshes])
-    for k, colour in zip(labels[1:], ("C0", "C3")):
+    for k, colour in zip(labels[1:], ("C0", "C3", "C2", "C1")):
         err = np.abs(np.asarray(rows[k]["_radiance"][frame]).mean(axis=1) - ref) / max(float(ref.max()), 1e-12)
         axes[1].hist(err, bins=60, histtype="step", color=colour, label=k, log=True)
     axes[1].set_xlabel(f"|error| / max radiance, frame {frame:g} ({pts.shape[0]} receivers)")
@@ -618,7 +621,8 @@ def part_spherelights(args) -> dict:
         for i in range(count):
             p = centre + size * np.array([rng.uniform(-0.3, 0.3), rng.uniform(-0.3, 0.3), rng.uniform(-0.3, 0.3)])
             p[up] = hi[up] + 0.3 * size
-            lights.append(SphereLight(p, 0.04 * size, np.array([6.0, 5.0, 4.0]), path=f"/Bench/Lamp{i}"))
+            # radiance chosen so that one lamp's irradiance (~ L pi (r / d)^2) is comparable to the sky's
+            lights.append(SphereLight(p, 0.04 * size, np.array([60.0, 50.0, 40.0]), path=f"/Bench/Lamp{i}"))
         src = LightingSource(lights, scene.up_axis, lighting.degrees_per_frame, float(scene.frames[0]))
         res = run_setting(scene, src, graph_stages(4, "hyb", budget), frames, device="cpu", name=f"shexp-lamps-{count}")
         row = {"sphere_lights": count, "frame_ms": res["frame_ms"], "shade_ms": res["stage_ms"].get("shade")}
