@@ -143,13 +143,12 @@ def compare(other: str, rounds: int, frames: int, out_dir: Path) -> int:
     names = list(med["this"]["kernel_cpu_ms"])
     other_ms = [med["other"]["kernel_cpu_ms"][n] for n in names]
     this_ms = [med["this"]["kernel_cpu_ms"][n] for n in names]
-    ratio = cpu_ratio
     x = np.arange(len(names))
     fig, ax = plt.subplots(figsize=(8, 4))
     ax.bar(x - 0.2, other_ms, 0.4, label=f"other ({Path(trees['other']).name})")
     ax.bar(x + 0.2, this_ms, 0.4, label=f"this ({Path(trees['this']).name})")
     for i, n in enumerate(names):
-        ax.text(i, max(other_ms[i], this_ms[i]) * 1.02, f"{ratio[n]:.2f}x", ha="center", fontsize=8)
+        ax.text(i, max(other_ms[i], this_ms[i]) * 1.02, f"{cpu_ratio[n]:.2f}x", ha="center", fontsize=8)
     ax.set_xticks(x, names)
     ax.set_ylabel("CPU ms per launch (median, all threads)")
     ax.set_title(f"ripples_height_rpo kernels, {rounds} interleaved rounds (ratio this/other)")

@@ -636,8 +636,43 @@ def part_spherelights(args) -> dict:
     base = rows["0"]["frame_ms"]
     for r in rows.values():
         r["frame_ratio_vs_none"] = r["frame_ms"] / base
-    return {"scene": "blockers", "order": 4, "method": "hyb", "leaf_spheres": budget, "rows": rows,
-            "light_radius": 0.04 * size}
+    result = {"scene": "blockers", "order": 4, "method": "hyb", "leaf_spheres": budget, "rows": rows,
+              "light_radius": 0.04 * size}
+    out_dir = Path(args.out or RESULTS_DIR)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    png = out_dir / f"shexp-spherelights-{_dt.date.today().isoformat()}-cpu{'-quick' if args.quick else ''}.png"
+    spherelights_chart(result, png)
+    result["picture"] = png.name
+    return result
+
+
+def spherelights_chart(result: dict, path: Path) -> None:
+    """Error against ground truth and time per frame with 0, 1 and 4 sphere lights."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = result["rows"]
+    keys = sorted(rows, key=int)
+    fig, (a, b) = plt.subplots(1, 2, figsize=(9, 3.6))
+    lit = [k for k in keys if int(k) > 0]
+    x = np.arange(len(lit))
+    a.bar(x - 0.2, [rows[k]["rel_rms"] for k in lit], 0.4, label="relative RMS")
+    a.bar(x + 0.2, [rows[k]["rel_p99"] for k in lit], 0.4, label="99th percentile")
+    a.set_xticks(x, [f"{k} sphere light(s)" for k in lit])
+    a.set_title("SHEXP n = 4 HYB + sphere lights vs ray-traced truth", fontsize=9)
+    a.legend(fontsize=8)
+    b.bar(np.arange(len(keys)), [rows[k]["frame_ms"] for k in keys])
+    for i, k in enumerate(keys):
+        b.text(i, rows[k]["frame_ms"] * 1.02, f"{rows[k]['frame_ratio_vs_none']:.2f}x", ha="center", fontsize=8)
+    b.set_xticks(np.arange(len(keys)), [f"{k} lights" for k in keys])
+    b.set_ylabel("ms per frame (median)")
+    b.set_title("cost (blockers scene, shared 2-core CPU)", fontsize=9)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110)
+    plt.close(fig)
 
 
 PARTS = {"speed": part_speed, "battle": part_battle, "exp": part_exp, "shading": part_shading, "compile": part_compile,
