@@ -488,8 +488,8 @@ def fit_lobes_global(target: np.ndarray, problem, options: GlobalOptions, initia
 
 def _tangent_frames(axes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Two unit vectors orthogonal to each unit axis and to each other, (..., 3) each."""
-    helper = np.where(np.abs(axes[..., :1]) < 0.9, np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]))
-    e1 = np.cross(axes, helper)
+    other_axis = np.where(np.abs(axes[..., :1]) < 0.9, np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]))
+    e1 = np.cross(axes, other_axis)
     e1 /= np.linalg.norm(e1, axis=-1, keepdims=True)
     return e1, np.cross(axes, e1)
 
