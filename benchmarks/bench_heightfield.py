@@ -16,9 +16,17 @@ stage-graph runtime on the CPU:
 Writes ``heightfield-<date>-cpu.json`` and ``heightfield-<date>-cpu.png`` into ``--out``
 (default ``benchmarks/results``).
 
+``--compare-with TREE`` instead times the default graph of this tree against the same graph of
+another checkout (e.g. the commit before a kernel change) side by side: interleaved child
+processes (A, B, A, B, ...; ``--rounds``), each compiling the graph, replaying ``--frames``
+recorded frames and profiling its kernels (the max pyramid, the texel march, the lighting
+products, the vertex shading); the medians and the ratios go to
+``heightfield-compare-<date>-cpu.json`` / ``.png``. On a shared machine only the ratios mean much.
+
 Usage::
 
     python benchmarks/bench_heightfield.py [--spp 512] [--vertices 4096] [--frames 24] [--out DIR]
+    python benchmarks/bench_heightfield.py --compare-with /path/to/other/checkout [--rounds 5] [--frames 24]
 """
 
 from __future__ import annotations
@@ -37,6 +45,121 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 
 DATE = "2026-12-01"
+COMPARE_DATE = "2026-12-02"
+
+#: Child process of ``--compare-with``: times the default graph of the tree on its PYTHONPATH
+#: and prints one JSON line (replayed frame median; per-kernel medians, synchronised launches).
+_CHILD = r"""
+import json, sys, time
+import numpy as np
+import warpshade.methods.heightfield.kernels as K
+import warpshade.methods.heightfield, warpshade.methods.rpo.stages
+from warpshade._wp import wp, launch_parallel
+from warpshade.graph import load
+frames = int(sys.argv[1])
+rt = load(sys.argv[2]).compile(device="cpu", progress=False)
+rt.run([0.0, 1.0], record=False)
+rt.run([float(f) for f in range(frames)], record=True)
+frame_ms = float(np.median(rt.frame_s) * 1e3)
+vis, shade = rt.frame_stages
+cpu = {}
+def tm(fn, n=9, name=None):
+    ts, cs = [], []
+    for _ in range(n):
+        c0, t0 = time.process_time(), time.perf_counter()
+        fn(); wp.synchronize_device("cpu")
+        ts.append(time.perf_counter() - t0); cs.append(time.process_time() - c0)
+    cpu[name] = float(np.median(cs) * 1e3)
+    return float(np.median(ts) * 1e3)
+g, r = vis.layout.size, vis.params["resolution"]
+def pyramid():
+    wp.launch(K.heights_kernel, dim=g * g, inputs=[vis._points, vis._pyr], device="cpu")
+    for k in range(1, len(vis._sizes)):
+        s = vis._sizes[k]
+        wp.launch(K.reduce_kernel, dim=s * s, inputs=[vis._pyr, int(vis._offs[k - 1]), vis._sizes[k - 1],
+                                                     int(vis._offs[k]), s], device="cpu")
+vertices, texels, out = shade._shade_args
+kern = {"scene": tm(rt.evaluator.launch, name="scene"), "pyramid": tm(pyramid, name="pyramid"),
+        "texels": tm(lambda: launch_parallel(vis._texel_kernel, r * r, lambda a, b: [vis._march, vis._texel_args, a], "cpu"),
+                     name="texels"),
+        "products": tm(lambda: launch_parallel(shade._product, r * r,
+                                               lambda a, b: [shade._texels, shade._lighting.light, a, shade._g], "cpu"),
+                       name="products"),
+        "shading": tm(lambda: launch_parallel(shade._shade, g * g, lambda a, b: [vertices, texels, a, out], "cpu"),
+                      name="shading")}
+print("RESULT " + json.dumps({"frame_ms": frame_ms, "kernel_ms": kern, "kernel_cpu_ms": cpu,
+                              "radiance_sum": float(rt.step(24.0).numpy().sum())}))
+"""
+
+
+def compare(other: str, rounds: int, frames: int, out_dir: Path) -> int:
+    """Interleaved child runs of this tree and ``other`` (see the module docstring)."""
+    import subprocess
+
+    graph = str(ROOT / "stages" / "ripples_height_rpo.toml")
+    trees = {"this": str(ROOT), "other": str(Path(other).resolve())}
+    runs = {k: [] for k in trees}
+    for i in range(rounds):
+        for key, tree in trees.items():
+            env = {**os.environ, "PYTHONPATH": tree}
+            t0 = time.perf_counter()
+            res = subprocess.run([sys.executable, "-c", _CHILD, str(frames), graph], env=env, cwd=tree,
+                                 capture_output=True, text=True)
+            line = [x for x in res.stdout.splitlines() if x.startswith("RESULT ")]
+            if res.returncode != 0 or not line:
+                print(res.stdout[-2000:], res.stderr[-4000:], file=sys.stderr)
+                raise SystemExit(f"child run of {tree} failed")
+            runs[key].append(json.loads(line[0][7:]))
+            print(f"  round {i + 1}/{rounds} {key:5s}: {runs[key][-1]['frame_ms']:.1f} ms/frame "
+                  f"{ {k: round(v, 1) for k, v in runs[key][-1]['kernel_ms'].items()} } ({time.perf_counter() - t0:.0f} s)",
+                  flush=True)
+    med = {k: {"frame_ms": float(np.median([r["frame_ms"] for r in v])),
+               "kernel_ms": {n: float(np.median([r["kernel_ms"][n] for r in v])) for n in v[0]["kernel_ms"]},
+               "kernel_cpu_ms": {n: float(np.median([r["kernel_cpu_ms"][n] for r in v])) for n in v[0]["kernel_cpu_ms"]}}
+           for k, v in runs.items()}
+    ratio = {"frame": med["this"]["frame_ms"] / med["other"]["frame_ms"],
+             **{n: med["this"]["kernel_ms"][n] / med["other"]["kernel_ms"][n] for n in med["this"]["kernel_ms"]}}
+    # CPU time (both threads' work) is far less sensitive to other processes than wall time
+    cpu_ratio = {n: med["this"]["kernel_cpu_ms"][n] / med["other"]["kernel_cpu_ms"][n] for n in med["this"]["kernel_cpu_ms"]}
+    this_cpu, other_cpu = (sum(med[k]["kernel_cpu_ms"].values()) for k in ("this", "other"))
+    cpu_ratio["frame (sum of kernels)"] = this_cpu / other_cpu
+    # the same radiance (a sum over every vertex of frame 24) from both trees
+    agree = abs(runs["this"][0]["radiance_sum"] - runs["other"][0]["radiance_sum"]) / abs(runs["other"][0]["radiance_sum"])
+    report = {"benchmark": "bench_heightfield --compare-with", "date": COMPARE_DATE, "cpu_count": os.cpu_count(),
+              "platform": platform.platform(), "graph": "stages/ripples_height_rpo.toml", "rounds": rounds,
+              "frames": frames, "trees": trees, "median": med, "ratio_this_over_other": ratio,
+              "cpu_time_ratio_this_over_other": cpu_ratio,
+              "radiance_sum_relative_difference": agree, "runs": runs,
+              "note": "interleaved child processes on a shared 2-core machine: compare the ratios",
+              "command": "python benchmarks/bench_heightfield.py " + " ".join(sys.argv[1:])}
+    out_dir.mkdir(parents=True, exist_ok=True)
+    stem = out_dir / f"heightfield-compare-{COMPARE_DATE}-cpu"
+    (Path(f"{stem}.json")).write_text(json.dumps(report, indent=1))
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = list(med["this"]["kernel_cpu_ms"])
+    other_ms = [med["other"]["kernel_cpu_ms"][n] for n in names]
+    this_ms = [med["this"]["kernel_cpu_ms"][n] for n in names]
+    x = np.arange(len(names))
+    fig, ax = plt.subplots(figsize=(8, 4))
+    ax.bar(x - 0.2, other_ms, 0.4, label=f"other ({Path(trees['other']).name})")
+    ax.bar(x + 0.2, this_ms, 0.4, label=f"this ({Path(trees['this']).name})")
+    for i, n in enumerate(names):
+        ax.text(i, max(other_ms[i], this_ms[i]) * 1.02, f"{cpu_ratio[n]:.2f}x", ha="center", fontsize=8)
+    ax.set_xticks(x, names)
+    ax.set_ylabel("CPU ms per launch (median, all threads)")
+    ax.set_title(f"ripples_height_rpo kernels, {rounds} interleaved rounds (ratio this/other)")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(f"{stem}.png", dpi=110)
+    plt.close(fig)
+    print(f"wall-time ratios this/other: { {k: round(v, 3) for k, v in ratio.items()} }; radiance agrees to {agree:.2e}")
+    print(f"CPU-time ratios this/other: { {k: round(v, 3) for k, v in cpu_ratio.items()} }")
+    print(f"wrote {stem}.json, {stem}.png")
+    return 0
 
 
 def _graph(vis=None, shade=None, generic=False):
@@ -87,7 +210,15 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default=None, help="output directory (default benchmarks/results; required with --quick)")
     ap.add_argument("--quick", action="store_true",
                     help="smoke profile: 16 samples, 128 vertices, 2 frames, the default and generic graphs only, a small picture")
+    ap.add_argument("--compare-with", default=None, metavar="TREE",
+                    help="time this tree's default graph against another checkout's, interleaved (see above)")
+    ap.add_argument("--rounds", type=int, default=5, help="interleaved rounds of --compare-with")
     args = ap.parse_args(argv)
+    if args.compare_with:
+        if args.quick and args.out is None:
+            ap.error("--quick writes only into --out DIR (never benchmarks/results)")
+        rounds, frames = (1, 4) if args.quick else (args.rounds, args.frames)
+        return compare(args.compare_with, rounds, frames, Path(args.out or ROOT / "benchmarks" / "results"))
     if args.quick and args.out is None:
         ap.error("--quick writes only into --out DIR (never benchmarks/results)")
     args.out = args.out or str(ROOT / "benchmarks" / "results")

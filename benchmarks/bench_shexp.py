@@ -28,6 +28,15 @@ Parts (``--parts``, default all), each measured side by side in one run:
   :func:`warpshade.methods.shexp.budget.candidates`) on two bundled scenes: the cheapest
   setting (order, sphere budget, exp method) for each of the targets 0.1, 0.15, 0.2 and 0.25.
 * ``compile`` -- cold compile time of the per-order receiver kernels (subprocess, empty cache).
+* ``ratio`` -- what the per-band ratio vectors of hierarchy cuts fix (eq. 37, the seams of the
+  paper's Fig. 6b/c): on the blockers scene, n = 4 HYB, the flat sphere list, the hierarchy with
+  ratio vectors and the hierarchy without them, against ray-traced ground truth: relative RMS,
+  99th percentile and the *seam* error (RMS over mesh edges of the difference of the two
+  endpoints' errors, relative to the RMS radiance: a cut boundary between neighbouring receivers
+  shows up there and not in smooth error), with a PNG of the errors.
+* ``spherelights`` -- SHEXP with sphere lights (shadowed per receiver like the environment) on
+  the blockers scene: one and four sphere lights added above the blockers, error against
+  ray-traced ground truth with the same lights, and time per frame against no sphere light.
 
 Usage::
 
@@ -508,7 +517,166 @@ def speed_chart(speed: dict, path: Path) -> None:
     plt.close(fig)
 
 
+def _edges(scene) -> np.ndarray:
+    """Unique mesh edges (E, 2) in scene vertex indices."""
+    e = []
+    for m in scene.meshes:
+        f = m.faces + m.vertex_offset
+        e.append(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]))
+    e = np.sort(np.concatenate(e), axis=1)
+    return np.unique(e, axis=0)
+
+
+def seam_error(radiance: dict, truth: dict, edges: np.ndarray) -> float:
+    """RMS over edges of the jump of the error between the endpoints, relative to RMS radiance."""
+    num, den = 0.0, 0.0
+    for f, ref in truth.items():
+        err = np.asarray(radiance[f]) - np.asarray(ref["radiance"])
+        jump = err[edges[:, 0]] - err[edges[:, 1]]
+        num += float(np.mean(jump**2))
+        den += float(np.mean(np.asarray(ref["radiance"]) ** 2))
+    return float(np.sqrt(num / max(den, 1e-300)))
+
+
+def part_ratio(args) -> dict:
+    from warpshade.measure import error_frames, ground_truth, load_bench_scene, run_setting, setting_error
+    from warpshade.methods.shexp import graph_stages
+
+    scene, lighting = load_bench_scene("blockers")
+    frames = error_frames(scene, 1 if args.quick else 2)
+    gt = ground_truth(scene, lighting, frames, 64 if args.quick else 2048, "cpu")
+    edges = _edges(scene)
+    budget = 4 if args.quick else SCENE_BUDGETS["blockers"]
+    rows = {}
+    for label, hierarchy, ratio, theta in (("flat list", False, True, 25.0), ("tree + ratio vectors", True, True, 25.0),
+                                           ("tree, no ratio vectors", True, False, 25.0),
+                                           ("tree 45 deg + ratio vectors", True, True, 45.0),
+                                           ("tree 45 deg, no ratio vectors", True, False, 45.0)):
+        stages = graph_stages(4, "hyb", budget, hierarchy=hierarchy, ratio=ratio, theta_max=theta)
+        res = run_setting(scene, lighting, stages, frames, device="cpu", name=f"shexp-ratio-{label}".replace(" ", "-"))
+        err = setting_error(res["radiance"], gt)
+        rows[label] = {"hierarchy": hierarchy, "ratio": ratio, "theta_max": theta, "rel_rms": err["rel_rms"],
+                       "rel_p99": err["rel_p99"], "diagnostics": res["diagnostics"].get("shade", {}),
+                       "seam": seam_error(res["radiance"], gt, edges), "frame_ms": res["frame_ms"],
+                       "noise_rel_rms": err.get("noise_rel_rms")}
+        rows[label]["_radiance"] = res["radiance"]
+        r = rows[label]
+        print(f"    {label:24s} rel RMS {r['rel_rms']:.4f}  p99 {r['rel_p99']:.4f}  seam {r['seam']:.4f}  "
+              f"{r['frame_ms']:.2f} ms/frame", flush=True)
+    out_dir = Path(args.out or RESULTS_DIR)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    png = out_dir / f"shexp-ratio-{_dt.date.today().isoformat()}-cpu{'-quick' if args.quick else ''}.png"
+    _ratio_chart(scene, frames[-1], gt, rows, png)
+    for r in rows.values():
+        r.pop("_radiance")
+    return {"scene": "blockers", "order": 4, "method": "hyb", "leaf_spheres": budget, "frames": [float(f) for f in frames],
+            "edges": int(edges.shape[0]), "rows": rows, "picture": png.name}
+
+
+def _ratio_chart(scene, frame, gt, rows, path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    labels = list(rows)
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    x = np.arange(len(labels))
+    axes[0].bar(x - 0.27, [rows[k]["rel_rms"] for k in labels], 0.27, label="relative RMS")
+    axes[0].bar(x, [rows[k]["rel_p99"] for k in labels], 0.27, label="99th percentile")
+    axes[0].bar(x + 0.27, [rows[k]["seam"] for k in labels], 0.27, label="seam (edge jumps of the error)")
+    axes[0].set_xticks(x, [k.replace(" + ", "\n+ ").replace(", ", ",\n") for k in labels], fontsize=7)
+    axes[0].set_title("SHEXP n = 4 HYB on blockers vs ray-traced truth")
+    axes[0].legend(fontsize=8)
+    ref = np.asarray(gt[frame]["radiance"]).mean(axis=1)
+    pts = np.concatenate([m.points for m in scene.meshes])
+    for k, colour in zip(labels[1:], ("C0", "C3", "C2", "C1")):
+        err = np.abs(np.asarray(rows[k]["_radiance"][frame]).mean(axis=1) - ref) / max(float(ref.max()), 1e-12)
+        axes[1].hist(err, bins=60, histtype="step", color=colour, label=k, log=True)
+    axes[1].set_xlabel(f"|error| / max radiance, frame {frame:g} ({pts.shape[0]} receivers)")
+    axes[1].set_title("per-receiver error distribution")
+    axes[1].legend(fontsize=8)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+
+
+def part_spherelights(args) -> dict:
+    from warpshade.measure import error_frames, ground_truth, load_bench_scene, run_setting, setting_error
+    from warpshade.methods.shexp import graph_stages
+    from warpshade.scene import LightingSource, SphereLight
+
+    scene, lighting = load_bench_scene("blockers")
+    frames = error_frames(scene, 1 if args.quick else 2)
+    pts = np.concatenate([m.points for m in scene.meshes])
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    centre, size = 0.5 * (lo + hi), float(np.max(hi - lo))
+    up = {"Y": 1, "Z": 2}.get(str(scene.up_axis).upper(), 2)
+    budget = 4 if args.quick else SCENE_BUDGETS["blockers"]
+    rows = {}
+    rng = np.random.default_rng(6)
+    for count in (0, 1, 4):
+        lights = list(lighting.lights)
+        for i in range(count):
+            p = centre + size * np.array([rng.uniform(-0.3, 0.3), rng.uniform(-0.3, 0.3), rng.uniform(-0.3, 0.3)])
+            p[up] = hi[up] + 0.3 * size
+            # radiance chosen so that one lamp's irradiance (~ L pi (r / d)^2) is comparable to the sky's
+            lights.append(SphereLight(p, 0.04 * size, np.array([60.0, 50.0, 40.0]), path=f"/Bench/Lamp{i}"))
+        src = LightingSource(lights, scene.up_axis, lighting.degrees_per_frame, float(scene.frames[0]))
+        res = run_setting(scene, src, graph_stages(4, "hyb", budget), frames, device="cpu", name=f"shexp-lamps-{count}")
+        row = {"sphere_lights": count, "frame_ms": res["frame_ms"], "shade_ms": res["stage_ms"].get("shade")}
+        if count:
+            gt = ground_truth(scene, src, frames, 64 if args.quick else 2048, "cpu")
+            err = setting_error(res["radiance"], gt)
+            row.update(rel_rms=err["rel_rms"], rel_p99=err["rel_p99"], noise_rel_rms=err.get("noise_rel_rms"))
+        rows[str(count)] = row
+        print(f"    {count} sphere light(s): {row['frame_ms']:.2f} ms/frame (shade {row['shade_ms'] or 0:.2f} ms)"
+              + (f", rel RMS {row['rel_rms']:.4f}, p99 {row['rel_p99']:.4f}" if count else ""), flush=True)
+    base = rows["0"]["frame_ms"]
+    for r in rows.values():
+        r["frame_ratio_vs_none"] = r["frame_ms"] / base
+    result = {"scene": "blockers", "order": 4, "method": "hyb", "leaf_spheres": budget, "rows": rows,
+              "light_radius": 0.04 * size}
+    out_dir = Path(args.out or RESULTS_DIR)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    png = out_dir / f"shexp-spherelights-{_dt.date.today().isoformat()}-cpu{'-quick' if args.quick else ''}.png"
+    spherelights_chart(result, png)
+    result["picture"] = png.name
+    return result
+
+
+def spherelights_chart(result: dict, path: Path) -> None:
+    """Error against ground truth and time per frame with 0, 1 and 4 sphere lights."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = result["rows"]
+    keys = sorted(rows, key=int)
+    fig, (a, b) = plt.subplots(1, 2, figsize=(9, 3.6))
+    lit = [k for k in keys if int(k) > 0]
+    x = np.arange(len(lit))
+    a.bar(x - 0.2, [rows[k]["rel_rms"] for k in lit], 0.4, label="relative RMS")
+    a.bar(x + 0.2, [rows[k]["rel_p99"] for k in lit], 0.4, label="99th percentile")
+    a.set_xticks(x, [f"{k} sphere light(s)" for k in lit])
+    a.set_title("SHEXP n = 4 HYB + sphere lights vs ray-traced truth", fontsize=9)
+    a.legend(fontsize=8)
+    b.bar(np.arange(len(keys)), [rows[k]["frame_ms"] for k in keys])
+    for i, k in enumerate(keys):
+        b.text(i, rows[k]["frame_ms"] * 1.02, f"{rows[k]['frame_ratio_vs_none']:.2f}x", ha="center", fontsize=8)
+    b.set_xticks(np.arange(len(keys)), [f"{k} lights" for k in keys])
+    b.set_ylabel("ms per frame (median)")
+    b.set_title("cost (blockers scene, shared 2-core CPU)", fontsize=9)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+
+
 PARTS = {"speed": part_speed, "battle": part_battle, "exp": part_exp, "shading": part_shading, "compile": part_compile,
+         "ratio": part_ratio, "spherelights": part_spherelights,
          "scenes": part_scenes, "budget": part_budget}
 
 

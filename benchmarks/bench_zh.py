@@ -9,7 +9,13 @@
    local-frame transfer of the bundled figure's body. The Monte Carlo noise of the transfer
    itself (estimated from two independent seeds) is reported too: it is part of what the lobes
    are asked to fit.
-3. Throughput of the batched fit (fits per second, vectorised BFGS) against per-vertex
+3. The reachable optimum (issue 27): on 30 seeded random unit order-6 vectors plus 16 others
+   (8 with a decaying band spectrum, 8 diffuse transfer vectors of a clamped cosine under random
+   spherical-cap blockers, projected by quadrature), N = 3 and 4: the error of the global fit
+   (``strategy="global"``) and of the earlier greedy fit against the best of a 200-start search
+   (random axis sets, each descended to convergence over the axes with the coefficients solved),
+   and the time of both fits in the same run (ratio).
+4. Throughput of the batched fit (fits per second, vectorised BFGS) against per-vertex
    ``scipy.optimize.minimize(method="BFGS")`` on the same vertices, one run.
 
 Writes ``zh-<date>-s<samples>.json`` and ``.png`` (samples = transfer rays) into ``--out``
@@ -17,7 +23,7 @@ Writes ``zh-<date>-s<samples>.json`` and ``.png`` (samples = transfer rays) into
 
 Usage::
 
-    python benchmarks/bench_zh.py [--quick] [--vectors 200] [--samples 1024] [--out DIR]
+    python benchmarks/bench_zh.py [--quick] [--vectors 200] [--samples 1024] [--optimum-starts 200] [--out DIR]
 """
 
 from __future__ import annotations
@@ -63,6 +69,88 @@ def random_vectors(count: int, restarts: int) -> dict:
         print(f"  random n=6, N={n_lobes}: median {q['median']:.4f} (q1 {q['q1']:.4f}, q3 {q['q3']:.4f}, "
               f"min {q['min']:.4f}); greedy median {out[n_lobes]['greedy_error']['median']:.4f}; "
               f"paper {PAPER_RANDOM[n_lobes]}; {res.seconds:.1f} s", flush=True)
+    return out
+
+
+def other_vectors() -> np.ndarray:
+    """16 order-6 unit vectors unlike white noise: 8 with band energy ~ (l + 1)^-2, 8 clamped
+    cosines about +z under 1-3 random spherical caps (diffuse transfer), by quadrature."""
+    from warpshade.basis import quadrature, sh
+
+    rng = np.random.default_rng(27)
+    decay = rng.normal(size=(8, 36)) / (sh.band_of(6) + 1.0)
+    quad = quadrature.gauss_legendre(200)
+    occluded = []
+    for _ in range(8):
+        centres = rng.normal(size=(int(rng.integers(1, 4)), 3))
+        centres[:, 2] = np.abs(centres[:, 2])
+        centres /= np.linalg.norm(centres, axis=1, keepdims=True)
+        cos_half = np.cos(rng.uniform(0.3, 0.8, size=len(centres)))
+
+        def transfer(d, c=centres, h=cos_half):
+            visible = np.all(d @ c.T < h, axis=-1)
+            return np.maximum(d[:, 2], 0.0) * visible
+
+        occluded.append(sh.project(transfer, 6, quad))
+    t = np.concatenate([decay, np.array(occluded)])
+    return t / np.linalg.norm(t, axis=1, keepdims=True)
+
+
+def many_start_optimum(t: np.ndarray, n_lobes: int, starts: int, seed: int = 1) -> np.ndarray:
+    """Relative error of the best of ``starts`` random axis sets, each descended to convergence."""
+    from warpshade.basis import _zh_global
+
+    fitting = zh.fitting
+    order = 6
+    stored = zh.stored_band_count(n_lobes)
+    target = t.copy()
+    target[:, : stored * stored] = 0.0
+    fitted = np.arange(stored, order)
+    rng = np.random.default_rng(seed)
+    best = np.full(t.shape[0], np.inf)
+    for lo in range(0, starts, 25):  # chunks of starts bound the batched BFGS's memory
+        k = min(25, starts - lo)
+        rand = rng.normal(size=(t.shape[0], k, n_lobes, 3))
+        rand /= np.linalg.norm(rand, axis=-1, keepdims=True)
+        axes, _ = _zh_global._best_of(target, rand, order, fitted, fitting.DEFAULT_RIDGE, _zh_global.GlobalOptions())
+        coeffs = fitting.solve_coefficients(target, axes, fitted, fitting.DEFAULT_RIDGE)
+        err = np.linalg.norm(fitting.reconstruct(axes, coeffs) - target, axis=1)
+        best = np.minimum(best, err)
+    return best / np.linalg.norm(t, axis=1)
+
+
+def optimum(count: int, starts: int, other_count: int = 16) -> dict:
+    rng = np.random.default_rng(2005)
+    random = rng.normal(size=(count, 36))
+    random /= np.linalg.norm(random, axis=1, keepdims=True)
+    sets = {"random": random, "other": other_vectors()[:: max(1, 16 // other_count)][:other_count]}
+    out = {"optimum_starts": starts}
+    for name, t in sets.items():
+        out[name] = {"count": int(t.shape[0])}
+        for n_lobes in (3, 4):
+            t0 = time.perf_counter()
+            best = many_start_optimum(t, n_lobes, starts)
+            many_s = time.perf_counter() - t0
+            greedy = zh.fit(t, n_lobes, strategy="greedy", restarts=4)
+            glob = zh.fit(t, n_lobes)
+            row = {"optimum_median": float(np.median(best)), "optimum_seconds": many_s,
+                   "greedy_median": float(np.median(greedy.rel_error)), "greedy_seconds": greedy.seconds,
+                   "global_median": float(np.median(glob.rel_error)), "global_seconds": glob.seconds,
+                   "global_scan_median": float(np.median(glob.greedy_error)),
+                   "global_restarted": int(glob.restarted.sum()),
+                   "greedy_over_optimum": float(np.median(greedy.rel_error) / np.median(best)),
+                   "global_over_optimum": float(np.median(glob.rel_error) / np.median(best)),
+                   "global_over_optimum_per_vector": quartiles(glob.rel_error / best),
+                   "greedy_over_optimum_per_vector": quartiles(greedy.rel_error / best),
+                   "cost_ratio_global_over_greedy": glob.seconds / greedy.seconds,
+                   "global_rel_error": glob.rel_error.tolist(), "greedy_rel_error": greedy.rel_error.tolist(),
+                   "optimum_rel_error": best.tolist()}
+            out[name][n_lobes] = row
+            print(f"  {name} ({t.shape[0]}), N={n_lobes}: {starts}-start optimum median {row['optimum_median']:.4f}; "
+                  f"global {row['global_median']:.4f} ({row['global_over_optimum']:.3f}x), "
+                  f"greedy {row['greedy_median']:.4f} ({row['greedy_over_optimum']:.3f}x); time global "
+                  f"{glob.seconds:.2f} s vs greedy {greedy.seconds:.2f} s ({row['cost_ratio_global_over_greedy']:.2f}x)",
+                  flush=True)
     return out
 
 
@@ -125,7 +213,10 @@ def chart(result, path):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4.2))
+    if "mesh" in result:
+        fig, (a, b, c) = plt.subplots(1, 3, figsize=(16, 4.2))
+    else:
+        fig, (a, c) = plt.subplots(1, 2, figsize=(11, 4.2))
     rv = result["random"]
     ns = sorted(int(k) for k in rv)
     a.boxplot([[rv[n]["relative_error"][k] for k in ("min", "q1", "median", "q3", "max")] for n in ns],
@@ -137,20 +228,39 @@ def chart(result, path):
     a.set_title(f"random unit order-6 SH vectors ({result['random_count']})")
     a.legend(fontsize=8)
     a.grid(True, which="both", alpha=0.3)
-    me = result["mesh"]["errors"]
-    keys = ["linear", "1", "2", "3", "4"]
-    ours = [me[k]["error"] if k in me else me[int(k)]["error"] for k in keys]
-    paper = [PAPER_MESH["linear" if k == "linear" else int(k)] for k in keys]
-    x = np.arange(len(keys))
-    b.bar(x - 0.2, ours, 0.4, label="warpshade (figure body)")
-    b.bar(x + 0.2, paper, 0.4, label="paper (Fig. 3)")
-    b.axhline(result["mesh"]["transfer_noise"], color="0.3", ls=":", label="transfer MC noise")
-    b.set_xticks(x, ["opt. linear", "N=1", "N=2", "N=3", "N=4"])
-    b.set_yscale("log")
-    b.set_ylabel("RMS error / total L2 length")
-    b.set_title("diffuse transfer on a mesh, n = 6")
-    b.legend(fontsize=8)
-    b.grid(True, which="both", alpha=0.3)
+    if "mesh" in result:
+        me = result["mesh"]["errors"]
+        keys = ["linear", "1", "2", "3", "4"]
+        ours = [me[k]["error"] if k in me else me[int(k)]["error"] for k in keys]
+        paper = [PAPER_MESH["linear" if k == "linear" else int(k)] for k in keys]
+        x = np.arange(len(keys))
+        b.bar(x - 0.2, ours, 0.4, label="warpshade (figure body)")
+        b.bar(x + 0.2, paper, 0.4, label="paper (Fig. 3)")
+        b.axhline(result["mesh"]["transfer_noise"], color="0.3", ls=":", label="transfer MC noise")
+        b.set_xticks(x, ["opt. linear", "N=1", "N=2", "N=3", "N=4"])
+        b.set_yscale("log")
+        b.set_ylabel("RMS error / total L2 length")
+        b.set_title("diffuse transfer on a mesh, n = 6")
+        b.legend(fontsize=8)
+        b.grid(True, which="both", alpha=0.3)
+    opt = result["optimum"]
+    labels, xs = [], 0
+    for name in ("random", "other"):
+        for n_lobes in (3, 4):
+            row = opt[name][n_lobes]
+            for k, (key, colour) in enumerate((("optimum", "0.5"), ("greedy", "C1"), ("global", "C0"))):
+                c.bar(xs + (k - 1) * 0.27, row[f"{key}_median"], 0.27, color=colour,
+                      label={"optimum": f"{opt['optimum_starts']}-start optimum", "greedy": "greedy (before)",
+                             "global": "global (variable projection)"}[key] if xs == 0 else None)
+            c.text(xs, row["greedy_median"] * 1.03, f"{row['cost_ratio_global_over_greedy']:.1f}x time", ha="center",
+                   fontsize=7)
+            labels.append(f"{name}\nN={n_lobes}")
+            xs += 1
+    c.set_xticks(range(xs), labels)
+    c.set_ylabel("median relative L2 error")
+    c.set_title("fit vs many-start optimum (order 6)")
+    c.legend(fontsize=8)
+    c.grid(True, axis="y", alpha=0.3)
     fig.tight_layout()
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=110)
@@ -163,26 +273,32 @@ def main(argv=None) -> int:
                     help="smoke profile: 8 random vectors, 1 restart, 128 rays on every 64th body vertex")
     ap.add_argument("--vectors", type=int, default=200)
     ap.add_argument("--samples", type=int, default=1024)
-    ap.add_argument("--restarts", type=int, default=4)
+    ap.add_argument("--restarts", type=int, default=6)
+    ap.add_argument("--optimum-starts", type=int, default=200, help="random starts of the many-start optimum")
+    ap.add_argument("--skip-mesh", action="store_true", help="random vectors and the optimum only")
     ap.add_argument("--out", default=None, help="output directory (default benchmarks/results; required with --quick)")
     args = ap.parse_args(argv)
     if args.quick and args.out is None:
         ap.error("--quick writes only into --out DIR (never benchmarks/results)")
     count = args.vectors
     if args.quick:
-        count, args.samples, args.restarts = 8, 128, 1
+        count, args.samples, args.restarts, args.optimum_starts = 8, 128, 1, 6
     result = {"date": datetime.date.today().isoformat(), "machine": f"{platform.machine()}, {os.cpu_count()} cores",
               "command": "python benchmarks/bench_zh.py " + " ".join(argv if argv is not None else sys.argv[1:]),
               "random_count": count, "stored_bands": zh.PAPER_STORED_BANDS}
     print("random vectors:", flush=True)
     t0 = time.perf_counter()
     result["random"] = random_vectors(count, args.restarts)
-    print("mesh transfer:", flush=True)
-    result["mesh"] = mesh_transfer(args.samples, args.quick)
+    print("reachable optimum:", flush=True)
+    result["optimum"] = optimum(4 if args.quick else 30, args.optimum_starts, 4 if args.quick else 16)
+    if not args.skip_mesh:
+        print("mesh transfer:", flush=True)
+        result["mesh"] = mesh_transfer(args.samples, args.quick)
     result["seconds"] = time.perf_counter() - t0
     out_dir = Path(args.out or RESULTS)
     out_dir.mkdir(parents=True, exist_ok=True)
-    stem = out_dir / f"zh-{result['date']}-s{args.samples}{'-quick' if args.quick else ''}"
+    tag = "-nomesh" if args.skip_mesh else f"-s{args.samples}"
+    stem = out_dir / f"zh-{result['date']}{tag}{'-quick' if args.quick else ''}"
     write_json_atomic(f"{stem}.json", result, indent=1)
     chart(result, Path(f"{stem}.png"))
     print(f"wrote {stem}.json, {stem}.png")

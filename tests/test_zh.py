@@ -180,7 +180,9 @@ def test_ridge_stops_cancelling_lobes_on_brdf_rows():
     from warpshade.scene.materials import Microfacet, factorize
 
     rows = factorize(Microfacet(roughness=0.5, distribution="ggx", f0=0.04), 6, 12, 16).rows
-    plain = zh.fit(rows, 3, ridge=0.0, restarts=1)
+    # the joint (axes + coefficients) BFGS of the greedy strategy shows the cancellation plainly;
+    # the global strategy's projection keeps a tiny ridge of its own (150x seen)
+    plain = zh.fit(rows, 3, ridge=0.0, restarts=1, strategy="greedy")
     ridged = zh.fit(rows, 3, restarts=1)
     assert plain.notes["max_lobe_norm_ratio"] > 1e3, "the case must show the cancellation"
     assert ridged.notes["ridge"] == _zh_fit.DEFAULT_RIDGE

@@ -70,14 +70,19 @@ class TexelVisibility:
     """The wedge sums of the texel kernel and where they go.
 
     Fields:
-        table: SH of the canonical wedge open above ``z0``, for ``z0`` on ``linspace(-1, 1, E)``,
-            (E, n*n) float32 (:func:`.model.wedge_table`).
+        table: SH of the wedge of azimuth i open above ``z0``, for ``z0`` on ``linspace(-1, 1,
+            E)``: the canonical wedge (:func:`.model.wedge_table`) z-rotated to every azimuth
+            (:func:`.model.rotated_wedge_tables`), row ``i * E + e``, (A * E, n*n) float32.
+        entries: E.
+        full: sum over the azimuths of the whole wedges (open from the nadir), (n*n,) float32.
         open_below: 1 to count directions below the tangent plane as open.
         res: texels per side.
         out: SH visibility per texel, world frame, (res * res, n*n) float32.
     """
 
     table: wp.array2d(dtype=wp.float32)
+    entries: int
+    full: wp.array(dtype=wp.float32)
     open_below: int
     res: int
     out: wp.array2d(dtype=wp.float32)
@@ -332,17 +337,16 @@ def visibility_kernels(order: int):
     shk = sh_kernels(order)
     N2 = order * order
     vec_t = shk.vec
-    rotate_z_cs, _, _ = static_sh_funcs(order)
 
     @wp.func
-    def wedge(table: wp.array2d(dtype=wp.float32), z: float) -> vec_t:
-        e = table.shape[0]
+    def wedge(table: wp.array2d(dtype=wp.float32), row: int, e: int, z: float) -> vec_t:
+        # rows row .. row + e - 1 of the table: one azimuth's wedge over z0
         t = (wp.clamp(z, -1.0, 1.0) + 1.0) * 0.5 * float(e - 1)
         i0 = wp.min(int(t), e - 2)
         f = t - float(i0)
         out = vec_t()
         for k in range(N2):
-            out[k] = (1.0 - f) * table[i0, k] + f * table[i0 + 1, k]
+            out[k] = (1.0 - f) * table[row + i0, k] + f * table[row + i0 + 1, k]
         return out
 
     @wp.kernel(enable_backward=False, module="unique")
@@ -351,6 +355,7 @@ def visibility_kernels(order: int):
         size = march.size
         res = texels.res
         table = texels.table
+        e = texels.entries
         t = wp.tid() + start
         a = t // res
         b = t - a * res
@@ -362,22 +367,25 @@ def visibility_kernels(order: int):
             ((wp.min(u + 1.0, float(size - 1)) - wp.max(u - 1.0, 0.0)) * march.dx)
         gy = (_bilinear_height(pyr, size, u, v + 1.0) - _bilinear_height(pyr, size, u, v - 1.0)) / \
             ((wp.min(v + 1.0, float(size - 1)) - wp.max(v - 1.0, 0.0)) * march.dy)
-        full = wedge(table, -1.0)
         acc = vec_t()
+        if texels.open_below == 1:
+            # each wedge is open above its horizon and below its tangent: whole - [tangent, horizon]
+            for k in range(N2):
+                acc[k] = texels.full[k]
         for i in range(march.azimuth.shape[0]):
             az = march.azimuth[i]
             best = horizon_slope(pyr, march.steps, march.step_level, u + 0.5, v + 0.5, h0, az)
             zh = -1.0
             if best > -1.0e29:
                 zh = best / wp.sqrt(1.0 + best * best)
-            w = wedge(table, zh)
+            row = i * e
             if texels.open_below == 1:
                 tau = gx * az[0] + gy * az[1]
-                zt = wp.min(tau / wp.sqrt(1.0 + tau * tau), zh)
-                lo = wedge(table, zt)
-                for k in range(N2):
-                    w[k] = w[k] + full[k] - lo[k]
-            acc = acc + rotate_z_cs(w, az[0], az[1])
+                zt = tau / wp.sqrt(1.0 + tau * tau)
+                if zt < zh:  # else the band between tangent and horizon is empty
+                    acc = acc + wedge(table, row, e, zh) - wedge(table, row, e, zt)
+            else:
+                acc = acc + wedge(table, row, e, zh)
         for k in range(N2):
             texels.out[t, k] = acc[k]
 

@@ -135,6 +135,34 @@ def wedge_table(order: int, azimuths: int, entries: int = WEDGE_ENTRIES, nodes: 
     return np.einsum("eq,eqi->ei", wz, y) * phi_int[None]
 
 
+def rotated_wedge_tables(table: np.ndarray, azimuths: int) -> tuple[np.ndarray, np.ndarray]:
+    """The canonical wedge table z-rotated to every azimuth ``phi_i = 2 pi i / A``.
+
+    Args:
+        table: (E, n*n) from :func:`wedge_table`.
+
+    Returns:
+        ``(rotated (A * E, n*n), full (n*n,))``: row ``i * E + e`` is ``table[e]`` turned by
+        ``Rz(phi_i)``; ``full`` is the sum of the turned whole wedges (``z0 = -1``, row 0).
+    """
+    t = np.asarray(table, np.float64)
+    n = math.isqrt(t.shape[1])
+    out = []
+    for i in range(int(azimuths)):
+        phi = 2.0 * math.pi * i / int(azimuths)
+        r = t.copy()
+        for l in range(n):
+            for m in range(1, l + 1):
+                c, s = math.cos(m * phi), math.sin(m * phi)
+                a, b = t[:, l * l + l + m], t[:, l * l + l - m]
+                r[:, l * l + l + m] = c * a - s * b
+                r[:, l * l + l - m] = s * a + c * b
+        out.append(r)
+    rotated = np.concatenate(out)
+    full = np.sum([o[0] for o in out], axis=0)
+    return rotated, full
+
+
 def view_table(operator, entries: int, factors: str = "rpo", brdf=None) -> np.ndarray:
     """``F(wo)`` at local views ``(sin t, 0, cos t)`` for ``cos t`` on ``linspace(0, 1, entries)``,
     (entries, n*n) float64: the operators' ``sum_b (w_b . y(wo)) u_b`` (``factors = "rpo"``) or

@@ -13,7 +13,8 @@ from ..rpo import OPERATORS, SHADE_PARAMS, GlossyStage
 from ..stage import FrameStage, Param, Port, StageError, register_stage
 from .kernels import (STAT_BELOW_HORIZON, STAT_NEGATIVE, HorizonMarch, ShadeOutputs, ShadeTexels, ShadeVertices,
                       TexelVisibility, heights_kernel, horizon_kernel, reduce_kernel, shade_kernels, visibility_kernels)
-from .model import WEDGE_ENTRIES, GridLayout, grid_layout, march_plan, pyramid_levels, view_table, wedge_table
+from .model import (WEDGE_ENTRIES, GridLayout, grid_layout, march_plan, pyramid_levels, rotated_wedge_tables, view_table,
+                    wedge_table)
 
 __all__: list[str] = []
 
@@ -91,7 +92,9 @@ class HeightFieldVisibilityStage(FrameStage):
         az = np.stack([np.cos(phi), np.sin(phi), np.cos(phi) / lay.dx, np.sin(phi) / lay.dy], 1)
         self._azimuth = wp.array(az.astype(np.float32), dtype=wp.vec4, device=dev)
         self.table = wedge_table(n, a, p["table_entries"])
-        self._table = wp.array(self.table.astype(np.float32), dtype=wp.float32, device=dev)
+        rotated, full = rotated_wedge_tables(self.table, a)
+        self._table = wp.array(rotated.astype(np.float32), dtype=wp.float32, device=dev)
+        self._full = wp.array(full.astype(np.float32), dtype=wp.float32, device=dev)
         self._points = inputs["points"]
         r = p["resolution"]
         self._texels = wp.zeros((r * r, n * n), dtype=wp.float32, device=dev)
@@ -101,6 +104,7 @@ class HeightFieldVisibilityStage(FrameStage):
         march.size, march.dx, march.dy = lay.size, lay.dx, lay.dy
         texels = TexelVisibility()
         texels.table, texels.res, texels.out = self._table, r, self._texels
+        texels.entries, texels.full = int(self.table.shape[0]), self._full
         texels.open_below = 1 if p["below"] == "open" else 0
         self._march, self._texel_args = march, texels
         out = {"texel_visibility": self._texels}
@@ -148,7 +152,7 @@ class HeightFieldVisibilityStage(FrameStage):
                 "march_levels": [int(x) for x in lev]}
 
     def model_bytes(self) -> int:
-        return int(self._table.capacity + self._steps.capacity + self._step_level.capacity)
+        return int(self._table.capacity + self._full.capacity + self._steps.capacity + self._step_level.capacity)
 
 
 @register_stage

@@ -44,6 +44,10 @@ from .model import STORED_BANDS, fit_transfer, local_transfer
 from .patch import (PATCH_SHAPES, PatchGeometry, PatchModel, bake_patch, interpolate_at_hits, patch_albedo, patch_heights,
                     patch_prims)
 
+#: The ZH fit's search (:func:`warpshade.basis.zh.fit` ``strategy``).
+_FIT_STRATEGY = Param("global", str, "ZH fit search: 'global' (variable projection over scanned axis sets, restarts) "
+                                     "or 'greedy' (lobe by lobe, then joint BFGS)", choices=("global", "greedy"))
+
 __all__ = [
     "LdprtGlossyFitStage",
     "LdprtGlossyShadeStage",
@@ -85,6 +89,7 @@ class LdprtFitStage(PrecomputeStage):
         "restart_error": Param(0.05, float, "relative error above which the multi-start engages", minimum=0.0),
         "ridge": Param(_RIDGE, float, "coefficient ridge mu of the fit (psi + mu |g*|^2; keeps lobes from "
                                       "cancelling with huge coefficients; 0: the paper's objective)", minimum=0.0),
+        "fit_strategy": _FIT_STRATEGY,
     }
 
     def dims(self):
@@ -105,7 +110,7 @@ class LdprtFitStage(PrecomputeStage):
                            seed=p["seed"], progress=ctx.progress)
         model = fit_transfer(t, p["lobes"], target_error=p["target_error"], stored_bands=p["stored_bands"],
                              restarts=p["restarts"], restart_error=p["restart_error"], seed=p["seed"],
-                             ridge=p["ridge"])
+                             ridge=p["ridge"], strategy=p["fit_strategy"])
         self.report = {"histogram": model.histogram, "total_error": model.total_error,
                        "restarted": int(model.restarted.sum()), "fit_seconds": model.seconds}
         return model.arrays()
@@ -276,6 +281,7 @@ class LdprtGlossyFitStage(PrecomputeStage):
                                choices=("visible", "traced")),
         "ridge": Param(_RIDGE, float, "coefficient ridge mu of the fit (psi + mu |g*|^2; keeps lobes from "
                                       "cancelling with huge coefficients; 0: the paper's objective)", minimum=0.0),
+        "fit_strategy": _FIT_STRATEGY,
     }
 
     def dims(self):
@@ -303,7 +309,8 @@ class LdprtGlossyFitStage(PrecomputeStage):
         fac = factorize(brdf, p["order"], p["rank"], p["view_resolution"])
         vis = compute(ctx.scene, _bake_frame(ctx, p["frame"]), p["order"], p["samples"], space="local",
                       device=ctx.device, seed=p["seed"], below_horizon=p["below_horizon"], progress=ctx.progress).visibility
-        model = fit_glossy(vis, fac, p["lobes"], restarts=p["restarts"], seed=p["seed"], ridge=p["ridge"])
+        model = fit_glossy(vis, fac, p["lobes"], restarts=p["restarts"], seed=p["seed"], ridge=p["ridge"],
+                           strategy=p["fit_strategy"])
         v = vis.shape[0]
         self.report = {"svd_truncation_error": fac.truncation_error(), "fit_total_error": model.total_error,
                        "max_lobe_norm_ratio": model.max_lobe_norm_ratio}
