@@ -32,11 +32,12 @@ GOLDEN_MEAN_REL = 1e-4
 GOLDEN_MAX_REL = 5e-3
 #: Graphs whose precompute runs a non-convex fit (the SG lighting fit; the glossy ZH fits): on an
 #: AMD EPYC host their outputs differ from goldens written on another host by (mean, max)
-#: 8.4e-4 / 1.8e-3 (sunlit_sg_lights) and 2.6e-3 / 5.0e-2 (sunlit_ldprt_glossy), with the same
+#: 8.4e-4 / 1.8e-3 (sunlit_sg_lights), 2.6e-3 / 5.0e-2 (sunlit_ldprt_glossy) and 2.4e-4 / 1.1e-3
+#: (bend_ldprt_glossy), with the same
 #: code and with scipy, numpy, Pillow and usd-core each set back to the earlier release (tried:
 #: not the cause). A fit that tiny rounding differences send to a slightly different optimum is
 #: the likely mechanism. Their limits are twice that spread; a change of maths moves them more.
-GOLDEN_FIT_SPREAD = {"sunlit_sg_lights": (2e-3, 5e-3), "sunlit_ldprt_glossy": (5e-3, 1e-1)}
+GOLDEN_FIT_SPREAD = {"sunlit_sg_lights": (2e-3, 5e-3), "sunlit_ldprt_glossy": (5e-3, 1e-1), "bend_ldprt_glossy": (5e-4, 5e-3)}
 
 
 def golden_path(name: str) -> Path:
