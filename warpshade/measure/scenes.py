@@ -24,6 +24,7 @@ BENCH_SCENES = {
     "figure_walk": {"spec": "bundled:figure_walk", "options": {}},
     "wanderer": {"spec": "bundled:wanderer_test", "options": {}},
     "cloth": {"spec": "bundled:cloth", "options": {}},
+    "cloth_heldout": {"spec": "bundled:cloth_heldout", "options": {}},
     "bend": {"spec": "bundled:bend", "options": {}},
 }
 STATIC_FRAME_COUNT = 24

@@ -12,9 +12,12 @@ __all__ = [
 #: Held-out test scene -> its training clip and frames (the graphs' selections, so that the cached
 #: training data is shared with stages/*_visibility.toml).
 TRAINING_CLIPS = {"figure": ("bundled:figure_train", "0:600:3"), "figure_walk": ("bundled:figure_train", "0:600:3"),
-                  "wanderer": ("bundled:wanderer_train", "0:1000:8")}
+                  "wanderer": ("bundled:wanderer_train", "0:1000:8"), "cloth_heldout": ("bundled:cloth_train", None)}
 #: Rays per vertex of the training visibility of each clip (the wanderer's frames cost ~4x).
-TRAINING_RAYS = {"figure": 128, "figure_walk": 128, "wanderer": 64}
+TRAINING_RAYS = {"figure": 128, "figure_walk": 128, "wanderer": 64, "cloth_heldout": 128}
+#: Pose inputs of each clip: joint rotations of a skinned character, dihedral angles of the
+#: simulated cloth (its inputs' PCA keeps 90 % of their variance, as stages/cloth_visibility.toml).
+FEATURES = {"cloth_heldout": ("dihedral", {"input_variance": 0.9})}
 #: The glossy material of the RPO rows (:mod:`warpshade.methods.rpo.rows`).
 GLOSSY = {"brdf": "ggx", "roughness": 0.5}
 
@@ -42,14 +45,17 @@ def harness_rows(quick: bool = False) -> list:
     rows = []
     for scene, (training, frames) in TRAINING_CLIPS.items():
         rays = TRAINING_RAYS[scene]
+        features, fit = FEATURES.get(scene, ("joints", {}))
         for model in ("linear", "quadratic", "network"):
             rows.append(HarnessRow(
-                "visibility", f"{model} n4 k8", stages_for(training, frames, model, samples=rays), "shade.radiance",
+                "visibility", f"{model} n4 k8", stages_for(training, frames, model, samples=rays, fit=fit, features=features),
+                "shade.radiance",
                 scenes=(scene,), quick=False,
                 notes=f"trained on {training.split(':')[-1]} frames {frames} ({rays} rays); {model} per cluster; "
                       "RPO GGX 0.5 vs the glossy reference"))
         rows.append(HarnessRow(
-            "visibility", "network n4 diffuse", stages_for(training, frames, "network", samples=rays, shade="diffuse"),
+            "visibility", "network n4 diffuse", stages_for(training, frames, "network", samples=rays, shade="diffuse", fit=fit,
+                                                           features=features),
             "shade.radiance", scenes=(scene,), quick=False,
             notes="cosine re-applied to the predicted visibility (eq. 14) vs the diffuse reference"))
     return rows
