@@ -39,6 +39,7 @@ LONG_PRECOMPUTE = {
     "sunlit_ldprt_glossy": "glossy ZH fits of 4,294 vertices, ~40 s",
     "figure_datadriven": "training data over 600 poses, ~100 s",
     "wanderer_datadriven": "training data over 500 poses, ~8 min",
+    "figure_visibility": "training visibility over 200 poses and per-cluster network fits, minutes",
 }
 
 
