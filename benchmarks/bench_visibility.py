@@ -16,7 +16,9 @@ Part 3 -- the paper's studies in visibility space, on the held-out frames agains
 ray traced there (``--truth-rays``), ridge models fitted in-process on the graph's training data:
 clusters vs error (Fig. 4: the mean-shift bandwidth), retained variance vs error (Fig. 5), the
 frame the visibility is modelled in (Fig. 9: cluster frames, one-ring frames, world), errors
-measured in the world frame (local predictions turned back by their frames).
+measured in the world frame (local predictions turned back by their frames); and Fig. 8, the
+cosine-weighted transfer on the held-out frames predicted by a visibility model (the cosine
+applied after, eq. 14) or by a model of the transfer itself (the cosine in the training targets).
 
 Writes ``visibility-<date>-cpu[-quick].json`` and ``-models.png``, ``-studies.png`` into ``--out``.
 
@@ -130,7 +132,7 @@ def part_studies(quick, rt):
     from warpshade.methods.datadriven import pose_features, pose_layout
     from warpshade.methods.visibility import fit_visibility, predict_f64, to_local
     from warpshade.methods.visibility.mirror import inputs_f64
-    from warpshade.methods.visibility.model import local_frames_f64
+    from warpshade.methods.visibility.model import cosine_product_matrix, local_frames_f64
     from warpshade.tasks import executor
     from warpshade.transfer import compute
 
@@ -160,7 +162,26 @@ def part_studies(quick, rt):
             den += float((truth[f] ** 2).sum())
         return float(np.sqrt(num / den))
 
-    out = {"truth_rays": rays, "frames": frames, "bandwidth": [], "variance": [], "frames_kind": {}}
+    def transfer_error(model, target):
+        """Fig. 8: error of the cosine-weighted transfer on the held-out frames, local frame (the
+        same norm as the world frame), from a visibility model (cosine applied after) or a
+        transfer model (cosine in its training targets)."""
+        a = model.arrays
+        cos = cosine_product_matrix(4)
+        x = inputs_f64(a, poses)
+        num = den = 0.0
+        for i, f in enumerate(frames):
+            fr = local_frames_f64(model.frames, scene.points_at(f)[None], scene.normals_at(f)[None], a["rest_points"],
+                                  a["faces"], a["labels"])[0]
+            want = to_local(truth[f], fr) @ cos.T
+            got = predict_f64(a, x[i])
+            if target == "visibility":
+                got = got @ cos.T
+            num += float(((got - want) ** 2).sum())
+            den += float((want**2).sum())
+        return float(np.sqrt(num / den))
+
+    out = {"truth_rays": rays, "frames": frames, "bandwidth": [], "variance": [], "frames_kind": {}, "cosine": {}}
     with executor("serial") as ex:
         def fit(**kw):
             t0 = time.perf_counter()
@@ -171,6 +192,13 @@ def part_studies(quick, rt):
             m, s = fit(frames=kind)
             out["frames_kind"][kind] = {"error": error(m), "fit_s": s, "cv_error": m.report["cv_error"]}
             print("frames", kind, out["frames_kind"][kind], flush=True)
+            if kind == "cluster":
+                out["cosine"]["without (visibility, cosine applied after)"] = {"transfer_error": transfer_error(m, "visibility"),
+                                                                              "components": int(np.sum(m.report["components"]))}
+                mt, _ = fit(frames=kind, target="transfer")
+                out["cosine"]["with (transfer modelled)"] = {"transfer_error": transfer_error(mt, "transfer"),
+                                                            "components": int(np.sum(mt.report["components"]))}
+                print("cosine", out["cosine"], flush=True)
         for bw in ((0.3,) if quick else (0.1, 0.2, 0.3, 0.5, 0.8)):
             m, s = fit(bandwidth=bw)
             out["bandwidth"].append({"bandwidth": bw, "clusters": m.report["clusters"], "error": error(m),
@@ -215,7 +243,7 @@ def _plot(result, path_models, path_studies):
     st = result.get("studies")
     if not st:
         return
-    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
+    fig, axes = plt.subplots(1, 4 if st.get("cosine") else 3, figsize=(17, 3.8))
     axes[0].plot([b["clusters"] for b in st["bandwidth"]], [b["error"] for b in st["bandwidth"]], "o-")
     axes[0].set_xlabel("clusters (mean-shift bandwidth)")
     axes[1].plot([v["variance"] for v in st["variance"]], [v["error"] for v in st["variance"]], "o-")
@@ -223,8 +251,13 @@ def _plot(result, path_models, path_studies):
     kinds = list(st["frames_kind"])
     axes[2].bar(kinds, [st["frames_kind"][k]["error"] for k in kinds])
     axes[2].set_xlabel("frame of the model")
-    for ax in axes:
+    for ax in axes[:3]:
         ax.set_ylabel("held-out visibility rel. error (ridge)")
+    if st.get("cosine"):
+        names = list(st["cosine"])
+        axes[3].bar([n.split(" (")[0] + " cosine" for n in names], [st["cosine"][n]["transfer_error"] for n in names])
+        axes[3].set_ylabel("held-out transfer rel. error (ridge)")
+        axes[3].set_xlabel("Fig. 8: the cosine in the model or not")
     fig.tight_layout()
     fig.savefig(path_studies, dpi=110)
     plt.close(fig)

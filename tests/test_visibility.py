@@ -380,3 +380,14 @@ def test_bad_training_selection_names_the_stage(device, bend, tmp_path):
     with pytest.raises(StageError, match="stage 'data'.*at least 4"):
         GraphSpec(stages, "shade.radiance", name="vis").compile(bend, device=device, cache_dir=tmp_path, progress=False,
                                                                 scheduler="serial")
+
+
+def test_transfer_target_is_for_local_frames_only():
+    """The Fig. 8 comparison fits the cosine-weighted transfer in a local frame: the world frame
+    has no fixed normal to weight by, so it is refused, and an unknown target is named."""
+    from warpshade.methods.visibility import fit_visibility
+
+    with pytest.raises(ValueError, match="target must be 'visibility' or 'transfer'.*'world'"):
+        fit_visibility({}, frames="world", target="transfer")
+    with pytest.raises(ValueError, match="target must be .* got 'cosine'"):
+        fit_visibility({}, target="cosine")

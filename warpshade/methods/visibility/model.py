@@ -37,7 +37,7 @@ from .clusters import cluster_frame_rule, cluster_frames_f64, cluster_vertices
 from .fit import expand_features, fit_cluster
 from .training import to_local
 
-__all__ = ["FRAME_KINDS", "input_space", "local_frames_f64"]
+__all__ = ["FRAME_KINDS", "cosine_product_matrix", "input_space", "local_frames_f64"]
 
 MODELS = ("linear", "quadratic", "network")
 FRAME_KINDS = ("cluster", "one_ring", "world")
@@ -98,17 +98,34 @@ def _quadratic_pairs(k: int) -> tuple[np.ndarray, np.ndarray]:
     return np.triu_indices(k)
 
 
+def cosine_product_matrix(order: int) -> np.ndarray:
+    """The SH product matrix of the clamped cosine about the local normal (+z), (n*n, n*n)
+    float64: local visibility to local transfer (eq. 14)."""
+    from ...basis import sh
+    from ..rpo.model import cosine_sh
+
+    return sh.product_matrix(cosine_sh(order))
+
+
 def fit_visibility(data: dict, *, model: str = "network", frames: str = "cluster", pose: str = "quaternion",
                    root: str = "include", input_variance: float = 0.99, input_max: int = 24, variance: float = 0.95,
                    predictable: float = 0.99, k_max: int = 32, bandwidth: float = 0.3, min_cluster: int = 8, hidden=(8, 16),
                    max_iterations: int = 300, margin: float = 0.25, seed: int = 0, labels=None, executor=None,
-                   progress: bool = False) -> VisibilityModel:
-    """Fit the model to a ``visibility.data`` artifact (module docstring). ValueError on bad input."""
+                   progress: bool = False, target: str = "visibility") -> VisibilityModel:
+    """Fit the model to a ``visibility.data`` artifact (module docstring). ValueError on bad input.
+
+    ``target = "transfer"`` fits the cosine-weighted transfer instead (each local visibility vector
+    times the clamped cosine about the normal, the SH product of eq. 14): the paper's Fig. 8
+    comparison, measured by ``benchmarks/bench_visibility.py``; the stages fit visibility.
+    """
     from ...tasks import executor as new_executor
 
     t0 = time.perf_counter()
     if model not in MODELS or frames not in FRAME_KINDS:
         raise ValueError(f"model must be one of {MODELS} and frames one of {FRAME_KINDS}")
+    if target not in ("visibility", "transfer") or (target == "transfer" and frames == "world"):
+        raise ValueError(f"target must be 'visibility' or 'transfer' (the latter in a local frame), got {target!r} "
+                         f"with frames {frames!r}")
     settings = np.asarray(data["settings"]).reshape(-1)
     order = int(settings[0])
     source = int(settings[3])
@@ -133,6 +150,8 @@ def fit_visibility(data: dict, *, model: str = "network", frames: str = "cluster
     local = np.empty(vis.shape, np.float32)
     for t in range(pcount):
         local[t] = vis[t] if frames == "world" else to_local(vis[t], fr[t])
+    if target == "transfer":
+        local = local @ cosine_product_matrix(order).T.astype(np.float32)
     tasks = []
     for cl in range(kc):
         rows = np.flatnonzero(labels == cl)
