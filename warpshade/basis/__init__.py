@@ -22,8 +22,9 @@ functions included), so the import graph is acyclic (``tests/test_basis_imports.
     sh              public SH facade                                 <- all of the above
     _zh_grad        SH basis with its direction gradient             <- (none)
     _zh_fit         batched ZH lobe fitting                          <- _core, _zh_grad
+    _zh_global      global ZH fit (variable projection, beam scan)   <- _core, _zh_grad, _zh_fit
     _zh_warp        per-order Warp ZH bundle, zh_kernels             <- sh_warp
-    zh              public ZH facade                                 <- _core, _zh_grad, _zh_fit, _zh_warp
+    zh              public ZH facade                                 <- _core, _zh_grad, _zh_fit, _zh_global, _zh_warp
     sg              float64 spherical Gaussians, f_h                 <- (none)
     sg_warp         spherical Gaussians as Warp functions            <- sg
 
