@@ -33,10 +33,11 @@ GOLDEN_MAX_REL = 5e-3
 #: Graphs whose precompute runs a non-convex fit (the SG lighting fit; the glossy ZH fits): on an
 #: AMD EPYC host their outputs differ from goldens written on another host by (mean, max)
 #: 8.4e-4 / 1.8e-3 (sunlit_sg_lights), 2.6e-3 / 5.0e-2 (sunlit_ldprt_glossy) and 2.4e-4 / 1.1e-3
-#: (bend_ldprt_glossy), with the same
-#: code and with scipy, numpy, Pillow and usd-core each set back to the earlier release (tried:
-#: not the cause). A fit that tiny rounding differences send to a slightly different optimum is
-#: the likely mechanism. Their limits are twice that spread; a change of maths moves them more.
+#: (bend_ldprt_glossy), with the same code. Not the library releases: with scipy 1.16.3, Pillow
+#: 12.3.0, usd-core 26.8 and numpy 2.3.5 in place of 1.17.1, 13.0.0, 26.11 and 2.4.6, the
+#: sunlit_sg_lights difference stayed the same. A fit that tiny rounding differences send to a
+#: slightly different optimum is the likely mechanism. Their limits are twice that spread; a
+#: change of maths moves them more.
 GOLDEN_FIT_SPREAD = {"sunlit_sg_lights": (2e-3, 5e-3), "sunlit_ldprt_glossy": (5e-3, 1e-1), "bend_ldprt_glossy": (5e-4, 5e-3)}
 
 
