@@ -42,34 +42,57 @@ _MODELS = ("reduced", "full")
 _CHUNK_MIN_VERTICES = 4096
 
 
-def _load_training(ctx, stage):
-    """The training scene of a data stage (the graph's scene when ``training`` is empty)."""
-    path = stage.params["training"]
-    if not path:
-        return ctx.scene
-    from ...io import SCENE_SPEC_PREFIXES, load_scene
+class TrainingClipStage(PrecomputeStage):
+    """A precompute stage that traces a training clip: the ``training`` parameter (a USD file
+    relative to the graph, or a scene spec; empty: the graph's own scene), keyed by the clip's
+    content rather than its path, and the artifact independent of the graph's scene when the clip
+    is another one (``datadriven.data``, ``visibility.data``)."""
 
-    if path.startswith(SCENE_SPEC_PREFIXES):
+    TRAINING = Param("", str, "training clip: a USD file relative to the graph, or a scene spec such as "
+                     "'bundled:figure_train' (default: the graph's own scene)")
+
+    def __init__(self, name, params=None):
+        super().__init__(name, params)
+        # trained on another clip: the artifact does not depend on the scene the graph runs on
+        self.uses_scene = not self.params["training"]
+
+    def cache_params(self):
+        return {k: v for k, v in self.params.items() if k != "training"}
+
+    def cache_key(self, ctx):
+        if not self.params["training"]:
+            return {}
+        return {"training": self.training_scene(ctx).fingerprint()}
+
+    def training_scene(self, ctx):
+        """The training scene (the graph's scene when ``training`` is empty); StageError names
+        the parameter and the file."""
+        path = self.params["training"]
+        if not path:
+            return ctx.scene
+        from ...io import SCENE_SPEC_PREFIXES, load_scene
+
+        where = f"stage {self.name!r} ({self.type_name}): parameter 'training'"
+        if path.startswith(SCENE_SPEC_PREFIXES):
+            try:
+                return load_scene(path)
+            except (OSError, ValueError) as exc:
+                raise StageError(f"{where} ({path}): {exc}") from None
+        p = ctx.resolve_path(path)
+        if not p.exists():
+            raise StageError(f"{where}: no such file {p}")
         try:
-            return load_scene(path)
+            return load_scene(str(p))
         except (OSError, ValueError) as exc:
-            raise StageError(f"stage {stage.name!r} ({stage.type_name}): parameter 'training' ({path}): {exc}") from None
-    p = ctx.resolve_path(path)
-    if not p.exists():
-        raise StageError(f"stage {stage.name!r} ({stage.type_name}): parameter 'training': no such file {p}")
-    try:
-        return load_scene(str(p))
-    except (OSError, ValueError) as exc:
-        raise StageError(f"stage {stage.name!r} ({stage.type_name}): parameter 'training' ({p}): {exc}") from None
+            raise StageError(f"{where} ({p}): {exc}") from None
 
 
 @register_stage
-class DataDrivenDataStage(PrecomputeStage):
+class DataDrivenDataStage(TrainingClipStage):
     type_name = "datadriven.data"
     description = "ray-traced transfer and pose vectors at every frame of a training clip (tasks for an executor)"
     parameters = {
-        "training": Param("", str, "training clip: a USD file relative to the graph, or a scene spec such as "
-                          "'bundled:figure_train' (default: the graph's own scene)"),
+        "training": TrainingClipStage.TRAINING,
         "frames": Param(None, str, "training frames as 'start:stop[:step]' over frame indices (default: all)"),
         "order": _ORDER,
         "samples": rays_param(256, "rays per vertex per training frame"),
@@ -79,26 +102,13 @@ class DataDrivenDataStage(PrecomputeStage):
         "seed": Param(0, int, "base seed of the per-frame ray rotations"),
     }
 
-    def __init__(self, name, params=None):
-        super().__init__(name, params)
-        # trained on another clip: the artifact does not depend on the scene the graph runs on
-        self.uses_scene = not self.params["training"]
-
     def output_ports(self):
         return {"data": Port("arrays", (), "training transfer (p, V, M), poses per parameterisation, frames")}
-
-    def cache_params(self):
-        return {k: v for k, v in self.params.items() if k != "training"}
-
-    def cache_key(self, ctx):
-        if not self.params["training"]:
-            return {}
-        return {"training": _load_training(ctx, self).fingerprint()}
 
     def precompute(self, ctx, inputs):
         p = self.params
         where = f"stage {self.name!r} ({self.type_name})"
-        train = _load_training(ctx, self)
+        train = self.training_scene(ctx)
         try:
             check_same_character(train, ctx.scene, where)
             idx = parse_frame_selection(p["frames"], train, where + ": parameter 'frames'")

@@ -22,9 +22,10 @@ import numpy as np
 
 from ..common import order_param, rays_param
 from ..datadriven.pose import PARAMETERISATIONS, ROOT_MODES, pose_features, pose_layout, root_references
+from ..datadriven.stages import TrainingClipStage
 from ..datadriven.training import check_same_character, parse_frame_selection, topology_key, trace_training
 from ..stage import FrameStage, Param, Port, PrecomputeStage, StageError, register_stage
-from . import kernels
+from . import cloth, kernels
 from .model import FRAME_KINDS, MODELS, fit_visibility, model_from_arrays
 from .training import FEATURE_SOURCES, dense_skin_weights, mesh_ids, rest_points
 
@@ -33,32 +34,14 @@ __all__: list[str] = []
 _ORDER = order_param(4, minimum=2, maximum=6)
 
 
-def _load_training(ctx, stage):
-    """The training scene of a data stage (the graph's scene when ``training`` is empty)."""
-    from ..datadriven.stages import _load_training as load
-
-    return load(ctx, stage)
-
-
-def _dihedral_module():
-    """The cloth inputs and clusters (:mod:`warpshade.methods.visibility.cloth`), or None."""
-    import importlib
-
-    try:
-        return importlib.import_module(__name__.rsplit(".", 1)[0] + ".cloth")
-    except ImportError:
-        return None
-
-
 @register_stage
-class VisibilityDataStage(PrecomputeStage):
+class VisibilityDataStage(TrainingClipStage):
     type_name = "visibility.data"
     version = 1
     description = ("ray-traced SH visibility (no cosine), points, normals and inputs at every frame of a training "
                    "clip (tasks for an executor)")
     parameters = {
-        "training": Param("", str, "training clip: a USD file relative to the graph, or a scene spec such as "
-                          "'bundled:figure_train' (default: the graph's own scene)"),
+        "training": TrainingClipStage.TRAINING,
         "frames": Param(None, str, "training frames as 'start:stop[:step]' over frame indices (default: all)"),
         "order": _ORDER,
         "samples": rays_param(128, "rays per vertex per training frame"),
@@ -67,25 +50,13 @@ class VisibilityDataStage(PrecomputeStage):
                           "interior edges of a point-cached mesh", choices=FEATURE_SOURCES),
     }
 
-    def __init__(self, name, params=None):
-        super().__init__(name, params)
-        self.uses_scene = not self.params["training"]
-
     def output_ports(self):
         return {"data": Port("arrays", (), "training visibility (p, V, C) world frame, points, normals, inputs")}
-
-    def cache_params(self):
-        return {k: v for k, v in self.params.items() if k != "training"}
-
-    def cache_key(self, ctx):
-        if not self.params["training"]:
-            return {}
-        return {"training": _load_training(ctx, self).fingerprint()}
 
     def precompute(self, ctx, inputs):
         p = self.params
         where = f"stage {self.name!r} ({self.type_name})"
-        train = _load_training(ctx, self)
+        train = self.training_scene(ctx)
         try:
             if p["features"] == "joints":
                 check_same_character(train, ctx.scene, where)
@@ -114,10 +85,6 @@ class VisibilityDataStage(PrecomputeStage):
                         root[layout.offsets[j]:layout.offsets[j] + layout.widths[j]] = 1
                 out[f"root_{kind}"] = root
         else:
-            cloth = _dihedral_module()
-            if cloth is None:
-                raise StageError(f"{where}: features = 'dihedral' needs warpshade.methods.visibility.cloth, "
-                                 "which this installation does not have")
             out["dihedral"] = np.stack([cloth.dihedral_angles(train.points_at(float(train.frames[i])), train.faces)
                                         for i in idx]).astype(np.float64)
         tasks: dict = {}
@@ -204,9 +171,6 @@ class VisibilityFitStage(PrecomputeStage):
         data = inputs["data"]
         labels = None
         if int(np.asarray(data["settings"]).reshape(-1)[3]) == FEATURE_SOURCES.index("dihedral"):
-            cloth = _dihedral_module()
-            if cloth is None:
-                raise StageError(f"{where}: dihedral inputs need warpshade.methods.visibility.cloth")
             labels = cloth.cluster_labels(data)
         try:
             with ctx.executor() as ex:
@@ -295,9 +259,6 @@ class VisibilityPredictStage(FrameStage):
             poses = pose_features(scene, np.arange(len(scene.frames)), self._pose.layout,
                                   root_reference=a["root_reference"])
         else:
-            cloth = _dihedral_module()
-            if cloth is None:
-                raise StageError(f"{where}: dihedral inputs need warpshade.methods.visibility.cloth")
             self._pose = cloth.DihedralInputs(scene, dev)
             features = self._pose.features
             poses = np.stack([cloth.dihedral_angles(scene.points_at(float(f)), scene.faces) for f in scene.frames])
