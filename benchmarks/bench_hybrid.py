@@ -49,21 +49,45 @@ SCENES = ("blockers", "cloth", "bend", "figure")
 TRAINING = {"figure": "bundled:figure_train", "figure_walk": "bundled:figure_train"}
 
 
-def settings(scene_key, order, samples_list, controls, reference_rays, training_frames, training_samples):
-    out = [("traced", reference_rays, (("shade", "prt.trace", {"order": order, "samples": reference_rays}, {}),))]
+def settings(scene_key, order, samples_list, controls, reference_rays, training_frames, training_samples,
+             variants=None, baseline=True):
+    """The rows of a scene: ``(method, rays, stages)``; ``variants`` ``{name: hybrid.trace parameters}``
+    (None: the defaults, unnamed) are run for every ray count and control."""
+    out = [("traced", reference_rays, (("shade", "prt.trace", {"order": order, "samples": reference_rays}, {}),))] if baseline else []
     for k in samples_list:
         for control in controls:
-            if control == "datadriven":
-                if scene_key not in TRAINING:
-                    continue
-                st = stages_for("datadriven", k, order, training=TRAINING[scene_key], frames=training_frames,
-                                training_samples=training_samples)
-            else:
-                st = stages_for(control, k, order)
-            out.append((f"hybrid {control}", k, st))
+            for name, trace in (variants or {"": {}}).items():
+                if control == "datadriven":
+                    if scene_key not in TRAINING:
+                        continue
+                    st = stages_for("datadriven", k, order, training=TRAINING[scene_key], frames=training_frames,
+                                    training_samples=training_samples, trace=trace)
+                else:
+                    st = stages_for(control, k, order, trace=trace)
+                out.append((f"hybrid {control}" + (f" {name}" if name else ""), k, st))
     return out
 
 
+def parse_variants(text):
+    """``"old={...};new={...}"`` (JSON objects of hybrid.trace parameters) as ``{name: dict}``."""
+    import json
+
+    if not text:
+        return None
+    out = {}
+    for part in text.split(";"):
+        name, sep, body = part.partition("=")
+        if not sep or not name.strip():
+            raise ValueError(f"--variants: {part!r} is not NAME=JSON")
+        params = json.loads(body)
+        if not isinstance(params, dict):
+            raise ValueError(f"--variants: {name!r} must be a JSON object of hybrid.trace parameters")
+        out[name.strip()] = params
+    return out
+
+
+#: Line styles of the named variants (in name order).
+STYLES = ("s--", "^:", "v-.", "D-")
 #: One colour per setting family in every panel.
 COLORS = {"hybrid none": "C1", "hybrid previous": "C2", "hybrid ldprt": "C0", "hybrid datadriven": "C3"}
 
@@ -75,15 +99,19 @@ def chart(results, path):
     import matplotlib.pyplot as plt
 
     scenes = sorted({r["scene"] for r in results})
+    variants = sorted({" ".join(r["method"].split()[2:]) for r in results} - {""})
     fig, axes = plt.subplots(2, len(scenes), figsize=(4.2 * len(scenes), 7), squeeze=False)
     for j, s in enumerate(scenes):
         rs = [r for r in results if r["scene"] == s]
         ref = next((r for r in rs if r["method"] == "traced"), None)
         for method in sorted({r["method"] for r in rs if r["method"] != "traced"}):
             m = sorted((r for r in rs if r["method"] == method), key=lambda r: r["rays"])
-            color = COLORS.get(method)
-            axes[0, j].plot([r["rays"] for r in m], [r["error"] for r in m], "o-", color=color, label=method)
-            axes[1, j].plot([r["rays"] for r in m], [r["frame_ms"] for r in m], "o-", color=color, label=method)
+            family = " ".join(method.split()[:2])
+            color = COLORS.get(family)
+            variant = method[len(family):].strip()
+            style = "o-" if not variant else STYLES[variants.index(variant) % len(STYLES)]
+            axes[0, j].plot([r["rays"] for r in m], [r["error"] for r in m], style, color=color, label=method)
+            axes[1, j].plot([r["rays"] for r in m], [r["frame_ms"] for r in m], style, color=color, label=method)
         if ref is not None:
             axes[0, j].axhline(ref["error"], color="k", ls="--", label=f"prt.trace {ref['rays']} rays")
             axes[0, j].axhline(1.2 * ref["error"], color="k", ls=":", label="1.2x prt.trace")
@@ -118,6 +146,10 @@ def main(argv=None) -> int:
     ap.add_argument("--seeds", type=int, default=8)
     ap.add_argument("--training-frames", default="0:600:20", help="data-driven control: training frames")
     ap.add_argument("--training-samples", type=int, default=32, help="data-driven control: rays per training frame")
+    ap.add_argument("--variants", default=None, metavar="NAME=JSON;...",
+                    help='hybrid.trace parameter sets run side by side, e.g. \'old={"threshold": 2};new={}\'')
+    ap.add_argument("--suffix", default="", help="added to the results' file name (hybrid-<date>-<device>-SUFFIX)")
+    ap.add_argument("--no-baseline", action="store_true", help="leave out the prt.trace row (no ratios)")
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--replot", default=None, metavar="JSON", help="redraw the chart of an earlier results JSON")
     args = ap.parse_args(argv)
@@ -136,11 +168,12 @@ def main(argv=None) -> int:
     out_dir.mkdir(parents=True, exist_ok=True)
     date = datetime.date.today().isoformat()
     tag = "cpu" if args.device == "cpu" else args.device.replace(":", "")
-    stem = out_dir / (f"hybrid-{date}-{tag}" + ("-quick" if args.quick else ""))
+    stem = out_dir / (f"hybrid-{date}-{tag}" + ("-quick" if args.quick else "") + (f"-{args.suffix}" if args.suffix else ""))
     meta = {"date": date, "device": args.device, "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores",
             "threads": cpu_workers() if args.device == "cpu" else None, "order": args.order,
             "gt_samples": args.gt_samples, "noise_seeds": args.seeds, "noise_frame_index": args.noise_frame,
             "training_frames": args.training_frames, "training_samples": args.training_samples,
+            "variants": parse_variants(args.variants), "load_average": os.getloadavg(),
             "command": " ".join(["python", "benchmarks/bench_hybrid.py", *(argv if argv is not None else sys.argv[1:])])}
     results = []
     t_all = time.perf_counter()
@@ -154,7 +187,8 @@ def main(argv=None) -> int:
             return ground_truth(scene, lighting, frames, args.gt_samples, args.device, progress=True)
 
         noise_frame = float(scene.frames[min(args.noise_frame, len(scene.frames) - 1)])
-        rows = settings(key, args.order, samples, controls, args.reference_rays, args.training_frames, args.training_samples)
+        rows = settings(key, args.order, samples, controls, args.reference_rays, args.training_frames, args.training_samples,
+                        parse_variants(args.variants), baseline=not args.no_baseline)
         for method, rays, stages in progress_bar(rows, desc=f"{key}: settings", unit="setting"):
             t0 = time.perf_counter()
             try:
@@ -170,7 +204,7 @@ def main(argv=None) -> int:
                  "diagnostics": lg.get("diagnostics"), "seconds": time.perf_counter() - t0,
                  "stages": [dict(name=n, type=t, **p) for (n, t, p, _) in stages]}
             results.append(r)
-            print(f"  {method:18s} K{rays:<5d} error {r['error']:.4f}  lag {r['lag']:.3f}  noise {r['noise']:.4f}  "
+            print(f"  {method:28s} K{rays:<5d} error {r['error']:.4f}  lag {r['lag']:.3f}  noise {r['noise']:.4f}  "
                   f"{r['frame_ms']:9.2f} ms/frame", flush=True)
             ref = next((x for x in results if x["scene"] == key and x["method"] == "traced" and "failed" not in x), None)
             for x in results:
@@ -183,6 +217,8 @@ def main(argv=None) -> int:
     ok = [r for r in results if "failed" not in r]
     if ok:
         chart(ok, Path(f"{stem}.png"))
+    meta["load_average_end"] = os.getloadavg()
+    write_json_atomic(Path(f"{stem}.json"), {"meta": meta, "results": results}, indent=1)
     print(f"wrote {stem}.json/.png in {time.perf_counter() - t_all:.0f} s")
     return 0
 

@@ -133,9 +133,9 @@ def test_filter_kernel_matches_mirror(device, rng):
     assert np.all(g64 >= 1.0)
 
 
-def _temporal_run(device, frames_in, params):
-    """Run the temporal kernel over a list of (points, normals, fresh, variance, control) frames;
-    returns per frame (transfer, reset) of the kernel and of the mirror."""
+def _temporal_run(device, frames_in, params, gain=2.0):
+    """Run the temporal kernel over a list of (points, normals, fresh, variance, control[, raw]) frames
+    (raw: the unfiltered estimate, ``fresh`` when left out); returns per frame (transfer, reset) of the kernel and of the mirror."""
     pts0 = frames_in[0][0]
     v, c = frames_in[0][2].shape
     dev = wp.get_device(device)
@@ -151,25 +151,27 @@ def _temporal_run(device, frames_in, params):
     for k, val in params.items():
         setattr(tp, k, val)
     scale = np.full(v, 0.1, np.float32)
-    gain = np.full(v, 2.0, np.float32)
+    gain = np.full(v, gain, np.float32)
     mstate = {"history": np.zeros((v, c)), "frames": np.zeros(v), "variance_mean": np.zeros(v), "variance": np.zeros(v),
               "prev_points": np.zeros((v, 3)), "prev_normals": np.zeros((v, 3))}
     out = []
     transfer = wp.zeros((v, c), dtype=wp.float32, device=dev)
-    for pts, nrm, fresh, var, ctl in frames_in:
+    for pts, nrm, fresh, var, ctl, *rest in frames_in:
+        raw = rest[0] if rest else fresh
         f32 = dict(dtype=wp.float32, device=dev)
         wp.launch(kernels.temporal_kernel(ORDER), dim=v, device=dev,
                   inputs=[wp.array(pts.astype(np.float32), dtype=wp.vec3, device=dev),
                           wp.array(nrm.astype(np.float32), dtype=wp.vec3, device=dev), wp.array(scale, **f32),
-                          wp.array(ctl.astype(np.float32), **f32), 1, wp.array(fresh.astype(np.float32), **f32),
+                          wp.array(ctl.astype(np.float32), **f32), 1, wp.array(fresh.astype(np.float32), **f32), wp.array(raw.astype(np.float32), **f32),
                           wp.array(var.astype(np.float32), **f32), wp.array(gain, **f32), st, tp, transfer])
-        t64, mstate = temporal_f64(mstate, pts, nrm, scale, fresh, var, gain, ctl, params)
+        t64, mstate = temporal_f64(mstate, pts, nrm, scale, fresh, var, gain, ctl, params, raw=raw)
         out.append((transfer.numpy().copy(), st.reset.numpy().copy(), st.frames.numpy().copy(), t64, mstate["reset"].copy(),
                     mstate["frames"].copy()))
     return out
 
 
-PARAMS = {"alpha": 0.1, "motion": 1.0, "normal_cos": float(np.cos(np.radians(20))), "threshold": 4.0, "in_control": 0}
+PARAMS = {"alpha": 0.1, "motion": 1.0, "normal_cos": float(np.cos(np.radians(20))), "threshold": 4.0, "in_control": 0,
+          "fade": 1.0, "test_raw": 0}
 
 
 @pytest.mark.parametrize("in_control", [0, 1])
@@ -211,6 +213,60 @@ def test_variance_test_cuts_when_fresh_rays_disagree(device, rng):
     assert np.all(runs[4][1] == 1)  # RESET_VARIANCE
     assert_close(runs[4][0], frames_in[4][2], atol=ATOL_AVERAGE, what="fresh estimate taken at the cut")
     assert np.count_nonzero(runs[3][1]) == 0
+
+
+@pytest.mark.parametrize("in_control", [0, 1])
+def test_variance_test_on_the_raw_estimate(device, rng, in_control):
+    """``test_raw``: the unfiltered estimate against the variance of one frame before the filter.
+    With a filter gain of 8, a change of one raw standard deviation per coefficient (z ~ 7 after
+    the filter, ~ 2 before it) is cut when tested after the filter and kept when tested before it;
+    a shadow that flips (1.0, 100 raw standard deviations) is cut either way. Kernel and mirror
+    agree, with raw and filtered estimates that differ."""
+    v, c = 30, ORDER * ORDER
+    pts = rng.uniform(-1, 1, (v, 3))
+    nrm = np.tile([0.0, 0.0, 1.0], (v, 1))
+    sd, gain = 0.01, 8.0  # per coefficient, one frame, before the filter; after it sd / sqrt(gain)
+    cuts = {}
+    for test_raw in (0, 1):
+        frames_in = []
+        for t in range(8):
+            level = 0.0 if t < 4 else (sd if t < 7 else 1.0)
+            raw = level + sd * rng.standard_normal((v, c))
+            fresh = level + sd / np.sqrt(gain) * rng.standard_normal((v, c))
+            frames_in.append([pts, nrm, fresh, np.full(v, sd**2 * c), np.zeros((v, c)), raw])
+        params = dict(PARAMS, in_control=in_control, test_raw=test_raw, threshold=4.0)
+        runs = []
+        for t in range(8):  # with in_control the control is the last transfer
+            if in_control and runs:
+                frames_in[t][4] = runs[-1][0]
+            runs = _temporal_run(device, frames_in[: t + 1], params, gain=gain)
+        for tr, reset, fr, t64, reset64, fr64 in runs:
+            assert_close(tr, t64, atol=ATOL_AVERAGE, what="transfer")
+            np.testing.assert_array_equal(reset, reset64)
+        cuts[test_raw] = [int(np.count_nonzero(r[1] == kernels.RESET_VARIANCE)) for r in runs]
+        assert np.all(runs[7][1] == kernels.RESET_VARIANCE), f"test_raw {test_raw}: the flipped shadow is not cut"
+    assert cuts[0][4] >= 0.8 * v and cuts[1][4] <= 0.1 * v, cuts
+
+
+def test_fade_starts_at_its_z(device):
+    """After 9 frames that agree, a fresh frame at z = 3 (threshold 4): with ``fade`` 1 its weight
+    is ((3 - 1) / (4 - 1))^2 = 4/9; with ``fade`` 3 the history holds (weight alpha = 0.1)."""
+    v, c = 6, ORDER * ORDER
+    pts = np.zeros((v, 3))
+    nrm = np.tile([0.0, 0.0, 1.0], (v, 1))
+    var, gain = 1e-4 * c, 2.0  # one frame, before the filter: vf = var / gain after it
+    vf = var / gain
+    n = 9.0
+    x = np.sqrt(3.0 * vf * (1.0 + 1.0 / n) / c)  # z = C x^2 / (vf + vf / n) = 3
+    frames_in = [(pts, nrm, np.zeros((v, c)), np.full(v, var), np.zeros((v, c))) for _ in range(9)]
+    frames_in.append((pts, nrm, np.full((v, c), x), np.full(v, var), np.zeros((v, c))))
+    for fade, weight in ((1.0, 4.0 / 9.0), (3.0, 0.1)):
+        runs = _temporal_run(device, frames_in, dict(PARAMS, fade=fade, threshold=4.0), gain=gain)
+        for tr, reset, fr, t64, reset64, fr64 in runs:
+            assert_close(tr, t64, atol=ATOL_AVERAGE, what="transfer")
+            assert_close(fr, fr64, rtol=ATOL_AVERAGE, what="effective frames")
+            assert np.all(reset == 0)
+        assert_close(runs[-1][0], np.full((v, c), weight * x), rtol=1e-4, what=f"fresh weight at fade {fade}")
 
 
 def _exact_projection(scene, pts, nrm, order, offset, rays=1024):

@@ -36,8 +36,11 @@ fixed point set under a uniform random rotation, so every frame's estimate is un
   transfer ``T = T_hat + h``; when the control is the last estimate (``in_control``) the fresh
   input is the full estimate ``T_prev + r`` (filtered) and ``T = (1 - a) T_prev + a fresh``. With ``z = |r - h|^2 / (var_mean + var_h)`` (1 on average while the
   residual holds still) the weight of the fresh frame is ``max(alpha, 1 / (n + 1), s^2)``,
-  ``s = clamp((z - 1) / (threshold - 1), 0, 1)``, so the history fades as the fresh rays drift
+  ``s = clamp((z - fade) / (threshold - fade), 0, 1)``, so the history fades as the fresh rays drift
   from it, and is cut (weight 1) for ``z > threshold`` or when the vertex moved or turned fast.
+  With ``test_raw`` the test compares the unfiltered one-frame estimate (``raw``) instead, against
+  the one-frame variance before the filter (``var_mean`` times the filter's gain): less sensitive
+  by that gain, so it keeps more history (less noise) and follows a slowly drifting transfer later.
 * :func:`advance_kernel` -- the frame counter, incremented at the end of every frame.
 """
 
@@ -265,6 +268,8 @@ class TemporalParams:
     normal_cos: float  # cosine of the normal's turn per frame that cuts the history
     threshold: float  # variance test: cut when z = |r - h|^2 / (var_mean + var) > threshold
     in_control: int  # 1: the control is the last estimate (the history lives in it; fresh = T_prev + r)
+    fade: float  # z above which the history fades (the fresh frame's weight s^2 reaches 1 at the threshold)
+    test_raw: int  # 1: the variance test compares the unfiltered one-frame estimate with the history
 
 
 @functools.lru_cache(maxsize=None)
@@ -280,6 +285,7 @@ def temporal_kernel(order: int):
         control: wp.array2d(dtype=wp.float32),
         use_control: int,
         fresh: wp.array2d(dtype=wp.float32),
+        raw: wp.array2d(dtype=wp.float32),
         fresh_variance: wp.array(dtype=wp.float32),
         gain: wp.array(dtype=wp.float32),
         state: TemporalState,
@@ -289,7 +295,8 @@ def temporal_kernel(order: int):
         v = wp.tid()
         p = points[v]
         n = normals[v]
-        vf = fresh_variance[v] / wp.max(gain[v], 1.0)
+        g = wp.max(gain[v], 1.0)
+        vf = fresh_variance[v] / g
         count = state.frames[v]
         code = int(RESET_NONE)
         drift = float(0.0)
@@ -299,7 +306,10 @@ def temporal_kernel(order: int):
             h = state.history[v, i]
             if params.in_control != 0:
                 h = control[v, i]
-            diff = fresh[v, i] - h
+            x = fresh[v, i]
+            if params.test_raw != 0:
+                x = raw[v, i]
+            diff = x - h
             d2 += diff * diff
         if count > 0.0:
             moved = wp.length(p - state.prev_points[v])
@@ -311,11 +321,13 @@ def temporal_kernel(order: int):
                 code = RESET_MOTION
             else:
                 vm = (1.0 - params.alpha) * state.variance_mean[v] + params.alpha * vf
+                if params.test_raw != 0:
+                    vm = vm * g  # the one-frame variance before the filter
                 z = d2 / (vm + state.variance[v] + 1.0e-12)
                 if z > params.threshold:
                     code = RESET_VARIANCE
-                elif params.threshold > 1.0:
-                    s = wp.clamp((z - 1.0) / (params.threshold - 1.0), 0.0, 1.0)
+                elif params.threshold > params.fade:
+                    s = wp.clamp((z - params.fade) / (params.threshold - params.fade), 0.0, 1.0)
                     drift = s * s
         if not (wp.isfinite(d2) and wp.isfinite(vf)):
             code = RESET_NONFINITE

@@ -103,14 +103,16 @@ def filter_f64(offsets, neighbours, points, normals, scale, sigma_normal: float,
     return out, gain
 
 
-def temporal_f64(state: dict, points, normals, scale, fresh, fresh_variance, gain, control, params: dict):
+def temporal_f64(state: dict, points, normals, scale, fresh, fresh_variance, gain, control, params: dict, raw=None):
     """One frame of the moving average (:func:`.kernels.temporal_kernel`), on a copy of ``state``.
 
     Args:
         state: ``history`` (V, C), ``frames`` (V,), ``variance_mean`` (V,), ``variance`` (V,),
             ``prev_points`` (V, 3), ``prev_normals`` (V, 3).
         control: (V, C) or None; params: ``alpha``, ``motion``, ``normal_cos``, ``threshold``,
-            ``in_control``.
+            ``in_control``, ``fade`` (optional, default 1), ``test_raw`` (optional, 0: the variance test on ``fresh``; 1: on ``raw``,
+            the unfiltered one-frame estimate, against the variance before the filter).
+        raw: (V, C) the unfiltered one-frame estimate (``fresh`` when None).
 
     Returns:
         ``(transfer (V, C), new_state)`` with ``new_state["reset"]`` the per-vertex codes.
@@ -124,11 +126,15 @@ def temporal_f64(state: dict, points, normals, scale, fresh, fresh_variance, gai
     out = np.zeros_like(fr)
     reset = np.zeros(vcount, np.int32)
     alpha = params["alpha"]
+    test_raw = bool(params.get("test_raw", 0))
+    fade = float(params.get("fade", 1.0))
+    rw = fr if raw is None else np.asarray(raw, np.float64)
     for v in range(vcount):
-        vf = fresh_variance[v] / max(gain[v], 1.0)
+        g = max(gain[v], 1.0)
+        vf = fresh_variance[v] / g
         count = st["frames"][v]
         h_prev = ctl[v] if params["in_control"] else st["history"][v]
-        d2 = float(np.sum((fr[v] - h_prev) ** 2))
+        d2 = float(np.sum(((rw[v] if test_raw else fr[v]) - h_prev) ** 2))
         code = _RESET_NONE
         drift = 0.0
         if count > 0:
@@ -139,11 +145,13 @@ def temporal_f64(state: dict, points, normals, scale, fresh, fresh_variance, gai
                 code = _RESET_MOTION
             else:
                 vm = (1 - alpha) * st["variance_mean"][v] + alpha * vf
+                if test_raw:
+                    vm *= g
                 z = d2 / (vm + st["variance"][v] + 1e-12)
                 if z > params["threshold"]:
                     code = _RESET_VARIANCE
-                elif params["threshold"] > 1.0:
-                    drift = min(max((z - 1.0) / (params["threshold"] - 1.0), 0.0), 1.0) ** 2
+                elif params["threshold"] > fade:
+                    drift = min(max((z - fade) / (params["threshold"] - fade), 0.0), 1.0) ** 2
         if not (np.isfinite(d2) and np.isfinite(vf)):
             code = _RESET_NONFINITE
         if code == _RESET_NONFINITE:

@@ -76,6 +76,10 @@ class HybridTraceStage(FrameStage):
                        minimum=1e-3, maximum=1.0),
         "threshold": Param(2.0, float, "history cut when |fresh - history|^2 exceeds this many times their variance",
                            minimum=0.0),
+        "fade": Param(1.0, float, "the history fades for z = |fresh - history|^2 / variance above this (weight of the "
+                      "fresh frame ((z - fade) / (threshold - fade))^2), is cut above the threshold", minimum=0.0),
+        "test": Param("filtered", str, "what the variance test compares with the history: the one-frame estimate before "
+                      "the filter (raw, against its own variance) or after it (filtered)", choices=("raw", "filtered")),
         "motion": Param(1.0, float, "history cut when a vertex moves more than this many mean edge lengths per frame",
                         minimum=0.0),
         "normal_turn": Param(20.0, float, "history cut when a normal turns more than this (degrees) per frame",
@@ -158,6 +162,8 @@ class HybridTraceStage(FrameStage):
         tp.normal_cos = float(math.cos(math.radians(p["normal_turn"])))
         tp.threshold = float(p["threshold"])
         tp.in_control = 1 if p["control"] == "previous" else 0
+        tp.fade = float(p["fade"])
+        tp.test_raw = 1 if p["test"] == "raw" else 0
         self._params = tp
         self._residual_kernel = kernels.residual_kernel(p["order"])
         self._filter_kernel = kernels.filter_kernel(p["order"])
@@ -186,7 +192,7 @@ class HybridTraceStage(FrameStage):
             src = dst
         wp.launch(self._temporal_kernel, dim=v, device=dev,
                   inputs=[self._points, self._normals, self._scale, self._control, self._use_control, self._fresh,
-                          self._variance, self._gain, self._state, self._params, self._transfer])
+                          self._raw, self._variance, self._gain, self._state, self._params, self._transfer])
         wp.launch(kernels.advance_kernel, dim=1, device=dev, inputs=[self._step])
 
     def model_bytes(self) -> int:
