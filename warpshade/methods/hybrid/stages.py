@@ -70,7 +70,7 @@ class HybridTraceStage(FrameStage):
                           choices=("transfer", "visibility")),
         "space": Param("world", str, "frame of the coefficients (local: per-vertex tangent frames on port 'frames')",
                        choices=SPACES),
-        "cycle": Param(1, int, "frames per cycle of shifted Fibonacci sets (stratified together; one random "
+        "cycle": Param(16, int, "frames per cycle of shifted Fibonacci sets (stratified together; one random "
                        "rotation per vertex and cycle); 1: a new rotation every frame", minimum=1, maximum=256),
         "alpha": Param(0.1, float, "smallest weight of a new frame in the moving average (1: no reuse over frames)",
                        minimum=1e-3, maximum=1.0),
