@@ -269,6 +269,26 @@ def test_fade_starts_at_its_z(device):
         assert_close(runs[-1][0], np.full((v, c), weight * x), rtol=1e-4, what=f"fresh weight at fade {fade}")
 
 
+def test_history_is_the_running_average_up_to_one_over_alpha(device, rng):
+    """While the fresh frames agree with the history, frame t's weight is max(alpha, 1 / (t + 1)):
+    the transfer is the plain mean of the first 1 / alpha = 10 fresh frames, and the effective
+    frames count 1, 2, ..., 10; after that an exponential average with weight alpha."""
+    v, c = 20, ORDER * ORDER
+    pts = rng.uniform(-1, 1, (v, 3))
+    nrm = np.tile([0.0, 0.0, 1.0], (v, 1))
+    sd = 0.01
+    fresh = [0.3 + sd * rng.standard_normal((v, c)) for _ in range(14)]
+    frames_in = [(pts, nrm, f, np.full(v, 2 * sd**2 * c), np.zeros((v, c))) for f in fresh]  # gain 2
+    runs = _temporal_run(device, frames_in, dict(PARAMS, threshold=1e9, fade=1e9))
+    expect = None
+    for t, (tr, reset, fr, *_rest) in enumerate(runs):
+        expect = np.mean(fresh[: t + 1], axis=0) if t < 10 else 0.9 * expect + 0.1 * fresh[t]
+        assert_close(tr, expect, atol=ATOL_AVERAGE, what=f"transfer at frame {t}")
+        assert np.all(reset == 0)
+        if t < 10:
+            assert_close(fr, np.full(v, t + 1.0), rtol=ATOL_AVERAGE, what=f"effective frames at frame {t}")
+
+
 def _exact_projection(scene, pts, nrm, order, offset, rays=1024):
     rot = np.repeat(np.eye(3)[None], len(pts), axis=0)
     occ = _hits(scene, pts, nrm, rot, rays, offset)
