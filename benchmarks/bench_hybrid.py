@@ -20,6 +20,13 @@ Usage::
 
     python benchmarks/bench_hybrid.py [--scenes blockers,cloth,bend,figure] [--device cpu]
     python benchmarks/bench_hybrid.py --quick --out /tmp/hy
+    python benchmarks/bench_hybrid.py --scenes cloth --samples 64 --controls previous \
+        --variants 'old={"cycle": 1};new={}' --suffix cycle     # parameter sets side by side
+
+``--variants`` runs each named set of ``hybrid.trace`` parameters for every ray count and
+control (methods ``hybrid <control> <name>``); ``--no-baseline`` leaves out ``prt.trace`` (no
+ratios; for settings compared with each other only). The machine's load average at the start
+and the end is in ``meta``.
 
 Writes ``benchmarks/results/hybrid-<date>-<device>.json`` and ``.png`` (error and time per frame
 against rays per vertex, per scene), the JSON rewritten after every setting.
