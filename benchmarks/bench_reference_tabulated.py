@@ -15,7 +15,8 @@ process's CPU time of one launch thread, which other processes on a shared machi
 less than the wall clock; on a GPU the wall clock):
 
 * ``analytic``: GGX (alpha 0.3, f0 0.1);
-* ``table_one_channel``: that GGX tabulated (90 x 90 x 180, linear lookup), channel "g";
+* ``table_one_channel``: that GGX tabulated (90 x 90 x 180, linear lookup; 24 x 12 x 24 with
+  ``--quick``), channel "g";
 * ``table_rgb``: the same table in colour (three passes, one per channel).
 
 With ``--base DIR`` the ``analytic`` case also runs in subprocesses with ``DIR`` (a checkout's
@@ -37,8 +38,6 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-if "--child" not in sys.argv:  # a child imports the checkout its PYTHONPATH names
-    sys.path.insert(0, str(ROOT))
 
 from warpshade._fileio import write_json_atomic  # noqa: E402
 from warpshade._wp import resolve_device, wp  # noqa: E402
@@ -93,7 +92,7 @@ def child(args) -> None:
 
 
 def run_child(tree: Path, args) -> float:
-    env = {**os.environ, "PYTHONPATH": str(tree)}
+    env = {**os.environ, "PYTHONPATH": str(tree)}  # the child imports that checkout's warpshade
     cmd = [sys.executable, str(Path(__file__).resolve()), "--child", "--samples", str(args.samples), "--repeats",
            str(args.repeats), "--device", args.device]
     out = subprocess.run(cmd, env=env, check=True, capture_output=True, text=True, cwd=str(tree))
@@ -117,13 +116,14 @@ def main(argv=None):
         if args.out is None:
             parser.error("--quick writes only into --out DIR (never benchmarks/results)")
         args.samples, args.repeats, args.rounds = 64, 1, 1
+    dims = (24, 12, 24) if args.quick else (90, 90, 180)
     out_dir = Path(args.out or ROOT / "benchmarks" / "results")
     device = resolve_device(args.device)
 
     from warpshade.scene.tabulated import TabulatedBRDF
 
     ggx = analytic()
-    one = TabulatedBRDF.from_brdf(ggx, dims=(90, 90, 180), channel="g", interpolation="linear")
+    one = TabulatedBRDF.from_brdf(ggx, dims=dims, channel="g", interpolation="linear")
     rgb = TabulatedBRDF(one.table, "rgb", "linear")
     results = {}
     for name, brdf in (("analytic", ggx), ("table_one_channel", one), ("table_rgb", rgb)):
@@ -141,6 +141,7 @@ def main(argv=None):
         ratios["analytic_this_over_base"] = min(this) / min(base)
     date = datetime.date.today().isoformat()
     report = {"benchmark": "reference_tabulated", "date": date, "device": str(device), "load_average": os.getloadavg(),
+              "table_dims": list(dims), "timer": "process CPU time" if device.is_cpu else "wall clock",
               "results": results, "ratios": ratios}
     out_dir.mkdir(parents=True, exist_ok=True)
     stem = f"reference-tabulated-{date}-{str(device).replace(':', '')}{'-quick' if args.quick else ''}"

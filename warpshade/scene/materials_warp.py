@@ -65,9 +65,9 @@ __all__ = [
     "brdf_with_tangent",
     "check_reference_brdf",
     "check_roughness",
-    "table_lobe",
     "concentric_footprint",
     "hemisphere_to_concentric",
+    "table_lobe",
     "upload_brdf",
     "upload_brdf_passes",
 ]
@@ -218,7 +218,8 @@ def table_lobe(table: np.ndarray) -> tuple[float, float]:
     valid = cells >= 0.0
     count = valid.sum(axis=(1, 2))
     profile = np.where(count > 0, np.where(valid, cells, 0.0).sum(axis=(1, 2)) / np.maximum(count, 1), np.nan)
-    ok = np.isfinite(profile) & (theta_h < np.radians(44.0))  # 2 theta_h below the horizon
+    # cells whose mirror direction at normal view (2 theta_h) stays above the horizon
+    ok = np.isfinite(profile) & (theta_h < np.radians(44.0))
     lo_w, hi_w = TABLE_LOBE_WEIGHT
     lo_a, hi_a = TABLE_LOBE_ALPHA
     if ok.sum() < 2:
@@ -701,8 +702,6 @@ def brdf_pdf(b: BRDFParams, n: wp.vec3, v: wp.vec3, s: wp.vec3) -> float:
         r = wp.normalize(2.0 * wp.dot(n, v) * n - v)
         c = wp.max(wp.dot(r, s), 0.0)
         return (b.exponent + 1.0) / (2.0 * wp.pi) * wp.pow(c, b.exponent)
-    if b.model == 8:
-        return _tabulated_pdf(b, n, v, s)
     h = v + s
     hl = wp.length(h)
     if hl <= 1.0e-12:
@@ -712,6 +711,10 @@ def brdf_pdf(b: BRDFParams, n: wp.vec3, v: wp.vec3, s: wp.vec3) -> float:
     if vh <= 1.0e-12:
         return 0.0
     if b.model >= 5:
+        # the tabulated model's cosine part is 0 where the early returns above fire (s = -v, below
+        # the horizon of a viewer above it), so it may branch here, off the analytic models' path
+        if b.model == 8:
+            return _tabulated_pdf(b, n, v, s)
         return _anisotropic_half_pdf(b, n, h) / (4.0 * vh)
     return _half_pdf(b, wp.dot(n, h)) / (4.0 * vh)
 
