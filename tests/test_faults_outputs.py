@@ -218,28 +218,44 @@ def test_component_both_with_validate_is_refused_before_any_work(tmp_path, capsy
     assert not list(out.iterdir())
 
 
-def test_tabulated_brdfs_with_validate_are_refused_before_any_work(tmp_path, capsys, monkeypatch):
-    """The glossy reference shades analytic BRDFs only: a tabulated BRDF as the stage's BRDF or
-    in the material track is refused under --validate before any work, naming it."""
+def test_tabulated_brdfs_with_validate_pass_the_checks_before_work(tmp_path, capsys, monkeypatch):
+    """The glossy reference shades tabulated BRDFs: a table as the stage's BRDF or in the material
+    track passes --validate's checks (the run reaches its work); a material the reference does
+    not shade is refused before any work, naming the entry and the file."""
     from warpshade.scene.materials import Microfacet
     from warpshade.scene.tabulated import write_merl
+
+    class Reached(Exception):
+        pass
+
+    def compile_(*args, **kwargs):
+        raise Reached
 
     (tmp_path / "cube.usda").write_text(CUBE)
     write_merl(tmp_path / "gold.binary", Microfacet(roughness=0.4), dims=(8, 8, 8), rgb=(1.0, 0.78, 0.34))
     vis = '[[stage]]\nname = "vis"\ntype = "rpo.visibility_traced"\norder = 3\nsamples = 16\n\n'
     shade = 'type = "rpo.shade"\norder = 3\nrank = 4\neye = [0.0, -3.0, 1.0]'
-    _no_work(monkeypatch)
+    monkeypatch.setattr(GraphSpec, "compile", compile_)
     g = _graph(tmp_path / "stage.toml", "tab_stage", "cube.usda", shade + '\nbrdf = "tabulated"\nfile = "gold.binary"')
     g.write_text(g.read_text().replace("[[stage]]", vis + "[[stage]]", 1))
     rc, err = _run(capsys, "run", str(g), "--out", str(tmp_path / "o1"), "--validate", "--device", "cpu")
-    assert rc == 2 and "stage 'shade': brdf = 'tabulated'" in err and "cannot be validated" in err, err
+    assert "Reached" in err, err
     g = _graph(tmp_path / "track.toml", "tab_track", "cube.usda", shade)
     g.write_text(g.read_text().replace("[[stage]]", '[[material]]\nbrdf = "tabulated"\nfile = "gold.binary"\n\n' + vis +
                                        "[[stage]]", 1))
     rc, err = _run(capsys, "run", str(g), "--out", str(tmp_path / "o2"), "--validate", "--device", "cpu")
-    assert rc == 2 and "[[material]] #1 is a tabulated BRDF" in err and "gold.binary" in err, err
-    for o in ("o1", "o2"):
-        assert not (tmp_path / o).exists() or not list((tmp_path / o).iterdir())
+    assert "Reached" in err, err
+    # a material the reference has no device form of: named with its file, before any work
+    from warpshade.scene import materials_warp
+
+    def unsupported(brdf):
+        raise ValueError("the ray-traced glossy reference does not shade BRDF 'tabulated'")
+
+    monkeypatch.setattr(materials_warp, "check_reference_brdf", unsupported)
+    _no_work(monkeypatch)
+    rc, err = _run(capsys, "run", str(g), "--out", str(tmp_path / "o3"), "--validate", "--device", "cpu")
+    assert rc == 2 and "[[material]] #1" in err and "gold.binary" in err and "does not shade" in err, err
+    assert not (tmp_path / "o3").exists() or not list((tmp_path / "o3").iterdir())
 
 
 def test_an_unwritable_cache_names_the_directory_and_variable_before_any_work(tmp_path, capsys, monkeypatch):

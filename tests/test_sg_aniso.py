@@ -330,8 +330,12 @@ def test_measured_material_kernel_matches_the_mirror(device, blocked):
     assert np.all(np.isfinite(out)) and np.abs(want).max() > 0.0
     assert _max_rel(out, want) < RTOL_FLOAT32, _max_rel(out, want)
     rt.set_parameter("shade", "component", "specular")
-    with pytest.raises(StageError, match="cannot be validated"):
-        reference_model(rt)  # no ray-traced reference shades a tabulated BRDF: refused, never a wrong reference
+    # the reference shades the table itself: its luminance (the channel the NDF and shadowing were
+    # extracted from), looked up linearly, in the stage's specular colour, with no tangent frame
+    model = reference_model(rt)
+    brdf = model["brdf"]
+    assert brdf.name == "tabulated" and brdf.channel == "luminance" and brdf.interpolation == "linear"
+    assert brdf.source.endswith("measured_coating.binary") and "tangents" not in model
 
 
 def test_per_vertex_reference_takes_uv_tangents(device):

@@ -275,11 +275,15 @@ def _plan_run(spec, scene, out, run_frames, measured, validate, previews, usd_fo
     if validate:
         output_name = spec.output.split(".", 1)[0]
         check_measurable(next(s for s in stages if s.name == output_name))
+        from .scene.materials_warp import check_reference_brdf
+
         for entry in spec.materials:
-            if getattr(entry["brdf"], "name", "") == "tabulated":
-                raise CliError(f"--validate: {entry['where']} is a tabulated BRDF ({entry['brdf'].source}), which the "
-                               "ray-traced glossy reference does not shade (it shades lambert, phong, blinn-phong, ggx, "
-                               "beckmann); run without --validate")
+            try:
+                check_reference_brdf(entry["brdf"])
+            except ValueError as exc:
+                source = getattr(entry["brdf"], "source", None)
+                raise CliError(f"--validate: {entry['where']}{f' ({source})' if source else ''}: {exc}; "
+                               "run without --validate") from None
         if shader is not None and measured:
             check_measurable(shader, per_pixel=True)
     source = Path(scene.source) if scene.source and Path(scene.source).exists() else None

@@ -5,7 +5,8 @@ diffuse scene, with ``bounces`` diffuse bounces of indirect light, and its Monte
 error (:class:`ShadingResult`, NumPy float32, shape (receiver_count, 3)); see
 :mod:`warpshade.reference.shading` for the estimators.
 ``shade_glossy(scene, frame, brdf, eye, ...)`` is the same for a BRDF of
-:mod:`warpshade.scene.materials` seen from a viewer (:mod:`warpshade.reference.glossy`). Both are
+:mod:`warpshade.scene.materials` or a tabulated one (MERL layout, a colour table per channel)
+seen from a viewer (:mod:`warpshade.reference.glossy`). Both are
 one Monte Carlo estimator with the BRDF as a parameter (:mod:`warpshade.reference.estimator`;
 the diffuse reference is its Lambert case).
 ``reference_image(scene, frame, brdf, camera, ...)`` evaluates both at a camera's primary hits,

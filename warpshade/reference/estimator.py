@@ -48,6 +48,14 @@ environment (BRDF, light or MIS sampling with the balance heuristic, as the rece
 The next-event estimates of every vertex are the same functions as the receiver's direct part,
 so a diffuse and a glossy receiver share one estimator.
 
+A tabulated BRDF (:class:`~..scene.tabulated.TabulatedBRDF`) is shaded one table channel at a time
+(:func:`~..scene.materials_warp.upload_brdf_passes`): each pass is this estimator with that
+channel's BRDF and the same random streams, and the result is the sum of the passes times their
+RGB weights -- for a colour table channel ``c`` of the result is channel ``c`` of the pass with
+table channel ``c`` (so it equals three single-channel runs), for one channel or a grey
+(luminance) table one pass in every channel. Its lobe sampling is a fitted GGX lobe mixed with the
+cosine lobe (:mod:`~..scene.materials_warp`).
+
 Sampling is randomised quasi-Monte Carlo: the 2-D sample points of every strategy are an R2
 low-discrepancy set (the additive recurrence of the plastic number) under a random
 Cranley-Patterson shift, which stratifies the lobe and the environment's CDF (penumbrae
@@ -77,7 +85,7 @@ from ..scene.lighting import DistantLight, Environment, SphereLight
 from ..scene.lighting_warp import EnvironmentMap, disabled_environment, env_pdf, env_radiance, env_sample, upload_environment
 from ..scene.materials import Lambert
 from ..scene.materials_warp import (ANISOTROPIC_MODELS, BRDF_MODELS, BRDFParams, brdf_eval, brdf_pdf, brdf_sample, brdf_with_roughness,
-                                    brdf_with_tangent, check_roughness, upload_brdf)
+                                    brdf_with_tangent, check_roughness, upload_brdf, upload_brdf_passes)
 from ..transfer.interreflection import check_albedo, check_bounces, hit_corners, hit_weights, interpolate_vec3
 from ..transfer.raytrace import CHUNK_MIN_RAYS, receiver_indices
 
@@ -496,6 +504,16 @@ def _estimator_kernel(
         stderr[r] = wp.vec3(0.0)
 
 
+@wp.kernel
+def _add_pass_kernel(radiance: wp.array(dtype=wp.vec3), stderr: wp.array(dtype=wp.vec3), weights: wp.vec3,
+                     out_radiance: wp.array(dtype=wp.vec3), out_stderr: wp.array(dtype=wp.vec3)):
+    """Add one shading pass times its RGB weights; its standard error adds linearly (an upper
+    bound for passes sharing their random streams; exact where one pass makes each channel)."""
+    i = wp.tid()
+    out_radiance[i] = out_radiance[i] + wp.cw_mul(weights, radiance[i])
+    out_stderr[i] = out_stderr[i] + wp.cw_mul(weights, stderr[i])
+
+
 class ShadingResult:
     """Reference shading of the receivers of one frame (NumPy, host memory).
 
@@ -588,7 +606,9 @@ class MonteCarloShader:
         lighting: :class:`DeviceLighting`.
         surfaces: :class:`DiffuseSurfaces` the paths bounce off (vertex normals of the frame
             last given to :meth:`update`, ``scene.albedo``).
-        brdf: the uploaded :class:`~warpshade.scene.materials_warp.BRDFParams`.
+        brdf: the uploaded :class:`~warpshade.scene.materials_warp.BRDFParams` (of the first pass).
+        passes: ``(BRDFParams, RGB weights)`` per shading pass: one for an analytic BRDF, one per
+            table channel for a tabulated one (:func:`~warpshade.scene.materials_warp.upload_brdf_passes`).
         tint: per-vertex tint, wp.array(vec3), shape (vertex_count,).
         roughness: per-vertex alpha, wp.array(float), shape (vertex_count,), or empty (uniform).
         radiance, stderr: per-receiver outputs, wp.array(vec3), shape (receiver_count,).
@@ -603,7 +623,8 @@ class MonteCarloShader:
         self.method = method
         self.scene = scene
         self.device = resolve_device(device)
-        self.brdf = upload_brdf(brdf)
+        self.passes = upload_brdf_passes(brdf, self.device)
+        self.brdf = self.passes[0][0]
         self.has_eye = 0 if eye is None else 1
         self.eye = wp.vec3(0.0) if eye is None else _vec3(eye, "eye", caller)
         self.lighting = upload_lighting(scene.lights if lighting is None else lighting, self.device)
@@ -729,17 +750,32 @@ class MonteCarloShader:
             rough = self.upload_roughness(roughness, points.shape[0], "roughness")
         tang = self._no_tangents if tangents is None else self.upload_tangents(tangents, points.shape[0])
 
-        def inputs(start, stop):
-            return [
-                self.bvh.id, points, normals, tint, receivers, start, self.brdf, rough, tang, self.has_eye, self.eye,
-                lit.environment, lit.lights, self.strategy, self.replicates, self.points_per_replicate, self.bounces,
-                self.surfaces, seed, self.bvh.offset, radiance, stderr,
-            ]
-
         rays = receivers.shape[0] * self.replicates * self.points_per_replicate * (2 if self.strategy == 2 else 1)
         rays *= 1 + 2 * self.bounces  # each bounce: a continuation ray and the next-event rays
         workers = self.workers if rays >= CHUNK_MIN_RAYS else 1
-        launch_parallel(_estimator_kernel, receivers.shape[0], inputs, self.device, workers)
+
+        def launch(brdf, out_radiance, out_stderr):
+            def inputs(start, stop):
+                return [
+                    self.bvh.id, points, normals, tint, receivers, start, brdf, rough, tang, self.has_eye, self.eye,
+                    lit.environment, lit.lights, self.strategy, self.replicates, self.points_per_replicate, self.bounces,
+                    self.surfaces, seed, self.bvh.offset, out_radiance, out_stderr,
+                ]
+
+            launch_parallel(_estimator_kernel, receivers.shape[0], inputs, self.device, workers)
+
+        if len(self.passes) == 1 and np.all(self.passes[0][1] == 1.0):
+            launch(self.brdf, radiance, stderr)
+            return
+        # one pass per table channel, summed with its RGB weights (module docstring)
+        pass_r = wp.empty(radiance.shape[0], dtype=wp.vec3, device=self.device)
+        pass_s = wp.empty(radiance.shape[0], dtype=wp.vec3, device=self.device)
+        radiance.zero_()
+        stderr.zero_()
+        for params, weights in self.passes:
+            launch(params, pass_r, pass_s)
+            wp.launch(_add_pass_kernel, dim=radiance.shape[0], inputs=[pass_r, pass_s, wp.vec3(*[float(w) for w in weights])],
+                      outputs=[radiance, stderr], device=self.device)
 
     def shade_state(self, points, normals) -> None:
         """Refit the BVH to ``points`` and shade the receiver vertices into the outputs.

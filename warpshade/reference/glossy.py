@@ -1,14 +1,17 @@
 """Monte Carlo ground truth for glossy receivers: outgoing radiance towards a viewer.
 
 For a receiver at ``p`` with unit normal ``n``, seen from ``eye`` (``v = normalize(eye - p)``)
-and a BRDF ``b`` of :mod:`warpshade.scene.materials` (the same for every receiver), the
+and a BRDF ``b`` of :mod:`warpshade.scene.materials` or a tabulated one
+(:class:`~warpshade.scene.tabulated.TabulatedBRDF`; the same for every receiver), the
 reference is::
 
     L_o(p, v) = c * integral b(v, s) L_i(s) V(s) max(0, n . s) ds
 
 with ``c`` an RGB colour (the ``specular`` colour of the glossy stages), ``L_i`` the environment
 plus analytic lights and ``V`` ray-traced visibility: the estimator of :mod:`.estimator` with
-the tint ``t = c``. A spatially varying material gives ``c`` per vertex (``color`` of shape
+the tint ``t = c``. A colour table (``channel = "rgb"``) has its own ``b`` per channel: channel
+``k`` of ``L_o`` is ``c_k`` times the integral with table channel ``k`` (one estimator pass per
+channel, as ``rpo.shade`` shades one set of operators per channel). A spatially varying material gives ``c`` per vertex (``color`` of shape
 (vertex_count, 3)) and a microfacet BRDF's roughness per vertex (``roughness``, shape
 (vertex_count,)); per-pixel receivers (camera hits) are :mod:`.pixels`'. ``L_o = 0`` where the viewer is below the receiver's horizon (also
 for a Lambert BRDF, whose radiance is otherwise that of :func:`warpshade.reference.shade`).

@@ -27,6 +27,18 @@ three sample a half vector from the anisotropic Beckmann slope distribution
 (cos^2 phi_h / a_x^2 + sin^2 phi_h / a_y^2)``, density ``D_B(h) cos theta_h``), with Ward's and
 Beckmann's own ``a_x, a_y`` and, for Ashikhmin-Shirley, ``a = sqrt(2 / (n + 2))`` of its exponents.
 
+Tabulated isotropic BRDFs (:class:`~warpshade.scene.tabulated.TabulatedBRDF`, model ``tabulated``):
+one channel of the table in the MERL half/difference layout, flattened in ``table`` (invalid cells
+negative), looked up "nearest" or "linear" exactly as the float64 class does (``table_dims``: the
+three sizes and the interpolation). The angles come from world vectors: ``theta_h`` the angle of
+``h`` from ``n``, ``d = (s . x_h, s . y_h, s . h)`` with ``y_h = (n x h) / |n x h|`` and
+``x_h = y_h x h`` (the rotated frame ``R_z(phi_h) R_y(theta_h)`` of the module
+:mod:`~warpshade.scene.tabulated`), ``phi_d`` folded into [0, pi). Sampling is a mixture: with
+probability ``f0`` a GGX half vector of alpha ``roughness`` (a fit of the table's specular peak,
+:func:`table_lobe`) reflected about ``h``, else the cosine lobe; the pdf is the mixture's, positive
+wherever the table can be, so every estimator stays unbiased whatever the fit.
+:func:`upload_brdf_passes` splits a colour table into one device BRDF per channel.
+
 Spatially varying microfacet roughness: :func:`brdf_with_roughness` is a copy of a
 :class:`BRDFParams` with its ``roughness`` replaced (a per-receiver value read from an array),
 and :func:`check_roughness` validates such an array on the host (only the GGX and Beckmann
@@ -51,16 +63,22 @@ __all__ = [
     "brdf_sample",
     "brdf_with_roughness",
     "brdf_with_tangent",
+    "check_reference_brdf",
     "check_roughness",
     "concentric_footprint",
     "hemisphere_to_concentric",
+    "table_lobe",
     "upload_brdf",
+    "upload_brdf_passes",
 ]
 
 wp.set_module_options({"enable_backward": False})
 
 #: Model codes of :class:`BRDFParams` (``model`` field), in this order.
-BRDF_MODELS = ("lambert", "phong", "blinn-phong", "ggx", "beckmann", "ward", "ashikhmin-shirley", "beckmann-anisotropic")
+BRDF_MODELS = ("lambert", "phong", "blinn-phong", "ggx", "beckmann", "ward", "ashikhmin-shirley", "beckmann-anisotropic",
+               "tabulated")
+#: Model code of a tabulated BRDF (one channel of a MERL-layout table).
+TABULATED_MODEL = 8
 #: Model codes evaluated in a tangent frame (``roughness``/``roughness_y`` or ``exponent``/``exponent_y``).
 ANISOTROPIC_MODELS = (5, 6, 7)
 #: Model codes whose ``roughness`` (microfacet alpha) a per-receiver array may override.
@@ -83,6 +101,13 @@ class BRDFParams:
         exponent_y: Ashikhmin-Shirley's ``nv`` (``exponent`` its ``nu``).
         tangent: the tangent direction of the anisotropic models, world (per receiver:
             :func:`brdf_with_tangent`).
+        table: tabulated model: the address of one channel's BRDF values, float32, flat
+            (n_theta_h * n_theta_d * n_phi_d,), phi_d fastest, negative = invalid cell (0 for the
+            analytic models; an address, not an array, keeps the struct the analytic models pass
+            around small); the host object holds the array as ``table_array``.
+        table_dims: tabulated model: (n_theta_h, n_theta_d, n_phi_d, 1 for "linear" else 0).
+        (The tabulated model samples with ``roughness`` its GGX alpha and ``f0`` the lobe's
+        probability in its mixture with the cosine lobe.)
     """
 
     model: int
@@ -93,10 +118,27 @@ class BRDFParams:
     roughness_y: float
     exponent_y: float
     tangent: wp.vec3
+    table: wp.uint64
+    table_dims: wp.vec4i
 
 
-def upload_brdf(brdf: materials.BRDF) -> BRDFParams:
-    """The :class:`BRDFParams` of a :mod:`~warpshade.scene.materials` BRDF."""
+def upload_brdf(brdf: materials.BRDF, device=None) -> BRDFParams:
+    """The :class:`BRDFParams` of a :mod:`~warpshade.scene.materials` BRDF, or of a one-channel
+    :class:`~warpshade.scene.tabulated.TabulatedBRDF` (channel "r", "g", "b", or "luminance" when
+    its channels share their invalid cells), whose table goes to ``device`` (None: Warp's default).
+
+    Raises:
+        ValueError: an unsupported BRDF, non-finite parameters, or a colour table (``channel =
+            "rgb"``: :func:`upload_brdf_passes` gives one BRDF per channel).
+    """
+    from .tabulated import TabulatedBRDF
+
+    if isinstance(brdf, TabulatedBRDF):
+        passes = upload_brdf_passes(brdf, device)
+        if len(passes) != 1:
+            raise ValueError(f"upload_brdf: the table {brdf.source} is shaded per channel (channel {brdf.channel!r}); "
+                             "use upload_brdf_passes")
+        return passes[0][0]
     p = BRDFParams()
     p.exponent, p.roughness, p.f0 = 0.0, 1.0, 0.0
     p.roughness_y, p.exponent_y, p.tangent = 0.0, 0.0, wp.vec3(1.0, 0.0, 0.0)
@@ -124,7 +166,129 @@ def upload_brdf(brdf: materials.BRDF) -> BRDFParams:
         raise ValueError(f"upload_brdf: unsupported BRDF {type(brdf).__name__} (models: {', '.join(BRDF_MODELS)})")
     if not all(np.isfinite([p.scale, p.exponent, p.roughness, p.f0, p.roughness_y, p.exponent_y])):
         raise ValueError(f"upload_brdf: non-finite parameters in {brdf!r}")
+    p.table = wp.uint64(0)
+    p.table_dims = wp.vec4i(0, 0, 0, 0)
     return p
+
+
+def check_reference_brdf(brdf) -> None:
+    """Raise ValueError saying why ``brdf`` has no device form (what the ray-traced reference
+    shades: the models of :data:`BRDF_MODELS` and tabulated BRDFs), from the host alone."""
+    from .tabulated import TabulatedBRDF
+
+    if isinstance(brdf, TabulatedBRDF):
+        return
+    known = (materials.Lambert, materials.Phong, materials.BlinnPhong, materials.Microfacet, materials.AnisotropicMicrofacet)
+    if isinstance(brdf, known) or (getattr(brdf, "name", "") in ("ward", "ashikhmin-shirley")
+                                   and (hasattr(brdf, "alpha_x") or hasattr(brdf, "nu"))):
+        return
+    raise ValueError(f"the ray-traced glossy reference does not shade BRDF {getattr(brdf, 'name', type(brdf).__name__)!r} "
+                     f"(it shades {', '.join(BRDF_MODELS)})")
+
+
+#: Largest probability of the fitted GGX lobe in a tabulated BRDF's sampling mixture (the rest is
+#: the cosine lobe, which keeps the pdf positive over the hemisphere) and the smallest.
+TABLE_LOBE_WEIGHT = (0.1, 0.9)
+#: Range of the fitted GGX alpha of a tabulated BRDF's sampling lobe.
+TABLE_LOBE_ALPHA = (0.01, 1.0)
+#: theta_d below which the table's cells are taken as the specular peak's profile D(theta_h) (radians).
+TABLE_FIT_THETA_D = np.radians(10.0)
+
+
+def table_lobe(table: np.ndarray) -> tuple[float, float]:
+    """``(alpha, weight)`` of the sampling mixture of one channel of a MERL-layout table
+    (n_theta_h, n_theta_d, n_phi_d), float64, invalid cells negative.
+
+    Near the specular configuration (``theta_d`` below :data:`TABLE_FIT_THETA_D`, ``v ~ s ~ h``) a
+    microfacet BRDF is ``D(theta_h) F G / (4 cos^2 theta_h)``, so the profile ``f(theta_h)`` of those
+    cells (mean over valid phi_d) less its floor (the smallest value, a diffuse part), times
+    ``cos^2 theta_h``, is taken as the NDF. A Beckmann fit ``log D = c - tan^2 theta_h / alpha^2``
+    (weighted least squares, cells above 1e-3 of the peak, weights the values) gives ``alpha``;
+    ``weight`` is the lobe's share of the normal-incidence albedo of the profile, both clamped
+    (:data:`TABLE_LOBE_ALPHA`, :data:`TABLE_LOBE_WEIGHT`). Only the variance depends on them.
+    """
+    from .tabulated import merl_cell_centres
+
+    table = np.asarray(table, np.float64)
+    dims = table.shape
+    theta_h, theta_d, _ = merl_cell_centres(dims)
+    rows = np.nonzero(theta_d < TABLE_FIT_THETA_D)[0]
+    rows = rows if rows.size else np.array([0])
+    cells = table[:, rows, :]
+    valid = cells >= 0.0
+    count = valid.sum(axis=(1, 2))
+    profile = np.where(count > 0, np.where(valid, cells, 0.0).sum(axis=(1, 2)) / np.maximum(count, 1), np.nan)
+    # cells whose mirror direction at normal view (2 theta_h) stays above the horizon
+    ok = np.isfinite(profile) & (theta_h < np.radians(44.0))
+    lo_w, hi_w = TABLE_LOBE_WEIGHT
+    lo_a, hi_a = TABLE_LOBE_ALPHA
+    if ok.sum() < 2:
+        return 0.5, lo_w
+    th, f = theta_h[ok], profile[ok]
+    floor = float(f.min())
+    lobe = np.maximum(f - floor, 0.0)
+    ndf = lobe * np.cos(th) ** 2
+    keep = ndf > 1e-3 * ndf.max() if ndf.max() > 0.0 else np.zeros(ndf.shape, bool)
+    if keep.sum() < 2:
+        return 0.5, lo_w
+    x, y, w = np.tan(th[keep]) ** 2, np.log(ndf[keep]), ndf[keep]
+    xm, ym = np.average(x, weights=w), np.average(y, weights=w)
+    var = np.average((x - xm) ** 2, weights=w)
+    slope = np.average((x - xm) * (y - ym), weights=w) / var if var > 0.0 else -np.inf
+    alpha = float(np.clip(np.sqrt(-1.0 / slope), lo_a, hi_a)) if slope < 0.0 else lo_a
+    # normal-incidence albedo of the profile: s = the mirror of n about h, at 2 theta_h
+    edges = (np.arange(dims[0] + 1) / dims[0]) ** 2 * (np.pi / 2.0)  # cell edges of the sqrt mapping
+    width = np.diff(edges)[ok]
+    jac = np.cos(2.0 * th) * 4.0 * np.cos(th) * 2.0 * np.pi * np.sin(th) * width
+    total = float(np.sum(f * jac))
+    weight = float(np.sum(lobe * jac)) / total if total > 0.0 else lo_w
+    return alpha, float(np.clip(weight, lo_w, hi_w))
+
+
+def _channel_tables(brdf) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(one-channel table, RGB output weights) per pass of a TabulatedBRDF."""
+    from .tabulated import LUMINANCE_WEIGHTS
+
+    t = brdf.table
+    if brdf.channel == "rgb":
+        return [(t[c], np.eye(3)[c]) for c in range(3)]
+    if brdf.channel in ("r", "g", "b"):
+        return [(t["rgb".index(brdf.channel)], np.ones(3))]
+    invalid = t < 0.0
+    if np.array_equal(invalid[0], invalid[1]) and np.array_equal(invalid[0], invalid[2]):
+        # the same cells valid in every channel: the luminance of the values is the luminance table
+        lum = np.tensordot(np.asarray(LUMINANCE_WEIGHTS), np.maximum(t, 0.0), axes=1)
+        return [(np.where(invalid[0], -1.0, lum), np.ones(3))]
+    return [(t[c], np.full(3, LUMINANCE_WEIGHTS[c])) for c in range(3)]
+
+
+def upload_brdf_passes(brdf: materials.BRDF, device=None) -> list[tuple[BRDFParams, np.ndarray]]:
+    """The device BRDFs whose shadings, times their RGB weights and summed, shade ``brdf``:
+    ``[(upload_brdf(brdf), (1, 1, 1))]`` for an analytic BRDF; for a
+    :class:`~warpshade.scene.tabulated.TabulatedBRDF` one pass per table channel it needs
+    (``"rgb"``: the three channels, weights the unit RGB vectors; one channel: that one, weights
+    1; ``"luminance"``: the luminance table, or the three channels weighted by
+    :data:`~warpshade.scene.tabulated.LUMINANCE_WEIGHTS` when their invalid cells differ).
+    Each table pass has its own sampling lobe (:func:`table_lobe`)."""
+    from .._wp import resolve_device
+    from .tabulated import TabulatedBRDF
+
+    if not isinstance(brdf, TabulatedBRDF):
+        return [(upload_brdf(brdf), np.ones(3))]
+    dev = resolve_device(device)
+    n_th, n_td, n_pd = brdf.dims
+    out = []
+    for values, weights in _channel_tables(brdf):
+        alpha, weight = table_lobe(values)
+        p = BRDFParams()
+        p.model, p.scale, p.exponent, p.roughness, p.f0 = TABULATED_MODEL, 1.0, 0.0, alpha, weight
+        p.roughness_y, p.exponent_y, p.tangent = 0.0, 0.0, wp.vec3(1.0, 0.0, 0.0)
+        array = wp.array(np.ascontiguousarray(values, np.float32).reshape(-1), dtype=float, device=dev)
+        p.table = wp.uint64(array.ptr)
+        p.table_dims = wp.vec4i(n_th, n_td, n_pd, 1 if brdf.interpolation == "linear" else 0)
+        object.__setattr__(p, "table_array", array)  # the device table lives as long as the params
+        out.append((p, np.asarray(weights, np.float64)))
+    return out
 
 
 def check_roughness(values, count: int, brdf: BRDFParams, name: str, caller: str) -> np.ndarray:
@@ -170,6 +334,8 @@ def brdf_with_roughness(b: BRDFParams, roughness: float) -> BRDFParams:
     out.roughness_y = b.roughness_y
     out.exponent_y = b.exponent_y
     out.tangent = b.tangent
+    out.table = b.table
+    out.table_dims = b.table_dims
     return out
 
 
@@ -292,6 +458,131 @@ def _anisotropic_half_pdf(b: BRDFParams, n: wp.vec3, h: wp.vec3) -> float:
     return _beckmann_aniso_d(hl, al[0], al[1]) * wp.max(hl[2], 0.0)
 
 
+# ---- tabulated (MERL-layout) BRDFs ------------------------------------------------------------
+
+
+@wp.func
+def _table_cell(b: BRDFParams, i: int, j: int, k: int) -> float:
+    values = wp.array(ptr=b.table, shape=(b.table_dims[0] * b.table_dims[1] * b.table_dims[2],), dtype=float)
+    return values[(i * b.table_dims[1] + j) * b.table_dims[2] + k]
+
+
+@wp.func
+def _linear_axis(u: float, n: int) -> wp.vec3:
+    """Clamped linear interpolation along one cell-index axis: (i0, i1, t) (indices as floats)."""
+    uc = wp.clamp(u, 0.0, float(n) - 1.0)
+    i0 = wp.min(int(wp.floor(uc)), wp.max(n - 2, 0))
+    i1 = wp.min(i0 + 1, n - 1)
+    return wp.vec3(float(i0), float(i1), wp.clamp(uc - float(i0), 0.0, 1.0))
+
+
+@wp.func
+def _tabulated_eval(b: BRDFParams, n: wp.vec3, v: wp.vec3, s: wp.vec3) -> float:
+    """One channel of a tabulated BRDF (``v``, ``s`` above the horizon of ``n``): the
+    :class:`~warpshade.scene.tabulated.TabulatedBRDF` lookup, "nearest" or "linear"."""
+    h = v + s
+    hl = wp.length(h)
+    if hl <= 1.0e-12:
+        h = n
+    else:
+        h = h / hl
+    c = wp.cross(n, h)
+    sin_h = wp.length(c)
+    theta_h = wp.atan2(sin_h, wp.dot(n, h))
+    yh = wp.vec3(0.0)
+    if sin_h > 1.0e-12:
+        yh = c / sin_h
+    else:  # h on the normal: phi_h = 0 of an orthonormal basis (any azimuth, as the table is isotropic)
+        sign = wp.where(n[2] >= 0.0, 1.0, -1.0)
+        a = -1.0 / (sign + n[2])
+        yh = wp.vec3(n[0] * n[1] * a, sign + n[1] * n[1] * a, -n[1])
+    xh = wp.cross(yh, h)
+    dx = wp.dot(s, xh)
+    dy = wp.dot(s, yh)
+    theta_d = wp.atan2(wp.sqrt(dx * dx + dy * dy), wp.dot(s, h))
+    phi_d = wp.atan2(dy, dx)
+    if phi_d < 0.0:
+        phi_d += wp.pi
+    n_th = b.table_dims[0]
+    n_td = b.table_dims[1]
+    n_pd = b.table_dims[2]
+    half_pi = 0.5 * wp.pi
+    ui = wp.sqrt(wp.max(theta_h, 0.0) / half_pi) * float(n_th)
+    uj = theta_d / half_pi * float(n_td)
+    uk = phi_d / wp.pi * float(n_pd)
+    if b.table_dims[3] == 0:
+        i = wp.clamp(int(wp.floor(ui)), 0, n_th - 1)
+        j = wp.clamp(int(wp.floor(uj)), 0, n_td - 1)
+        k = wp.clamp(int(wp.floor(uk)), 0, n_pd - 1)
+        return b.scale * wp.max(_table_cell(b, i, j, k), 0.0)
+    ai = _linear_axis(ui - 0.5, n_th)
+    aj = _linear_axis(uj - 0.5, n_td)
+    fk = wp.floor(uk - 0.5)
+    tk = uk - 0.5 - fk
+    k0 = int(fk) % n_pd
+    if k0 < 0:
+        k0 += n_pd
+    k1 = (k0 + 1) % n_pd
+    num = float(0.0)
+    den = float(0.0)
+    for ci in range(2):
+        i = int(ai[ci])
+        wi = wp.where(ci == 0, 1.0 - ai[2], ai[2])
+        for cj in range(2):
+            j = int(aj[cj])
+            wj = wp.where(cj == 0, 1.0 - aj[2], aj[2])
+            for ck in range(2):
+                k = wp.where(ck == 0, k0, k1)
+                w = wi * wj * wp.where(ck == 0, 1.0 - tk, tk)
+                val = _table_cell(b, i, j, k)
+                if val >= 0.0:  # invalid cells are left out of the blend
+                    num += w * val
+                    den += w
+    if den > 0.0:
+        return b.scale * num / den
+    return 0.0
+
+
+@wp.func
+def _ggx_half_pdf(alpha: float, cos_h: float) -> float:
+    """``D_GGX(h) cos theta_h`` (per steradian of the half vector); 0 below the horizon."""
+    if cos_h <= 0.0:
+        return 0.0
+    a2 = alpha * alpha
+    c2 = cos_h * cos_h
+    t = c2 * (a2 - 1.0) + 1.0
+    return a2 / (wp.pi * t * t) * cos_h
+
+
+@wp.func
+def _tabulated_sample(b: BRDFParams, n: wp.vec3, v: wp.vec3, u1: float, u2: float) -> wp.vec3:
+    """The tabulated model's mixture: the GGX lobe with probability ``b.f0``, else the cosine lobe."""
+    phi = 2.0 * wp.pi * u2
+    w = b.f0
+    if u1 < w:
+        u = u1 / w
+        a2 = b.roughness * b.roughness
+        tan2 = a2 * u / wp.max(1.0 - u, 1.0e-12)
+        h = _about(n, 1.0 / wp.sqrt(1.0 + tan2), phi)
+        return wp.normalize(2.0 * wp.dot(v, h) * h - v)
+    u = (u1 - w) / (1.0 - w)
+    return _about(n, wp.sqrt(wp.clamp(1.0 - u, 0.0, 1.0)), phi)
+
+
+@wp.func
+def _tabulated_pdf(b: BRDFParams, n: wp.vec3, v: wp.vec3, s: wp.vec3) -> float:
+    """Solid-angle pdf of :func:`_tabulated_sample`."""
+    pdf = (1.0 - b.f0) * wp.max(wp.dot(n, s), 0.0) / wp.pi
+    h = v + s
+    hl = wp.length(h)
+    if hl > 1.0e-12:
+        h = h / hl
+        vh = wp.abs(wp.dot(v, h))
+        if vh > 1.0e-12:
+            pdf += b.f0 * _ggx_half_pdf(b.roughness, wp.dot(n, h)) / (4.0 * vh)
+    return pdf
+
+
 @wp.func
 def _distribution(b: BRDFParams, cos_h: float) -> float:
     """Normal distribution D(h) of the microfacet models."""
@@ -333,6 +624,8 @@ def brdf_eval(b: BRDFParams, n: wp.vec3, v: wp.vec3, s: wp.vec3) -> float:
         c = wp.max(wp.dot(r, s), 0.0)
         return b.scale * (b.exponent + 2.0) / (2.0 * wp.pi) * wp.pow(c, b.exponent)
     if b.model >= 5:
+        if b.model == 8:
+            return _tabulated_eval(b, n, v, s)
         return _anisotropic_eval(b, n, v, s)
     h = v + s
     hl = wp.length(h)
@@ -392,6 +685,8 @@ def brdf_sample(b: BRDFParams, n: wp.vec3, v: wp.vec3, u1: float, u2: float) -> 
         r = 2.0 * wp.dot(n, v) * n - v
         return _about(wp.normalize(r), wp.pow(wp.max(u1, 1.0e-30), 1.0 / (b.exponent + 1.0)), phi)
     if b.model >= 5:
+        if b.model == 8:
+            return _tabulated_sample(b, n, v, u1, u2)
         ha = _anisotropic_half(b, n, u1, u2)
         return wp.normalize(2.0 * wp.dot(v, ha) * ha - v)
     h = _about(n, _half_cos(b, u1), phi)
@@ -416,6 +711,10 @@ def brdf_pdf(b: BRDFParams, n: wp.vec3, v: wp.vec3, s: wp.vec3) -> float:
     if vh <= 1.0e-12:
         return 0.0
     if b.model >= 5:
+        # the tabulated model's cosine part is 0 where the early returns above fire (s = -v, below
+        # the horizon of a viewer above it), so it may branch here, off the analytic models' path
+        if b.model == 8:
+            return _tabulated_pdf(b, n, v, s)
         return _anisotropic_half_pdf(b, n, h) / (4.0 * vh)
     return _half_pdf(b, wp.dot(n, h)) / (4.0 * vh)
 

@@ -116,14 +116,6 @@ class GlossyStage(FrameStage):
         self.follows_state_eye = p["eye"] is None
         self._brdf = _stage_brdf(self, ctx)
 
-    def check_measurable(self, per_pixel: bool = False) -> None:
-        """Refuse before any work what the ray-traced glossy reference does not shade: a
-        tabulated BRDF (:class:`warpshade.measure.protocols.MeasurableStage`)."""
-        if self.params["brdf"] == "tabulated":
-            raise StageError(f"stage {self.name!r}: brdf = 'tabulated' ({self.params.get('file')}) cannot be validated: "
-                             "the ray-traced glossy reference shades analytic BRDFs (lambert, phong, blinn-phong, ggx, "
-                             "beckmann)")
-
     def reference_model(self, materials=None):
         """Glossy ground truth with the BRDF of the meshes (of ``materials``, a
         :class:`~warpshade.scene.state.MaterialAssignment`; default the run's current one), the

@@ -43,7 +43,7 @@ CPU_CHUNK_MIN = 2048
 #: tangent frame (anisotropic Ward with ``roughness_y``, Ashikhmin-Shirley; :mod:`.lobes_warp`).
 BRDF_MODELS = tuple(MODEL_IDS) + ("ashikhmin-shirley", "tabulated-ndf")
 #: BRDF models the glossy reference can shade (what ``--validate`` accepts for the specular term).
-VALIDATED_MODELS = ("beckmann", "blinn-phong", "ward", "ashikhmin-shirley")
+VALIDATED_MODELS = ("beckmann", "blinn-phong", "ward", "ashikhmin-shirley", "tabulated-ndf")
 #: Specular of narrow lights: the exact BRDF at the light ("brdf") or the paper's SG product ("sg").
 NARROW_LIGHT_MODES = ("brdf", "sg")
 #: A light lobe this many times sharper than the BRDF slice counts as narrow.
@@ -309,6 +309,7 @@ class SgShadeStage(FrameStage):
 
         p = self.params
         self.measured = None
+        self.measured_path = None
         if p["brdf"] != "tabulated-ndf":
             return
         if p["table"] is None:
@@ -321,6 +322,7 @@ class SgShadeStage(FrameStage):
             path = ctx.resolve_path(p["table"])
         try:
             self.measured = measured_material(path, eta=p["eta"])
+            self.measured_path = path
         except (OSError, ValueError) as exc:
             raise StageError(f"stage {self.name!r}: table {str(path)!r}: {exc}") from None
 
@@ -714,6 +716,8 @@ class SgShadeStage(FrameStage):
         if p["component"] == "diffuse":
             return None
         textured = p["textures"] and not per_pixel
+        if p["brdf"] == "tabulated-ndf":
+            return self._measured_reference(textured)
         multi = self.multi_lobe_model()
         if multi is not None:
             brdf = _exact_brdf(*multi)
@@ -730,6 +734,27 @@ class SgShadeStage(FrameStage):
             # the materials the vertices were shaded with: roughness and specular colour per vertex
             model["color"] = self._spec.numpy().astype(np.float64)
             model["roughness"] = self._rough.numpy().astype(np.float64)
+        return model
+
+    def _measured_reference(self, textured: bool) -> dict:
+        """brdf = 'tabulated-ndf': the glossy reference shades the table itself -- its luminance,
+        the channel the NDF and shadowing were extracted from (:mod:`.measured`), looked up
+        "linear" (the smooth reconstruction of the cells the extraction fits) -- times the
+        specular colour, as the stage's output is."""
+        import dataclasses
+
+        from ...scene.tabulated import read_merl
+
+        if self.measured_path is None:
+            raise StageError(f"stage {self.name!r}: brdf = 'tabulated-ndf' is read from its table at set-up")
+        try:
+            table = read_merl(self.measured_path)
+        except (OSError, ValueError) as exc:
+            raise StageError(f"stage {self.name!r}: table {str(self.measured_path)!r}: {exc}") from None
+        brdf = dataclasses.replace(table, channel="luminance", interpolation="linear")
+        model = {"brdf": brdf, "eye": self._eye.numpy()[0].astype(np.float64), "color": self._specular_rgb.copy()}
+        if textured:
+            model["color"] = self._spec.numpy().astype(np.float64)
         return model
 
     def diagnostics(self) -> dict:
