@@ -23,7 +23,8 @@ measured in the world frame (local predictions turned back by their frames); and
 cosine-weighted transfer on the held-out frames predicted by a visibility model (the cosine
 applied after, eq. 14) or by a model of the transfer itself (the cosine in the training targets).
 
-Writes ``visibility-<date>-cpu[-quick].json`` and ``-models.png``, ``-studies.png`` into ``--out``.
+Writes ``visibility-<date>-cpu[-quick][-tag].json`` and ``-models.png``, ``-studies.png``, ``-diffuse.png``
+into ``--out``.
 
 Usage::
 
@@ -314,7 +315,32 @@ def _plot_models(plt, glossy, path_models):
     plt.close(fig)
 
 
-def _plot(result, path_models, path_studies):
+def _plot_diffuse(plt, diffuse, path):
+    """Part 2: the diffuse error of the visibility graph and of the 2007 model, next to the floors
+    of the visibility path (:func:`diffuse_floors`)."""
+    fl = diffuse.get("floors", {})
+    bars = [("2007 linear\n(same data)", diffuse["datadriven_2007"]["rel_rms"])]
+    if "datadriven_2007_as_written" in diffuse:
+        bars.append(("2007 linear\n(as written)", diffuse["datadriven_2007_as_written"]["rel_rms"]))
+    bars.append(("visibility\nmodel", diffuse["visibility"]["rel_rms"]))
+    names = {"pca_projection": "traced, PCA\nprojection", "traced_exact_cosine": "traced,\nexact cosine"}
+    for key, value in fl.items():
+        if key.startswith("traced_") and key.endswith("_rays"):
+            bars.append((f"traced\n{key.split('_')[1]} rays", value))
+        elif key in names:
+            bars.append((names[key], value))
+    fig, ax = plt.subplots(figsize=(10, 4))
+    colors = ["C1" if b[0].startswith("2007") else "C0" if b[0].startswith("visibility") else "C2" for b in bars]
+    ax.bar([b[0] for b in bars], [b[1] for b in bars], color=colors)
+    ax.set_ylabel("relative RMS vs diffuse reference")
+    ax.set_title(f"figure, diffuse, held-out frames: visibility model (order {fl.get('order', '?')}) and the floors of its parts")
+    ax.tick_params(axis="x", labelsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _plot(result, path_models, path_studies, path_diffuse=None):
     import matplotlib
 
     matplotlib.use("Agg")
@@ -323,6 +349,8 @@ def _plot(result, path_models, path_studies):
     glossy = result["glossy"]
     if glossy:
         _plot_models(plt, glossy, path_models)
+    if result.get("diffuse") and path_diffuse is not None:
+        _plot_diffuse(plt, result["diffuse"], path_diffuse)
     st = result.get("studies")
     if not st:
         return
@@ -381,7 +409,7 @@ def main(argv=None) -> int:
     result["load_average_end"] = os.getloadavg()
     result["wall_s"] = time.perf_counter() - t_all
     (out_dir / f"{tag}.json").write_text(json.dumps(result, indent=1, default=str))
-    _plot(result, out_dir / f"{tag}-models.png", out_dir / f"{tag}-studies.png")
+    _plot(result, out_dir / f"{tag}-models.png", out_dir / f"{tag}-studies.png", out_dir / f"{tag}-diffuse.png")
     print(json.dumps({s: {k: (v["rel_rms"], v["median_frame_s"]) for k, v in r.items()}
                       for s, r in result["glossy"].items()}, indent=1))
     return 0
