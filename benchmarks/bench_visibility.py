@@ -10,7 +10,10 @@ fit time (every cluster, cross-validation included), model size.
 
 Part 2 -- diffuse: ``stages/figure_visibility_diffuse.toml`` against the 2007 linear model
 (``stages/figure_datadriven.toml``) with the *same* training frames and rays as the visibility
-graph (its own graph traces every frame at 256 rays; this is said in the JSON).
+graph (its own graph traces every frame at 256 rays; this is said in the JSON; ``--diffuse-as-written`` runs it as
+written too), and the floors of the diffuse path (:func:`diffuse_floors`): visibility ray traced at
+the frame through eq. 14 (training rays and 1024 rays), the held-out visibility projected on the
+model's PCA bases, the model's prediction; eq. 14 with the cosine truncated (the kernel) or exact.
 
 Part 3 -- the paper's studies in visibility space, on the held-out frames against visibility
 ray traced there (``--truth-rays``), ridge models fitted in-process on the graph's training data:
@@ -20,7 +23,8 @@ measured in the world frame (local predictions turned back by their frames); and
 cosine-weighted transfer on the held-out frames predicted by a visibility model (the cosine
 applied after, eq. 14) or by a model of the transfer itself (the cosine in the training targets).
 
-Writes ``visibility-<date>-cpu[-quick].json`` and ``-models.png``, ``-studies.png`` into ``--out``.
+Writes ``visibility-<date>-cpu[-quick][-tag].json`` and ``-models.png``, ``-studies.png``, ``-diffuse.png``
+into ``--out``.
 
 Usage::
 
@@ -113,18 +117,98 @@ def part_glossy(scene_name, quick, timed_frames=TIMED_FRAMES, models=MODELS):
     return out
 
 
-def part_diffuse(quick):
-    from warpshade.graph import load
-
+def part_diffuse(quick, as_written=False):
     vis_spec = _spec("figure_visibility_diffuse", quick)
     data = next(st.params for st in vis_spec.stages if st.type == "visibility.data")
-    _, vis = _measure(vis_spec, quick)
+    vis_rt, vis = _measure(vis_spec, quick)
     dd_spec = _spec("figure_datadriven", quick, data={"frames": data["frames"], "samples": data["samples"]})
     _, dd = _measure(dd_spec, quick)
-    return {"visibility_network": vis, "datadriven_2007": dd,
-            "note": f"both trained on figure_train frames {data['frames']} at {data['samples']} rays "
-                    "(stages/figure_datadriven.toml as written: every frame at 256 rays)",
-            "error_ratio": vis["rel_rms"] / dd["rel_rms"]}
+    fit = next(st.params for st in vis_spec.stages if st.type == "visibility.fit")
+    out = {"visibility": vis, "visibility_settings": {"data": dict(data), "fit": dict(fit)}, "datadriven_2007": dd,
+           "note": f"both trained on figure_train frames {data['frames']} at {data['samples']} rays "
+                   "(stages/figure_datadriven.toml as written: every frame at 256 rays)",
+           "error_ratio": vis["rel_rms"] / dd["rel_rms"]}
+    if as_written:
+        print("== figure_datadriven as written (every training frame, 256 rays)", flush=True)
+        _, out["datadriven_2007_as_written"] = _measure(_spec("figure_datadriven", quick), quick)
+        out["error_ratio_to_as_written"] = vis["rel_rms"] / out["datadriven_2007_as_written"]["rel_rms"]
+    out["floors"] = diffuse_floors(vis_rt, quick)
+    return out
+
+
+def diffuse_floors(rt, quick):
+    """What each part of the diffuse visibility path costs, on the graph's [validate] frames against
+    the same diffuse reference: the eq. 14 path over visibility ray traced at the frame (at the
+    training ray count and at ``TRUTH_RAYS``: the floor of the SH order, and of the training noise),
+    the held-out traced visibility projected on each cluster's PCA basis (the floor of the PCA
+    budget), and the model's prediction (the float64 mirror next to the Warp graph). Also the same
+    traced visibility turned into transfer with the cosine product truncated at the order (the
+    kernel) and exact (the cosine to order 2n - 1, then truncated): what eq. 14's truncation costs."""
+    from warpshade.basis import sh
+    from warpshade.graph.spec import GraphSpec, StageSpec
+    from warpshade.measure import measure_error
+    from warpshade.measure.metrics import combine_metrics, error_metrics
+    from warpshade.methods.datadriven import pose_features, pose_layout
+    from warpshade.methods.rpo.model import cosine_sh
+    from warpshade.methods.visibility import predict_f64, to_local
+    from warpshade.methods.visibility.mirror import inputs_f64
+    from warpshade.methods.visibility.model import local_frames_f64
+    from warpshade.transfer import compute
+
+    spec, scene = rt.spec, rt.scene
+    order = next(st.params["order"] for st in spec.stages if st.type == "visibility.diffuse")
+    data_params = next(st.params for st in spec.stages if st.type == "visibility.data")
+    frames = [float(f) for f in spec.validate_spec["frames"]]
+    truth_rays = QUICK["truth"] if quick else TRUTH_RAYS * 2
+    light = rt.state.lighting.sh(order)
+    m = measure_error(rt, frames, samples=QUICK["truth"] if quick else None)
+    out = {"order": order, "frames": frames, "graph": float(m.error["mean"]["rel_rms"])}
+    for rays in sorted({int(data_params["samples"]), truth_rays}):
+        traced = GraphSpec([StageSpec("vis", "rpo.visibility_traced", {"order": order, "samples": rays}),
+                            StageSpec("shade", "visibility.diffuse", {"order": order})], "shade.radiance",
+                           name=f"{spec.name}_traced", scene=spec.scene, validate_spec=dict(spec.validate_spec))
+        t_rt = traced.compile(scene, device="cpu", progress=False)
+        tm = measure_error(t_rt, frames, samples=QUICK["truth"] if quick else None)
+        out[f"traced_{rays}_rays"] = float(tm.error["mean"]["rel_rms"])
+        print(f"floors: traced visibility at {rays} rays -> eq. 14: {out[f'traced_{rays}_rays']:.4f}", flush=True)
+    a = rt.artifacts["fit"]["model"]
+    data = rt.artifacts["data"]["data"]
+    labels = np.asarray(a["labels"])
+    kc = int(labels.max()) + 1
+    idx = [scene.frame_index(f) for f in frames]
+    poses = pose_features(scene, idx, pose_layout(scene, "quaternion", "include"), root_reference=data["root_reference"])
+    x = inputs_f64(a, poses)
+    albedo = rt.evaluator.albedo.numpy().astype(np.float64)
+    lw = light.numpy().astype(np.float64)
+    cos_trunc = sh.product_matrix(cosine_sh(order))
+    cos_exact = sh.product_matrix(cosine_sh(2 * order - 1))[:order * order, :order * order]
+    mean, basis = np.asarray(a["mean"], np.float64), np.asarray(a["basis"], np.float64)
+
+    def shade(local, fr, cos):
+        world = sh.rotate(local @ cos.T, np.swapaxes(fr, 1, 2))
+        return albedo / np.pi * np.maximum(world @ lw.T, 0.0)
+
+    per = {"traced_exact_cosine": [], "traced_truncated_cosine": [], "pca_projection": [], "model_f64": []}
+    for i, f in enumerate(frames):
+        fr = local_frames_f64("cluster", scene.points_at(f)[None], scene.normals_at(f)[None], a["rest_points"],
+                              a["faces"], labels)[0]
+        local = to_local(compute(scene, f, order, truth_rays, space="world", seed=77, below_horizon="visible").visibility, fr)
+        proj = np.empty_like(local)
+        for c in range(kc):
+            rows = np.flatnonzero(labels == c)
+            u = basis[rows, :, :int(a["components"][c])].reshape(rows.size * order * order, -1)
+            d = (local[rows] - mean[rows]).reshape(-1)
+            proj[rows] = (mean[rows].reshape(-1) + u @ (u.T @ d)).reshape(rows.size, -1)
+        ref = m.references[f]
+        per["traced_exact_cosine"].append(error_metrics(shade(local, fr, cos_exact), ref))
+        per["traced_truncated_cosine"].append(error_metrics(shade(local, fr, cos_trunc), ref))
+        per["pca_projection"].append(error_metrics(shade(proj, fr, cos_trunc), ref))
+        per["model_f64"].append(error_metrics(shade(predict_f64(a, x[i]), fr, cos_trunc), ref))
+    for k, v in per.items():
+        out[k] = float(combine_metrics(v)["rel_rms"])
+    out["truth_rays"] = truth_rays
+    print("floors:", json.dumps(out), flush=True)
+    return out
 
 
 def part_studies(quick, rt):
@@ -231,7 +315,32 @@ def _plot_models(plt, glossy, path_models):
     plt.close(fig)
 
 
-def _plot(result, path_models, path_studies):
+def _plot_diffuse(plt, diffuse, path):
+    """Part 2: the diffuse error of the visibility graph and of the 2007 model, next to the floors
+    of the visibility path (:func:`diffuse_floors`)."""
+    fl = diffuse.get("floors", {})
+    bars = [("2007 linear\n(same data)", diffuse["datadriven_2007"]["rel_rms"])]
+    if "datadriven_2007_as_written" in diffuse:
+        bars.append(("2007 linear\n(as written)", diffuse["datadriven_2007_as_written"]["rel_rms"]))
+    bars.append(("visibility\nmodel", diffuse["visibility"]["rel_rms"]))
+    names = {"pca_projection": "traced, PCA\nprojection", "traced_exact_cosine": "traced,\nexact cosine"}
+    for key, value in fl.items():
+        if key.startswith("traced_") and key.endswith("_rays"):
+            bars.append((f"traced\n{key.split('_')[1]} rays", value))
+        elif key in names:
+            bars.append((names[key], value))
+    fig, ax = plt.subplots(figsize=(10, 4))
+    colors = ["C1" if b[0].startswith("2007") else "C0" if b[0].startswith("visibility") else "C2" for b in bars]
+    ax.bar([b[0] for b in bars], [b[1] for b in bars], color=colors)
+    ax.set_ylabel("relative RMS vs diffuse reference")
+    ax.set_title(f"figure, diffuse, held-out frames: visibility model (order {fl.get('order', '?')}) and the floors of its parts")
+    ax.tick_params(axis="x", labelsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _plot(result, path_models, path_studies, path_diffuse=None):
     import matplotlib
 
     matplotlib.use("Agg")
@@ -240,6 +349,8 @@ def _plot(result, path_models, path_studies):
     glossy = result["glossy"]
     if glossy:
         _plot_models(plt, glossy, path_models)
+    if result.get("diffuse") and path_diffuse is not None:
+        _plot_diffuse(plt, result["diffuse"], path_diffuse)
     st = result.get("studies")
     if not st:
         return
@@ -274,6 +385,8 @@ def main(argv=None) -> int:
     ap.add_argument("--tag", default="", help="suffix of the output names (e.g. the scene of a separate run)")
     ap.add_argument("--skip-diffuse", action="store_true")
     ap.add_argument("--skip-studies", action="store_true")
+    ap.add_argument("--diffuse-as-written", action="store_true",
+                    help="part 2 also runs stages/figure_datadriven.toml as written (every training frame, 256 rays)")
     ap.add_argument("--out", default=None, help="output directory (default benchmarks/results; required with --quick)")
     args = ap.parse_args(argv)
     if args.quick and args.out is None:
@@ -288,7 +401,7 @@ def main(argv=None) -> int:
         result["glossy"][scene] = part_glossy(scene, args.quick, args.timed_frames, tuple(args.models.split(",")))
         (out_dir / f"{tag}.json").write_text(json.dumps(result, indent=1, default=str))
     if not args.skip_diffuse:
-        result["diffuse"] = part_diffuse(args.quick)
+        result["diffuse"] = part_diffuse(args.quick, args.diffuse_as_written)
         (out_dir / f"{tag}.json").write_text(json.dumps(result, indent=1, default=str))
     if not args.skip_studies:
         rt = _spec("figure_visibility", args.quick, "linear").compile(device="cpu", progress=True)
@@ -296,7 +409,7 @@ def main(argv=None) -> int:
     result["load_average_end"] = os.getloadavg()
     result["wall_s"] = time.perf_counter() - t_all
     (out_dir / f"{tag}.json").write_text(json.dumps(result, indent=1, default=str))
-    _plot(result, out_dir / f"{tag}-models.png", out_dir / f"{tag}-studies.png")
+    _plot(result, out_dir / f"{tag}-models.png", out_dir / f"{tag}-studies.png", out_dir / f"{tag}-diffuse.png")
     print(json.dumps({s: {k: (v["rel_rms"], v["median_frame_s"]) for k, v in r.items()}
                       for s, r in result["glossy"].items()}, indent=1))
     return 0
