@@ -86,3 +86,9 @@ def generate(out_dir: str | None = None, scenes=SCENES) -> list[str]:
         result = MAKERS[name](out_dir)
         written.extend([result] if isinstance(result, str) else result)
     return written
+
+# the SVBRDF texture of measured materials (not a USD scene), written by default too
+from .svbrdf import make_svbrdf  # noqa: E402
+
+SCENES = SCENES + ("svbrdf",)
+MAKERS["svbrdf"] = make_svbrdf
