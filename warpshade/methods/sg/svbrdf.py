@@ -47,6 +47,7 @@ __all__ = [
     "MAGIC",
     "SVBRDFTable",
     "SVBRDFTexture",
+    "eq13_quadrature_f64",
     "fit_svbrdf",
     "fit_texel_ndfs",
     "read_svbrdf",
@@ -487,3 +488,55 @@ def svbrdf_slices_f64(texture: SVBRDFTexture, texels, views):
     amp = texture.amplitude[rc[:, 0], rc[:, 1]] * m[:, None]
     axes = np.where(live[:, None, None], np.repeat(pw[:, None], k, 1), np.array([0.0, 0.0, 1.0]))
     return axes, np.where(live[:, None], lam, 1.0), np.where(live[:, None], amp, 0.0)
+
+
+def _frame_rows(n: np.ndarray) -> np.ndarray:
+    """An orthonormal frame (rows t, b, n) about a unit normal (Duff et al.)."""
+    sign = 1.0 if n[2] >= 0.0 else -1.0
+    a = -1.0 / (sign + n[2])
+    b = n[0] * n[1] * a
+    t = np.array([1.0 + sign * n[0] * n[0] * a, sign * b, -sign * n[0]])
+    bt = np.array([b, sign + n[1] * n[1] * a, -n[1]])
+    return np.stack([t, bt, n])
+
+
+def eq13_quadrature_f64(normals, views, materials, eta: float, radiance_fn, occluded_fn=None, z_nodes: int = 128,
+                        phi_nodes: int = 256) -> np.ndarray:
+    """Specular radiance ``integral_H L(i) V(i) rho(o, i) (n.i) di`` of eq.-13 materials by
+    quadrature (float64): the oracle of the SVBRDF shading, independent of its fits.
+
+    Args:
+        normals: unit world normals (P, 3); views: unit world directions toward the eye (P, 3).
+        materials: per point ``(ndf_fn, shadow_fn)``, callables of polar angles (radians) giving
+            that point's exact ``D(theta_h)`` and ``S(theta)``.
+        eta: the Fresnel index. radiance_fn: world directions (M, 3) -> RGB (M, 3).
+        occluded_fn: optional ``(point index, world directions (M, 3)) -> bool (M,)``: blocked directions.
+        z_nodes, phi_nodes: :func:`warpshade.scene.materials.hemisphere_quadrature` nodes.
+
+    Returns:
+        (P, 3) radiance, ``ks = 1``.
+    """
+    from ...scene.materials import hemisphere_quadrature
+
+    dirs, w = hemisphere_quadrature(z_nodes, phi_nodes)
+    n_all = np.asarray(normals, np.float64).reshape(-1, 3)
+    v_all = np.asarray(views, np.float64).reshape(-1, 3)
+    out = np.zeros((len(n_all), 3))
+    ti = np.arccos(np.clip(dirs[:, 2], -1.0, 1.0))
+    for p, (n, v) in enumerate(zip(n_all, v_all)):
+        frame = _frame_rows(n / np.linalg.norm(n))
+        o = frame @ (v / np.linalg.norm(v))
+        if o[2] <= 0.0:
+            continue
+        ndf_fn, shadow_fn = materials[p]
+        world = dirs @ frame
+        h = dirs + o[None]
+        h /= np.linalg.norm(h, axis=1, keepdims=True)
+        rho = (fresnel_cook_torrance(np.sum(dirs * h, axis=1), eta)
+               * shadow_fn(np.array([np.arccos(min(o[2], 1.0))]))[0] * shadow_fn(ti)
+               * ndf_fn(np.arccos(np.clip(h[:, 2], -1.0, 1.0))) / (np.pi * o[2] * np.maximum(dirs[:, 2], COS_FLOOR)))
+        weight = w * rho * dirs[:, 2]
+        if occluded_fn is not None:
+            weight = np.where(occluded_fn(p, world), 0.0, weight)
+        out[p] = weight @ np.asarray(radiance_fn(world), np.float64).reshape(-1, 3)
+    return out

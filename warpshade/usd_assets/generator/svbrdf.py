@@ -77,3 +77,17 @@ def make_svbrdf(out_dir: str) -> str:
     theta = np.linspace(0.0, 0.5 * np.pi, SVBRDF_SAMPLES)
     d, s = svbrdf_material(theta)
     return str(write_svbrdf(os.path.join(out_dir, SVBRDF_FILE), d, s, SVBRDF_ETA))
+
+
+def texel_material(row: int, col: int, size=SVBRDF_SIZE):
+    """The exact ``(D, S)`` of one texel as callables of polar angles (radians)."""
+    wts = svbrdf_weights(size)[int(row), int(col)]
+    slope = float(sum(wts[j] * sh for j, (_, sh) in enumerate(SVBRDF_MATERIALS)))
+
+    def ndf(theta):
+        return sum(wts[j] * beckmann_ndf(theta, m) for j, (m, _) in enumerate(SVBRDF_MATERIALS))
+
+    def shadow(theta):
+        return np.clip(smith_shadowing(theta, slope), 0.0, 1.0)
+
+    return ndf, shadow
