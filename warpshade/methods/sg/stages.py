@@ -311,8 +311,6 @@ class SgShadeStage(FrameStage):
 
     def _read_measured(self, ctx) -> None:
         """brdf = 'tabulated-ndf': eq. 13's D and S extracted from ``table`` (:mod:`.measured`)."""
-        from pathlib import Path
-
         from .measured import measured_material
 
         p = self.params
@@ -321,12 +319,7 @@ class SgShadeStage(FrameStage):
             return
         if p["table"] is None:
             raise StageError(f"stage {self.name!r}: brdf = 'tabulated-ndf' needs 'table' (a MERL-layout file)")
-        if p["table"].startswith("bundled:"):
-            from ...io import bundled_asset_directory
-
-            path = Path(bundled_asset_directory()) / p["table"][len("bundled:"):]
-        else:
-            path = ctx.resolve_path(p["table"])
+        path = self._asset_path(ctx, p["table"])
         try:
             self.measured = measured_material(path, eta=p["eta"])
         except (OSError, ValueError) as exc:
@@ -343,7 +336,7 @@ class SgShadeStage(FrameStage):
 
     def _read_svbrdf(self, ctx) -> None:
         """brdf = 'svbrdf': the texture read and fitted (:func:`.svbrdf.fit_svbrdf`) at set-up."""
-        from .svbrdf import MAX_LOBES, fit_svbrdf, read_svbrdf
+        from .svbrdf import MAX_LOBES, fit_svbrdf, over_budget, read_svbrdf
 
         p = self.params
         self.svbrdf = None
@@ -353,39 +346,30 @@ class SgShadeStage(FrameStage):
             return
         if p["texture"] is None:
             raise StageError(f"stage {self.name!r}: brdf = 'svbrdf' needs 'texture' (a .svbrdf file)")
-        if p["lobes"] is not None and p["lobes"] > MAX_LOBES:
-            raise StageError(f"stage {self.name!r}: brdf = 'svbrdf' fits at most {MAX_LOBES} lobes per texel, "
-                             f"got lobes = {p['lobes']}")
         path = self._asset_path(ctx, p["texture"])
         try:
-            table = read_svbrdf(path)
+            self.svbrdf = fit_svbrdf(read_svbrdf(path), p["lobes"], p["ndf_error_budget"], min(p["max_lobes"], MAX_LOBES),
+                                     p["shadow_error_budget"], p["shadow_max_terms"])
         except (OSError, ValueError) as exc:
             raise StageError(f"stage {self.name!r}: {exc}") from None
-        self.svbrdf = fit_svbrdf(table, p["lobes"], p["ndf_error_budget"], min(p["max_lobes"], MAX_LOBES),
-                                 p["shadow_error_budget"], p["shadow_max_terms"])
-        rep = self.svbrdf.report
-        if not (rep["ndf_budget_met"] and rep["shadow_budget_met"]):
+        if over_budget(self.svbrdf.report):
             import warnings
 
-            warnings.warn(f"stage {self.name!r}: SVBRDF texture {str(path)!r}: fit over budget (NDF worst texel "
-                          f"{rep['ndf_error_max']:.3f} with {rep['lobes']} lobes, shadowing RMS {rep['shadow_rms']:.2e} "
-                          f"with {rep['shadow_terms']} terms)", RuntimeWarning, stacklevel=2)
+            warnings.warn(f"stage {self.name!r}: SVBRDF texture {str(path)!r}: {over_budget(self.svbrdf.report)}",
+                          RuntimeWarning, stacklevel=2)
 
     def _setup_svbrdf(self, st) -> None:
         """The fitted SVBRDF (or the empty placeholder) into ``st.svbrdf``, with the scene's per-vertex UVs."""
+        from .svbrdf import scene_uvs
         from .svbrdf_warp import empty_svbrdf, upload_svbrdf
 
         if self.svbrdf is None:
             st.svbrdf = empty_svbrdf(self._device)
             return
-        missing = [m.path for m in self._scene.meshes if m.uvs is None]
-        if missing:
-            raise StageError(f"stage {self.name!r}: brdf = 'svbrdf' looks the texture up at the meshes' UVs; {missing[0]} "
-                             "has none")
-        uv = np.concatenate([np.asarray(m.uvs, np.float64).reshape(-1, 2) for m in self._scene.meshes])
-        if not np.all(np.isfinite(uv)):
-            raise StageError(f"stage {self.name!r}: brdf = 'svbrdf': the meshes' UVs must be finite")
-        st.svbrdf = upload_svbrdf(self.svbrdf, uv, self._device)
+        try:
+            st.svbrdf = upload_svbrdf(self.svbrdf, scene_uvs(self._scene), self._device)
+        except ValueError as exc:
+            raise StageError(f"stage {self.name!r}: brdf = 'svbrdf': {exc}") from None
 
     def _fit_lobes(self, model: str, params: dict):
         """The NDF as SG lobes: ``lobes`` when given, else the fewest (up to ``max_lobes``) whose fit

@@ -50,7 +50,9 @@ __all__ = [
     "eq13_quadrature_f64",
     "fit_svbrdf",
     "fit_texel_ndfs",
+    "over_budget",
     "read_svbrdf",
+    "scene_uvs",
     "shadow_pca",
     "svbrdf_slices_f64",
     "write_svbrdf",
@@ -462,6 +464,27 @@ def fit_svbrdf(table: SVBRDFTable, lobes: int | None = None, ndf_error_budget: f
               "shadow_budget": float(shadow_error_budget), "shadow_budget_met": bool(pca.rms <= shadow_error_budget)}
     return SVBRDFTexture(fit.sharpness.reshape(h, w, k), fit.amplitude.reshape(h, w, k), pca.mean, pca.basis,
                          pca.coeffs.reshape(h, w, r), table.eta, report)
+
+
+def over_budget(report: dict) -> str | None:
+    """Why a fit's report misses its budgets (None when it meets both)."""
+    if report["ndf_budget_met"] and report["shadow_budget_met"]:
+        return None
+    return (f"fit over budget (NDF worst texel {report['ndf_error_max']:.3f} with {report['lobes']} lobes, budget "
+            f"{report['ndf_budget']:g}; shadowing RMS {report['shadow_rms']:.2e} with {report['shadow_terms']} terms, "
+            f"budget {report['shadow_budget']:g})")
+
+
+def scene_uvs(scene) -> np.ndarray:
+    """The per-vertex UVs of all the scene's meshes, concatenated in scene order, (V, 2) float64;
+    ValueError naming a mesh without UVs, or for non-finite UVs."""
+    missing = [m.path for m in scene.meshes if m.uvs is None]
+    if missing:
+        raise ValueError(f"the texture is looked up at the meshes' UVs; {missing[0]} has none")
+    uv = np.concatenate([np.asarray(m.uvs, np.float64).reshape(-1, 2) for m in scene.meshes])
+    if not np.all(np.isfinite(uv)):
+        raise ValueError("the meshes' UVs must be finite")
+    return uv
 
 
 def svbrdf_slices_f64(texture: SVBRDFTexture, texels, views):
