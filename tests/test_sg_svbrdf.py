@@ -10,11 +10,12 @@ import pytest
 from warpshade.geometry.bvh import Visibility
 from warpshade.graph import GraphSpec, StageError, StageSpec
 from warpshade.io import bundled_asset_directory
+from warpshade.methods.sg import decode_maps, shade_f64
 from warpshade.methods.sg.svbrdf import (MAGIC, eq13_quadrature_f64, fit_svbrdf, fit_texel_ndfs, read_svbrdf, shadow_pca,
                                          svbrdf_slices_f64, write_svbrdf)
 from warpshade.methods.sg.svbrdf_warp import svbrdf_slices, svbrdf_texels, upload_svbrdf
 from warpshade.render import render_gbuffer
-from warpshade.scene import Camera, Environment, LightingSource, Mesh, Scene
+from warpshade.scene import Camera, Environment, LightingSource, Mesh, Scene, SphereLight
 from warpshade.usd_assets.generator.svbrdf import (SVBRDF_ETA, SVBRDF_FILE, make_svbrdf, svbrdf_material,
                                                    texel_material)
 
@@ -39,6 +40,10 @@ SHADOW_TERMS = 3
 # Measured 8e-8, 2e-7, 5e-6.
 ATOL_AXES = 1e-5
 RTOL_WARP = 1e-4
+# The shading kernels (per vertex and per pixel: sky, a sphere light, diffuse + specular) against
+# the float64 mirror shade_f64, relative to the largest radiance: as test_sg_aniso's RTOL_FLOAT32.
+# Measured 2.7e-7 (57 vertices) and 2.4e-7 (62 pixels).
+RTOL_FLOAT32 = 5e-4
 # Per-vertex (and per-pixel) SG shading of an open plane under the procedural sky against the
 # float64 quadrature of each texel's exact eq.-13 material (128 x 256 nodes; 256 x 512 changes it
 # by 2e-4): relative RMS over all points and channels. Measured 0.102 over 81 vertices at views
@@ -58,7 +63,7 @@ def _plane(count=9):
     return pts, faces, uvs
 
 
-def _compile(device, scene, shade, texture=BUNDLED):
+def _compile(device, scene, shade, texture=BUNDLED, lights=(SKY,)):
     spec = GraphSpec(stages=[
         StageSpec("ssdf", "sg.ssdf", {"resolution": 8, "supersample": 2}),
         StageSpec("environment", "sg.environment", {"lobes": 3}),
@@ -66,7 +71,7 @@ def _compile(device, scene, shade, texture=BUNDLED):
         StageSpec("shade", "sg.shade", {"eye": tuple(EYE), "brdf": "svbrdf", "texture": str(texture), "max_lobes": 3,
                                         "ndf_error_budget": NDF_BUDGET, "specular": (1.0, 1.0, 1.0), **shade}),
     ], output="shade.radiance", name="sg-svbrdf-test")
-    return spec.compile(scene, device=device, progress=False, lighting=LightingSource.fixed([SKY], "Z"))
+    return spec.compile(scene, device=device, progress=False, lighting=LightingSource.fixed(list(lights), "Z"))
 
 
 @pytest.fixture(scope="module")
@@ -200,6 +205,58 @@ def test_lookup_and_warp_kernels_match_the_mirror(device, rng, fitted):
     assert np.abs(lam - want[1]).max() / want[1].max() < RTOL_WARP
     assert np.abs(amp - want[2]).max() / want[2].max() < RTOL_WARP
     assert np.all(amp[v[:, 2] <= 0.0] == 0.0) and np.all(amp[v[:, 2] > 0.0] >= 0.0)
+
+
+def _mirror(rt, texels, corners=None, weights=None, points=None, normals=None):
+    """:func:`shade_f64` fed from what the stage uploaded, with the SVBRDF's texels."""
+    st = rt.output_stage()
+    p = st.params
+    fl = rt.state.lighting
+    env = st.environment
+    spheres = [SphereLight(pos, float(r), rad) for pos, r, rad in
+               zip(fl.sphere_position.numpy(), fl.sphere_radius.numpy(), fl.sphere_radiance.numpy())]
+    e2w = fl.environment_to_world.numpy()[0].astype(np.float64)
+
+    def rows(buf):
+        v = buf.numpy().astype(np.float64)
+        return v if corners is None else np.einsum("pk,pk...->p...", weights, v[corners])
+
+    count = len(texels)
+    return shade_f64(
+        rt.state.points.numpy() if points is None else points, rt.state.normals.numpy() if normals is None else normals,
+        st._eye.numpy()[0], rows(st._albedo), rows(st._spec), np.zeros(count), decode_maps(st.model),
+        rt.frame_outputs["frames"]["frames"].numpy().astype(np.float64), "beckmann", p["f0"], env.mixture, env.table, e2w,
+        spheres, component=p["component"], cosine=p["cosine"], corners=corners, weights=weights, horizon=p["horizon"],
+        narrow_lights=p["narrow_lights"], svbrdf=(st.svbrdf, texels))
+
+
+def test_vertex_and_pixel_kernels_match_the_float64_mirror(device):
+    pts, faces, uvs = _plane(7)
+    box = np.array([[x, y, z] for x in (-0.3, 0.3) for y in (-0.3, 0.3) for z in (0.3, 0.6)])
+    box_faces = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1], [2, 3, 7], [2, 7, 6],
+                          [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
+    scene = Scene.from_meshes([Mesh("/ground", pts, faces, uvs=uvs),
+                               Mesh("/box", box, box_faces, uvs=0.1 + 0.8 * box[:, :2] / 0.6 + 0.4)])
+    rt = _compile(device, scene, {"component": "both"},
+                  lights=(SKY, SphereLight([0.8, 0.8, 0.8], 0.1, [5.0, 4.0, 3.0])))
+    out = rt.step(0.0).numpy().astype(np.float64)
+    st = rt.output_stage()
+    all_uv = np.concatenate([uvs, 0.1 + 0.8 * box[:, :2] / 0.6 + 0.4])
+    want = _mirror(rt, st.svbrdf.texel_of(all_uv))
+    assert np.all(np.isfinite(out)) and np.abs(want).max() > 0.0
+    assert np.abs(out - want).max() / np.abs(want).max() < RTOL_FLOAT32
+    bvh = Visibility.from_scene(scene, device=rt.device)
+    bvh.update(rt.state.points)
+    cam = Camera(EYE, np.array([0.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.0]), vertical_fov=50.0)
+    gb = render_gbuffer(bvh, rt.state.normals, cam, 12, 10)
+    hit = gb.hit.numpy().astype(bool)
+    px = st.render_pixels(gb).numpy().astype(np.float64)[hit]
+    b = gb.bary.numpy()[hit].astype(np.float64)
+    w = np.stack([b[:, 0], b[:, 1], 1.0 - b[:, 0] - b[:, 1]], 1)
+    corners = gb.faces.numpy()[gb.face.numpy()[hit]]
+    texels = st.svbrdf.texel_of(np.einsum("pk,pkc->pc", w, all_uv[corners]))
+    want_px = _mirror(rt, texels, corners, w, gb.position.numpy()[hit], gb.normal.numpy()[hit])
+    assert np.abs(px - want_px).max() / np.abs(want_px).max() < RTOL_FLOAT32
 
 
 # ---- shading against quadrature of the exact per-texel materials -----------------------------
