@@ -87,8 +87,9 @@ def generate(out_dir: str | None = None, scenes=SCENES) -> list[str]:
         written.extend([result] if isinstance(result, str) else result)
     return written
 
-# the SVBRDF texture of measured materials (not a USD scene), written by default too
+
+# the SVBRDF texture of measured materials (:mod:`.svbrdf`, not a USD scene), written on request
+# (``--scenes svbrdf``); tests/test_sg_svbrdf.py regenerates it and compares bytes
 from .svbrdf import make_svbrdf  # noqa: E402
 
-SCENES = SCENES + ("svbrdf",)
 MAKERS["svbrdf"] = make_svbrdf

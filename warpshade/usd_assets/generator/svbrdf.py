@@ -10,7 +10,8 @@ rational Lambda), ``S = 1 / (1 + Lambda)``; the texel's ``D`` is the weighted su
 length from the centre) the weights make concentric rings alternating between the polished and
 the satin material (four per unit of ``v``), and a worn, strongly shadowing material in three
 sectors of ``u`` that grows toward the rim. ``SVBRDF_SIZE`` texels, ``SVBRDF_SAMPLES`` polar angles
-(one per degree), index 1.33: 745 kB.
+(one per degree), index 1.33: 745 kB. Written on request: ``python -m warpshade.usd_assets.generator
+--scenes svbrdf``.
 
 :func:`svbrdf_material` gives each texel's exact eq.-13 factors at any angles: the oracle of the
 shading tests and benchmark (``benchmarks/bench_sg_svbrdf.py``).
