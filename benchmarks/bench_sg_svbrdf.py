@@ -116,11 +116,13 @@ def main(argv=None):
     sg = im.linear.reshape(-1, 3)[pick].astype(np.float64)
     result = {"rel_rms_dish": rel_rms(sg, oracle), "pixels": int(pick.size), "dish_pixels": int(idx.size),
               "rel_rms_visibility_effect": rel_rms(open_sky, oracle),
+              "mean_ratio": float(sg.sum() / max(oracle.sum(), 1e-30)),
               "per_pixel_rel_error_median": float(np.median(np.linalg.norm(sg - oracle, axis=1)
                                                             / np.maximum(np.linalg.norm(oracle, axis=1), 1e-30))),
               "svbrdf": st.diagnostics()["svbrdf"], "sg_s": sg_s, "oracle_s": oracle_s}
     print(f"SVBRDF SG: dish rel RMS {result['rel_rms_dish']:.4f} against the quadrature at {result['pixels']} pixels "
-          f"(visibility changes the quadrature by {result['rel_rms_visibility_effect']:.4f}); "
+          f"(visibility changes the quadrature by {result['rel_rms_visibility_effect']:.4f}; SG / quadrature "
+          f"mean {result['mean_ratio']:.3f}); "
           f"{result['svbrdf']['lobes']} lobes (worst texel {result['svbrdf']['ndf_error_max']:.4f}), "
           f"{result['svbrdf']['shadow_terms']} shadowing terms (RMS {result['svbrdf']['shadow_rms']:.2e}); "
           f"SG {sg_s:.2f} s, quadrature {oracle_s:.1f} s", flush=True)
@@ -140,7 +142,12 @@ def main(argv=None):
     sg_u8 = tonemap_f64(im.linear, exposure=exposure)
     ref_u8 = np.where(sampled.reshape(args.height, args.width, 1),
                       tonemap_f64(ref_img.reshape(args.height, args.width, 3), exposure=exposure), 128).astype(np.uint8)
-    png = write_panels(out / f"{stem}.png", [sg_u8, ref_u8, err_u8.reshape(args.height, args.width, 3)],
+    zoom = max(1, 320 // args.width)  # panels at least ~320 pixels wide, so their titles fit
+
+    def big(img):
+        return np.repeat(np.repeat(img, zoom, 0), zoom, 1)
+
+    png = write_panels(out / f"{stem}.png", [big(sg_u8), big(ref_u8), big(err_u8.reshape(args.height, args.width, 3))],
                        ["SG, SVBRDF", f"quadrature ({pick.size} px)", f"rel RMS {result['rel_rms_dish']:.3f}"],
                        ERROR_LIMIT, f"{args.width}x{args.height} pixels; exact per-texel eq. 13, ray-traced visibility")
     report = {"date": date, "device": str(rt.device), "quick": args.quick, "graph": str(GRAPH.relative_to(ROOT)),
