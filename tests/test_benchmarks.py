@@ -33,6 +33,9 @@ SMOKE = sorted(p.stem for p in BENCHMARKS.glob("*.py"))
 #: bench_sg (52 s: SSDF bakes and the sky's prefiltered table) and bench_heightfield (21 s, kept
 #: out so that the default suite stays within ten minutes on this CPU).
 SLOW = {"bench_datadriven", "bench_rpo", "bench_shexp", "bench_visibility", "bench_sg", "bench_heightfield", "run"}
+#: bench_sg_svbrdf (minutes on a loaded machine: the dish's SSDF bake and the sky's prefiltered table,
+#: as bench_sg, then the quadrature with ray-traced visibility at 40 pixels).
+SLOW.add("bench_sg_svbrdf")
 #: Seconds one smoke run may take before it counts as hung.
 TIMEOUT_S = 300
 

@@ -15,6 +15,10 @@ materials, whose NDF and 1-D shadowing factor :mod:`.measured` extracts from a M
 by eq. 13, are shaded by :mod:`.lobes_warp`: each lobe warped to the view in the tangent frame of
 every vertex or pixel (tangents from the meshes' UVs, :mod:`warpshade.geometry.uv_tangents`, or a
 direction), the warped lobe taken as isotropic as in the paper.
+Spatially varying measured materials (sec. 4.2, ``brdf = "svbrdf"``): a texture of eq.-13
+materials whose per-texel NDFs are fitted with SG lobes and whose shadowing curves are compressed
+by PCA (:mod:`.svbrdf`), looked up per vertex or per pixel at the meshes' UVs and decoded in the
+kernels (:mod:`.svbrdf_warp`).
 
 Modules, in the shape of :mod:`warpshade.methods.prt`: :mod:`.stages` (``sg.ssdf``, ``sg.shade``),
 :mod:`.kernels`, :mod:`.model`, :mod:`.mirror` (float64 mirror of the kernels), :mod:`.rows`,

@@ -37,6 +37,7 @@ from ...transfer.ssdf_warp import local_to_concentric, ssdf_eval
 from .brdf_warp import specular_slice
 from .lighting_warp import PrefilteredTable, gamma_lookup, point_light_sg
 from .lobes_warp import NDFLobes, warped_lobe
+from .svbrdf_warp import SVBRDFTextureWarp, svbrdf_texel, svbrdf_warped_lobe
 
 wp.set_module_options({"enable_backward": False})
 
@@ -96,6 +97,7 @@ class Settings:
     exact_model: int
     exact_ratio: float
     lobes: NDFLobes
+    svbrdf: SVBRDFTextureWarp
 
 
 @wp.struct
@@ -214,11 +216,40 @@ def _specular_env(slice_w: SG, lights: Lights, vis: Visibility, st: Settings, i0
 
 
 @wp.func
+def _lobe_count(st: Settings) -> int:
+    if st.svbrdf.lobes > 0:
+        return st.svbrdf.lobes
+    return st.lobes.count
+
+
+@wp.func
+def _slice_lobe(st: Settings, texel: wp.vec2i, k: int, o_local: wp.vec3) -> SG:
+    """Lobe ``k`` of the material warped to the local view: the texel's (SVBRDF) or the material's."""
+    g = SG()
+    if st.svbrdf.lobes > 0:
+        g = svbrdf_warped_lobe(st.svbrdf, texel, k, o_local)
+    else:
+        g = warped_lobe(st.lobes, k, o_local)
+    return g
+
+
+@wp.func
+def point_texel(st: Settings, uv: wp.vec2) -> wp.vec2i:
+    """The SVBRDF texel at texture coordinates ``uv`` ((0, 0) without an SVBRDF)."""
+    t = wp.vec2i(0, 0)
+    if st.svbrdf.lobes > 0:
+        t = svbrdf_texel(st.svbrdf, uv)
+    return t
+
+
+@wp.func
 def shade_point(x: wp.vec3, n: wp.vec3, o: wp.vec3, mat: Material, lights: Lights, vis: Visibility, st: Settings,
-                i0: int, i1: int, i2: int, w: wp.vec3, tangent: wp.vec3):
+                i0: int, i1: int, i2: int, w: wp.vec3, tangent: wp.vec3, texel: wp.vec2i):
     """Outgoing radiance toward ``o`` at ``x`` (eq. 39, 41, 42, 43), linear RGB. With
     ``st.lobes.count > 0`` the specular slice is the material's NDF lobes warped to the view in the
-    tangent frame of ``tangent`` (:mod:`.lobes_warp`), else the single lobe of ``st.model``."""
+    tangent frame of ``tangent`` (:mod:`.lobes_warp`); with ``st.svbrdf.lobes > 0`` the lobes of
+    SVBRDF texel ``texel`` (row, column; :mod:`.svbrdf_warp`, isotropic about the normal); else the
+    single lobe of ``st.model``."""
     cosine = sg_make(n, st.cos_sharpness, wp.vec3(st.cos_amplitude))
     rd = wp.vec3(0.0)
     rs = wp.vec3(0.0)
@@ -226,9 +257,10 @@ def shade_point(x: wp.vec3, n: wp.vec3, o: wp.vec3, mat: Material, lights: Light
     want_s = st.component != 1
     slice_w = sg_make(n, 0.0, wp.vec3(0.0))
     facing = wp.dot(o, n) > 0.0
-    multi = st.lobes.count > 0
+    lobe_count = _lobe_count(st)
+    multi = lobe_count > 0
     frame = _basis_of(n)
-    if multi:
+    if st.lobes.count > 0:
         probe = BRDFParams()
         probe.tangent = tangent
         frame = tangent_frame(probe, n)
@@ -237,8 +269,8 @@ def shade_point(x: wp.vec3, n: wp.vec3, o: wp.vec3, mat: Material, lights: Light
     if want_s and facing:
         if multi:
             # the sharpest live lobe decides what counts as a narrow light below
-            for k in range(st.lobes.count):
-                g = warped_lobe(st.lobes, k, o_local)
+            for k in range(lobe_count):
+                g = _slice_lobe(st, texel, k, o_local)
                 if g.amplitude[0] > 0.0:
                     gw = sg_product(cosine, sg_rotate(g, wp.transpose(frame)))
                     slice_sharpness = wp.max(slice_sharpness, gw.sharpness)
@@ -283,8 +315,8 @@ def shade_point(x: wp.vec3, n: wp.vec3, o: wp.vec3, mat: Material, lights: Light
                 cos_l = wp.max(wp.dot(n, light.axis), 0.0)
                 rs += sg_integral(light) * (brdf_eval(b, n, o, light.axis) * cos_l * sg_visible_fraction(theta, light.sharpness))
             elif multi:
-                for k in range(st.lobes.count):
-                    g0 = warped_lobe(st.lobes, k, o_local)
+                for k in range(lobe_count):
+                    g0 = _slice_lobe(st, texel, k, o_local)
                     if g0.amplitude[0] > 0.0:
                         g = sg_product(light, sg_product(cosine, sg_rotate(g0, wp.transpose(frame))))
                         theta = ssdf_at(vis, st, i0, i1, i2, w, g.axis, n)
@@ -319,7 +351,8 @@ def shade_vertices_kernel(points: VertexPoints, mats: Materials, lights: Lights,
     tangent = wp.vec3(1.0, 0.0, 0.0)
     if st.lobes.count > 0:
         tangent = points.tangent[v]
-    c = shade_point(x, points.normal[v], o, mat, lights, vis, st, v, v, v, wp.vec3(1.0, 0.0, 0.0), tangent)
+    texel = point_texel(st, st.svbrdf.uv[v % st.svbrdf.uv.shape[0]])
+    c = shade_point(x, points.normal[v], o, mat, lights, vis, st, v, v, v, wp.vec3(1.0, 0.0, 0.0), tangent, texel)
     radiance[v, 0] = c[0]
     radiance[v, 1] = c[1]
     radiance[v, 2] = c[2]
@@ -349,7 +382,11 @@ def shade_pixels_kernel(hits: PixelHits, mats: Materials, lights: Lights, vis: V
     tangent = wp.vec3(1.0, 0.0, 0.0)
     if st.lobes.count > 0:
         tangent = w[0] * hits.tangent[i0] + w[1] * hits.tangent[i1] + w[2] * hits.tangent[i2]
-    out[p] = shade_point(x, hits.normal[p], o, mat, lights, vis, st, i0, i1, i2, w, tangent)
+    texel = wp.vec2i(0, 0)
+    if st.svbrdf.lobes > 0:
+        uv = st.svbrdf.uv
+        texel = svbrdf_texel(st.svbrdf, w[0] * uv[i0] + w[1] * uv[i1] + w[2] * uv[i2])
+    out[p] = shade_point(x, hits.normal[p], o, mat, lights, vis, st, i0, i1, i2, w, tangent, texel)
 
 
 @wp.kernel

@@ -107,11 +107,24 @@ def ssdf_value(maps: np.ndarray, v: int, frame: np.ndarray, d_world: np.ndarray)
     return float((1 - fx) * top + fx * bottom)
 
 
+def _texel_slice(texture, texel, o_local):
+    """One texel's lobes warped to a local view (:func:`.svbrdf.svbrdf_slices_f64`), shaped as a
+    :class:`.slices.view_slice` result; a lobe of amplitude 0 is culled, as the kernel skips it."""
+    from types import SimpleNamespace
+
+    from .svbrdf import svbrdf_slices_f64
+
+    axes, lam, amp = svbrdf_slices_f64(texture, np.asarray(texel).reshape(1, 2), np.asarray(o_local).reshape(1, 3))
+    return SimpleNamespace(axes=axes[0], sharpness=lam[0], amplitude=amp[0], culled=~(amp[0] > 0.0),
+                           lobe_count=int(lam.shape[1]))
+
+
 def shade_f64(points, normals, eye, albedo, specular, roughness, maps, frames, model: str, f0: float,
                     env_mixture=None, table=None, env_to_world=np.eye(3), sphere_lights=(), distant_lobes=(),
                     component: str = "specular", cosine: str = "paper", corners=None, weights=None,
                     horizon: bool = True, narrow_lights: str = "brdf", narrow_ratio: float = 8.0,
-                    lobe_model: str | None = None, lobe_params: dict | None = None, tangents=None) -> np.ndarray:
+                    lobe_model: str | None = None, lobe_params: dict | None = None, tangents=None,
+                    svbrdf=None) -> np.ndarray:
     """Radiance (P, 3) float64 at P receivers, as :func:`.kernels.shade_point`.
 
     Args:
@@ -132,6 +145,8 @@ def shade_f64(points, normals, eye, albedo, specular, roughness, maps, frames, m
             ``ashikhmin-shirley``, ``tabulated-ndf``) and its :func:`.slices.view_slice`
             parameters, shaded in the tangent frame of ``tangents`` (P, 3) world directions
             (narrow lights: the exact Ward / Ashikhmin-Shirley BRDF); ``model`` is then unused.
+        svbrdf: ``(texture, texels)``: a fitted :class:`.svbrdf.SVBRDFTexture` and each receiver's
+            texel (P, 2) (row, column); its lobes are shaded about the normal (no narrow-light BRDF).
     """
     points = np.asarray(points, np.float64)
     count = points.shape[0]
@@ -164,7 +179,10 @@ def shade_f64(points, normals, eye, albedo, specular, roughness, maps, frames, m
         slice_w = None
         slices = []
         if want_s and facing:
-            if lobe_model is None:
+            if svbrdf is not None:
+                frame = _duff_basis(n)
+                lobes = _texel_slice(svbrdf[0], svbrdf[1][i], frame @ o)
+            elif lobe_model is None:
                 frame = _duff_basis(n)
                 lobes = view_slice(model, frame @ o, **slice_parameters(model, float(roughness[i]), f0))
             else:
@@ -179,7 +197,7 @@ def shade_f64(points, normals, eye, albedo, specular, roughness, maps, frames, m
                 if table is not None:
                     f = sg.visible_fraction(vis(ax), lam)
                     rs += mu * f * table.lookup((env_to_world.T @ ax)[None], np.array([lam]))[0]
-            slice_w = (None, max([g[1] for g in slices], default=0.0)) if (slices or lobe_model) else None
+            slice_w = (None, max([g[1] for g in slices], default=0.0)) if (slices or lobe_model or svbrdf) else None
         if want_d:
             for axis_k, lam_k, amp_k in env:
                 ax, lam, mu = sg.product(n, cos_lam, cos_mu, axis_k, lam_k, 1.0)
@@ -194,7 +212,9 @@ def shade_f64(points, normals, eye, albedo, specular, roughness, maps, frames, m
             if want_d:
                 rd += amp_k * mu * sg.hemisphere_integral(vis(ax), lam)
             if slice_w is not None:
-                if lobe_model is None:
+                if svbrdf is not None:
+                    exact = None
+                elif lobe_model is None:
                     exact = _exact_brdf(model, float(roughness[i]), f0) if narrow_lights == "brdf" else None
                 else:
                     exact = _exact_lobe_brdf(lobe_model, lobe_params) if narrow_lights == "brdf" else None

@@ -41,7 +41,7 @@ __all__ = [
 CPU_CHUNK_MIN = 2048
 #: BRDF models of the per-point kernels: isotropic single-lobe NDFs, and fitted NDF lobes in a
 #: tangent frame (anisotropic Ward with ``roughness_y``, Ashikhmin-Shirley; :mod:`.lobes_warp`).
-BRDF_MODELS = tuple(MODEL_IDS) + ("ashikhmin-shirley", "tabulated-ndf")
+BRDF_MODELS = tuple(MODEL_IDS) + ("ashikhmin-shirley", "tabulated-ndf", "svbrdf")
 #: BRDF models the glossy reference can shade (what ``--validate`` accepts for the specular term).
 VALIDATED_MODELS = ("beckmann", "blinn-phong", "ward", "ashikhmin-shirley", "tabulated-ndf")
 #: Specular of narrow lights: the exact BRDF at the light ("brdf") or the paper's SG product ("sg").
@@ -52,7 +52,7 @@ NARROW_LIGHT_RATIO = 8.0
 #: slopes past 2 are no longer a lobe and overflow the float32 lobes (Beckmann alpha 100 shaded
 #: inf, 1e30 NaN); Blinn-Phong exponents past 1e6 are a mirror (measured finite to 1e10, NaN at 1e30).
 ROUGHNESS_MAX = {"beckmann": 2.0, "cook-torrance": 2.0, "ward": 2.0, "blinn-phong": 1e6, "ashikhmin-shirley": 2.0,
-                 "tabulated-ndf": 2.0}
+                 "tabulated-ndf": 2.0, "svbrdf": 2.0}
 #: The exact models of the "brdf" mode: codes of warpshade.scene.materials_warp.BRDF_MODELS.
 EXACT_MODEL_CODES = {"beckmann": 4, "blinn-phong": 2}
 
@@ -171,6 +171,12 @@ MULTI_LOBE_PARAMS = {
     "table": Param(None, str, "tabulated-ndf: a measured isotropic BRDF in the MERL binary layout (relative to the "
                    "graph, or bundled:NAME); its NDF and shadowing are extracted by eq. 13 (sec. 4.2)"),
     "eta": Param(1.33, float, "tabulated-ndf: index of refraction of eq. 14's Fresnel factor", minimum=1.0001, maximum=10.0),
+    "texture": Param(None, str, "svbrdf: a texture of eq.-13 materials (.svbrdf, methods/sg/svbrdf.py; relative to the "
+                     "graph, or bundled:NAME), looked up at the meshes' UVs; per-texel NDFs fitted with SG lobes, "
+                     "shadowing curves compressed by PCA (sec. 4.2)"),
+    "shadow_error_budget": Param(1e-3, float, "svbrdf: RMS error of the shadowing PCA the term count is chosen for",
+                                 minimum=1e-7, maximum=1.0),
+    "shadow_max_terms": Param(8, int, "svbrdf: most PCA terms of the shadowing curves", minimum=1, maximum=64),
 }
 
 
@@ -257,6 +263,7 @@ class SgShadeStage(FrameStage):
         st = kernels.Settings()
         st.model = int(MODEL_IDS.get(p["brdf"], 0))  # multi-lobe models: unused (st.lobes)
         self._read_measured(ctx)
+        self._read_svbrdf(ctx)
         st.f0 = float(p["f0"])
         cos_axis, cos_lam, cos_mu = sg.clamped_cosine(np.array([0.0, 0.0, 1.0]), p["cosine"])
         st.cos_sharpness, st.cos_amplitude = float(cos_lam), float(cos_mu)
@@ -270,6 +277,7 @@ class SgShadeStage(FrameStage):
         self._settings = st
         count = ctx.dims["V"]
         self._setup_lobes(st, count)
+        self._setup_svbrdf(st)
         self._albedo = wp.zeros(count, dtype=wp.vec3, device=dev)
         self._spec = wp.zeros(count, dtype=wp.vec3, device=dev)
         self._rough = wp.zeros(count, dtype=float, device=dev)
@@ -303,8 +311,6 @@ class SgShadeStage(FrameStage):
 
     def _read_measured(self, ctx) -> None:
         """brdf = 'tabulated-ndf': eq. 13's D and S extracted from ``table`` (:mod:`.measured`)."""
-        from pathlib import Path
-
         from .measured import measured_material
 
         p = self.params
@@ -314,17 +320,58 @@ class SgShadeStage(FrameStage):
             return
         if p["table"] is None:
             raise StageError(f"stage {self.name!r}: brdf = 'tabulated-ndf' needs 'table' (a MERL-layout file)")
-        if p["table"].startswith("bundled:"):
-            from ...io import bundled_asset_directory
-
-            path = Path(bundled_asset_directory()) / p["table"][len("bundled:"):]
-        else:
-            path = ctx.resolve_path(p["table"])
+        path = self._asset_path(ctx, p["table"])
         try:
             self.measured = measured_material(path, eta=p["eta"])
             self.measured_path = path
         except (OSError, ValueError) as exc:
             raise StageError(f"stage {self.name!r}: table {str(path)!r}: {exc}") from None
+
+    def _asset_path(self, ctx, value: str):
+        from pathlib import Path
+
+        if value.startswith("bundled:"):
+            from ...io import bundled_asset_directory
+
+            return Path(bundled_asset_directory()) / value[len("bundled:"):]
+        return ctx.resolve_path(value)
+
+    def _read_svbrdf(self, ctx) -> None:
+        """brdf = 'svbrdf': the texture read and fitted (:func:`.svbrdf.fit_svbrdf`) at set-up."""
+        from .svbrdf import MAX_LOBES, fit_svbrdf, over_budget, read_svbrdf
+
+        p = self.params
+        self.svbrdf = None
+        if p["brdf"] != "svbrdf":
+            if p["texture"] is not None:
+                raise StageError(f"stage {self.name!r}: parameter 'texture' is for brdf = 'svbrdf', not {p['brdf']!r}")
+            return
+        if p["texture"] is None:
+            raise StageError(f"stage {self.name!r}: brdf = 'svbrdf' needs 'texture' (a .svbrdf file)")
+        path = self._asset_path(ctx, p["texture"])
+        try:
+            self.svbrdf = fit_svbrdf(read_svbrdf(path), p["lobes"], p["ndf_error_budget"], min(p["max_lobes"], MAX_LOBES),
+                                     p["shadow_error_budget"], p["shadow_max_terms"])
+        except (OSError, ValueError) as exc:
+            raise StageError(f"stage {self.name!r}: {exc}") from None
+        if over_budget(self.svbrdf.report):
+            import warnings
+
+            warnings.warn(f"stage {self.name!r}: SVBRDF texture {str(path)!r}: {over_budget(self.svbrdf.report)}",
+                          RuntimeWarning, stacklevel=2)
+
+    def _setup_svbrdf(self, st) -> None:
+        """The fitted SVBRDF (or the empty placeholder) into ``st.svbrdf``, with the scene's per-vertex UVs."""
+        from .svbrdf import scene_uvs
+        from .svbrdf_warp import empty_svbrdf, upload_svbrdf
+
+        if self.svbrdf is None:
+            st.svbrdf = empty_svbrdf(self._device)
+            return
+        try:
+            st.svbrdf = upload_svbrdf(self.svbrdf, scene_uvs(self._scene), self._device)
+        except ValueError as exc:
+            raise StageError(f"stage {self.name!r}: brdf = 'svbrdf': {exc}") from None
 
     def _fit_lobes(self, model: str, params: dict):
         """The NDF as SG lobes: ``lobes`` when given, else the fewest (up to ``max_lobes``) whose fit
@@ -762,6 +809,8 @@ class SgShadeStage(FrameStage):
                "lights_inside_hull": self.lights_inside_hull}
         if self.lobe_report is not None:
             out["ndf_lobes"] = self.lobe_report
+        if getattr(self, "svbrdf", None) is not None:
+            out["svbrdf"] = self.svbrdf.report
         if self.environment is not None:
             out["environment_lobes"] = int(self.environment.mixture.lobe_count)
             out["environment_build_s"] = round(self.environment.build_s, 3)

@@ -86,3 +86,10 @@ def generate(out_dir: str | None = None, scenes=SCENES) -> list[str]:
         result = MAKERS[name](out_dir)
         written.extend([result] if isinstance(result, str) else result)
     return written
+
+
+# the SVBRDF texture of measured materials (:mod:`.svbrdf`, not a USD scene), written on request
+# (``--scenes svbrdf``); tests/test_sg_svbrdf.py regenerates it and compares bytes
+from .svbrdf import make_svbrdf  # noqa: E402
+
+MAKERS["svbrdf"] = make_svbrdf
