@@ -145,9 +145,8 @@ def diffuse_floors(rt, quick):
     traced visibility turned into transfer with the cosine product truncated at the order (the
     kernel) and exact (the cosine to order 2n - 1, then truncated): what eq. 14's truncation costs."""
     from warpshade.basis import sh
-    from warpshade.graph.spec import GraphSpec, StageSpec
-    from warpshade.measure import measure_error
-    from warpshade.measure.metrics import combine_metrics, error_metrics
+    from warpshade.graph import GraphSpec, StageSpec
+    from warpshade.measure import combine_metrics, error_metrics, measure_error
     from warpshade.methods.datadriven import pose_features, pose_layout
     from warpshade.methods.rpo.model import cosine_sh
     from warpshade.methods.visibility import predict_f64, to_local

@@ -3,7 +3,9 @@
 Run ``python -m warpshade.usd_assets.generator [--scenes NAME ...] [--out DIR]``: by default it
 writes ``sky.hdr`` and every scene of ``SCENES`` into the bundled directory; ``ripples`` and
 ``sunlit`` are written only on request (``--scenes ripples sunlit``), and so are the Newton-simulated
-cloth clips ``cloth_train`` and ``cloth_heldout`` (they need the ``sim`` extra and minutes of CPU).
+cloth clips ``cloth_train`` and ``cloth_heldout`` (they need the ``sim`` extra and minutes of CPU) and
+the SVBRDF texture of measured materials ``svbrdf_rings.svbrdf`` (``--scenes svbrdf``, :mod:`.svbrdf`;
+not a USD scene).
 
 Every scene is Z-up, in metres (``metersPerUnit = 1``), 24 frames per second, time codes
 0..59 (60 frames) for animated scenes unless said otherwise below, and has:
@@ -49,10 +51,11 @@ from .figure_orbit import make_figure_orbit
 from .ripples import make_ripples
 from .sky import write_sky
 from .sunlit import make_sunlit
+from .svbrdf import make_svbrdf
 from .wanderer import make_wanderer_test, make_wanderer_train
 
-#: The scenes written by default (``ripples``, ``sunlit``, ``cloth_train`` and ``cloth_heldout`` are
-#: written on request).
+#: The scenes written by default (``ripples``, ``sunlit``, ``cloth_train``, ``cloth_heldout`` and the
+#: SVBRDF texture ``svbrdf`` are written on request).
 SCENES = ("blockers", "figure", "figure_train", "figure_walk", "figure_orbit", "cloth", "bend", "wanderer_train", "wanderer_test",
           "dish", "measured")
 
@@ -73,6 +76,7 @@ MAKERS = {
     "sunlit": make_sunlit,
     "dish": make_dish,
     "measured": make_measured,
+    "svbrdf": make_svbrdf,
 }
 
 
@@ -87,9 +91,3 @@ def generate(out_dir: str | None = None, scenes=SCENES) -> list[str]:
         written.extend([result] if isinstance(result, str) else result)
     return written
 
-
-# the SVBRDF texture of measured materials (:mod:`.svbrdf`, not a USD scene), written on request
-# (``--scenes svbrdf``); tests/test_sg_svbrdf.py regenerates it and compares bytes
-from .svbrdf import make_svbrdf  # noqa: E402
-
-MAKERS["svbrdf"] = make_svbrdf
