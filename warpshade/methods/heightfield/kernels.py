@@ -383,7 +383,19 @@ def visibility_kernels(order: int):
                 tau = gx * az[0] + gy * az[1]
                 zt = tau / wp.sqrt(1.0 + tau * tau)
                 if zt < zh:  # else the band between tangent and horizon is empty
-                    acc = acc + wedge(table, row, e, zh) - wedge(table, row, e, zt)
+                    # acc + wedge(zh) - wedge(zt), one coefficient at a time (no vector temporaries)
+                    th = (wp.clamp(zh, -1.0, 1.0) + 1.0) * 0.5 * float(e - 1)
+                    ih = wp.min(int(th), e - 2)
+                    fh = th - float(ih)
+                    tt = (wp.clamp(zt, -1.0, 1.0) + 1.0) * 0.5 * float(e - 1)
+                    it = wp.min(int(tt), e - 2)
+                    ft = tt - float(it)
+                    rh = row + ih
+                    rt = row + it
+                    for k in range(N2):
+                        wh = (1.0 - fh) * table[rh, k] + fh * table[rh + 1, k]
+                        wt = (1.0 - ft) * table[rt, k] + ft * table[rt + 1, k]
+                        acc[k] = acc[k] + wh - wt
             else:
                 acc = acc + wedge(table, row, e, zh)
         for k in range(N2):
