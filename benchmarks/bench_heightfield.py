@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import argparse
 import copy
+import datetime
 import json
 import os
 import platform
@@ -208,7 +209,8 @@ def hz(passes: int, out_dir: Path) -> int:
         commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
     except OSError:
         commit = None
-    report = {"benchmark": "bench_heightfield --hz", "date": DATE, "graph": "stages/ripples_height_rpo.toml",
+    today = datetime.date.today().isoformat()  # a re-run on a quiet machine gets its own file
+    report = {"benchmark": "bench_heightfield --hz", "date": today, "graph": "stages/ripples_height_rpo.toml",
               "commit": commit, "cpu_count": os.cpu_count(), "threads": cpu_workers(), "platform": platform.platform(),
               "frames_timed": len(frame_ms), "passes": passes, "frame_ms_median": round(med, 2),
               "frame_ms_p10_p90": [round(float(x), 2) for x in np.percentile(frame_ms, [10, 90])],
@@ -221,7 +223,7 @@ def hz(passes: int, out_dir: Path) -> int:
                       "processes shared the cores and the rate is a lower bound",
               "command": "python benchmarks/bench_heightfield.py " + " ".join(sys.argv[1:])}
     out_dir.mkdir(parents=True, exist_ok=True)
-    path = out_dir / f"heightfield-hz-{DATE}-cpu.json"
+    path = out_dir / f"heightfield-hz-{today}-cpu.json"
     path.write_text(json.dumps(report, indent=1))
     print(f"ripples_height_rpo on the CPU ({cpu_workers()} threads): {med:.1f} ms/frame = {1e3 / med:.1f} Hz "
           f"(median of {len(frame_ms)} replayed frames; goal 30 Hz); stages (profile, ms) {report['stage_ms']}; "
