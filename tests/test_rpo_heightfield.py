@@ -315,3 +315,23 @@ def test_loader_expands_the_height_field(tmp_path, device):
     for f in (0.0, 1.0):
         out = rt.results[f]
         assert out.shape == (4096, 3) and np.all(np.isfinite(out)) and out.min() >= 0.0 and out.max() > 0.0
+
+
+def test_shade_diagnostics_count_every_vertex_of_a_chunked_launch(device):
+    # 96^2 vertices: more than two CPU chunks, so several threads shade at once; the counts are
+    # per-vertex flags summed on the host, never a counter the threads share
+    from warpshade.methods.heightfield.stages import CPU_CHUNK_MIN
+
+    scene = _ripples(96)
+    assert scene.vertex_count > 2 * CPU_CHUNK_MIN
+    rt = _run(scene, {"resolution": 32, "per_vertex": False}, {}, device=device)
+    st = rt.state
+    p, n = st.points.numpy().astype(np.float64), st.normals.numpy().astype(np.float64)
+    facing = np.einsum("ij,ij->i", n, st.eye.numpy()[0].astype(np.float64) - p)
+    below = int(np.count_nonzero(facing <= 0.0))
+    assert 0 < below < scene.vertex_count  # the view grazes the waves: some vertices face away
+    diag = rt.stages[1].diagnostics()
+    assert diag["below_horizon"] == below
+    out = rt.output.numpy()
+    assert np.all(out[facing <= 0.0] == 0.0)
+    assert diag["negative_clamped"] == 0

@@ -22,8 +22,8 @@ from ...basis.sh_warp import sh_kernels
 wp.set_module_options({"enable_backward": False})
 
 __all__ = [
-    "STAT_BELOW_HORIZON",
-    "STAT_NEGATIVE",
+    "FLAG_BELOW_HORIZON",
+    "FLAG_NEGATIVE",
     "HorizonMarch",
     "ShadeOutputs",
     "ShadeTexels",
@@ -39,8 +39,9 @@ __all__ = [
     "visibility_kernels",
 ]
 
-#: ``stats`` entries of the shading kernel.
-STAT_NEGATIVE, STAT_BELOW_HORIZON = 0, 1
+#: Bits of the shading kernel's per-vertex ``flags``: a channel clamped from below zero; the eye
+#: at or below the vertex's tangent plane (radiance 0).
+FLAG_NEGATIVE, FLAG_BELOW_HORIZON = 1, 2
 
 
 @wp.struct
@@ -124,10 +125,12 @@ class ShadeTexels:
 @wp.struct
 class ShadeOutputs:
     """What the shading kernel writes: radiance toward the eye, (size * size, 3) float32, linear
-    RGB; ``stats`` (2,) int32 counters (:data:`STAT_NEGATIVE`, :data:`STAT_BELOW_HORIZON`)."""
+    RGB; ``flags`` (size * size,) int32, per vertex the bits :data:`FLAG_NEGATIVE` and
+    :data:`FLAG_BELOW_HORIZON` (one word per vertex: no counter shared by the CPU threads of a
+    chunked launch, whose plain adds would race and whose cache line would bounce between cores)."""
 
     radiance: wp.array2d(dtype=wp.float32)
-    stats: wp.array(dtype=wp.int32)
+    flags: wp.array(dtype=wp.int32)
 
 
 @wp.kernel(enable_backward=False)
@@ -452,7 +455,7 @@ def shade_kernels(order: int):
             out.radiance[vtx, 0] = 0.0
             out.radiance[vtx, 1] = 0.0
             out.radiance[vtx, 2] = 0.0
-            wp.atomic_add(out.stats, STAT_BELOW_HORIZON, 1)
+            out.flags[vtx] = FLAG_BELOW_HORIZON
             return
         # local frame about n with the view in its x-z plane
         x = d - mu * n
@@ -490,8 +493,7 @@ def shade_kernels(order: int):
                 acc = 0.0
                 neg = 1
             out.radiance[vtx, ch] = texels.specular[ch] * acc
-        if neg == 1:
-            wp.atomic_add(out.stats, STAT_NEGATIVE, 1)
+        out.flags[vtx] = neg * FLAG_NEGATIVE
 
     @wp.kernel(enable_backward=False, module="unique")
     def rotate_kernel(f: wp.array2d(dtype=wp.float32), rot: wp.array(dtype=wp.mat33), out: wp.array2d(dtype=wp.float32)):

@@ -11,7 +11,7 @@ from ..._wp import launch_parallel, wp
 from ..common import ShLighting, order_param
 from ..rpo import OPERATORS, SHADE_PARAMS, GlossyStage
 from ..stage import FrameStage, Param, Port, StageError, register_stage
-from .kernels import (STAT_BELOW_HORIZON, STAT_NEGATIVE, HorizonMarch, ShadeOutputs, ShadeTexels, ShadeVertices,
+from .kernels import (FLAG_BELOW_HORIZON, FLAG_NEGATIVE, HorizonMarch, ShadeOutputs, ShadeTexels, ShadeVertices,
                       TexelVisibility, heights_kernel, horizon_kernel, reduce_kernel, shade_kernels, visibility_kernels)
 from .model import (WEDGE_ENTRIES, GridLayout, grid_layout, march_plan, pyramid_levels, rotated_wedge_tables, view_table,
                     wedge_table)
@@ -189,7 +189,7 @@ class HeightFieldShadeStage(GlossyStage):
         self._lighting = ShLighting(inputs["lighting"], n)
         self._g = wp.zeros((r * r, 3 * n * n), dtype=wp.float32, device=dev)
         self._ftable = wp.zeros((p["view_table"], n * n), dtype=wp.float32, device=dev)
-        self._stats = wp.zeros(2, dtype=wp.int32, device=dev)
+        self._flags = wp.zeros(ctx.dims["V"], dtype=wp.int32, device=dev)
         self._radiance = wp.zeros((ctx.dims["V"], 3), dtype=wp.float32, device=dev)
         self._product, self._shade, _, _ = shade_kernels(n)
         vertices = ShadeVertices()
@@ -198,7 +198,7 @@ class HeightFieldShadeStage(GlossyStage):
         shade_texels.g, shade_texels.res, shade_texels.ftable = self._g, r, self._ftable
         shade_texels.specular = self._specular
         out = ShadeOutputs()
-        out.radiance, out.stats = self._radiance, self._stats
+        out.radiance, out.flags = self._radiance, self._flags
         self._shade_args = (vertices, shade_texels, out)
         self._upload_material()
         return {"radiance": self._radiance}
@@ -234,7 +234,6 @@ class HeightFieldShadeStage(GlossyStage):
 
     def launch(self, state):
         self._lighting.launch()
-        self._stats.zero_()
         dev = self._radiance.device
         r, g = self.resolution, self.layout.size
 
@@ -251,8 +250,9 @@ class HeightFieldShadeStage(GlossyStage):
         launch_parallel(self._shade, g * g, shade_inputs, dev, min_count=CPU_CHUNK_MIN)
 
     def diagnostics(self) -> dict:
-        s = self._stats.numpy()
-        return {"negative_clamped": int(s[STAT_NEGATIVE]), "below_horizon": int(s[STAT_BELOW_HORIZON]),
+        f = self._flags.numpy()
+        return {"negative_clamped": int(np.count_nonzero(f & FLAG_NEGATIVE)),
+                "below_horizon": int(np.count_nonzero(f & FLAG_BELOW_HORIZON)),
                 "material": self.brdf.describe(), "factors": self.params["factors"],
                 "operator_build_s": round(self.operator.build_s, 4)}
 
