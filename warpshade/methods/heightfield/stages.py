@@ -12,7 +12,8 @@ from ..common import ShLighting, order_param
 from ..rpo import OPERATORS, SHADE_PARAMS, GlossyStage
 from ..stage import FrameStage, Param, Port, StageError, register_stage
 from .kernels import (FLAG_BELOW_HORIZON, FLAG_NEGATIVE, HorizonMarch, ShadeOutputs, ShadeTexels, ShadeVertices,
-                      TexelVisibility, heights_kernel, horizon_kernel, reduce_kernel, shade_kernels, visibility_kernels)
+                      TexelVisibility, heights_kernel, horizon_kernel, reduce_kernel, shade_kernels, table_is_even,
+                      visibility_kernels)
 from .model import (WEDGE_ENTRIES, GridLayout, grid_layout, march_plan, pyramid_levels, rotated_wedge_tables, view_table,
                     wedge_table)
 
@@ -191,7 +192,6 @@ class HeightFieldShadeStage(GlossyStage):
         self._ftable = wp.zeros((p["view_table"], n * n), dtype=wp.float32, device=dev)
         self._flags = wp.zeros(ctx.dims["V"], dtype=wp.int32, device=dev)
         self._radiance = wp.zeros((ctx.dims["V"], 3), dtype=wp.float32, device=dev)
-        self._product, self._shade, _, _ = shade_kernels(n)
         vertices = ShadeVertices()
         vertices.points, vertices.normals, vertices.eye, vertices.size = self._points, self._normals, self._eye, lay.size
         shade_texels = ShadeTexels()
@@ -201,6 +201,9 @@ class HeightFieldShadeStage(GlossyStage):
         out.radiance, out.flags = self._radiance, self._flags
         self._shade_args = (vertices, shade_texels, out)
         self._upload_material()
+        # the view table decides the shading kernel (an isotropic lobe: the half first z-rotation)
+        self._even = table_is_even(self.table)
+        self._product, self._shade, _, _ = shade_kernels(n, self._even)
         return {"radiance": self._radiance}
 
     def _current_brdf(self):
@@ -230,6 +233,8 @@ class HeightFieldShadeStage(GlossyStage):
             return False
         if flags & Change.MATERIAL:
             self._upload_material()
+            if table_is_even(self.table) != self._even:
+                return False  # another shading kernel: set up (and record) anew
         return True
 
     def launch(self, state):
