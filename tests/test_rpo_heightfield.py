@@ -315,3 +315,69 @@ def test_loader_expands_the_height_field(tmp_path, device):
     for f in (0.0, 1.0):
         out = rt.results[f]
         assert out.shape == (4096, 3) and np.all(np.isfinite(out)) and out.min() >= 0.0 and out.max() > 0.0
+
+
+def test_shade_diagnostics_count_every_vertex_of_a_chunked_launch(device):
+    # 96^2 vertices: more than two CPU chunks, so several threads shade at once; the counts are
+    # per-vertex flags summed on the host, never a counter the threads share
+    from warpshade.methods.heightfield.stages import CPU_CHUNK_MIN
+
+    scene = _ripples(96)
+    assert scene.vertex_count > 2 * CPU_CHUNK_MIN
+    rt = _run(scene, {"resolution": 32, "per_vertex": False}, {}, device=device)
+    st = rt.state
+    p, n = st.points.numpy().astype(np.float64), st.normals.numpy().astype(np.float64)
+    facing = np.einsum("ij,ij->i", n, st.eye.numpy()[0].astype(np.float64) - p)
+    below = int(np.count_nonzero(facing <= 0.0))
+    assert 0 < below < scene.vertex_count  # the view grazes the waves: some vertices face away
+    diag = rt.stages[1].diagnostics()
+    assert diag["below_horizon"] == below
+    out = rt.output.numpy()
+    assert np.all(out[facing <= 0.0] == 0.0)
+    assert diag["negative_clamped"] == 0
+
+
+@pytest.mark.parametrize("order", [3, 4, 6])
+def test_even_rotation_is_the_rotation_of_a_cosine_only_function(order, rng, device):
+    # an f without sine terms (the view factors of an isotropic lobe): the half first z-rotation
+    # gives what the full rotation gives, and the float64 rotation
+    rot = hfk.even_frame_rotation(order)
+    from warpshade.basis.sh_warp import sh_kernels
+
+    vec_t = sh_kernels(order).vec
+    n2 = order * order
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def rotate_even(f: wp.array2d(dtype=wp.float32), r: wp.array(dtype=wp.mat33), out: wp.array2d(dtype=wp.float32)):
+        i = wp.tid()
+        v = vec_t()
+        for k in range(n2):
+            v[k] = f[i, k]
+        o = rot(v, r[i])
+        for k in range(n2):
+            out[i, k] = o[k]
+
+    sine = [l * l + l + m for l in range(order) for m in range(-l, 0)]
+    f = rng.normal(size=(64, n2))
+    f[:, sine] = 0.0
+    r = Rotation.random(64, random_state=5).as_matrix()
+    r[0] = np.eye(3)
+    r[1] = np.diag([1.0, -1.0, -1.0])
+    fa = wp.array(f.astype(np.float32), dtype=wp.float32, device=device)
+    ra = wp.array(r.astype(np.float32), dtype=wp.mat33, device=device)
+    even = wp.zeros((64, n2), dtype=wp.float32, device=device)
+    full = wp.zeros((64, n2), dtype=wp.float32, device=device)
+    wp.launch(rotate_even, dim=64, inputs=[fa, ra, even], device=device)
+    wp.launch(hfk.shade_kernels(order)[2], dim=64, inputs=[fa, ra, full], device=device)
+    assert np.array_equal(even.numpy(), full.numpy())
+    assert np.abs(even.numpy() - sh.rotate(f, r)).max() < ATOL_SH_ALGEBRA * 10
+
+
+def test_view_tables_of_isotropic_brdfs_are_even_and_a_sine_term_is_seen():
+    scene = _ripples(48)
+    rt = _run(scene, {"resolution": 16, "per_vertex": False}, {}, device="cpu")
+    table = rt.stages[1].table
+    assert hfk.table_is_even(table) and rt.stages[1]._even  # the stage shades with the even kernel
+    odd = table.copy()
+    odd[:, 1] = 1e-6 * np.abs(table).max()  # (l, m) = (1, -1)
+    assert not hfk.table_is_even(odd)

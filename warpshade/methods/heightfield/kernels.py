@@ -22,8 +22,8 @@ from ...basis.sh_warp import sh_kernels
 wp.set_module_options({"enable_backward": False})
 
 __all__ = [
-    "STAT_BELOW_HORIZON",
-    "STAT_NEGATIVE",
+    "FLAG_BELOW_HORIZON",
+    "FLAG_NEGATIVE",
     "HorizonMarch",
     "ShadeOutputs",
     "ShadeTexels",
@@ -35,12 +35,16 @@ __all__ = [
     "reduce_kernel",
     "shade_kernels",
     "static_sh_funcs",
+    "even_frame_rotation",
+    "table_is_even",
+    "EVEN_TABLE_RTOL",
     "texel_weights",
     "visibility_kernels",
 ]
 
-#: ``stats`` entries of the shading kernel.
-STAT_NEGATIVE, STAT_BELOW_HORIZON = 0, 1
+#: Bits of the shading kernel's per-vertex ``flags``: a channel clamped from below zero; the eye
+#: at or below the vertex's tangent plane (radiance 0).
+FLAG_NEGATIVE, FLAG_BELOW_HORIZON = 1, 2
 
 
 @wp.struct
@@ -124,10 +128,12 @@ class ShadeTexels:
 @wp.struct
 class ShadeOutputs:
     """What the shading kernel writes: radiance toward the eye, (size * size, 3) float32, linear
-    RGB; ``stats`` (2,) int32 counters (:data:`STAT_NEGATIVE`, :data:`STAT_BELOW_HORIZON`)."""
+    RGB; ``flags`` (size * size,) int32, per vertex the bits :data:`FLAG_NEGATIVE` and
+    :data:`FLAG_BELOW_HORIZON` (one word per vertex: no counter shared by the CPU threads of a
+    chunked launch, whose plain adds would race and whose cache line would bounce between cores)."""
 
     radiance: wp.array2d(dtype=wp.float32)
-    stats: wp.array(dtype=wp.int32)
+    flags: wp.array(dtype=wp.int32)
 
 
 @wp.kernel(enable_backward=False)
@@ -201,6 +207,18 @@ def _product_terms(order: int) -> list:
     return out
 
 
+#: order -> ``rotate_frame_even`` (made by :func:`static_sh_funcs`).
+_EVEN_ROTATION: dict = {}
+
+
+def even_frame_rotation(order: int):
+    """``rotate_frame_even(f, R)``: :func:`static_sh_funcs`' ``rotate_frame`` for an ``f`` whose
+    sine coefficients (``m < 0``) are zero, as the view factors of an isotropic BRDF in the frame
+    with the view in its x-z plane are: the same cosines and sines, half the first z-rotation."""
+    static_sh_funcs(order)
+    return _EVEN_ROTATION[order]
+
+
 @functools.lru_cache(maxsize=None)
 def static_sh_funcs(order: int):
     """Straight-line SH functions of one order (constants folded into the code): ``(rotate_z_cs,
@@ -252,8 +270,24 @@ def static_sh_funcs(order: int):
         return out
 
     @wp.func
-    def rotate_frame(f: vec_t, r: wp.mat33) -> vec_t:
-        # R = Rz(alpha) Ry(beta) Rz(gamma) = Rz(alpha) Rx(-90) Rz(beta) Rx(90) Rz(gamma)
+    def rotate_z_even(f: vec_t, c1: float, s1: float) -> vec_t:
+        # rotate_z_cs of an f without sine terms (f[l, -m] = 0, m > 0): half the products
+        out = f
+        c = float(1.0)
+        s = float(0.0)
+        for m in range(1, ORDER):
+            cn = c * c1 - s * s1
+            s = s * c1 + c * s1
+            c = cn
+            for l in range(m, ORDER):
+                a = f[l * l + l + m]
+                out[l * l + l + m] = c * a
+                out[l * l + l - m] = s * a
+        return out
+
+    @wp.func
+    def frame_euler(r: wp.mat33):
+        # R = Rz(alpha) Ry(beta) Rz(gamma): (cos, sin) of alpha, beta, gamma
         sb = wp.sqrt(r[0, 2] * r[0, 2] + r[1, 2] * r[1, 2])
         cb = r[2, 2]
         ca = float(1.0)
@@ -282,11 +316,29 @@ def static_sh_funcs(order: int):
             else:
                 ca = 1.0
                 sa = 0.0
+        return ca, sa, cb, sb, cg, sg
+
+    @wp.func
+    def rotate_frame(f: vec_t, r: wp.mat33) -> vec_t:
+        # R = Rz(alpha) Ry(beta) Rz(gamma) = Rz(alpha) Rx(-90) Rz(beta) Rx(90) Rz(gamma)
+        ca, sa, cb, sb, cg, sg = frame_euler(r)
         out = rotate_z_cs(f, cg, sg)
         out = x90p(out)
         out = rotate_z_cs(out, cb, sb)
         out = x90m(out)
         return rotate_z_cs(out, ca, sa)
+
+    @wp.func
+    def rotate_frame_even(f: vec_t, r: wp.mat33) -> vec_t:
+        # rotate_frame of an f without sine terms (an isotropic lobe with the view in the x-z plane)
+        ca, sa, cb, sb, cg, sg = frame_euler(r)
+        out = rotate_z_even(f, cg, sg)
+        out = x90p(out)
+        out = rotate_z_cs(out, cb, sb)
+        out = x90m(out)
+        return rotate_z_cs(out, ca, sa)
+
+    _EVEN_ROTATION[order] = rotate_frame_even
 
     @wp.func
     def product(f: vec_t, g: vec_t) -> vec_t:
@@ -383,7 +435,19 @@ def visibility_kernels(order: int):
                 tau = gx * az[0] + gy * az[1]
                 zt = tau / wp.sqrt(1.0 + tau * tau)
                 if zt < zh:  # else the band between tangent and horizon is empty
-                    acc = acc + wedge(table, row, e, zh) - wedge(table, row, e, zt)
+                    # acc + wedge(zh) - wedge(zt), one coefficient at a time (no vector temporaries)
+                    th = (wp.clamp(zh, -1.0, 1.0) + 1.0) * 0.5 * float(e - 1)
+                    ih = wp.min(int(th), e - 2)
+                    fh = th - float(ih)
+                    tt = (wp.clamp(zt, -1.0, 1.0) + 1.0) * 0.5 * float(e - 1)
+                    it = wp.min(int(tt), e - 2)
+                    ft = tt - float(it)
+                    rh = row + ih
+                    rt = row + it
+                    for k in range(N2):
+                        wh = (1.0 - fh) * table[rh, k] + fh * table[rh + 1, k]
+                        wt = (1.0 - ft) * table[rt, k] + ft * table[rt + 1, k]
+                        acc[k] = acc[k] + wh - wt
             else:
                 acc = acc + wedge(table, row, e, zh)
         for k in range(N2):
@@ -402,16 +466,38 @@ def visibility_kernels(order: int):
     return texel_kernel, upsample_kernel
 
 
+#: A view table is even (:func:`table_is_even`) when its sine columns are at most this fraction
+#: of its largest entry: far below float32's resolution of the cosine terms they sit beside
+#: (the RPO and exact tables of isotropic BRDFs measure ~2e-13).
+EVEN_TABLE_RTOL = 1e-9
+
+
+def table_is_even(table) -> bool:
+    """Whether a view table (E, n*n) has no sine coefficients (``m < 0``) to float32 precision:
+    an isotropic lobe with the view in the frame's x-z plane is symmetric under y -> -y."""
+    t = np.asarray(table, np.float64)
+    order = int(round(math.sqrt(t.shape[1])))
+    sine = [l * l + l + m for l in range(order) for m in range(-l, 0)]
+    top = float(np.abs(t).max())
+    return top == 0.0 or float(np.abs(t[:, sine]).max()) <= EVEN_TABLE_RTOL * top
+
+
 @functools.lru_cache(maxsize=None)
-def shade_kernels(order: int):
+def shade_kernels(order: int, even: bool = False):
     """``(product_kernel, shade_kernel, rotate_kernel, pair_product_kernel)`` of one SH order
     (cached); ``shade_kernel(vertices: ShadeVertices, texels: ShadeTexels, start, out:
-    ShadeOutputs)`` shades grid vertices ``start .. start + dim``."""
+    ShadeOutputs)`` shades grid vertices ``start .. start + dim``. With ``even`` the shading
+    kernel reads only the cosine columns (``m >= 0``) of the view table and rotates with
+    :func:`even_frame_rotation`: for a table whose sine columns are zero (:func:`table_is_even`)."""
     shk = sh_kernels(order)
     N2 = order * order
     vec_t = shk.vec
     sh_load = shk.load
     _, rotate_frame, product = static_sh_funcs(order)
+    rotate_shade = even_frame_rotation(order) if even else rotate_frame
+    EVEN = bool(even)
+    COS_IDX = [l * l + l + m for l in range(order) for m in range(0, l + 1)]
+    NCOS = len(COS_IDX)
 
     @wp.kernel(enable_backward=False, module="unique")
     def product_kernel(vis: wp.array2d(dtype=wp.float32), light: wp.array2d(dtype=wp.float32), start: int,
@@ -440,7 +526,7 @@ def shade_kernels(order: int):
             out.radiance[vtx, 0] = 0.0
             out.radiance[vtx, 1] = 0.0
             out.radiance[vtx, 2] = 0.0
-            wp.atomic_add(out.stats, STAT_BELOW_HORIZON, 1)
+            out.flags[vtx] = FLAG_BELOW_HORIZON
             return
         # local frame about n with the view in its x-z plane
         x = d - mu * n
@@ -459,11 +545,16 @@ def shade_kernels(order: int):
         i0 = wp.min(int(tt), e - 2)
         fr = tt - float(i0)
         f = vec_t()
-        for k in range(N2):
-            f[k] = (1.0 - fr) * ftable[i0, k] + fr * ftable[i0 + 1, k]
+        if wp.static(EVEN):
+            for q in range(wp.static(NCOS)):
+                f[wp.static(COS_IDX[q])] = (1.0 - fr) * ftable[i0, wp.static(COS_IDX[q])] + \
+                    fr * ftable[i0 + 1, wp.static(COS_IDX[q])]
+        else:
+            for k in range(N2):
+                f[k] = (1.0 - fr) * ftable[i0, k] + fr * ftable[i0 + 1, k]
         # to the world: f(F s) with F rows (x, y, n), i.e. the rotation R = F^T
         rt = wp.mat33(x[0], y[0], n[0], x[1], y[1], n[1], x[2], y[2], n[2])
-        fw = rotate_frame(f, rt)
+        fw = rotate_shade(f, rt)
         # g at the vertex (bilinear over the visibility texels)
         t00, w = texel_weights(vtx, vertices.size, res)
         w00, w01, w10, w11 = w[0], w[1], w[2], w[3]
@@ -478,8 +569,7 @@ def shade_kernels(order: int):
                 acc = 0.0
                 neg = 1
             out.radiance[vtx, ch] = texels.specular[ch] * acc
-        if neg == 1:
-            wp.atomic_add(out.stats, STAT_NEGATIVE, 1)
+        out.flags[vtx] = neg * FLAG_NEGATIVE
 
     @wp.kernel(enable_backward=False, module="unique")
     def rotate_kernel(f: wp.array2d(dtype=wp.float32), rot: wp.array(dtype=wp.mat33), out: wp.array2d(dtype=wp.float32)):

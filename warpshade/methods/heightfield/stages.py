@@ -11,8 +11,9 @@ from ..._wp import launch_parallel, wp
 from ..common import ShLighting, order_param
 from ..rpo import OPERATORS, SHADE_PARAMS, GlossyStage
 from ..stage import FrameStage, Param, Port, StageError, register_stage
-from .kernels import (STAT_BELOW_HORIZON, STAT_NEGATIVE, HorizonMarch, ShadeOutputs, ShadeTexels, ShadeVertices,
-                      TexelVisibility, heights_kernel, horizon_kernel, reduce_kernel, shade_kernels, visibility_kernels)
+from .kernels import (FLAG_BELOW_HORIZON, FLAG_NEGATIVE, HorizonMarch, ShadeOutputs, ShadeTexels, ShadeVertices,
+                      TexelVisibility, heights_kernel, horizon_kernel, reduce_kernel, shade_kernels, table_is_even,
+                      visibility_kernels)
 from .model import (WEDGE_ENTRIES, GridLayout, grid_layout, march_plan, pyramid_levels, rotated_wedge_tables, view_table,
                     wedge_table)
 
@@ -189,18 +190,20 @@ class HeightFieldShadeStage(GlossyStage):
         self._lighting = ShLighting(inputs["lighting"], n)
         self._g = wp.zeros((r * r, 3 * n * n), dtype=wp.float32, device=dev)
         self._ftable = wp.zeros((p["view_table"], n * n), dtype=wp.float32, device=dev)
-        self._stats = wp.zeros(2, dtype=wp.int32, device=dev)
+        self._flags = wp.zeros(ctx.dims["V"], dtype=wp.int32, device=dev)
         self._radiance = wp.zeros((ctx.dims["V"], 3), dtype=wp.float32, device=dev)
-        self._product, self._shade, _, _ = shade_kernels(n)
         vertices = ShadeVertices()
         vertices.points, vertices.normals, vertices.eye, vertices.size = self._points, self._normals, self._eye, lay.size
         shade_texels = ShadeTexels()
         shade_texels.g, shade_texels.res, shade_texels.ftable = self._g, r, self._ftable
         shade_texels.specular = self._specular
         out = ShadeOutputs()
-        out.radiance, out.stats = self._radiance, self._stats
+        out.radiance, out.flags = self._radiance, self._flags
         self._shade_args = (vertices, shade_texels, out)
         self._upload_material()
+        # the view table decides the shading kernel (an isotropic lobe: the half first z-rotation)
+        self._even = table_is_even(self.table)
+        self._product, self._shade, _, _ = shade_kernels(n, self._even)
         return {"radiance": self._radiance}
 
     def _current_brdf(self):
@@ -230,11 +233,12 @@ class HeightFieldShadeStage(GlossyStage):
             return False
         if flags & Change.MATERIAL:
             self._upload_material()
+            if table_is_even(self.table) != self._even:
+                return False  # another shading kernel: set up (and record) anew
         return True
 
     def launch(self, state):
         self._lighting.launch()
-        self._stats.zero_()
         dev = self._radiance.device
         r, g = self.resolution, self.layout.size
 
@@ -251,8 +255,9 @@ class HeightFieldShadeStage(GlossyStage):
         launch_parallel(self._shade, g * g, shade_inputs, dev, min_count=CPU_CHUNK_MIN)
 
     def diagnostics(self) -> dict:
-        s = self._stats.numpy()
-        return {"negative_clamped": int(s[STAT_NEGATIVE]), "below_horizon": int(s[STAT_BELOW_HORIZON]),
+        f = self._flags.numpy()
+        return {"negative_clamped": int(np.count_nonzero(f & FLAG_NEGATIVE)),
+                "below_horizon": int(np.count_nonzero(f & FLAG_BELOW_HORIZON)),
                 "material": self.brdf.describe(), "factors": self.params["factors"],
                 "operator_build_s": round(self.operator.build_s, 4)}
 
