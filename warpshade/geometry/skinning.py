@@ -21,7 +21,7 @@ hierarchies on the device.
 
 import numpy as np
 
-from .._wp import launch_parallel, resolve_device, wp
+from .._wp import resolve_device, wp
 
 __all__ = [
     "skin_points_f64",
@@ -37,9 +37,6 @@ __all__ = [
 ]
 
 wp.set_module_options({"enable_backward": False})
-
-#: Points per CPU chunk below which :func:`launch_transform_points` is one launch.
-TRANSFORM_CHUNK_MIN = 16384
 
 
 @wp.kernel
@@ -192,13 +189,13 @@ def launch_transform_points(points, in_offset: int, count: int, matrices, out_po
         return
     dev = points.device
     frame = wp.zeros(1, dtype=wp.int32, device=dev) if frame is None else frame
-    mats = _matrix_array(matrices, dev)
-
-    def chunk(start, stop):
-        return [points, int(in_offset) + start, frame, int(frame_stride), mats, int(matrix_index), out_points,
-                int(out_offset) + start]
-
-    launch_parallel(transform_points_kernel, int(count), chunk, dev, min_count=TRANSFORM_CHUNK_MIN)
+    wp.launch(
+        transform_points_kernel,
+        dim=int(count),
+        inputs=[points, int(in_offset), frame, int(frame_stride), _matrix_array(matrices, dev), int(matrix_index),
+                out_points, int(out_offset)],
+        device=dev,
+    )
 
 
 def launch_transform_normals(normals, matrices, out_normals, out_offset: int = 0, matrix_index: int = 0,

@@ -231,7 +231,7 @@ def _static_data(scene, dev) -> dict:
     cache = scene._device_cache
     if key in cache:
         return cache[key]
-    from ..geometry.normals import vertex_face_adjacency, vertex_normal_sums_f64
+    from ..geometry.normals import vertex_normal_sums_f64
 
     data = {"faces": wp.array(scene.faces, dtype=wp.int32, device=dev), "meshes": []}
     for mesh in scene.meshes:
@@ -259,9 +259,9 @@ def _static_data(scene, dev) -> dict:
                 entry["rest_normals"] = wp.array(unit.astype(np.float32), dtype=wp.vec3, device=dev)
                 entry["area_sums"] = True
         if mesh.animation in ("deforming", "skinned"):
-            # the triangles around each vertex: normals are gathered per vertex, over the CPU cores
-            entry["adjacency"] = vertex_face_adjacency(mesh.faces + mesh.vertex_offset, mesh.vertex_offset,
-                                                       mesh.vertex_count, dev)
+            entry["faces"] = wp.array(mesh.faces + mesh.vertex_offset, dtype=wp.int32, device=dev)
+            entry["vertices"] = wp.array(np.arange(mesh.vertex_offset, mesh.vertex_offset + mesh.vertex_count, dtype=np.int32),
+                                         dtype=wp.int32, device=dev)
         data["meshes"].append(entry)
     cache[key] = data
     return data
@@ -657,7 +657,7 @@ class FrameEvaluator:
         return self.state
 
     def _launch(self, moving_only: bool, recorder=None) -> None:
-        from ..geometry.normals import gather_vertex_normals
+        from ..geometry.normals import compute_vertex_normals
         from ..geometry.skinning import launch_skin_points, launch_transform_normals, launch_transform_points
 
         dev, st, data, scene = self.device, self.state, self._data, self.scene
@@ -695,8 +695,8 @@ class FrameEvaluator:
                 wp.launch(_live_points_kernel, dim=mesh.vertex_count, device=dev, inputs=[
                     frame, self.input.slot(self._live_fields["points", k]), self._live_points[k], st.points,
                     mesh.vertex_offset])
-            if "adjacency" in entry:
-                gather_vertex_normals(st.points, entry["adjacency"], st.normals)
+            if "vertices" in entry:
+                compute_vertex_normals(st.points, entry["faces"], st.normals, entry["vertices"])
 
     def _upload_samples(self, mesh, k: int, recorder) -> None:
         from ..geometry.skinning import launch_transform_points
