@@ -237,7 +237,7 @@ def kernel_costs(vertices: int = 65536, repeats: int = 7, orders=(3, 4, 6)):
         args = [surface, ops, lit, sh_kernels(n).tables(dev)]
         out = kernels.ShadeOutputs()
         out.radiance = wp.zeros((vertices, 3), dtype=wp.float32, device=dev)
-        out.stats = wp.zeros(2, dtype=wp.int32, device=dev)
+        out.flags = wp.zeros(vertices, dtype=wp.int32, device=dev)
         out = [out]
         setups[name] = (k, args, out)
         launch_parallel(k, vertices, lambda a, b, args=args, out=out: args + [a] + out, dev)  # compile

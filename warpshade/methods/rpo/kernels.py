@@ -35,8 +35,11 @@ wp.set_module_options({"enable_backward": False})
 LIGHTING_MODES = ("rotate", "zh")
 #: ``evaluation`` modes of :func:`shade_kernel`.
 EVALUATIONS = ("gaunt", "matrices")
-#: ``stats`` entries written by the kernel.
-STAT_NEGATIVE, STAT_BELOW_HORIZON = 0, 1
+#: Bits of the kernel's per-receiver ``flags``: a channel clamped from below zero; the eye at or
+#: below the receiver's horizon (shaded 0). One word per receiver: a counter shared by the threads
+#: of a chunked CPU launch would be a plain read-modify-write from several cores (Warp's CPU atomics
+#: are not atomic across threads).
+FLAG_NEGATIVE, FLAG_BELOW_HORIZON = 1, 2
 
 
 @wp.struct
@@ -106,12 +109,12 @@ class ShadeOutputs:
 
     Fields:
         radiance: radiance toward the eye, (V, 3) float32, linear RGB.
-        stats: (2,) int32 counters, incremented per receiver (:data:`STAT_NEGATIVE`,
-            :data:`STAT_BELOW_HORIZON`).
+        flags: (V,) int32, per receiver the bits :data:`FLAG_NEGATIVE` and
+            :data:`FLAG_BELOW_HORIZON` (counted on the host).
     """
 
     radiance: wp.array2d(dtype=wp.float32)
-    stats: wp.array(dtype=wp.int32)
+    flags: wp.array(dtype=wp.int32)
 
 
 @wp.kernel
@@ -196,7 +199,7 @@ def shade_kernel(order: int, view_order: int, lighting: str = "rotate", cosine: 
             out.radiance[v, 0] = 0.0
             out.radiance[v, 1] = 0.0
             out.radiance[v, 2] = 0.0
-            wp.atomic_add(out.stats, STAT_BELOW_HORIZON, 1)
+            out.flags[v] = FLAG_BELOW_HORIZON
             return
         s = surface.material[v]
         yo = view_eval(wo)
@@ -223,7 +226,6 @@ def shade_kernel(order: int, view_order: int, lighting: str = "rotate", cosine: 
                 x = 0.0
                 neg = 1
             out.radiance[v, c] = ops.specular[c] * x
-        if neg == 1:
-            wp.atomic_add(out.stats, STAT_NEGATIVE, 1)
+        out.flags[v] = neg * FLAG_NEGATIVE
 
     return kernel

@@ -173,7 +173,7 @@ class RpoShadeStage(GlossyStage):
         self._zh_axes0 = wp.zeros_like(self._zh_axes)
         self._zh_turn = wp.array(np.eye(3, dtype=np.float32)[None], dtype=wp.mat33, device=dev)
         self._zh_coeffs = wp.zeros((max(self._zh_axes.shape[0], 1), 3, n), dtype=wp.float32, device=dev)
-        self._stats = wp.zeros(2, dtype=wp.int32, device=dev)
+        self._flags = wp.zeros(ctx.dims["V"], dtype=wp.int32, device=dev)
         self._frames, self._points, self._visibility = inputs["frames"], inputs["points"], inputs["visibility"]
         self._lighting = ShLighting(inputs["lighting"], n)
         self._frame_lighting = inputs["lighting"]
@@ -204,7 +204,7 @@ class RpoShadeStage(GlossyStage):
         light.eye, light.sh = self._eye, self._lighting.light
         light.zh_axes, light.zh_coeffs = self._zh_axes, self._zh_coeffs
         out = kernels.ShadeOutputs()
-        out.radiance, out.stats = self._radiance, self._stats
+        out.radiance, out.flags = self._radiance, self._flags
         self._surface, self._ops, self._view_lighting, self._outputs = surface, ops, light, out
 
     def _operator(self, brdf):
@@ -302,7 +302,6 @@ class RpoShadeStage(GlossyStage):
     # ---- per frame --------------------------------------------------------------------
     def launch(self, state):
         self._lighting.launch()
-        self._stats.zero_()
         dev = self._radiance.device
         if self._zh_axes.shape[0]:
             wp.launch(kernels.turn_axes_kernel, dim=self._zh_axes.shape[0], device=dev,
@@ -317,8 +316,9 @@ class RpoShadeStage(GlossyStage):
     def diagnostics(self) -> dict:
         """Receivers of the last frame clamped for negative radiance, and seen at or below their
         horizon (shaded 0); the BRDFs of the slots and what building them took."""
-        s = self._stats.numpy()
-        out = {"negative_clamped": int(s[kernels.STAT_NEGATIVE]), "below_horizon": int(s[kernels.STAT_BELOW_HORIZON]),
+        f = self._flags.numpy()
+        out = {"negative_clamped": int(np.count_nonzero(f & kernels.FLAG_NEGATIVE)),
+               "below_horizon": int(np.count_nonzero(f & kernels.FLAG_BELOW_HORIZON)),
                "materials": [b.describe() for b in self.slot_brdfs],
                "operator_build_s": [round(op.build_s, 4) for op in self.operators]}
         if self.zh is not None:
