@@ -157,9 +157,14 @@ class StageContext:
         return executor(self.scheduler)
 
     def resolve_path(self, path: str):
-        """``path`` made absolute against :attr:`base_dir` (a :class:`pathlib.Path`)."""
+        """``path`` made absolute against :attr:`base_dir` (a :class:`pathlib.Path`); ``bundled:NAME``
+        is the file NAME of the bundled assets (:func:`warpshade.io.bundled_asset_directory`)."""
         from pathlib import Path
 
+        if str(path).startswith("bundled:"):
+            from ..io import bundled_asset_directory
+
+            return Path(bundled_asset_directory()) / str(path)[len("bundled:"):]
         p = Path(path).expanduser()
         if not p.is_absolute() and self.base_dir is not None:
             p = Path(self.base_dir) / p

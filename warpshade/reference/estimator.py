@@ -48,13 +48,8 @@ environment (BRDF, light or MIS sampling with the balance heuristic, as the rece
 The next-event estimates of every vertex are the same functions as the receiver's direct part,
 so a diffuse and a glossy receiver share one estimator.
 
-A tabulated BRDF (:class:`~..scene.tabulated.TabulatedBRDF`) is shaded one table channel at a time
-(:func:`~..scene.materials_warp.upload_brdf_passes`): each pass is this estimator with that
-channel's BRDF and the same random streams, and the result is the sum of the passes times their
-RGB weights -- for a colour table channel ``c`` of the result is channel ``c`` of the pass with
-table channel ``c`` (so it equals three single-channel runs), for one channel or a grey
-(luminance) table one pass in every channel. Its lobe sampling is a fitted GGX lobe mixed with the
-cosine lobe (:mod:`~..scene.materials_warp`).
+A tabulated BRDF is shaded one table channel per pass (:func:`~..scene.materials_warp.upload_brdf_passes`,
+same random streams) summed with RGB weights: channel ``c`` of a colour table is its own pass.
 
 Sampling is randomised quasi-Monte Carlo: the 2-D sample points of every strategy are an R2
 low-discrepancy set (the additive recurrence of the plastic number) under a random
@@ -507,8 +502,7 @@ def _estimator_kernel(
 @wp.kernel
 def _add_pass_kernel(radiance: wp.array(dtype=wp.vec3), stderr: wp.array(dtype=wp.vec3), weights: wp.vec3,
                      out_radiance: wp.array(dtype=wp.vec3), out_stderr: wp.array(dtype=wp.vec3)):
-    """Add one shading pass times its RGB weights; its standard error adds linearly (an upper
-    bound for passes sharing their random streams; exact where one pass makes each channel)."""
+    """Add one pass times its RGB weights; standard errors add (an upper bound for shared streams)."""
     i = wp.tid()
     out_radiance[i] = out_radiance[i] + wp.cw_mul(weights, radiance[i])
     out_stderr[i] = out_stderr[i] + wp.cw_mul(weights, stderr[i])

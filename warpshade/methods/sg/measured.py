@@ -32,7 +32,7 @@ from scipy.sparse.linalg import lsqr
 
 from .brdf import fresnel_cook_torrance
 
-__all__ = ["MeasuredMicrofacet", "extract_microfacet", "measured_material"]
+__all__ = ["MeasuredMicrofacet", "extract_microfacet", "measured_material", "reference_table"]
 
 #: Knots of the extracted D (uniform over [0, pi/2]); the curves returned are sampled there (the
 #: paper packs S into 90-D vectors).
@@ -175,3 +175,14 @@ def measured_material(path, eta: float = 1.33, channel: str = "luminance") -> Me
     weights = {"luminance": np.array([0.2126, 0.7152, 0.0722]), "r": np.eye(3)[0], "g": np.eye(3)[1], "b": np.eye(3)[2]}
     values = np.tensordot(weights[brdf.channel], np.where(table < 0.0, np.nan, table), axes=1)
     return extract_microfacet(v.reshape(-1, 3), s.reshape(-1, 3), values.reshape(-1), eta)
+
+
+def reference_table(path):
+    """What the glossy reference shades for a measured material: the table itself, its luminance
+    (the channel the NDF and shadowing are extracted from) looked up "linear" (the smooth
+    reconstruction of the cells the extraction fits); the stage's specular colour multiplies it."""
+    import dataclasses
+
+    from ...scene.tabulated import read_merl
+
+    return dataclasses.replace(read_merl(path), channel="luminance", interpolation="linear")

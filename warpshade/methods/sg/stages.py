@@ -320,25 +320,16 @@ class SgShadeStage(FrameStage):
             return
         if p["table"] is None:
             raise StageError(f"stage {self.name!r}: brdf = 'tabulated-ndf' needs 'table' (a MERL-layout file)")
-        path = self._asset_path(ctx, p["table"])
+        path = ctx.resolve_path(p["table"])
         try:
             self.measured = measured_material(path, eta=p["eta"])
             self.measured_path = path
         except (OSError, ValueError) as exc:
             raise StageError(f"stage {self.name!r}: table {str(path)!r}: {exc}") from None
 
-    def _asset_path(self, ctx, value: str):
-        from pathlib import Path
-
-        if value.startswith("bundled:"):
-            from ...io import bundled_asset_directory
-
-            return Path(bundled_asset_directory()) / value[len("bundled:"):]
-        return ctx.resolve_path(value)
-
     def _read_svbrdf(self, ctx) -> None:
-        """brdf = 'svbrdf': the texture read and fitted (:func:`.svbrdf.fit_svbrdf`) at set-up."""
-        from .svbrdf import MAX_LOBES, fit_svbrdf, over_budget, read_svbrdf
+        """brdf = 'svbrdf': the texture read and fitted (:func:`.svbrdf.read_and_fit`) at set-up."""
+        from .svbrdf import read_and_fit
 
         p = self.params
         self.svbrdf = None
@@ -348,17 +339,12 @@ class SgShadeStage(FrameStage):
             return
         if p["texture"] is None:
             raise StageError(f"stage {self.name!r}: brdf = 'svbrdf' needs 'texture' (a .svbrdf file)")
-        path = self._asset_path(ctx, p["texture"])
+        path = ctx.resolve_path(p["texture"])
         try:
-            self.svbrdf = fit_svbrdf(read_svbrdf(path), p["lobes"], p["ndf_error_budget"], min(p["max_lobes"], MAX_LOBES),
-                                     p["shadow_error_budget"], p["shadow_max_terms"])
+            self.svbrdf = read_and_fit(path, p["lobes"], p["ndf_error_budget"], p["max_lobes"], p["shadow_error_budget"],
+                                       p["shadow_max_terms"])
         except (OSError, ValueError) as exc:
             raise StageError(f"stage {self.name!r}: {exc}") from None
-        if over_budget(self.svbrdf.report):
-            import warnings
-
-            warnings.warn(f"stage {self.name!r}: SVBRDF texture {str(path)!r}: {over_budget(self.svbrdf.report)}",
-                          RuntimeWarning, stacklevel=2)
 
     def _setup_svbrdf(self, st) -> None:
         """The fitted SVBRDF (or the empty placeholder) into ``st.svbrdf``, with the scene's per-vertex UVs."""
@@ -763,10 +749,10 @@ class SgShadeStage(FrameStage):
         if p["component"] == "diffuse":
             return None
         textured = p["textures"] and not per_pixel
-        if p["brdf"] == "tabulated-ndf":
-            return self._measured_reference(textured)
         multi = self.multi_lobe_model()
-        if multi is not None:
+        if p["brdf"] == "tabulated-ndf":
+            brdf, multi = self._reference_table(), None
+        elif multi is not None:
             brdf = _exact_brdf(*multi)
         elif p["brdf"] == "beckmann":
             brdf = materials.Microfacet(roughness=p["roughness"], distribution="beckmann", f0=p["f0"])
@@ -780,29 +766,20 @@ class SgShadeStage(FrameStage):
         if textured:
             # the materials the vertices were shaded with: roughness and specular colour per vertex
             model["color"] = self._spec.numpy().astype(np.float64)
-            model["roughness"] = self._rough.numpy().astype(np.float64)
+            if p["brdf"] != "tabulated-ndf":
+                model["roughness"] = self._rough.numpy().astype(np.float64)
         return model
 
-    def _measured_reference(self, textured: bool) -> dict:
-        """brdf = 'tabulated-ndf': the glossy reference shades the table itself -- its luminance,
-        the channel the NDF and shadowing were extracted from (:mod:`.measured`), looked up
-        "linear" (the smooth reconstruction of the cells the extraction fits) -- times the
-        specular colour, as the stage's output is."""
-        import dataclasses
-
-        from ...scene.tabulated import read_merl
+    def _reference_table(self):
+        """brdf = 'tabulated-ndf': the table itself (:func:`.measured.reference_table`)."""
+        from .measured import reference_table
 
         if self.measured_path is None:
             raise StageError(f"stage {self.name!r}: brdf = 'tabulated-ndf' is read from its table at set-up")
         try:
-            table = read_merl(self.measured_path)
+            return reference_table(self.measured_path)
         except (OSError, ValueError) as exc:
             raise StageError(f"stage {self.name!r}: table {str(self.measured_path)!r}: {exc}") from None
-        brdf = dataclasses.replace(table, channel="luminance", interpolation="linear")
-        model = {"brdf": brdf, "eye": self._eye.numpy()[0].astype(np.float64), "color": self._specular_rgb.copy()}
-        if textured:
-            model["color"] = self._spec.numpy().astype(np.float64)
-        return model
 
     def diagnostics(self) -> dict:
         out = {"ssdf_terms": int(self.model.coeffs.shape[1]), "ssdf_resolution": int(self.model.resolution),

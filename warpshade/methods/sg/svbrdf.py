@@ -51,6 +51,7 @@ __all__ = [
     "fit_svbrdf",
     "fit_texel_ndfs",
     "over_budget",
+    "read_and_fit",
     "read_svbrdf",
     "scene_uvs",
     "shadow_pca",
@@ -473,6 +474,20 @@ def over_budget(report: dict) -> str | None:
     return (f"fit over budget (NDF worst texel {report['ndf_error_max']:.3f} with {report['lobes']} lobes, budget "
             f"{report['ndf_budget']:g}; shadowing RMS {report['shadow_rms']:.2e} with {report['shadow_terms']} terms, "
             f"budget {report['shadow_budget']:g})")
+
+
+def read_and_fit(path, lobes: int | None, ndf_error_budget: float, max_lobes: int, shadow_error_budget: float,
+                 max_terms: int) -> SVBRDFTexture:
+    """The texture at ``path`` read (:func:`read_svbrdf`) and fitted (:func:`fit_svbrdf`, at most
+    :data:`MAX_LOBES` lobes); a RuntimeWarning naming the file when the fit misses its budgets."""
+    fitted = fit_svbrdf(read_svbrdf(path), lobes, ndf_error_budget, min(max_lobes, MAX_LOBES), shadow_error_budget,
+                        max_terms)
+    why = over_budget(fitted.report)
+    if why:
+        import warnings
+
+        warnings.warn(f"SVBRDF texture {str(path)!r}: {why}", RuntimeWarning, stacklevel=3)
+    return fitted
 
 
 def scene_uvs(scene) -> np.ndarray:
