@@ -226,6 +226,7 @@ def kernel_costs(vertices: int = 65536, repeats: int = 7, orders=(3, 4, 6)):
         ops.light_sh = wp.array(op.light_sh[None].astype(np.float32), device=dev)
         ops.view_sh = wp.array(op.view_sh[None].astype(np.float32), device=dev)
         ops.rank = wp.array(np.array([8], np.int32), device=dev)
+        ops.channels = wp.array(np.array([1], np.int32), device=dev)
         ops.matrices = wp.array(mats.astype(np.float32), device=dev)
         ops.cos_sh = wp.array(cosine_sh(n).astype(np.float32), device=dev)
         ops.specular = wp.vec3(1.0, 1.0, 1.0)
