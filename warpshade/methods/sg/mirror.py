@@ -15,7 +15,7 @@ from ...basis import sg
 from ...scene.materials import hemisphere_to_concentric
 from .brdf_warp import slice_parameters
 from .lights import point_light_lobe
-from .slices import view_slice
+from .slices import duff_frame_f64, view_slice
 
 __all__ = [
     "ssdf_value",
@@ -32,7 +32,7 @@ def tangent_frame_f64(n, tangent) -> np.ndarray:
     t = np.asarray(tangent, np.float64)
     t = t - (t @ n) * n
     length = np.linalg.norm(t)
-    t = t / length if length > 1e-6 else _duff_basis(n)[0]
+    t = t / length if length > 1e-6 else duff_frame_f64(n)[0]
     return np.stack([t, np.cross(n, t), n])
 
 
@@ -56,15 +56,6 @@ def warped_slices_f64(model: str, params: dict, views, frames):
                    np.zeros((len(views), sl.lobe_count)))
         out[0][i], out[1][i], out[2][i] = axes, lam, np.asarray(sl.amplitude).reshape(-1)
     return out
-
-
-def _duff_basis(n: np.ndarray) -> np.ndarray:
-    sign = 1.0 if n[2] >= 0.0 else -1.0
-    a = -1.0 / (sign + n[2])
-    b = n[0] * n[1] * a
-    t = np.array([1.0 + sign * n[0] * n[0] * a, sign * b, -sign * n[0]])
-    bt = np.array([b, sign + n[1] * n[1] * a, -n[1]])
-    return np.stack([t, bt, n])
 
 
 def _exact_brdf(model: str, roughness: float, f0: float):
@@ -180,10 +171,10 @@ def shade_f64(points, normals, eye, albedo, specular, roughness, maps, frames, m
         slices = []
         if want_s and facing:
             if svbrdf is not None:
-                frame = _duff_basis(n)
+                frame = duff_frame_f64(n)
                 lobes = _texel_slice(svbrdf[0], svbrdf[1][i], frame @ o)
             elif lobe_model is None:
-                frame = _duff_basis(n)
+                frame = duff_frame_f64(n)
                 lobes = view_slice(model, frame @ o, **slice_parameters(model, float(roughness[i]), f0))
             else:
                 frame = tangent_frame_f64(n, tangents[i])

@@ -28,6 +28,7 @@ from .ndf import ndf_lobes
 
 __all__ = [
     "ViewSlice",
+    "duff_frame_f64",
     "isotropic_warp_floor",
     "slice_error",
 ]
@@ -170,3 +171,13 @@ def slice_error(brdf_exact: BRDF, model: str, params: dict, view_local, inner_no
     if not den > 0.0 or not math.isfinite(den):
         raise ValueError("slice_error: the exact BRDF is zero (or not finite) for this view")
     return float(math.sqrt(float(w @ ((approx - exact) ** 2)) / den))
+
+
+def duff_frame_f64(n: np.ndarray) -> np.ndarray:
+    """An orthonormal frame about a unit normal, rows (t, b, n) (Duff et al.'s branchless basis)."""
+    sign = 1.0 if n[2] >= 0.0 else -1.0
+    a = -1.0 / (sign + n[2])
+    b = n[0] * n[1] * a
+    t = np.array([1.0 + sign * n[0] * n[0] * a, sign * b, -sign * n[0]])
+    bt = np.array([b, sign + n[1] * n[1] * a, -n[1]])
+    return np.stack([t, bt, n])

@@ -42,6 +42,7 @@ import numpy as np
 
 from ..._fileio import atomic_path
 from .brdf import COS_FLOOR, MAX_SHARPNESS, fresnel_cook_torrance
+from .slices import duff_frame_f64
 
 __all__ = [
     "MAGIC",
@@ -528,16 +529,6 @@ def svbrdf_slices_f64(texture: SVBRDFTexture, texels, views):
     return axes, np.where(live[:, None], lam, 1.0), np.where(live[:, None], amp, 0.0)
 
 
-def _frame_rows(n: np.ndarray) -> np.ndarray:
-    """An orthonormal frame (rows t, b, n) about a unit normal (Duff et al.)."""
-    sign = 1.0 if n[2] >= 0.0 else -1.0
-    a = -1.0 / (sign + n[2])
-    b = n[0] * n[1] * a
-    t = np.array([1.0 + sign * n[0] * n[0] * a, sign * b, -sign * n[0]])
-    bt = np.array([b, sign + n[1] * n[1] * a, -n[1]])
-    return np.stack([t, bt, n])
-
-
 def eq13_quadrature_f64(normals, views, materials, eta: float, radiance_fn, occluded_fn=None, z_nodes: int = 128,
                         phi_nodes: int = 256) -> np.ndarray:
     """Specular radiance ``integral_H L(i) V(i) rho(o, i) (n.i) di`` of eq.-13 materials by
@@ -562,7 +553,7 @@ def eq13_quadrature_f64(normals, views, materials, eta: float, radiance_fn, occl
     out = np.zeros((len(n_all), 3))
     ti = np.arccos(np.clip(dirs[:, 2], -1.0, 1.0))
     for p, (n, v) in enumerate(zip(n_all, v_all)):
-        frame = _frame_rows(n / np.linalg.norm(n))
+        frame = duff_frame_f64(n / np.linalg.norm(n))
         o = frame @ (v / np.linalg.norm(v))
         if o[2] <= 0.0:
             continue
