@@ -173,17 +173,17 @@ def upload_brdf(brdf: materials.BRDF, device=None) -> BRDFParams:
 
 def check_reference_brdf(brdf) -> None:
     """Raise ValueError saying why ``brdf`` has no device form (what the ray-traced reference
-    shades: the models of :data:`BRDF_MODELS` and tabulated BRDFs), from the host alone."""
+    shades: the models of :data:`BRDF_MODELS` and tabulated BRDFs), from the host alone: an
+    analytic BRDF's :func:`upload_brdf` touches no device."""
     from .tabulated import TabulatedBRDF
 
     if isinstance(brdf, TabulatedBRDF):
         return
-    known = (materials.Lambert, materials.Phong, materials.BlinnPhong, materials.Microfacet, materials.AnisotropicMicrofacet)
-    if isinstance(brdf, known) or (getattr(brdf, "name", "") in ("ward", "ashikhmin-shirley")
-                                   and (hasattr(brdf, "alpha_x") or hasattr(brdf, "nu"))):
-        return
-    raise ValueError(f"the ray-traced glossy reference does not shade BRDF {getattr(brdf, 'name', type(brdf).__name__)!r} "
-                     f"(it shades {', '.join(BRDF_MODELS)})")
+    try:
+        upload_brdf(brdf)
+    except ValueError as exc:
+        raise ValueError(f"the ray-traced glossy reference does not shade BRDF "
+                         f"{getattr(brdf, 'name', type(brdf).__name__)!r}: {exc}") from None
 
 
 #: Largest probability of the fitted GGX lobe in a tabulated BRDF's sampling mixture (the rest is
