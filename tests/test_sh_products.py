@@ -215,6 +215,31 @@ def test_warp_product_kernels_match_reference(order, device, rng):
     assert np.abs(m - sh.product_matrix(f[:8])).max() < ATOL_PRODUCT_FLOAT32
 
 
+@pytest.mark.parametrize("order", [3, 4, 5])  # 5: above PRODUCT_UNROLL_ORDER, the table loop
+def test_unrolled_product_is_the_table_product(order, device, rng):
+    """``product_unrolled`` (straight-line code) sums the same entries in the same order as the
+    table loop: bit-identical results, and the float64 product to float32 accuracy."""
+    k = sh_kernels(order)
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def both(f: wp.array2d(dtype=wp.float32), g: wp.array2d(dtype=wp.float32), tables: SHTables,
+             out_loop: wp.array2d(dtype=wp.float32), out_unrolled: wp.array2d(dtype=wp.float32)):
+        i = wp.tid()
+        a = k.load(f, i)
+        b = k.load(g, i)
+        k.store(out_loop, i, k.product(a, b, tables))
+        k.store(out_unrolled, i, k.product_unrolled(a, b, tables))
+
+    f = random_coeffs(rng, (64,), order).astype(np.float32)
+    g = random_coeffs(rng, (64,), order).astype(np.float32)
+    loop = wp.empty((64, order * order), dtype=wp.float32, device=device)
+    unrolled = wp.empty_like(loop)
+    wp.launch(both, dim=64, device=device, inputs=[wp.array(f, device=device), wp.array(g, device=device),
+                                                   k.tables(device), loop, unrolled])
+    np.testing.assert_array_equal(unrolled.numpy(), loop.numpy())
+    assert np.abs(unrolled.numpy() - sh.product(f.astype(np.float64), g.astype(np.float64))).max() < ATOL_PRODUCT_FLOAT32
+
+
 def test_warp_funcs_compose_inside_a_user_kernel(device, rng):
     """The bundle's @wp.func members used the way later kernels use them: a per-receiver loop
     multiplying several blocker visibilities, then windowing and a ZH projection."""

@@ -114,7 +114,7 @@ def test_rotate_rejects_non_rotations():
         sh.rotation_matrix(np.full((3, 3), np.nan), 3)
 
 
-@pytest.mark.parametrize("order", [4, 10])
+@pytest.mark.parametrize("order", [4, 6, 10])  # 4 and 6 straight-line code, 10 the loops
 def test_warp_zxzxz_matches_ivanic_ruedenberg(order, device, rng):
     rotations = np.concatenate([quadrature.random_rotations(40, seed=order), special_rotations()])
     f = random_coeffs(rng, (len(rotations),), order)

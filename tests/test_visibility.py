@@ -112,7 +112,7 @@ def test_cluster_frame_kernels_match_mirror(device, bend):
                       wp.array(rule.offsets, dtype=wp.int32, device=device),
                       wp.array(rule.weights.astype(np.float32), dtype=wp.float32, device=device),
                       wp.array(rule.rest_axes.astype(np.float32), dtype=wp.vec3, device=device), axes])
-    wp.launch(kernels.cluster_frames_kernel, dim=rest.shape[0], device=device, inputs=[n, lab, axes, frames])
+    wp.launch(kernels.cluster_frames_kernel, dim=rest.shape[0], device=device, inputs=[n, lab, axes, 0, frames])
     got = frames.numpy()
     # the blend toward a2 is continuous, so float32 input noise moves frames by O(eps / BLEND)
     np.testing.assert_allclose(got, want, atol=20 * ATOL_FLOAT32)
@@ -205,7 +205,7 @@ def test_fit_reports_and_round_trips(synthetic_model):
         model_from_arrays(damaged)
 
 
-def _run_predict(arrays, features, device):
+def _run_predict(arrays, features, device, precision="single"):
     """The per-frame model kernels on one input vector (the stage's launches without the pose)."""
     a = arrays
 
@@ -228,23 +228,26 @@ def _run_predict(arrays, features, device):
                   inputs=[x, f32(a["w1"]), f32(a["b1"]), d, act])
     wp.launch(kernels.outputs_kernel, dim=int(a["y_offset"][-1]), device=device,
               inputs=[act, f32(a["w2"]), f32(a["b2"]), i32(a["source"]), i32(a["length"]), i32(a["w_offset"]), y])
-    wp.launch(kernels.reconstruct_kernel, dim=vis.shape[0], device=device,
-              inputs=[f32(a["mean"]), f32(a["basis"]), i32(a["labels"]), i32(a["components"]), i32(a["y_offset"]), y, 0,
-                      vis])
+    recon, mean, basis = kernels.reconstruct_setup(a["mean"], a["basis"], device, precision)
+    wp.launch(recon, dim=vis.shape[0], device=device,
+              inputs=[mean, basis, i32(a["labels"]), i32(a["components"]), i32(a["y_offset"]), y, 0, vis])
     return vis.numpy()
 
 
+@pytest.mark.parametrize("precision", ["single", "half"])
 @pytest.mark.parametrize("model_kind", ["network", "quadratic"])
-def test_model_kernels_match_mirror_and_novel_poses_stay_bounded(device, synthetic_model, model_kind):
+def test_model_kernels_match_mirror_and_novel_poses_stay_bounded(device, synthetic_model, model_kind, precision):
     data, model = synthetic_model
     if model_kind != "network":
         model = fit_visibility(data, model=model_kind, executor=_serial())
     a = model.arrays
+    # the float64 mirror over the basis the kernel stores (float16-rounded for half storage)
+    stored = dict(a, basis=np.asarray(a["basis"], np.float16).astype(np.float64)) if precision == "half" else a
     scale = np.abs(a["mean"]).max()
     for pose in (data["poses_quaternion"][3], np.array([0.3, -0.2, 0.1, 0.0, 0.25]),
                  np.array([40.0, -40.0, 40.0, 40.0, 0.25]), np.array([0.3, -0.2, 0.1, 0.0, 9.0])):
-        got = _run_predict(a, pose, device)
-        want = predict_f64(a, inputs_f64(a, pose[None])[0])
+        got = _run_predict(a, pose, device, precision)
+        want = predict_f64(stored, inputs_f64(a, pose[None])[0])
         assert np.all(np.isfinite(got))
         np.testing.assert_allclose(got, want, atol=50 * ATOL_FLOAT32 * scale)
     # a pose far outside the training range is clamped: its prediction is that of the range's edge

@@ -138,6 +138,37 @@ def _build_tables(order: int, device) -> SHTables:
         return t
 
 
+#: Highest order whose rotation is generated as straight-line code (x90 blocks without their zeros).
+ROTATE_UNROLL_ORDER = 6
+#: Highest order with the straight-line product (``SHKernels.product_unrolled``).
+PRODUCT_UNROLL_ORDER = 4
+
+
+def _x90_entries(order: int):
+    """Non-zero entries of the x90 blocks as (row, column, value) lists over coefficient indices
+    (float32 values, so unrolled code multiplies by exactly what the table holds)."""
+    rows, cols, vals = [], [], []
+    for l, blk in enumerate(_rotation.x90_bands(order)):
+        b32 = np.asarray(blk, np.float32)
+        for i in range(2 * l + 1):
+            for j in range(2 * l + 1):
+                if b32[i, j] != 0.0:
+                    rows.append(l * l + i)
+                    cols.append(l * l + j)
+                    vals.append(float(b32[i, j]))
+    return rows, cols, vals
+
+
+def _product_entries(order: int):
+    """The product table's entries in table order: output index, the two inputs, float32 weight."""
+    idx, val = _gaunt.real_gaunt_tensor(order)
+    keep = idx[:, 1] <= idx[:, 2]
+    half_idx = idx[keep]
+    weight = (np.where(half_idx[:, 1] == half_idx[:, 2], 0.5, 1.0) * val[keep]).astype(np.float32)
+    return ([int(x) for x in half_idx[:, 0]], [int(x) for x in half_idx[:, 1]], [int(x) for x in half_idx[:, 2]],
+            [float(w) for w in weight])
+
+
 @dataclass(frozen=True)
 class SHKernels:
     """Warp functions and kernels specialised to one SH order (see module docstring)."""
@@ -153,6 +184,7 @@ class SHKernels:
     zh_from_sh_about_axis: Any = None
     scale_bands: Any = None
     product: Any = None
+    product_unrolled: Any = None
     square: Any = None
     rotate_z: Any = None
     rotate: Any = None
@@ -195,6 +227,15 @@ def sh_kernels(order: int) -> SHKernels:
     bands_t = wp.types.vector(length=order, dtype=wp.float32)
     SQRT2 = math.sqrt(2.0)
     Y00 = 0.5 / math.sqrt(math.pi)
+    # Unrolled code (compile-time indices and constants, no table reads) for the rotation's x90
+    # blocks up to ROTATE_UNROLL_ORDER and for the product up to PRODUCT_UNROLL_ORDER (its code
+    # grows with the Gaunt entries: order 6 would take minutes to compile).
+    X90_ROWS, X90_COLS, X90_VALS = _x90_entries(order)
+    X90_COUNT = len(X90_VALS) if order <= ROTATE_UNROLL_ORDER else 0
+    P_OUT, P_A, P_B, P_W = _product_entries(order) if order <= PRODUCT_UNROLL_ORDER else ([], [], [], [])
+    P_COUNT = len(P_W)
+    Z_M, Z_L = zip(*[(m, l) for m in range(1, order) for l in range(m, order)]) if order > 1 else ((), ())
+    Z_COUNT = len(Z_M) if order <= ROTATE_UNROLL_ORDER else 0
 
     @wp.func
     def sh_eval(d: wp.vec3) -> vec_t:
@@ -295,6 +336,20 @@ def sh_kernels(order: int) -> SHKernels:
         return out
 
     @wp.func
+    def sh_product_unrolled(f: vec_t, g: vec_t, tables: SHTables) -> vec_t:
+        # sh_product as straight-line code (the table's entries in its order: the same sums);
+        # the table is read only above PRODUCT_UNROLL_ORDER.
+        out = vec_t()
+        if wp.static(P_COUNT == 0):
+            out = sh_product(f, g, tables)
+        for e in range(wp.static(P_COUNT)):
+            i = wp.static(P_OUT[e])
+            a = wp.static(P_A[e])
+            b = wp.static(P_B[e])
+            out[i] = out[i] + wp.static(P_W[e]) * (f[a] * g[b] + f[b] * g[a])
+        return out
+
+    @wp.func
     def sh_square(f: vec_t, tables: SHTables) -> vec_t:
         out = vec_t()
         e = int(tables.product_row_start[0])
@@ -309,59 +364,112 @@ def sh_kernels(order: int) -> SHKernels:
         return out
 
     @wp.func
-    def sh_rotate_z(f: vec_t, angle: float) -> vec_t:
-        # Within band l the pair (y_l,m ~ cos(m phi), y_l,-m ~ sin(m phi)) turns by m * angle.
+    def sh_rotate_z_cs(f: vec_t, c1: float, s1: float) -> vec_t:
+        # Rz by the angle whose cosine and sine are (c1, s1). Within band l the pair
+        # (y_l,m ~ cos(m phi), y_l,-m ~ sin(m phi)) turns by m * angle; cos and sin of m * angle
+        # come from the angle-addition recurrence, so no trigonometric call is made.
         out = f
-        for m in range(1, ORDER):
-            c = wp.cos(float(m) * angle)
-            s = wp.sin(float(m) * angle)
-            for l in range(m, ORDER):
-                a = f[l * l + l + m]
-                b = f[l * l + l - m]
-                out[l * l + l + m] = c * a - s * b
-                out[l * l + l - m] = s * a + c * b
+        if wp.static(Z_COUNT > 0):
+            cm = vec_t()
+            sm = vec_t()
+            cm[1] = c1
+            sm[1] = s1
+            for m in range(wp.static(2), wp.static(ORDER)):
+                cm[m] = cm[m - 1] * c1 - sm[m - 1] * s1
+                sm[m] = sm[m - 1] * c1 + cm[m - 1] * s1
+            for e in range(wp.static(Z_COUNT)):
+                p = wp.static(Z_L[e] * Z_L[e] + Z_L[e] + Z_M[e])
+                q = wp.static(Z_L[e] * Z_L[e] + Z_L[e] - Z_M[e])
+                m = wp.static(Z_M[e])
+                out[p] = cm[m] * f[p] - sm[m] * f[q]
+                out[q] = sm[m] * f[p] + cm[m] * f[q]
+        else:
+            c = c1
+            s = s1
+            for m in range(1, ORDER):
+                for l in range(m, ORDER):
+                    a = f[l * l + l + m]
+                    b = f[l * l + l - m]
+                    out[l * l + l + m] = c * a - s * b
+                    out[l * l + l - m] = s * a + c * b
+                cn = c * c1 - s * s1
+                s = s * c1 + c * s1
+                c = cn
         return out
+
+    @wp.func
+    def sh_rotate_z(f: vec_t, angle: float) -> vec_t:
+        return sh_rotate_z_cs(f, wp.cos(angle), wp.sin(angle))
 
     @wp.func
     def sh_rotate_x90(f: vec_t, x90: wp.array(dtype=wp.float32), transpose: int) -> vec_t:
         # Dense per-band product with the constant (2l+1)^2 block of Rx(+90) (or its transpose,
-        # which is the block of Rx(-90)).
+        # which is the block of Rx(-90)); up to ROTATE_UNROLL_ORDER as straight-line code over
+        # the blocks' non-zero entries (x90 is then not read).
         out = vec_t()
-        for l in range(ORDER):
-            dim = 2 * l + 1
-            offset = l * (4 * l * l - 1) // 3
-            row_stride = dim
-            col_stride = 1
-            if transpose != 0:
-                row_stride = 1
-                col_stride = dim
-            for i in range(dim):
-                acc = float(0.0)
-                for j in range(dim):
-                    acc += x90[offset + i * row_stride + j * col_stride] * f[l * l + j]
-                out[l * l + i] = acc
+        if wp.static(X90_COUNT > 0):
+            if transpose == 0:
+                for e in range(wp.static(X90_COUNT)):
+                    out[wp.static(X90_ROWS[e])] = out[wp.static(X90_ROWS[e])] + wp.static(X90_VALS[e]) * f[wp.static(X90_COLS[e])]
+            else:
+                for e in range(wp.static(X90_COUNT)):
+                    out[wp.static(X90_COLS[e])] = out[wp.static(X90_COLS[e])] + wp.static(X90_VALS[e]) * f[wp.static(X90_ROWS[e])]
+        else:
+            for l in range(ORDER):
+                dim = 2 * l + 1
+                offset = l * (4 * l * l - 1) // 3
+                row_stride = dim
+                col_stride = 1
+                if transpose != 0:
+                    row_stride = 1
+                    col_stride = dim
+                for i in range(dim):
+                    acc = float(0.0)
+                    for j in range(dim):
+                        acc += x90[offset + i * row_stride + j * col_stride] * f[l * l + j]
+                    out[l * l + i] = acc
         return out
 
     @wp.func
     def sh_rotate(f: vec_t, r: wp.mat33, tables: SHTables) -> vec_t:
-        # ZYZ Euler angles: R = Rz(alpha) Ry(beta) Rz(gamma); beta from atan2 keeps precision
-        # near the poles, where only alpha + gamma is defined (gamma is then set to 0).
+        # ZYZ Euler angles R = Rz(alpha) Ry(beta) Rz(gamma), taken as (cos, sin) pairs straight
+        # from the matrix entries (alpha = atan2(r12, r02), beta = atan2(sb, r22), gamma =
+        # atan2(r21, -r20)), each pair normalised; near the poles only alpha + gamma is defined
+        # (gamma is then 0).
         sb = wp.sqrt(r[0, 2] * r[0, 2] + r[1, 2] * r[1, 2])
-        beta = wp.atan2(sb, r[2, 2])
-        alpha = wp.atan2(r[1, 2], r[0, 2])
-        gamma = wp.atan2(r[2, 1], -r[2, 0])
+        hb = wp.sqrt(sb * sb + r[2, 2] * r[2, 2])
+        cb = float(1.0)
+        snb = float(0.0)
+        if hb > 0.0:
+            cb = r[2, 2] / hb
+            snb = sb / hb
+        ca = float(1.0)
+        sa = float(0.0)
+        cg = float(1.0)
+        sg = float(0.0)
         if sb < 1.0e-6:
-            gamma = 0.0
-            if r[2, 2] > 0.0:
-                alpha = wp.atan2(r[1, 0], r[0, 0])
-            else:
-                alpha = wp.atan2(-r[1, 0], r[1, 1])
+            x = r[0, 0]
+            y = r[1, 0]
+            if r[2, 2] <= 0.0:
+                x = r[1, 1]
+                y = -r[1, 0]
+            h = wp.sqrt(x * x + y * y)
+            if h > 0.0:
+                ca = x / h
+                sa = y / h
+        else:
+            ca = r[0, 2] / sb
+            sa = r[1, 2] / sb
+            hg = wp.sqrt(r[2, 0] * r[2, 0] + r[2, 1] * r[2, 1])
+            if hg > 0.0:
+                cg = -r[2, 0] / hg
+                sg = r[2, 1] / hg
         # Ry(beta) = Rx(-90) Rz(beta) Rx(90); rotations act right to left.
-        out = sh_rotate_z(f, gamma)
+        out = sh_rotate_z_cs(f, cg, sg)
         out = sh_rotate_x90(out, tables.x90, 0)
-        out = sh_rotate_z(out, beta)
+        out = sh_rotate_z_cs(out, cb, snb)
         out = sh_rotate_x90(out, tables.x90, 1)
-        return sh_rotate_z(out, alpha)
+        return sh_rotate_z_cs(out, ca, sa)
 
     @wp.func
     def sh_load(a: wp.array2d(dtype=wp.float32), row: int) -> vec_t:
@@ -448,6 +556,7 @@ def sh_kernels(order: int) -> SHKernels:
         zh_from_sh_about_axis=sh_zh_from_sh_about_axis,
         scale_bands=sh_scale_bands,
         product=sh_product,
+        product_unrolled=sh_product_unrolled,
         square=sh_square,
         rotate_z=sh_rotate_z,
         rotate=sh_rotate,

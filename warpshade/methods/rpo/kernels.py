@@ -140,7 +140,8 @@ def shade_kernel(order: int, view_order: int, lighting: str = "rotate", cosine: 
     NV = view_order * view_order
     ORDER = order
     vec_t = shk.vec
-    sh_eval, sh_rotate, sh_product, sh_load = shk.eval, shk.rotate, shk.product, shk.load
+    # the straight-line product where the order allows it (same sums, no table reads)
+    sh_eval, sh_rotate, sh_product, sh_load = shk.eval, shk.rotate, shk.product_unrolled, shk.load
     view_eval = svk.eval
     ZH = 1 if lighting == "zh" else 0
     COS_PRODUCT = 1 if cosine == "product" else 0

@@ -211,7 +211,9 @@ class VisibilityPredictStage(FrameStage):
     type_name = "visibility.predict"
     description = ("per-vertex SH visibility in local frames from the frame's pose by the data-driven model "
                    "(pose -> input PCA -> per-cluster model -> PCA basis), with the frames")
-    parameters = {"order": _ORDER}
+    parameters = {"order": _ORDER,
+                  "basis": Param("half", str, "device storage of the per-vertex PCA basis (the bulk of a frame's "
+                                 "memory reads): float16 or float32", choices=kernels.BASIS_PRECISIONS)}
 
     def dims(self):
         return {"C": self.params["order"] ** 2}
@@ -277,8 +279,8 @@ class VisibilityPredictStage(FrameStage):
         self._src, self._len, self._woff = _i32(a["source"], dev), _i32(a["length"], dev), _i32(a["w_offset"], dev)
         self._y = wp.zeros(max(int(a["y_offset"][-1]), 1), dtype=wp.float32, device=dev)
         self._outputs = int(a["y_offset"][-1])
-        self._vmean = wp.array(np.asarray(a["mean"], np.float32), dtype=wp.float32, device=dev)
-        self._basis = wp.array(np.asarray(a["basis"], np.float32), dtype=wp.float32, device=dev)
+        self._recon, self._vmean, self._basis = kernels.reconstruct_setup(a["mean"], a["basis"], dev,
+                                                                          self.params["basis"])
         self._labels, self._comps, self._yoff = _i32(a["labels"], dev), _i32(a["components"], dev), _i32(a["y_offset"], dev)
         v = scene.vertex_count
         self._vis = wp.zeros((v, order * order), dtype=wp.float32, device=dev)
@@ -314,14 +316,15 @@ class VisibilityPredictStage(FrameStage):
         if self._outputs:
             wp.launch(kernels.outputs_kernel, dim=self._outputs, device=dev,
                       inputs=[self._act, self._w2, self._b2, self._src, self._len, self._woff, self._y])
-        launch_parallel(kernels.reconstruct_kernel, self._vis.shape[0],
+        launch_parallel(self._recon, self._vis.shape[0],
                         lambda a, b: [self._vmean, self._basis, self._labels, self._comps, self._yoff, self._y, a,
                                       self._vis], dev, self._workers, min_count=_CHUNK_MIN)
         if self._frame_kind == "cluster":
             wp.launch(kernels.cluster_axes_kernel, dim=self._axes.shape[0], device=dev,
                       inputs=[self._points, self._order, self._offsets, self._fweights, self._rest_axes, self._axes])
-            wp.launch(kernels.cluster_frames_kernel, dim=self._frames.shape[0], device=dev,
-                      inputs=[self._normals, self._labels, self._axes, self._frames])
+            launch_parallel(kernels.cluster_frames_kernel, self._frames.shape[0],
+                            lambda a, b: [self._normals, self._labels, self._axes, a, self._frames], dev, self._workers,
+                            min_count=_CHUNK_MIN)
         else:
             self._tf.compute(self._points, self._normals, out=self._frames)
 
@@ -330,7 +333,9 @@ class VisibilityPredictStage(FrameStage):
         return dict(self._novelty)
 
     def model_bytes(self) -> int:
-        return 4 * self.model.stored_floats()
+        """Bytes of the model on the device: float32 arrays, the basis at its precision."""
+        half = self.params["basis"] == "half"
+        return 4 * self.model.stored_floats() - (2 * int(np.asarray(self.model.arrays["basis"]).size) if half else 0)
 
 
 class _PoseInputs:
