@@ -19,6 +19,7 @@ Usage::
 
     python benchmarks/bench_visibility_frame.py [--graphs figure_visibility,figure_rpo_traced]
         [--before 9fb9145] [--rounds 3] [--frames 48] [--tag quiet]
+    python benchmarks/bench_visibility_frame.py --quick --out DIR   # smoke profile
 """
 
 from __future__ import annotations
@@ -42,15 +43,24 @@ RESULTS = ROOT / "benchmarks" / "results"
 GRAPHS = ("figure_visibility", "figure_rpo_traced", "wanderer_visibility", "wanderer_rpo_traced")
 #: Frames of a traced baseline timed at most (a traced wanderer frame takes about a second).
 TRACED_FRAMES = 8
+#: ``--quick``: the figure's pair in a fresh cache, trained on every 60th frame at 16 rays with one
+#: small network, 3 frames timed, one round, no earlier commit.
+QUICK = {"graphs": "figure_visibility,figure_rpo_traced", "frames": 3,
+         "params": {"visibility.data": {"samples": 16, "frames": "0:600:60"},
+                    "visibility.fit": {"hidden": (4,), "max_iterations": 10},
+                    "rpo.visibility_traced": {"samples": 16}}}
 
 
-def measure(graphs, device: str, frames: int, cache_dir: str | None) -> dict:
+def measure(graphs, device: str, frames: int, cache_dir: str | None, quick: bool = False) -> dict:
     """Median recorded frame and per-stage profile of each graph in this process."""
     from warpshade.graph import load
 
     rows = {}
     for name in graphs:
         spec = load(ROOT / "stages" / f"{name}.toml")
+        if quick:
+            for st in spec.stages:
+                st.params.update(QUICK["params"].get(st.type, {}))
         rt = spec.compile(device=device, progress=False, **({"cache_dir": cache_dir} if cache_dir else {}))
         count = min(frames, TRACED_FRAMES) if name.endswith("_traced") else frames
         sel = [float(rt.scene.frames[i % len(rt.scene.frames)]) for i in range(count)]
@@ -86,7 +96,8 @@ def child(tree: Path, graphs, args) -> dict:
         env = dict(os.environ, PYTHONPATH=str(tree))
         load0 = os.getloadavg()[0]
         cmd = [sys.executable, __file__, "--inner", str(res), "--graphs", ",".join(graphs), "--device", args.device,
-               "--frames", str(args.frames)] + (["--cache", args.cache] if args.cache else [])
+               "--frames", str(args.frames)] + (["--cache", args.cache] if args.cache else []) + \
+            (["--quick-params"] if args.quick else [])
         subprocess.run(cmd, check=True, env=env, cwd=str(ROOT))
         return {"rows": json.loads(res.read_text()), "load": [load0, os.getloadavg()[0]]}
 
@@ -151,14 +162,24 @@ def main(argv=None) -> int:
     ap.add_argument("--cache", default=None, help="artifact cache (default: the user cache, where the graphs' runs put it)")
     ap.add_argument("--tag", default="", help="suffix of the output names")
     ap.add_argument("--out", default=str(RESULTS), help="output directory")
+    ap.add_argument("--quick", action="store_true",
+                    help="smoke profile: the figure's pair, a fresh cache, few training frames and rays, 3 frames")
     ap.add_argument("--inner", default=None, help=argparse.SUPPRESS)  # child process: write rows here
+    ap.add_argument("--quick-params", action="store_true", help=argparse.SUPPRESS)  # child of --quick
     args = ap.parse_args(argv)
+    if args.quick and args.out == str(RESULTS):
+        ap.error("--quick writes only into --out DIR (never benchmarks/results)")
+    own_cache = None
+    if args.quick:
+        args.graphs, args.frames, args.rounds, args.before = QUICK["graphs"], QUICK["frames"], 1, None
+        own_cache = tempfile.TemporaryDirectory(prefix="warpshade-visframe-")
+        args.cache = own_cache.name
     graphs = [g for g in args.graphs.split(",") if g]
     for g in graphs:
         if not (ROOT / "stages" / f"{g}.toml").is_file():
             ap.error(f"--graphs: no stages/{g}.toml")
     if args.inner:
-        Path(args.inner).write_text(json.dumps(measure(graphs, args.device, args.frames, args.cache)))
+        Path(args.inner).write_text(json.dumps(measure(graphs, args.device, args.frames, args.cache, args.quick_params)))
         return 0
     from warpshade._fileio import write_json_atomic
 
@@ -187,11 +208,14 @@ def main(argv=None) -> int:
         extra = f", traced/this {row['traced_over_this']:.1f}x" if "traced_over_this" in row else ""
         sp = f", {result['speedup'][g]:.2f}x faster than {args.before}" if args.before else ""
         print(f"{g:22s} {row['frame_ms']:8.2f} ms ({row['hz']:.0f} Hz){extra}{sp}")
-    stem = f"visibility-frame-{result['meta']['date']}-{args.device.replace(':', '')}" + (f"-{args.tag}" if args.tag else "")
+    stem = f"visibility-frame-{result['meta']['date']}-{args.device.replace(':', '')}" + ("-quick" if args.quick else "") + \
+        (f"-{args.tag}" if args.tag else "")
     out = Path(args.out)
     write_json_atomic(out / f"{stem}.json", result, indent=1)
     chart(result, out / f"{stem}.png")
     print(f"wrote {out / stem}.json and .png")
+    if own_cache is not None:
+        own_cache.cleanup()
     return 0
 
 

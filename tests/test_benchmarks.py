@@ -36,6 +36,9 @@ SLOW = {"bench_datadriven", "bench_rpo", "bench_shexp", "bench_visibility", "ben
 #: bench_sg_svbrdf (minutes on a loaded machine: the dish's SSDF bake and the sky's prefiltered table,
 #: as bench_sg, then the quadrature with ray-traced visibility at 40 pixels).
 SLOW.add("bench_sg_svbrdf")
+#: bench_visibility_frame (a visibility training trace and fit in a fresh cache, then the figure's
+#: frame and its traced baseline).
+SLOW.add("bench_visibility_frame")
 #: Seconds one smoke run may take before it counts as hung.
 TIMEOUT_S = 300
 
