@@ -41,7 +41,7 @@ import numpy as np
 import warpshade.graph as graph
 from warpshade._fileio import write_json_atomic
 from warpshade.geometry.bvh import Visibility
-from warpshade.measure.truth import VALIDATE_SEED, ground_truth, reference_model
+from warpshade.measure import VALIDATE_SEED, ground_truth, reference_model
 from warpshade.methods.sg import decode_maps, shade_f64
 from warpshade.methods.sg.slices import duff_frame_f64
 from warpshade.methods.sg.svbrdf import eq13_quadrature_f64, scene_uvs, svbrdf_slices_f64
