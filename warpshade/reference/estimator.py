@@ -432,7 +432,8 @@ def _estimator_kernel(
     ``points``, ``normals`` (unit), ``tint`` and -- when it is not empty -- ``roughness`` (the
     microfacet alpha replacing ``brdf_uniform.roughness``) are indexed by ``receivers[r]``; with
     an empty ``roughness`` every receiver has ``brdf_uniform`` unchanged; a non-empty ``tangents``
-    gives each receiver the tangent direction of the anisotropic models (world); ``has_eye`` 0
+    gives each receiver the tangent direction of the anisotropic models (world), a non-empty
+    ``texels`` its SVBRDF texel (:func:`~.svbrdf_warp.brdf_with_texel`); ``has_eye`` 0
     evaluates the BRDF with ``v = n`` (``eye`` unused); ``method`` 0 / 1 / 2 = BRDF / light / MIS
     sampling; ``bounces`` > 0 adds one path of that many diffuse bounces per sample point over
     ``surfaces``; ``offset`` (world units) lifts shadow-ray origins along ``n``. Writes

@@ -33,6 +33,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._wp import wp
+from ..methods.sg.brdf import COS_FLOOR
 from ..methods.sg.brdf_warp import fresnel_cook_torrance
 from ..methods.sg.svbrdf import scene_uvs
 from ..methods.sg.svbrdf_material import SVBRDFMaterial
@@ -51,8 +52,8 @@ __all__ = ["SVBRDF_MODEL", "brdf_with_texel", "check_texels", "hit_texels", "sur
 SVBRDF_MODEL = 10
 _SVBRDF = wp.constant(SVBRDF_MODEL)
 _TABULATED = wp.constant(TABULATED_MODEL)
-#: The cosine floor of eq. 13's denominator (:data:`warpshade.methods.sg.brdf.COS_FLOOR`).
-_COS_FLOOR = wp.constant(1.0e-6)
+#: The cosine floor of eq. 13's denominator, as the SG shading's.
+_COS_FLOOR = wp.constant(float(COS_FLOOR))
 _HALF_PI = wp.constant(0.5 * np.pi)
 
 
