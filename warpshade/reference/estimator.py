@@ -48,6 +48,8 @@ environment (BRDF, light or MIS sampling with the balance heuristic, as the rece
 The next-event estimates of every vertex are the same functions as the receiver's direct part,
 so a diffuse and a glossy receiver share one estimator.
 
+A texture of eq.-13 materials (``SVBRDFMaterial``) gives each receiver the BRDF of its texel (per
+vertex at its UV, per point from ``texels``), evaluated and sampled by :mod:`.svbrdf_warp`.
 A tabulated BRDF is shaded one table channel per pass (:func:`~..scene.materials_warp.upload_brdf_passes`,
 same random streams) summed with RGB weights: channel ``c`` of a colour table is its own pass.
 
@@ -79,10 +81,13 @@ from ..geometry.frames import onb_tangent
 from ..scene.lighting import DistantLight, Environment, SphereLight
 from ..scene.lighting_warp import EnvironmentMap, disabled_environment, env_pdf, env_radiance, env_sample, upload_environment
 from ..scene.materials import Lambert
-from ..scene.materials_warp import (ANISOTROPIC_MODELS, BRDF_MODELS, BRDFParams, brdf_eval, brdf_pdf, brdf_sample, brdf_with_roughness,
-                                    brdf_with_tangent, check_roughness, upload_brdf, upload_brdf_passes)
+from ..scene.materials_warp import (ANISOTROPIC_MODELS, BRDF_MODELS, BRDFParams, brdf_with_roughness, brdf_with_tangent,
+                                    check_roughness, upload_brdf)
 from ..transfer.interreflection import check_albedo, check_bounces, hit_corners, hit_weights, interpolate_vec3
 from ..transfer.raytrace import CHUNK_MIN_RAYS, receiver_indices
+from .result import ShadingResult
+from .svbrdf_warp import (brdf_with_texel, check_texels, surface_brdf_eval, surface_brdf_pdf, surface_brdf_sample, surface_texels,
+                          upload_surface_passes)
 
 __all__ = [
     "ESTIMATOR_VERSION",
@@ -215,7 +220,7 @@ def _delta_lights(mesh_id: wp.uint64, origin: wp.vec3, n: wp.vec3, v: wp.vec3, b
             c = wp.dot(n, l)
             if c > 0.0:
                 if not wp.mesh_query_ray_anyhit(mesh_id, origin, l, _RAY_MAX):
-                    fixed += (brdf_eval(brdf, n, v, l) * c) * lights.distant_irradiance[k]
+                    fixed += (surface_brdf_eval(brdf, n, v, l) * c) * lights.distant_irradiance[k]
     return fixed
 
 
@@ -245,9 +250,9 @@ def _sampled_lights(
     for j in range(point_count):
         if env.enabled != 0:
             if method != 1:
-                d = brdf_sample(brdf, n, v, _r2(j, shift_brdf[0], _R2_A1), _r2(j, shift_brdf[1], _R2_A2))
-                f = brdf_eval(brdf, n, v, d) * wp.max(wp.dot(n, d), 0.0)
-                pdf_b = brdf_pdf(brdf, n, v, d)
+                d = surface_brdf_sample(brdf, n, v, _r2(j, shift_brdf[0], _R2_A1), _r2(j, shift_brdf[1], _R2_A2))
+                f = surface_brdf_eval(brdf, n, v, d) * wp.max(wp.dot(n, d), 0.0)
+                pdf_b = surface_brdf_pdf(brdf, n, v, d)
                 if f > 0.0 and pdf_b > 0.0:
                     if not wp.mesh_query_ray_anyhit(mesh_id, origin, d, _RAY_MAX):
                         denom = pdf_b
@@ -263,12 +268,12 @@ def _sampled_lights(
                     _r2(j, shift_env[3], _R2_A2),
                 )
                 d = wp.vec3(s[0], s[1], s[2])
-                f = brdf_eval(brdf, n, v, d) * wp.max(wp.dot(n, d), 0.0)
+                f = surface_brdf_eval(brdf, n, v, d) * wp.max(wp.dot(n, d), 0.0)
                 if f > 0.0 and s[3] > 0.0:
                     if not wp.mesh_query_ray_anyhit(mesh_id, origin, d, _RAY_MAX):
                         denom = s[3]
                         if method == 2:
-                            denom = s[3] + brdf_pdf(brdf, n, v, d)
+                            denom = s[3] + surface_brdf_pdf(brdf, n, v, d)
                         acc += env_radiance(env, d) * (f / denom)
         for k in range(lights.distant_direction.shape[0]):
             cos_half = lights.distant_cos_half[k]
@@ -280,7 +285,7 @@ def _sampled_lights(
                 c = wp.dot(n, d)
                 if c > 0.0:
                     if not wp.mesh_query_ray_anyhit(mesh_id, origin, d, _RAY_MAX):
-                        acc += lights.distant_irradiance[k] * (brdf_eval(brdf, n, v, d) * c)
+                        acc += lights.distant_irradiance[k] * (surface_brdf_eval(brdf, n, v, d) * c)
         for k in range(lights.sphere_position.shape[0]):
             to_centre = lights.sphere_position[k] - origin
             dist = wp.length(to_centre)
@@ -288,10 +293,10 @@ def _sampled_lights(
             u1 = _r2(j, shift_area[0] + 0.414 * float(k + 1), _R2_A1)
             u2 = _r2(j, shift_area[1] + 0.732 * float(k + 1), _R2_A2)
             if dist <= radius:
-                d = brdf_sample(brdf, n, v, u1, u2)
-                pdf_b = brdf_pdf(brdf, n, v, d)
+                d = surface_brdf_sample(brdf, n, v, u1, u2)
+                pdf_b = surface_brdf_pdf(brdf, n, v, d)
                 if pdf_b > 0.0:
-                    acc += lights.sphere_radiance[k] * (brdf_eval(brdf, n, v, d) * wp.max(wp.dot(n, d), 0.0) / pdf_b)
+                    acc += lights.sphere_radiance[k] * (surface_brdf_eval(brdf, n, v, d) * wp.max(wp.dot(n, d), 0.0) / pdf_b)
             else:
                 axis = to_centre / dist
                 sin_a = radius / dist
@@ -305,7 +310,7 @@ def _sampled_lights(
                     t_hit = b - wp.sqrt(wp.max(disc, 0.0))
                     if not wp.mesh_query_ray_anyhit(mesh_id, origin, d, t_hit):
                         solid = 2.0 * wp.pi * (1.0 - cos_a)
-                        acc += lights.sphere_radiance[k] * (brdf_eval(brdf, n, v, d) * c * solid)
+                        acc += lights.sphere_radiance[k] * (surface_brdf_eval(brdf, n, v, d) * c * solid)
     return acc
 
 
@@ -355,9 +360,9 @@ def _indirect_path(
     ``(path_seed, j)``) for the Lambert BRDF about the interpolated shading normal, and, before
     the last bounce, a cosine-sampled continuation (weight ``b cos / p_cos = 1``) goes on.
     """
-    d = brdf_sample(brdf, n, v, u1, u2)
-    f = brdf_eval(brdf, n, v, d) * wp.max(wp.dot(n, d), 0.0)
-    pdf = brdf_pdf(brdf, n, v, d)
+    d = surface_brdf_sample(brdf, n, v, u1, u2)
+    f = surface_brdf_eval(brdf, n, v, d) * wp.max(wp.dot(n, d), 0.0)
+    pdf = surface_brdf_pdf(brdf, n, v, d)
     if f <= 0.0 or pdf <= 0.0:
         return acc
     throughput = wp.vec3(f / pdf)
@@ -387,9 +392,9 @@ def _indirect_path(
         light = _sampled_lights(light, mesh_id, o, ns, ns, surfaces.lambert, env, lights, method, 1, shift_brdf, shift_env, shift_area)
         acc += wp.cw_mul(throughput, light)
         if bounce + 1 < bounces:
-            d = brdf_sample(surfaces.lambert, ns, ns, wp.randf(state), wp.randf(state))
-            f = brdf_eval(surfaces.lambert, ns, ns, d) * wp.max(wp.dot(ns, d), 0.0)
-            pdf = brdf_pdf(surfaces.lambert, ns, ns, d)
+            d = surface_brdf_sample(surfaces.lambert, ns, ns, wp.randf(state), wp.randf(state))
+            f = surface_brdf_eval(surfaces.lambert, ns, ns, d) * wp.max(wp.dot(ns, d), 0.0)
+            pdf = surface_brdf_pdf(surfaces.lambert, ns, ns, d)
             if f <= 0.0 or pdf <= 0.0:
                 break
             throughput = throughput * (f / pdf)
@@ -407,6 +412,7 @@ def _estimator_kernel(
     brdf_uniform: BRDFParams,
     roughness: wp.array(dtype=float),
     tangents: wp.array(dtype=wp.vec3),
+    texels: wp.array(dtype=wp.int32),
     has_eye: int,
     eye: wp.vec3,
     env: EnvironmentMap,
@@ -426,7 +432,8 @@ def _estimator_kernel(
     ``points``, ``normals`` (unit), ``tint`` and -- when it is not empty -- ``roughness`` (the
     microfacet alpha replacing ``brdf_uniform.roughness``) are indexed by ``receivers[r]``; with
     an empty ``roughness`` every receiver has ``brdf_uniform`` unchanged; a non-empty ``tangents``
-    gives each receiver the tangent direction of the anisotropic models (world); ``has_eye`` 0
+    gives each receiver the tangent direction of the anisotropic models (world), a non-empty
+    ``texels`` its SVBRDF texel (:func:`~.svbrdf_warp.brdf_with_texel`); ``has_eye`` 0
     evaluates the BRDF with ``v = n`` (``eye`` unused); ``method`` 0 / 1 / 2 = BRDF / light / MIS
     sampling; ``bounces`` > 0 adds one path of that many diffuse bounces per sample point over
     ``surfaces``; ``offset`` (world units) lifts shadow-ray origins along ``n``. Writes
@@ -452,6 +459,8 @@ def _estimator_kernel(
     brdf = brdf_with_roughness(brdf_uniform, alpha)
     if tangents.shape[0] > 0:
         brdf = brdf_with_tangent(brdf, tangents[vi])
+    if texels.shape[0] > 0:
+        brdf = brdf_with_texel(brdf, texels[vi])
     origin = p + offset * n
     base = int(wp.rand_init(seed, vi))
 
@@ -508,35 +517,6 @@ def _add_pass_kernel(radiance: wp.array(dtype=wp.vec3), stderr: wp.array(dtype=w
     out_stderr[i] = out_stderr[i] + wp.cw_mul(weights, stderr[i])
 
 
-class ShadingResult:
-    """Reference shading of the receivers of one frame (NumPy, host memory).
-
-    Attributes:
-        radiance: outgoing radiance, shape (receiver_count, 3), float32, linear RGB.
-        stderr: its Monte Carlo standard error, shape (receiver_count, 3), float32.
-        vertices: receiver vertex indices (rows), shape (receiver_count,), int64.
-        samples, method, frame, seed: how it was computed.
-        bounces: diffuse bounces of the indirect light included (0: direct light only).
-    """
-
-    def __init__(self, radiance, stderr, vertices, samples, method, frame, seed, bounces: int = 0):
-        self.radiance = radiance
-        self.stderr = stderr
-        self.vertices = vertices
-        self.samples = samples
-        self.method = method
-        self.frame = frame
-        self.seed = seed
-        self.bounces = bounces
-
-    def __array__(self, dtype=None, copy=None):
-        return np.asarray(self.radiance, dtype=dtype)
-
-    def __repr__(self) -> str:
-        bounces = f", bounces={self.bounces}" if self.bounces else ""
-        return f"ShadingResult(receivers={self.radiance.shape[0]}, samples={self.samples}, method={self.method!r}{bounces})"
-
-
 def strategy_index(method: str, methods: tuple[str, ...], caller: str) -> int:
     """The kernel's ``method`` code (0 BRDF, 1 light, 2 MIS sampling) of ``method`` in ``methods``."""
     if method not in methods:
@@ -572,7 +552,7 @@ class MonteCarloShader:
 
     Args:
         scene: the :class:`~warpshade.scene.Scene`.
-        brdf: a :class:`~warpshade.scene.materials.BRDF` applied to every receiver.
+        brdf: a :class:`~warpshade.scene.materials.BRDF` applied to every receiver (an SVBRDF: per texel).
         tint: per-vertex RGB factor ``t``, array-like of shape (vertex_count, 3).
         method: estimator name, one of ``methods`` (BRDF, light and MIS sampling, in that order).
         methods: the caller's names of the three estimators.
@@ -605,6 +585,7 @@ class MonteCarloShader:
             table channel for a tabulated one (:func:`~warpshade.scene.materials_warp.upload_brdf_passes`).
         tint: per-vertex tint, wp.array(vec3), shape (vertex_count,).
         roughness: per-vertex alpha, wp.array(float), shape (vertex_count,), or empty (uniform).
+        texels: an SVBRDF's texel per vertex (flat index), wp.array(int32), or None (other BRDFs).
         radiance, stderr: per-receiver outputs, wp.array(vec3), shape (receiver_count,).
     """
 
@@ -617,7 +598,7 @@ class MonteCarloShader:
         self.method = method
         self.scene = scene
         self.device = resolve_device(device)
-        self.passes = upload_brdf_passes(brdf, self.device)
+        self.passes = upload_surface_passes(brdf, self.device, caller, roughness, tangents)
         self.brdf = self.passes[0][0]
         self.has_eye = 0 if eye is None else 1
         self.eye = wp.vec3(0.0) if eye is None else _vec3(eye, "eye", caller)
@@ -635,6 +616,7 @@ class MonteCarloShader:
         self.tint = wp.array(np.ascontiguousarray(tint), dtype=wp.vec3, device=self.device)
         self._no_roughness = wp.zeros(0, dtype=float, device=self.device)
         self._no_tangents = wp.zeros(0, dtype=wp.vec3, device=self.device)
+        self.texels = surface_texels(brdf, scene, self.device)
         self.roughness = self._no_roughness if roughness is None else self.upload_roughness(roughness, scene.vertex_count, "roughness")
         self._uv_tangents = None
         self.tangents = None
@@ -707,7 +689,7 @@ class MonteCarloShader:
         return wp.array(np.ascontiguousarray(arr, np.float32), dtype=wp.vec3, device=self.device)
 
     def shade_points(self, points, normals, tint, receivers, radiance, stderr, seed=None, roughness=None,
-                     tangents=None) -> None:
+                     tangents=None, texels=None) -> None:
         """Shade arbitrary receivers (e.g. camera hit points) against the current BVH.
 
         With ``bounces > 0`` the paths bounce off the scene as last set by :meth:`update` (or
@@ -728,14 +710,17 @@ class MonteCarloShader:
                 ashikhmin-shirley, beckmann-anisotropic), wp.array(vec3) indexed like ``points``,
                 world (projected on each normal's tangent plane in the kernel); None: the BRDF's
                 own tangent (+x) for every point.
+            texels: an SVBRDF's texel per point (flat index, int, indexed like ``points``; required
+                for it, refused otherwise): :func:`~.svbrdf_warp.check_texels`.
 
         Raises:
-            ValueError: a bad ``roughness`` or ``tangents`` (named), or ``bounces > 0`` before :meth:`update`.
+            ValueError: a bad ``roughness``, ``tangents`` or ``texels`` (named), or ``bounces > 0`` before :meth:`update`.
         """
         lit = self.lighting
         seed = self.seed if seed is None else int(seed)
         if self.bounces > 0 and not self._has_surface_normals:
             raise ValueError("shade_points with bounces > 0 needs the frame's vertex normals: call update(points, normals) first")
+        tex = check_texels(self.brdf, texels, points.shape[0], self.device, self.caller, roughness, tangents)
         if roughness is None:
             rough = self._no_roughness
         elif roughness is self.roughness and roughness.shape[0] == points.shape[0]:
@@ -751,7 +736,7 @@ class MonteCarloShader:
         def launch(brdf, out_radiance, out_stderr):
             def inputs(start, stop):
                 return [
-                    self.bvh.id, points, normals, tint, receivers, start, brdf, rough, tang, self.has_eye, self.eye,
+                    self.bvh.id, points, normals, tint, receivers, start, brdf, rough, tang, tex, self.has_eye, self.eye,
                     lit.environment, lit.lights, self.strategy, self.replicates, self.points_per_replicate, self.bounces,
                     self.surfaces, seed, self.bvh.offset, out_radiance, out_stderr,
                 ]
@@ -783,7 +768,7 @@ class MonteCarloShader:
         if self._uv_tangents is not None:
             self._uv_tangents.compute(points, normals, self.tangents)
         self.shade_points(points, normals, self.tint, self.receivers, self.radiance, self.stderr, roughness=roughness,
-                          tangents=self.tangents)
+                          tangents=self.tangents, texels=self.texels)
 
     def shade(self, frame) -> ShadingResult:
         """Evaluate the scene at ``frame`` (a time code), shade and return host copies."""

@@ -47,6 +47,7 @@ from ..io.images import write_exr
 from ..render import camera_for, interpolate_vertex_values, render_gbuffer, tonemap, write_png
 from .glossy import GLOSSY_METHODS, GlossyReferenceShader
 from .shading import METHODS, ReferenceShader
+from .svbrdf_warp import surface_texels
 
 __all__ = [
     "PARTS",
@@ -369,7 +370,8 @@ def reference_image(scene, frame, brdf, camera=None, width: int = 160, height: i
 
     Args:
         scene: the :class:`~warpshade.scene.Scene`; frame: a time code of ``scene.frames``.
-        brdf: the :class:`~warpshade.scene.materials.BRDF` of the specular part (every surface).
+        brdf: the :class:`~warpshade.scene.materials.BRDF` of the specular part (every surface; a
+            texture of eq.-13 materials, ``SVBRDFMaterial``, is looked up at each hit's UV).
         camera: a :class:`~warpshade.scene.Camera` (default: the scene's, at this frame when it
             moves, else a 3/4 framing of the bounds).
         width, height: image size in pixels; supersample: rays per pixel along each axis.
@@ -430,12 +432,12 @@ def reference_image(scene, frame, brdf, camera=None, width: int = 160, height: i
     receivers_np = np.nonzero(hits.hit)[0].astype(np.int32)
     receivers = wp.array(receivers_np, dtype=wp.int32, device=dev)
 
-    def shade(shader, tint_rays, part_seed, roughness_rays=None, tangent_rays=None):
+    def shade(shader, tint_rays, part_seed, roughness_rays=None, tangent_rays=None, texel_rays=None):
         out_r = wp.zeros(receivers.shape[0], dtype=wp.vec3, device=dev)
         out_s = wp.zeros(receivers.shape[0], dtype=wp.vec3, device=dev)
         if receivers.shape[0] > 0:
             shader.shade_points(gb.position, gb.normal, tint_rays, receivers, out_r, out_s, seed=part_seed,
-                                roughness=roughness_rays, tangents=tangent_rays)
+                                roughness=roughness_rays, tangents=tangent_rays, texels=texel_rays)
         images = []
         for values, rss in ((out_r, 0), (out_s, 1)):
             full = wp.zeros(count, dtype=wp.vec3, device=dev)
@@ -449,7 +451,7 @@ def reference_image(scene, frame, brdf, camera=None, width: int = 160, height: i
     results = {}
     if "specular" in parts:
         tint_rays = wp.array(np.ones((count, 3), np.float32) if tint is None else tint, dtype=wp.vec3, device=dev)
-        results["specular"] = shade(glossy, tint_rays, int(seed), rough, tangent_rays)
+        results["specular"] = shade(glossy, tint_rays, int(seed), rough, tangent_rays, surface_texels(brdf, scene, dev, gb))
     if "diffuse" in parts:
         diffuse = ReferenceShader(scene, lighting, samples, METHODS[GLOSSY_METHODS.index(method)], dev, int(seed) + DIFFUSE_SEED_OFFSET,
                                   vertices=[0], workers=workers)

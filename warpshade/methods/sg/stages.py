@@ -43,7 +43,7 @@ CPU_CHUNK_MIN = 2048
 #: tangent frame (anisotropic Ward with ``roughness_y``, Ashikhmin-Shirley; :mod:`.lobes_warp`).
 BRDF_MODELS = tuple(MODEL_IDS) + ("ashikhmin-shirley", "tabulated-ndf", "svbrdf")
 #: BRDF models the glossy reference can shade (what ``--validate`` accepts for the specular term).
-VALIDATED_MODELS = ("beckmann", "blinn-phong", "ward", "ashikhmin-shirley", "tabulated-ndf")
+VALIDATED_MODELS = ("beckmann", "blinn-phong", "ward", "ashikhmin-shirley", "tabulated-ndf", "svbrdf")
 #: Specular of narrow lights: the exact BRDF at the light ("brdf") or the paper's SG product ("sg").
 NARROW_LIGHT_MODES = ("brdf", "sg")
 #: A light lobe this many times sharper than the BRDF slice counts as narrow.
@@ -343,6 +343,7 @@ class SgShadeStage(FrameStage):
         try:
             self.svbrdf = read_and_fit(path, p["lobes"], p["ndf_error_budget"], p["max_lobes"], p["shadow_error_budget"],
                                        p["shadow_max_terms"])
+            self.measured_path = path  # the reference's material (_reference_table)
         except (OSError, ValueError) as exc:
             raise StageError(f"stage {self.name!r}: {exc}") from None
 
@@ -750,7 +751,7 @@ class SgShadeStage(FrameStage):
             return None
         textured = p["textures"] and not per_pixel
         multi = self.multi_lobe_model()
-        if p["brdf"] == "tabulated-ndf":
+        if p["brdf"] in ("tabulated-ndf", "svbrdf"):
             brdf, multi = self._reference_table(), None
         elif multi is not None:
             brdf = _exact_brdf(*multi)
@@ -771,15 +772,16 @@ class SgShadeStage(FrameStage):
         return model
 
     def _reference_table(self):
-        """brdf = 'tabulated-ndf': the table itself (:func:`.measured.reference_table`)."""
+        """The file itself: the table (:func:`.measured.reference_table`) or the SVBRDF (:func:`.svbrdf_material.svbrdf_material`)."""
         from .measured import reference_table
+        from .svbrdf_material import svbrdf_material
 
         if self.measured_path is None:
-            raise StageError(f"stage {self.name!r}: brdf = 'tabulated-ndf' is read from its table at set-up")
+            raise StageError(f"stage {self.name!r}: brdf = {self.params['brdf']!r} is read from its file at set-up")
         try:
-            return reference_table(self.measured_path)
+            return (svbrdf_material if self.params["brdf"] == "svbrdf" else reference_table)(self.measured_path)
         except (OSError, ValueError) as exc:
-            raise StageError(f"stage {self.name!r}: table {str(self.measured_path)!r}: {exc}") from None
+            raise StageError(f"stage {self.name!r}: {str(self.measured_path)!r}: {exc}") from None
 
     def diagnostics(self) -> dict:
         out = {"ssdf_terms": int(self.model.coeffs.shape[1]), "ssdf_resolution": int(self.model.resolution),
