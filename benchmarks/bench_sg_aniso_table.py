@@ -13,6 +13,12 @@ per pixel, the same UV tangents at each hit):
   anisotropic Beckmann with Smith masking): the SG image against it, and the table's reference
   against it (what the table's resolution alone costs).
 
+The same stage with the analytic model's own eq.-13 factors instead of the extracted ones (the model
+through the same SG path, as far as eq. 13 can hold it: ``D = pi D_B / 4`` on the table's (theta_h,
+phi_h) cells, ``S`` the model's Smith factor averaged over the azimuth, the Fresnel index whose
+normal reflectance is the model's f0) against the analytic model's reference: what the SG shading
+costs when nothing is extracted.
+
 Isotropic approximations of the same material: the same stage with the extracted NDF replaced by an
 isotropic one -- its azimuthal average (the L2-closest isotropic NDF), and normalised isotropic
 Beckmann NDFs of slope ``a`` for a sweep of ``a`` between the two slopes of the model (geometric
@@ -82,6 +88,23 @@ def isotropic_variants(m, slopes):
         iso = dataclasses.replace(iso, ndf_values=iso.ndf_values * area / projected_area(iso), _fits={})
         out.append((f"Beckmann {a:.3f}", iso))
     return out
+
+
+def analytic_factors(m):
+    """The analytic model's eq.-13 factors on the grid of the extraction ``m`` (module docstring)."""
+    from warpshade.methods.sg.brdf import eta_from_f0
+
+    model = aniso_model()
+    tt, pp = np.meshgrid(m.theta_h, m.phi_h, indexing="ij")
+    h = np.stack([np.sin(tt) * np.cos(pp), np.sin(tt) * np.sin(pp), np.cos(tt)], -1)
+    phi = (np.arange(360) + 0.5) * 2 * np.pi / 360
+    th = np.minimum(m.theta, 0.5 * np.pi - 1e-6)
+    w = np.stack([np.sin(th)[:, None] * np.cos(phi), np.sin(th)[:, None] * np.sin(phi),
+                  np.broadcast_to(np.cos(th)[:, None], (th.size, phi.size))], -1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        shadow = np.mean(1.0 / (1.0 + np.nan_to_num(model._lambda(w))), axis=1)
+    return dataclasses.replace(m, ndf_values=0.25 * np.pi * model._d(h), shadow=np.clip(shadow, 0.0, 1.0),
+                               eta=float(eta_from_f0(model.f0)), _fits={})
 
 
 def render_with(spec, scene, device, material, frame, w, h):
@@ -155,8 +178,17 @@ def main(argv=None):
     print(f"anisotropic SG from the table: dish rel RMS {result['rel_rms_dish']:.4f} vs the table's reference (noise "
           f"{result['reference_noise_dish']:.4f}), {result['vs_analytic_rel_rms_dish']:.4f} vs the analytic model's; the "
           f"table's reference vs the model's {result['table_reference_vs_analytic_reference_dish']:.4f}", flush=True)
-    iso, best = [], None
     scene = rt.scene
+    exact_im, exact_lobes = render_with(spec, scene, args.device, analytic_factors(st.measured), frame, args.width,
+                                        args.height)
+    result["analytic_factors"] = {"rel_rms_dish_vs_analytic": rel_rms(exact_im.linear, ana, mask),
+                                  "rel_rms_all_vs_analytic": rel_rms(exact_im.linear, ana, covered),
+                                  "rel_rms_dish_vs_table": rel_rms(exact_im.linear, ref.radiance, mask),
+                                  "ndf_lobes": exact_lobes}
+    print(f"SG with the analytic model's eq.-13 factors: dish rel RMS "
+          f"{result['analytic_factors']['rel_rms_dish_vs_analytic']:.4f} vs the analytic model's reference "
+          f"({exact_lobes['lobes'] if exact_lobes else '?'} lobes)", flush=True)
+    iso, best = [], None
     for name, material in isotropic_variants(st.measured, np.geomspace(ANISO_ROUGHNESS, ANISO_ROUGHNESS_Y, sweep)):
         iso_im, lobes = render_with(spec, scene, args.device, material, frame, args.width, args.height)
         row = {"ndf": name, "rel_rms_dish": rel_rms(iso_im.linear, ref.radiance, mask),

@@ -37,8 +37,13 @@ STORAGE_RTOL = 1e-6
 PDF_INTEGRAL_TOL = 2e-3
 #: The reference over the bundled table ("linear", 24 x 24 x 48 x 12) against the one over the
 #: analytic model, relative to the largest radiance: the table's reconstruction error integrated
-#: under the sky (measured below 1.5 %), beside the combined standard errors.
-TABLE_DISCRETISATION_RTOL = 0.03
+#: under the sky, beside the combined standard errors. Measured at 16384 spp per vertex: 0.033 (tangent
+#: +x) and 0.042 (diagonal), 9-14 standard errors there, so a floor, not noise (the look-up's relative
+#: RMS over random direction pairs is 0.052, usd_assets/generator/aniso_table.py).
+TABLE_DISCRETISATION_RTOL = 0.05
+#: Turning the tangent a quarter turn changes the floor's reference by more than this, relative to its
+#: largest radiance (measured 0.68 and 0.88): the tangent frames are honoured.
+TANGENT_EFFECT = 0.3
 #: Eq. 13 extraction of an exact eq.-13 table (anisotropic Beckmann D, Smith S of slope 0.35, which is
 #: exactly 1 below 61 degrees, so the scale convention holds): D relative to itself over the cells above
 #: 5 % of the peak, S below 75 degrees. Measured 0.073 and 0.032: the second-difference penalty on log S
@@ -203,6 +208,8 @@ def test_reference_over_the_table_matches_the_analytic_model(device):
         assert np.all(res.stderr > 0)
         assert_within_stderr(res.radiance, ref.radiance, np.hypot(res.stderr, ref.stderr),
                              floor=TABLE_DISCRETISATION_RTOL * ref.radiance.max(), what=f"table vs model, tangent {tangent}")
+        turned = shade_glossy(scene, 0.0, table, eye=EYE, samples=256, device=device, tangents=(-tangent[1], tangent[0], 0.0))
+        assert np.abs(turned.radiance - res.radiance).max() > TANGENT_EFFECT * res.radiance.max()
 
 
 # ---- eq. 13 ---------------------------------------------------------------------------------------

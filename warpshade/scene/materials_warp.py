@@ -37,7 +37,8 @@ three sizes and the interpolation). The angles come from world vectors: ``theta_
 probability ``f0`` a GGX half vector of alpha ``roughness`` (a fit of the table's specular peak,
 :func:`table_lobe`) reflected about ``h``, else the cosine lobe; the pdf is the mixture's, positive
 wherever the table can be, so every estimator stays unbiased whatever the fit.
-:func:`upload_brdf_passes` splits a colour table into one device BRDF per channel.
+:func:`upload_brdf_passes` splits a colour table into one device BRDF per channel. Tabulated anisotropic
+BRDFs (model ``tabulated-anisotropic``, code 9) are :mod:`~warpshade.scene.tabulated_aniso_warp`'s.
 
 Spatially varying microfacet roughness: :func:`brdf_with_roughness` is a copy of a
 :class:`BRDFParams` with its ``roughness`` replaced (a per-receiver value read from an array),

@@ -64,6 +64,7 @@ __all__ = [
     "aniso_indices",
     "is_anisotropic_table",
     "read_anisotropic_table",
+    "table_lookup",
     "tabulate_anisotropic",
     "write_anisotropic_table",
 ]
@@ -181,10 +182,10 @@ class AnisotropicTable(BRDF):
         return np.where(np.any(t < 0.0, axis=0), -1.0, lum)
 
     def _eval(self, v, s):
-        return lookup(self.scalar_table(), self.interpolation, v, s)
+        return table_lookup(self.scalar_table(), self.interpolation, v, s)
 
 
-def lookup(table: np.ndarray, interpolation: str, v, s) -> np.ndarray:
+def table_lookup(table: np.ndarray, interpolation: str, v, s) -> np.ndarray:
     """One-channel look-up of unit local directions (broadcast), float64 (the horizon is not tested here)."""
     theta_h, phi_h, theta_d, phi_d = _half_diff(*np.broadcast_arrays(v, s))
     dims = table.shape

@@ -7,7 +7,7 @@ direction (world; projected on the tangent plane of ``n``, an orthonormal-basis 
 parallel to ``n``, as :func:`warpshade.scene.materials_warp.tangent_frame`): the local ``v`` and
 ``s`` give the half/difference angles exactly as the float64 mirror does
 (:func:`warpshade.scene.tabulated._half_diff`), looked up "nearest" or "linear"
-(:func:`warpshade.scene.tabulated_aniso.lookup`, here in float32).
+(:func:`warpshade.scene.tabulated_aniso.table_lookup`, here in float32).
 
 Sampling (:func:`aniso_table_sample`): a mixture, with probability ``weight`` a half vector from an
 anisotropic Beckmann slope distribution fitted to the table's specular peak (:func:`table_lobe_aniso`;

@@ -185,14 +185,14 @@ def extract_anisotropic(table: np.ndarray, eta: float = 1.33, shadow_knots: int 
     pr, pc, pv = [], [], []
     r = 0
     second = ((0, 1.0), (1, -2.0), (2, 1.0))
-    for jcol in range(n_ph):  # log D along theta_h, per phi_h column
-        for k in range(n_th - 2):
-            for off, v in second:
-                pr.append(r), pc.append((k + off) * n_ph + jcol), pv.append(D_SMOOTHING * lam * v)
-            r += 1
-    for k in range(shadow_knots - 3):  # log S (unknowns nd .. nd + knots - 2 stand for knots 1..)
-        for off, v in second:
-            pr.append(r), pc.append(nd + k + off), pv.append(lam * v)
+    # log D along theta_h, per phi_h column; log S (unknowns nd .. nd + knots - 2 stand for knots 1..)
+    triples = [([(k + off) * n_ph + jcol for off, _ in second], D_SMOOTHING) for jcol in range(n_ph) for k in range(n_th - 2)]
+    triples += [([nd + k + off for off, _ in second], 1.0) for k in range(shadow_knots - 3)]
+    for cols3, strength in triples:
+        for c, (_, v) in zip(cols3, second):
+            pr.append(r)
+            pc.append(c)
+            pv.append(strength * lam * v)
         r += 1
     pen = coo_matrix((pv, (pr, pc)), shape=(r, m)).tocsr()
     normal = (a.T @ a + pen.T @ pen).toarray()
