@@ -310,7 +310,7 @@ class SgShadeStage(FrameStage):
         return None
 
     def _read_measured(self, ctx) -> None:
-        """brdf = 'tabulated-ndf': eq. 13's D and S extracted from ``table`` (:mod:`.measured`)."""
+        """brdf = 'tabulated-ndf' or 'tabulated-aniso': eq. 13's D and S from ``table`` (:mod:`.measured`, :mod:`.measured_aniso`)."""
         from .measured_aniso import stage_material
 
         p = self.params
@@ -319,7 +319,7 @@ class SgShadeStage(FrameStage):
         if p["brdf"] not in ("tabulated-ndf", "tabulated-aniso"):
             return
         if p["table"] is None:
-            raise StageError(f"stage {self.name!r}: brdf = 'tabulated-ndf' needs 'table' (a MERL-layout file)")
+            raise StageError(f"stage {self.name!r}: brdf = {p['brdf']!r} needs 'table' (a MERL-layout or .anisobrdf file)")
         path = ctx.resolve_path(p["table"])
         try:
             self.measured = stage_material(p["brdf"], path, p["eta"])

@@ -22,8 +22,9 @@ Modules: :mod:`.writing` (stages, meshes, ground, camera, rounding, saving), :mo
 describes it: :mod:`.blockers`, :mod:`.figure` (``figure``, ``figure_train``, ``figure_walk``),
 :mod:`.figure_orbit`, :mod:`.cloth`, :mod:`.cloth_clips` (``cloth_train``, ``cloth_heldout``), :mod:`.bend`,
 :mod:`.wanderer` (``wanderer_train``, ``wanderer_test``), :mod:`.ripples`, :mod:`.sunlit`, :mod:`.dish`, :mod:`.measured`
-(a MERL-layout table, not a USD scene), :mod:`.aniso_table` (``aniso_table``: an anisotropic table in
-warpshade's own layout, :mod:`warpshade.scene.tabulated_aniso`; not a USD scene).
+(a MERL-layout table, not a USD scene), :mod:`.aniso_table` (``--scenes aniso_table``: an anisotropic
+table in warpshade's own layout, :mod:`warpshade.scene.tabulated_aniso`; not a USD scene; its
+reproduction is tested in ``tests/test_aniso_table.py``).
 
 Output is deterministic: coordinates, weights and quaternions are rounded to 1e-4 (camera
 matrices to 1e-6) before they are written, so the files only change when the generator changes;
@@ -56,10 +57,10 @@ from .sunlit import make_sunlit
 from .svbrdf import make_svbrdf
 from .wanderer import make_wanderer_test, make_wanderer_train
 
-#: The scenes written by default (``ripples``, ``sunlit``, ``cloth_train``, ``cloth_heldout`` and the
-#: SVBRDF texture ``svbrdf`` are written on request).
+#: The scenes written by default (``ripples``, ``sunlit``, ``cloth_train``, ``cloth_heldout``, the
+#: SVBRDF texture ``svbrdf`` and the anisotropic table ``aniso_table`` are written on request).
 SCENES = ("blockers", "figure", "figure_train", "figure_walk", "figure_orbit", "cloth", "bend", "wanderer_train", "wanderer_test",
-          "dish", "measured", "aniso_table")
+          "dish", "measured")
 
 #: Scene name -> the function that writes it into a directory (returns the written path(s)).
 MAKERS = {
