@@ -37,7 +37,8 @@ three sizes and the interpolation). The angles come from world vectors: ``theta_
 probability ``f0`` a GGX half vector of alpha ``roughness`` (a fit of the table's specular peak,
 :func:`table_lobe`) reflected about ``h``, else the cosine lobe; the pdf is the mixture's, positive
 wherever the table can be, so every estimator stays unbiased whatever the fit.
-:func:`upload_brdf_passes` splits a colour table into one device BRDF per channel.
+:func:`upload_brdf_passes` splits a colour table into one device BRDF per channel. Tabulated anisotropic
+BRDFs (model ``tabulated-anisotropic``, code 9) are :mod:`~warpshade.scene.tabulated_aniso_warp`'s.
 
 Spatially varying microfacet roughness: :func:`brdf_with_roughness` is a copy of a
 :class:`BRDFParams` with its ``roughness`` replaced (a per-receiver value read from an array),
@@ -51,6 +52,7 @@ import numpy as np
 
 from .._wp import wp
 from . import materials
+from .tabulated_aniso_warp import ANISO_TABLE_MODEL, aniso_table_eval, aniso_table_pdf, aniso_table_sample
 
 __all__ = [
     "ANISOTROPIC_MODELS",
@@ -76,11 +78,11 @@ wp.set_module_options({"enable_backward": False})
 
 #: Model codes of :class:`BRDFParams` (``model`` field), in this order.
 BRDF_MODELS = ("lambert", "phong", "blinn-phong", "ggx", "beckmann", "ward", "ashikhmin-shirley", "beckmann-anisotropic",
-               "tabulated")
+               "tabulated", "tabulated-anisotropic", "svbrdf")
 #: Model code of a tabulated BRDF (one channel of a MERL-layout table).
 TABULATED_MODEL = 8
 #: Model codes evaluated in a tangent frame (``roughness``/``roughness_y`` or ``exponent``/``exponent_y``).
-ANISOTROPIC_MODELS = (5, 6, 7)
+ANISOTROPIC_MODELS = (5, 6, 7, ANISO_TABLE_MODEL)
 #: Model codes whose ``roughness`` (microfacet alpha) a per-receiver array may override.
 ROUGH_MODELS = (3, 4)
 #: Valid microfacet alpha, as :class:`~warpshade.scene.materials.Microfacet` accepts it: (0, 2].
@@ -132,8 +134,9 @@ def upload_brdf(brdf: materials.BRDF, device=None) -> BRDFParams:
             "rgb"``: :func:`upload_brdf_passes` gives one BRDF per channel).
     """
     from .tabulated import TabulatedBRDF
+    from .tabulated_aniso import AnisotropicTable
 
-    if isinstance(brdf, TabulatedBRDF):
+    if isinstance(brdf, (TabulatedBRDF, AnisotropicTable)):
         passes = upload_brdf_passes(brdf, device)
         if len(passes) != 1:
             raise ValueError(f"upload_brdf: the table {brdf.source} is shaded per channel (channel {brdf.channel!r}); "
@@ -176,8 +179,9 @@ def check_reference_brdf(brdf) -> None:
     shades: the models of :data:`BRDF_MODELS` and tabulated BRDFs), from the host alone: an
     analytic BRDF's :func:`upload_brdf` touches no device."""
     from .tabulated import TabulatedBRDF
+    from .tabulated_aniso import AnisotropicTable
 
-    if isinstance(brdf, TabulatedBRDF):
+    if isinstance(brdf, (TabulatedBRDF, AnisotropicTable)):
         return
     try:
         upload_brdf(brdf)
@@ -272,7 +276,11 @@ def upload_brdf_passes(brdf: materials.BRDF, device=None) -> list[tuple[BRDFPara
     Each table pass has its own sampling lobe (:func:`table_lobe`)."""
     from .._wp import resolve_device
     from .tabulated import TabulatedBRDF
+    from .tabulated_aniso import AnisotropicTable
+    from .tabulated_aniso_warp import upload_aniso_table
 
+    if isinstance(brdf, AnisotropicTable):  # tabulated anisotropic: one pass (tabulated_aniso_warp)
+        return upload_aniso_table(brdf, device)
     if not isinstance(brdf, TabulatedBRDF):
         return [(upload_brdf(brdf), np.ones(3))]
     dev = resolve_device(device)
@@ -626,6 +634,8 @@ def brdf_eval(b: BRDFParams, n: wp.vec3, v: wp.vec3, s: wp.vec3) -> float:
     if b.model >= 5:
         if b.model == 8:
             return _tabulated_eval(b, n, v, s)
+        if b.model == ANISO_TABLE_MODEL:
+            return aniso_table_eval(b.table, b.table_dims, b.exponent, b.tangent, n, v, s)
         return _anisotropic_eval(b, n, v, s)
     h = v + s
     hl = wp.length(h)
@@ -687,6 +697,8 @@ def brdf_sample(b: BRDFParams, n: wp.vec3, v: wp.vec3, u1: float, u2: float) -> 
     if b.model >= 5:
         if b.model == 8:
             return _tabulated_sample(b, n, v, u1, u2)
+        if b.model == ANISO_TABLE_MODEL:
+            return aniso_table_sample(b.roughness, b.roughness_y, b.f0, b.tangent, n, v, u1, u2)
         ha = _anisotropic_half(b, n, u1, u2)
         return wp.normalize(2.0 * wp.dot(v, ha) * ha - v)
     h = _about(n, _half_cos(b, u1), phi)
@@ -715,6 +727,8 @@ def brdf_pdf(b: BRDFParams, n: wp.vec3, v: wp.vec3, s: wp.vec3) -> float:
         # the horizon of a viewer above it), so it may branch here, off the analytic models' path
         if b.model == 8:
             return _tabulated_pdf(b, n, v, s)
+        if b.model == ANISO_TABLE_MODEL:
+            return aniso_table_pdf(b.roughness, b.roughness_y, b.f0, b.tangent, n, v, s)
         return _anisotropic_half_pdf(b, n, h) / (4.0 * vh)
     return _half_pdf(b, wp.dot(n, h)) / (4.0 * vh)
 

@@ -33,17 +33,15 @@ from .lobes_warp import LOBE_MODELS
 from .model import (SUN_MODES, EnvironmentLighting, bake_ssdf_model, decode_maps, empty_table, environment_hash,
                     environment_lighting, remember)
 
-__all__ = [
-    "SgEnvironmentStage",
-]
+__all__ = ["SgEnvironmentStage"]
 
 #: Receivers per CPU chunk below which a launch is not split over cores.
 CPU_CHUNK_MIN = 2048
 #: BRDF models of the per-point kernels: isotropic single-lobe NDFs, and fitted NDF lobes in a
 #: tangent frame (anisotropic Ward with ``roughness_y``, Ashikhmin-Shirley; :mod:`.lobes_warp`).
-BRDF_MODELS = tuple(MODEL_IDS) + ("ashikhmin-shirley", "tabulated-ndf", "svbrdf")
+BRDF_MODELS = tuple(MODEL_IDS) + ("ashikhmin-shirley", "tabulated-ndf", "svbrdf", "tabulated-aniso")
 #: BRDF models the glossy reference can shade (what ``--validate`` accepts for the specular term).
-VALIDATED_MODELS = ("beckmann", "blinn-phong", "ward", "ashikhmin-shirley", "tabulated-ndf", "svbrdf")
+VALIDATED_MODELS = ("beckmann", "blinn-phong", "ward") + BRDF_MODELS[-4:]
 #: Specular of narrow lights: the exact BRDF at the light ("brdf") or the paper's SG product ("sg").
 NARROW_LIGHT_MODES = ("brdf", "sg")
 #: A light lobe this many times sharper than the BRDF slice counts as narrow.
@@ -52,7 +50,7 @@ NARROW_LIGHT_RATIO = 8.0
 #: slopes past 2 are no longer a lobe and overflow the float32 lobes (Beckmann alpha 100 shaded
 #: inf, 1e30 NaN); Blinn-Phong exponents past 1e6 are a mirror (measured finite to 1e10, NaN at 1e30).
 ROUGHNESS_MAX = {"beckmann": 2.0, "cook-torrance": 2.0, "ward": 2.0, "blinn-phong": 1e6, "ashikhmin-shirley": 2.0,
-                 "tabulated-ndf": 2.0, "svbrdf": 2.0}
+                 "tabulated-ndf": 2.0, "svbrdf": 2.0, "tabulated-aniso": 2.0}
 #: The exact models of the "brdf" mode: codes of warpshade.scene.materials_warp.BRDF_MODELS.
 EXACT_MODEL_CODES = {"beckmann": 4, "blinn-phong": 2}
 
@@ -168,8 +166,8 @@ MULTI_LOBE_PARAMS = {
                      "UVs, per frame) or 'direction' (tangent_direction projected on each tangent plane)",
                      choices=("uv", "direction")),
     "tangent_direction": Param(None, tuple, "world direction of tangent = 'direction'"),
-    "table": Param(None, str, "tabulated-ndf: a measured isotropic BRDF in the MERL binary layout (relative to the "
-                   "graph, or bundled:NAME); its NDF and shadowing are extracted by eq. 13 (sec. 4.2)"),
+    "table": Param(None, str, "a measured BRDF: MERL layout (tabulated-ndf), .anisobrdf (tabulated-aniso); relative to "
+                   "the graph, or bundled:NAME; its NDF and shadowing are extracted by eq. 13 (sec. 4.2)"),
     "eta": Param(1.33, float, "tabulated-ndf: index of refraction of eq. 14's Fresnel factor", minimum=1.0001, maximum=10.0),
     "texture": Param(None, str, "svbrdf: a texture of eq.-13 materials (.svbrdf, methods/sg/svbrdf.py; relative to the "
                      "graph, or bundled:NAME), looked up at the meshes' UVs; per-texel NDFs fitted with SG lobes, "
@@ -303,26 +301,26 @@ class SgShadeStage(FrameStage):
             return "ward", {"alpha_x": float(p["roughness"]), "alpha_y": float(p["roughness_y"])}
         if p["brdf"] == "ashikhmin-shirley":
             return "ashikhmin-shirley", {"nu": float(p["nu"]), "nv": float(p["nv"]), "rs": float(p["rs"])}
-        if p["brdf"] == "tabulated-ndf":
+        if p["brdf"] in ("tabulated-ndf", "tabulated-aniso"):
             if getattr(self, "measured", None) is None:
                 raise StageError(f"stage {self.name!r}: brdf = 'tabulated-ndf' is read from its table at set-up")
             return "tabulated-ndf", self.measured.parameters()
         return None
 
     def _read_measured(self, ctx) -> None:
-        """brdf = 'tabulated-ndf': eq. 13's D and S extracted from ``table`` (:mod:`.measured`)."""
-        from .measured import measured_material
+        """brdf = 'tabulated-ndf' or 'tabulated-aniso': eq. 13's D and S from ``table`` (:mod:`.measured`, :mod:`.measured_aniso`)."""
+        from .measured_aniso import stage_material
 
         p = self.params
         self.measured = None
         self.measured_path = None
-        if p["brdf"] != "tabulated-ndf":
+        if p["brdf"] not in ("tabulated-ndf", "tabulated-aniso"):
             return
         if p["table"] is None:
-            raise StageError(f"stage {self.name!r}: brdf = 'tabulated-ndf' needs 'table' (a MERL-layout file)")
+            raise StageError(f"stage {self.name!r}: brdf = {p['brdf']!r} needs 'table' (a MERL-layout or .anisobrdf file)")
         path = ctx.resolve_path(p["table"])
         try:
-            self.measured = measured_material(path, eta=p["eta"])
+            self.measured = stage_material(p["brdf"], path, p["eta"])
             self.measured_path = path
         except (OSError, ValueError) as exc:
             raise StageError(f"stage {self.name!r}: table {str(path)!r}: {exc}") from None
@@ -367,6 +365,8 @@ class SgShadeStage(FrameStage):
         from .ndf import fit_model_ndf, ndf_lobes
 
         p = self.params
+        if p["brdf"] == "tabulated-aniso":  # a 2-D NDF extracted from the table (.measured_aniso)
+            return self.measured.fit_lobes(p["lobes"], p["ndf_error_budget"], p["max_lobes"])
         if getattr(microfacet_brdf(model, **params), "isotropic", False):
             mix = ndf_lobes(model, **params)
             return mix, {"model": model, "lobes": 1, "fit_error": None, "closed_form": True}
@@ -751,8 +751,8 @@ class SgShadeStage(FrameStage):
             return None
         textured = p["textures"] and not per_pixel
         multi = self.multi_lobe_model()
-        if p["brdf"] in ("tabulated-ndf", "svbrdf"):
-            brdf, multi = self._reference_table(), None
+        if p["brdf"] in ("tabulated-ndf", "svbrdf", "tabulated-aniso"):
+            brdf, multi = self._reference_table(), (multi if p["brdf"] == "tabulated-aniso" else None)
         elif multi is not None:
             brdf = _exact_brdf(*multi)
         elif p["brdf"] == "beckmann":
@@ -772,14 +772,13 @@ class SgShadeStage(FrameStage):
         return model
 
     def _reference_table(self):
-        """The file itself: the table (:func:`.measured.reference_table`) or the SVBRDF (:func:`.svbrdf_material.svbrdf_material`)."""
-        from .measured import reference_table
-        from .svbrdf_material import svbrdf_material
+        """The file itself: a table, an anisotropic table or an SVBRDF (:func:`.measured_aniso.stage_reference_table`)."""
+        from .measured_aniso import stage_reference_table
 
         if self.measured_path is None:
             raise StageError(f"stage {self.name!r}: brdf = {self.params['brdf']!r} is read from its file at set-up")
         try:
-            return (svbrdf_material if self.params["brdf"] == "svbrdf" else reference_table)(self.measured_path)
+            return stage_reference_table(self.params["brdf"], self.measured_path)
         except (OSError, ValueError) as exc:
             raise StageError(f"stage {self.name!r}: {str(self.measured_path)!r}: {exc}") from None
 

@@ -22,7 +22,9 @@ Modules: :mod:`.writing` (stages, meshes, ground, camera, rounding, saving), :mo
 describes it: :mod:`.blockers`, :mod:`.figure` (``figure``, ``figure_train``, ``figure_walk``),
 :mod:`.figure_orbit`, :mod:`.cloth`, :mod:`.cloth_clips` (``cloth_train``, ``cloth_heldout``), :mod:`.bend`,
 :mod:`.wanderer` (``wanderer_train``, ``wanderer_test``), :mod:`.ripples`, :mod:`.sunlit`, :mod:`.dish`, :mod:`.measured`
-(a MERL-layout table, not a USD scene).
+(a MERL-layout table, not a USD scene), :mod:`.aniso_table` (``--scenes aniso_table``: an anisotropic
+table in warpshade's own layout, :mod:`warpshade.scene.tabulated_aniso`; not a USD scene; its
+reproduction is tested in ``tests/test_aniso_table.py``).
 
 Output is deterministic: coordinates, weights and quaternions are rounded to 1e-4 (camera
 matrices to 1e-6) before they are written, so the files only change when the generator changes;
@@ -46,6 +48,7 @@ from .cloth import make_cloth
 from .cloth_clips import make_cloth_heldout, make_cloth_train
 from .dish import make_dish
 from .measured import make_measured
+from .aniso_table import make_aniso_table
 from .figure import make_figure, make_figure_train, make_figure_walk
 from .figure_orbit import make_figure_orbit
 from .ripples import make_ripples
@@ -54,8 +57,8 @@ from .sunlit import make_sunlit
 from .svbrdf import make_svbrdf
 from .wanderer import make_wanderer_test, make_wanderer_train
 
-#: The scenes written by default (``ripples``, ``sunlit``, ``cloth_train``, ``cloth_heldout`` and the
-#: SVBRDF texture ``svbrdf`` are written on request).
+#: The scenes written by default (``ripples``, ``sunlit``, ``cloth_train``, ``cloth_heldout``, the
+#: SVBRDF texture ``svbrdf`` and the anisotropic table ``aniso_table`` are written on request).
 SCENES = ("blockers", "figure", "figure_train", "figure_walk", "figure_orbit", "cloth", "bend", "wanderer_train", "wanderer_test",
           "dish", "measured")
 
@@ -76,6 +79,7 @@ MAKERS = {
     "sunlit": make_sunlit,
     "dish": make_dish,
     "measured": make_measured,
+    "aniso_table": make_aniso_table,
     "svbrdf": make_svbrdf,
 }
 

@@ -14,7 +14,7 @@ def main(argv=None) -> int:
                                      description="Write the bundled scenes of warpshade.")
     parser.add_argument("--out", default=None, help="output directory (default: the bundled directory, warpshade/usd_assets)")
     parser.add_argument("--scenes", nargs="*", default=list(SCENES), choices=sorted(MAKERS),
-                        help="scenes to write (default: all but ripples, sunlit, cloth_train, cloth_heldout and svbrdf)")
+                        help="scenes to write (default: all but ripples, sunlit, cloth_train, cloth_heldout, svbrdf and aniso_table)")
     args = parser.parse_args(argv)
     for path in generate(args.out, args.scenes):
         print(f"{os.path.getsize(path):>9,d} bytes  {path}")
