@@ -52,7 +52,8 @@ import numpy as np
 
 from .._wp import wp
 from . import materials
-from .tabulated_aniso_warp import ANISO_TABLE_MODEL, aniso_table_eval, aniso_table_pdf, aniso_table_sample
+from .tabulated_aniso_warp import (ANISO_LOBE_WEIGHT, ANISO_TABLE_MODEL, aniso_table_eval, aniso_table_pdf,
+                                   aniso_table_sample, table_lobe_aniso)
 
 __all__ = [
     "ANISOTROPIC_MODELS",
@@ -266,6 +267,24 @@ def _channel_tables(brdf) -> list[tuple[np.ndarray, np.ndarray]]:
     return [(t[c], np.full(3, LUMINANCE_WEIGHTS[c])) for c in range(3)]
 
 
+def _upload_aniso_table(brdf, device=None) -> list:
+    """``[(BRDFParams, (1, 1, 1))]``: the one device pass of an
+    :class:`~warpshade.scene.tabulated_aniso.AnisotropicTable` (its :meth:`scalar_table`)."""
+    from .._wp import resolve_device
+
+    dev = resolve_device(device)
+    values = brdf.scalar_table()
+    ax, ay = table_lobe_aniso(values)
+    p = BRDFParams()
+    p.model, p.scale, p.exponent, p.exponent_y = ANISO_TABLE_MODEL, 1.0, 1.0 if brdf.interpolation == "linear" else 0.0, 0.0
+    p.roughness, p.roughness_y, p.f0, p.tangent = ax, ay, ANISO_LOBE_WEIGHT, wp.vec3(1.0, 0.0, 0.0)
+    array = wp.array(np.ascontiguousarray(values, np.float32).reshape(-1), dtype=float, device=dev)
+    p.table = wp.uint64(array.ptr)
+    p.table_dims = wp.vec4i(*brdf.dims)
+    object.__setattr__(p, "table_array", array)  # the device table lives as long as the params
+    return [(p, np.ones(3))]
+
+
 def upload_brdf_passes(brdf: materials.BRDF, device=None) -> list[tuple[BRDFParams, np.ndarray]]:
     """The device BRDFs whose shadings, times their RGB weights and summed, shade ``brdf``:
     ``[(upload_brdf(brdf), (1, 1, 1))]`` for an analytic BRDF; for a
@@ -277,10 +296,9 @@ def upload_brdf_passes(brdf: materials.BRDF, device=None) -> list[tuple[BRDFPara
     from .._wp import resolve_device
     from .tabulated import TabulatedBRDF
     from .tabulated_aniso import AnisotropicTable
-    from .tabulated_aniso_warp import upload_aniso_table
 
     if isinstance(brdf, AnisotropicTable):  # tabulated anisotropic: one pass (tabulated_aniso_warp)
-        return upload_aniso_table(brdf, device)
+        return _upload_aniso_table(brdf, device)
     if not isinstance(brdf, TabulatedBRDF):
         return [(upload_brdf(brdf), np.ones(3))]
     dev = resolve_device(device)

@@ -17,7 +17,7 @@ it, else the cosine lobe about ``n``; :func:`aniso_table_pdf` is the exact mixtu
 ``weight D_B(h) cos theta_h / (4 |v.h|) + (1 - weight) (n.s) / pi``, positive over the whole upper
 hemisphere, so every estimator stays unbiased whatever the fit.
 
-:func:`upload_aniso_table` makes the :class:`~warpshade.scene.materials_warp.BRDFParams` of an
+:func:`warpshade.scene.materials_warp.upload_brdf_passes` makes the ``BRDFParams`` of an
 :class:`~warpshade.scene.tabulated_aniso.AnisotropicTable`: ``model`` :data:`ANISO_TABLE_MODEL`,
 ``table`` the address of the float32 table (the channel the table's ``channel`` names), ``table_dims``
 ``(n_theta_h, n_phi_h, n_theta_d, n_phi_d)``, ``exponent`` 1 for "linear" (0 "nearest"),
@@ -32,8 +32,8 @@ from .._wp import wp
 
 wp.set_module_options({"enable_backward": False})
 
-__all__ = ["ANISO_TABLE_MODEL", "aniso_table_eval", "aniso_table_pdf", "aniso_table_sample", "table_lobe_aniso",
-           "upload_aniso_table"]
+__all__ = ["ANISO_LOBE_WEIGHT", "ANISO_TABLE_MODEL", "aniso_table_eval", "aniso_table_pdf", "aniso_table_sample",
+           "table_lobe_aniso"]
 
 #: Model code of a tabulated anisotropic BRDF in :class:`~warpshade.scene.materials_warp.BRDFParams`
 #: (the next free code after ``tabulated``, 8).
@@ -81,25 +81,6 @@ def table_lobe_aniso(table: np.ndarray) -> tuple[float, float]:
     ax = 1.0 / np.sqrt(coef[1]) if coef[1] > 0.0 else hi
     ay = 1.0 / np.sqrt(coef[2]) if coef[2] > 0.0 else hi
     return float(np.clip(ax, lo, hi)), float(np.clip(ay, lo, hi))
-
-
-def upload_aniso_table(brdf, device=None) -> list:
-    """``[(BRDFParams, (1, 1, 1))]``: the one device pass of an
-    :class:`~warpshade.scene.tabulated_aniso.AnisotropicTable` (its :meth:`scalar_table`)."""
-    from .._wp import resolve_device
-    from .materials_warp import BRDFParams
-
-    dev = resolve_device(device)
-    values = brdf.scalar_table()
-    ax, ay = table_lobe_aniso(values)
-    p = BRDFParams()
-    p.model, p.scale, p.exponent, p.exponent_y = ANISO_TABLE_MODEL, 1.0, 1.0 if brdf.interpolation == "linear" else 0.0, 0.0
-    p.roughness, p.roughness_y, p.f0, p.tangent = ax, ay, ANISO_LOBE_WEIGHT, wp.vec3(1.0, 0.0, 0.0)
-    array = wp.array(np.ascontiguousarray(values, np.float32).reshape(-1), dtype=float, device=dev)
-    p.table = wp.uint64(array.ptr)
-    p.table_dims = wp.vec4i(*brdf.dims)
-    object.__setattr__(p, "table_array", array)  # the device table lives as long as the params
-    return [(p, np.ones(3))]
 
 
 @wp.func
