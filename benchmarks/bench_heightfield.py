@@ -81,31 +81,39 @@ def tm(fn, n=9, name=None):
     cpu[name] = float(np.median(cs) * 1e3)
     return float(np.median(ts) * 1e3)
 g, r = vis.layout.size, vis.params["resolution"]
-def pyramid():
-    wp.launch(K.heights_kernel, dim=g * g, inputs=[vis._points, vis._pyr], device="cpu")
-    for k in range(1, len(vis._sizes)):
-        s = vis._sizes[k]
-        wp.launch(K.reduce_kernel, dim=s * s, inputs=[vis._pyr, int(vis._offs[k - 1]), vis._sizes[k - 1],
-                                                     int(vis._offs[k]), s], device="cpu")
-vertices, texels, out = shade._shade_args
-kern = {"scene": tm(rt.evaluator.launch, name="scene"), "pyramid": tm(pyramid, name="pyramid"),
-        "texels": tm(lambda: launch_parallel(vis._texel_kernel, r * r, lambda a, b: [vis._march, vis._texel_args, a], "cpu"),
-                     name="texels"),
-        "products": tm(lambda: launch_parallel(shade._product, r * r,
-                                               lambda a, b: [shade._texels, shade._lighting.light, a, shade._g], "cpu"),
-                       name="products"),
-        "shading": tm(lambda: launch_parallel(shade._shade, g * g, lambda a, b: [vertices, texels, a, out], "cpu"),
-                      name="shading"),
-        # whole stages as the frame runs them (whatever kernels each tree launches)
-        "vis stage": tm(lambda: vis.launch(rt.state), name="vis stage"),
-        "shade stage": tm(lambda: shade.launch(rt.state), name="shade stage")}
+if hasattr(vis, "launch_parts"):
+    # the stages name their kernels (whatever each tree launches): time each and the stages whole
+    vp, sp = vis.launch_parts(), shade.launch_parts()
+    kern = {"scene": tm(rt.evaluator.launch, name="scene"), "pyramid": tm(vp["pyramid"], name="pyramid"),
+            "texels": tm(vp["texels"], name="texels"),
+            "products": tm(lambda: [sp[k]() for k in sp if k != "shading"], name="products"),
+            "shading": tm(sp["shading"], name="shading")}
+else:
+    def pyramid():
+        wp.launch(K.heights_kernel, dim=g * g, inputs=[vis._points, vis._pyr], device="cpu")
+        for k in range(1, len(vis._sizes)):
+            s = vis._sizes[k]
+            wp.launch(K.reduce_kernel, dim=s * s, inputs=[vis._pyr, int(vis._offs[k - 1]), vis._sizes[k - 1],
+                                                         int(vis._offs[k]), s], device="cpu")
+    vertices, texels, out = shade._shade_args
+    kern = {"scene": tm(rt.evaluator.launch, name="scene"), "pyramid": tm(pyramid, name="pyramid"),
+            "texels": tm(lambda: launch_parallel(vis._texel_kernel, r * r, lambda a, b: [vis._march, vis._texel_args, a],
+                                                 "cpu"), name="texels"),
+            "products": tm(lambda: launch_parallel(shade._product, r * r,
+                                                   lambda a, b: [shade._texels, shade._lighting.light, a, shade._g], "cpu"),
+                           name="products"),
+            "shading": tm(lambda: launch_parallel(shade._shade, g * g, lambda a, b: [vertices, texels, a, out], "cpu"),
+                          name="shading")}
+# whole stages as the frame runs them (whatever kernels each tree launches)
+kern["vis stage"] = tm(lambda: vis.launch(rt.state), name="vis stage")
+kern["shade stage"] = tm(lambda: shade.launch(rt.state), name="shade stage")
 import os
 print("RESULT " + json.dumps({"frame_ms": frame_ms, "kernel_ms": kern, "kernel_cpu_ms": cpu, "load_average": os.getloadavg()[0],
                               "radiance_sum": float(rt.step(24.0).numpy().sum())}))
 """
 
 
-def compare(other: str, rounds: int, frames: int, out_dir: Path) -> int:
+def compare(other: str, rounds: int, frames: int, out_dir: Path, suffix: str = "") -> int:
     """Interleaved child runs of this tree and ``other`` (see the module docstring)."""
     import subprocess
 
@@ -147,7 +155,7 @@ def compare(other: str, rounds: int, frames: int, out_dir: Path) -> int:
               "note": "interleaved child processes on a shared 2-core machine: compare the ratios",
               "command": "python benchmarks/bench_heightfield.py " + " ".join(sys.argv[1:])}
     out_dir.mkdir(parents=True, exist_ok=True)
-    stem = out_dir / f"heightfield-compare-{COMPARE_DATE}-cpu"
+    stem = out_dir / f"heightfield-compare-{COMPARE_DATE}-cpu{'-' + suffix if suffix else ''}"
     (Path(f"{stem}.json")).write_text(json.dumps(report, indent=1))
     import matplotlib
 
@@ -285,6 +293,7 @@ def main(argv=None) -> int:
     ap.add_argument("--rounds", type=int, default=5, help="interleaved rounds of --compare-with")
     ap.add_argument("--hz", action="store_true", help="only the absolute frame rate of the default graph (see above)")
     ap.add_argument("--passes", type=int, default=3, help="passes over the clip of --hz")
+    ap.add_argument("--suffix", default="", help="--compare-with: appended to the output's name (what was compared)")
     args = ap.parse_args(argv)
     if args.hz:
         return hz(args.passes, Path(args.out or ROOT / "benchmarks" / "results"))
@@ -292,7 +301,7 @@ def main(argv=None) -> int:
         if args.quick and args.out is None:
             ap.error("--quick writes only into --out DIR (never benchmarks/results)")
         rounds, frames = (1, 4) if args.quick else (args.rounds, args.frames)
-        return compare(args.compare_with, rounds, frames, Path(args.out or ROOT / "benchmarks" / "results"))
+        return compare(args.compare_with, rounds, frames, Path(args.out or ROOT / "benchmarks" / "results"), args.suffix)
     if args.quick and args.out is None:
         ap.error("--quick writes only into --out DIR (never benchmarks/results)")
     args.out = args.out or str(ROOT / "benchmarks" / "results")
