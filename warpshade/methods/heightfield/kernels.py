@@ -298,10 +298,11 @@ def static_sh_funcs(order: int):
         cg = float(1.0)
         sg = float(0.0)
         if sb > 1.0e-6:
-            ca = r[0, 2] / sb
-            sa = r[1, 2] / sb
-            cg = -r[2, 0] / sb
-            sg = r[2, 1] / sb
+            q = 1.0 / sb
+            ca = r[0, 2] * q
+            sa = r[1, 2] * q
+            cg = -r[2, 0] * q
+            sg = r[2, 1] * q
         else:
             sb = 0.0
             if cb > 0.0:
@@ -356,20 +357,22 @@ def static_sh_funcs(order: int):
 
 @wp.func
 def horizon_slope(pyr: wp.array(dtype=wp.float32), steps: wp.array(dtype=wp.vec4), step_level: wp.array2d(dtype=wp.int32),
-                  u5: float, v5: float, h0: float, az: wp.vec4, top: float) -> float:
+                  u5: float, v5: float, h0: float, az: wp.vec4, top: float, floor: float) -> float:
     """Largest ``(H - h0) / d`` over the march from (u5 - 0.5, v5 - 0.5) (vertex units) along one
     azimuth; -1e30 when no sample is inside the grid.
 
     ``steps[j] = (d_j, 1 / d_j, 2^-k_j, -)``, ``step_level[j] = (offset, side)`` of level k_j in
     ``pyr``, ``az = (cos phi, sin phi, cos phi / dx, sin phi / dy)``, ``top`` the grid's highest
     height (the pyramid's last level): the march ends once ``(top - h0) / d_j`` cannot beat the
-    slope found so far (the distances grow, so no later sample could either; the result is the
-    same as marching to the edge)."""
+    slope found so far nor ``floor`` (the distances grow, so no later sample could either). With
+    ``floor = -1e30`` the result is that of marching to the edge; otherwise it is that result
+    wherever that exceeds ``floor`` and at most ``floor`` elsewhere (a caller that only needs
+    slopes above a threshold, like the texel kernel's band above the tangent plane)."""
     best = float(-1.0e30)
     rise = top - h0
     for j in range(steps.shape[0]):
         st = steps[j]
-        if rise * st[1] <= best:
+        if rise * st[1] <= wp.max(best, floor):
             break
         n_k = step_level[j, 1]
         ci = int(wp.floor((u5 + st[0] * az[2]) * st[2]))
@@ -388,7 +391,7 @@ def horizon_kernel(pyr: wp.array(dtype=wp.float32), steps: wp.array(dtype=wp.vec
     p, i = wp.tid()
     h0 = _bilinear_height(pyr, size, uv[p][0], uv[p][1])
     out[p, i] = horizon_slope(pyr, steps, step_level, uv[p][0] + 0.5, uv[p][1] + 0.5, h0, azimuth[i],
-                              pyr[pyr.shape[0] - 1])
+                              pyr[pyr.shape[0] - 1], -1.0e30)
 
 
 def cosine_indices(order: int) -> list:
@@ -462,16 +465,19 @@ def visibility_kernels(order: int):
                 acc[k] = texels.full[k]
         for i in range(march.azimuth.shape[0]):
             az = march.azimuth[i]
-            best = horizon_slope(pyr, march.steps, march.step_level, u + 0.5, v + 0.5, h0, az, top)
-            zh = -1.0
-            if best > -1.0e29:
-                zh = best / wp.sqrt(1.0 + best * best)
             if texels.open_below == 1:
+                # only a horizon above the tangent plane matters: the march may stop below it
                 tau = gx * az[0] + gy * az[1]
-                zt = tau / wp.sqrt(1.0 + tau * tau)
-                if zt < zh:  # else the band between tangent and horizon is empty
+                best = horizon_slope(pyr, march.steps, march.step_level, u + 0.5, v + 0.5, h0, az, top, tau)
+                if best > tau:  # else the band between tangent and horizon is empty
+                    zh = best / wp.sqrt(1.0 + best * best)
+                    zt = tau / wp.sqrt(1.0 + tau * tau)
                     acc = add_turned(acc, wedge_at(table, e, zh) - wedge_at(table, e, zt), texels.harmonics, i)
             else:
+                best = horizon_slope(pyr, march.steps, march.step_level, u + 0.5, v + 0.5, h0, az, top, -1.0e30)
+                zh = -1.0
+                if best > -1.0e29:
+                    zh = best / wp.sqrt(1.0 + best * best)
                 acc = add_turned(acc, wedge_at(table, e, zh), texels.harmonics, i)
         for k in range(N2):
             texels.out[t, k] = acc[k]
@@ -568,40 +574,6 @@ def shade_kernels(order: int, even: bool = False):
                 g = g + v[j] * cols[ch * N2 + j]
             out[3 * t + ch] = g
 
-    @wp.func
-    def view_factors(vertices: ShadeVertices, ftable: wp.array(dtype=vec_t), vtx: int):
-        # cos(theta_o) of vertex vtx (<= 0: the eye is below its tangent plane) and its F(wo) turned to the world
-        n = vertices.normals[vtx]
-        d = vertices.eye[0] - vertices.points[vtx]
-        dl = wp.length(d)
-        mu = float(0.0)
-        fw = vec_t()
-        if dl > 0.0:
-            d = d / dl
-            mu = wp.dot(n, d)
-        if mu > 0.0:
-            # local frame about n with the view in its x-z plane
-            x = d - mu * n
-            xl = wp.length(x)
-            if xl > 1.0e-6:
-                x = x / xl
-            else:
-                x = wp.vec3(1.0, 0.0, 0.0) - n[0] * n
-                if wp.length(x) < 1.0e-3:
-                    x = wp.vec3(0.0, 1.0, 0.0) - n[1] * n
-                x = wp.normalize(x)
-            y = wp.cross(n, x)
-            # F(wo) from the table over cos(theta_o)
-            e = ftable.shape[0]
-            tt = wp.min(mu, 1.0) * float(e - 1)
-            i0 = wp.min(int(tt), e - 2)
-            fr = tt - float(i0)
-            f = (1.0 - fr) * ftable[i0] + fr * ftable[i0 + 1]
-            # to the world: f(F s) with F rows (x, y, n), i.e. the rotation R = F^T
-            rt = wp.mat33(x[0], y[0], n[0], x[1], y[1], n[1], x[2], y[2], n[2])
-            fw = rotate_shade(f, rt)
-        return mu, fw
-
     @wp.kernel(enable_backward=False, module="unique")
     def shade_kernel(vertices: ShadeVertices, texels: ShadeTexels, g: wp.array(dtype=vec_t),
                      ftable: wp.array(dtype=vec_t), start: int, out: ShadeOutputs):
@@ -627,15 +599,41 @@ def shade_kernels(order: int, even: bool = False):
         b0 = vec_t()
         b1 = vec_t()
         b2 = vec_t()
+        eye = vertices.eye[0]
+        e = ftable.shape[0]
         for c in range(c_begin, c_end):
             vtx = row * size + c
-            mu, fw = view_factors(vertices, ftable, vtx)
+            n = vertices.normals[vtx]
+            d = eye - vertices.points[vtx]
+            dl = wp.length(d)
+            mu = float(0.0)
+            if dl > 0.0:
+                d = d * (1.0 / dl)
+                mu = wp.dot(n, d)
             if mu <= 0.0:
                 out.radiance[vtx, 0] = 0.0
                 out.radiance[vtx, 1] = 0.0
                 out.radiance[vtx, 2] = 0.0
                 out.flags[vtx] = FLAG_BELOW_HORIZON
                 continue
+            # local frame about n with the view in its x-z plane
+            x = d - mu * n
+            xl = wp.length(x)
+            if xl > 1.0e-6:
+                x = x * (1.0 / xl)
+            else:
+                x = wp.vec3(1.0, 0.0, 0.0) - n[0] * n
+                if wp.length(x) < 1.0e-3:
+                    x = wp.vec3(0.0, 1.0, 0.0) - n[1] * n
+                x = wp.normalize(x)
+            y = wp.cross(n, x)
+            # F(wo) from the table over cos(theta_o)
+            tt = wp.min(mu, 1.0) * float(e - 1)
+            i0 = wp.min(int(tt), e - 2)
+            fr = tt - float(i0)
+            f = (1.0 - fr) * ftable[i0] + fr * ftable[i0 + 1]
+            # to the world: f(F s) with F rows (x, y, n), i.e. the rotation R = F^T
+            fw = rotate_shade(f, wp.mat33(x[0], y[0], n[0], x[1], y[1], n[1], x[2], y[2], n[2]))
             fu = float(c) * scale
             c0 = wp.min(int(fu), res - 2)
             tu = fu - float(c0)
