@@ -28,7 +28,8 @@ Warp kernels per frame:
    wedge with that azimuth's ``cos m phi``, ``sin m phi``. A march ends early once
    ``(top - h0) / d`` (``top`` the grid's highest height) cannot beat the slope found so far
    nor, with ``below = "open"``, the tangent plane's slope: no later sample could change the
-   wedge.
+   wedge. The kernel marches two azimuths in one pass over the samples (two independent
+   chains of work per sample, which the CPU overlaps).
 
    Below the local tangent plane (``below``): ``"open"`` (default) counts directions under the
    tangent plane as open, the convention of ``rpo.visibility_traced`` and of eq. 1: per wedge

@@ -383,6 +383,41 @@ def horizon_slope(pyr: wp.array(dtype=wp.float32), steps: wp.array(dtype=wp.vec4
     return best
 
 
+@wp.func
+def horizon_slope_pair(pyr: wp.array(dtype=wp.float32), steps: wp.array(dtype=wp.vec4),
+                       step_level: wp.array2d(dtype=wp.int32), u5: float, v5: float, h0: float, az1: wp.vec4,
+                       az2: wp.vec4, top: float, floor1: float, floor2: float):
+    """:func:`horizon_slope` along two azimuths at once (one pass over the march's samples: two
+    independent chains of work per sample), ``(best1, best2)``."""
+    best1 = float(-1.0e30)
+    best2 = float(-1.0e30)
+    on1 = int(1)
+    on2 = int(1)
+    rise = top - h0
+    for j in range(steps.shape[0]):
+        st = steps[j]
+        n_k = step_level[j, 1]
+        off = step_level[j, 0]
+        bound = rise * st[1]
+        if on1 == 1:
+            ci = int(wp.floor((u5 + st[0] * az1[2]) * st[2]))
+            ri = int(wp.floor((v5 + st[0] * az1[3]) * st[2]))
+            if bound <= wp.max(best1, floor1) or ci < 0 or ri < 0 or ci >= n_k or ri >= n_k:
+                on1 = 0
+            else:
+                best1 = wp.max(best1, (pyr[off + ri * n_k + ci] - h0) * st[1])
+        if on2 == 1:
+            ci = int(wp.floor((u5 + st[0] * az2[2]) * st[2]))
+            ri = int(wp.floor((v5 + st[0] * az2[3]) * st[2]))
+            if bound <= wp.max(best2, floor2) or ci < 0 or ri < 0 or ci >= n_k or ri >= n_k:
+                on2 = 0
+            else:
+                best2 = wp.max(best2, (pyr[off + ri * n_k + ci] - h0) * st[1])
+        if on1 + on2 == 0:
+            break
+    return best1, best2
+
+
 @wp.kernel(enable_backward=False)
 def horizon_kernel(pyr: wp.array(dtype=wp.float32), steps: wp.array(dtype=wp.vec4), step_level: wp.array2d(dtype=wp.int32),
                    azimuth: wp.array(dtype=wp.vec4), size: int, uv: wp.array(dtype=wp.vec2), out: wp.array2d(dtype=wp.float32)):
@@ -440,6 +475,24 @@ def visibility_kernels(order: int):
                 out[wp.static(SIN[q])] += harm[i, wp.static(ORDER + M_OF[q])] * w[q]
         return out
 
+    @wp.func
+    def add_wedge(acc: vec_t, best: float, tau: float, open_below: int, table: wp.array(dtype=cos_t), e: int,
+                  harm: wp.array2d(dtype=wp.float32), i: int) -> vec_t:
+        # acc + azimuth i's wedge: open below the tangent plane, whole - [tangent, horizon]; or
+        # open above the horizon only
+        out = acc
+        if open_below == 1:
+            if best > tau:  # else the band between tangent and horizon is empty
+                zh = best / wp.sqrt(1.0 + best * best)
+                zt = tau / wp.sqrt(1.0 + tau * tau)
+                out = add_turned(acc, wedge_at(table, e, zh) - wedge_at(table, e, zt), harm, i)
+        else:
+            zh = -1.0
+            if best > -1.0e29:
+                zh = best / wp.sqrt(1.0 + best * best)
+            out = add_turned(acc, wedge_at(table, e, zh), harm, i)
+        return out
+
     @wp.kernel(enable_backward=False, module="unique")
     def texel_kernel(march: HorizonMarch, texels: TexelVisibility, table: wp.array(dtype=cos_t), start: int):
         pyr = march.pyr
@@ -463,22 +516,26 @@ def visibility_kernels(order: int):
             # each wedge is open above its horizon and below its tangent: whole - [tangent, horizon]
             for k in range(N2):
                 acc[k] = texels.full[k]
-        for i in range(march.azimuth.shape[0]):
-            az = march.azimuth[i]
+        na = march.azimuth.shape[0]
+        for p in range((na + 1) // 2):
+            # azimuths i1 = 2p and i2 = 2p + 1 (i2 = i1 for the last of an odd count, added once)
+            i1 = 2 * p
+            i2 = wp.min(i1 + 1, na - 1)
+            az1 = march.azimuth[i1]
+            az2 = march.azimuth[i2]
+            floor1 = float(-1.0e30)
+            floor2 = float(-1.0e30)
+            tau1 = gx * az1[0] + gy * az1[1]
+            tau2 = gx * az2[0] + gy * az2[1]
             if texels.open_below == 1:
                 # only a horizon above the tangent plane matters: the march may stop below it
-                tau = gx * az[0] + gy * az[1]
-                best = horizon_slope(pyr, march.steps, march.step_level, u + 0.5, v + 0.5, h0, az, top, tau)
-                if best > tau:  # else the band between tangent and horizon is empty
-                    zh = best / wp.sqrt(1.0 + best * best)
-                    zt = tau / wp.sqrt(1.0 + tau * tau)
-                    acc = add_turned(acc, wedge_at(table, e, zh) - wedge_at(table, e, zt), texels.harmonics, i)
-            else:
-                best = horizon_slope(pyr, march.steps, march.step_level, u + 0.5, v + 0.5, h0, az, top, -1.0e30)
-                zh = -1.0
-                if best > -1.0e29:
-                    zh = best / wp.sqrt(1.0 + best * best)
-                acc = add_turned(acc, wedge_at(table, e, zh), texels.harmonics, i)
+                floor1 = tau1
+                floor2 = tau2
+            best1, best2 = horizon_slope_pair(pyr, march.steps, march.step_level, u + 0.5, v + 0.5, h0, az1, az2, top,
+                                              floor1, floor2)
+            acc = add_wedge(acc, best1, tau1, texels.open_below, table, e, texels.harmonics, i1)
+            if i2 != i1:
+                acc = add_wedge(acc, best2, tau2, texels.open_below, table, e, texels.harmonics, i2)
         for k in range(N2):
             texels.out[t, k] = acc[k]
 
