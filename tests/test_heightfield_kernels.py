@@ -71,11 +71,11 @@ def test_product_matrices_match_the_float64_product(order, rng, device):
     assert np.abs(got - want).max() < RTOL_PRODUCT * np.abs(want).max()
 
 
-@pytest.mark.parametrize("below,azimuths", [("open", 16), ("blocked", 16), ("open", 7)])
+@pytest.mark.parametrize("below,azimuths", [("open", 16), ("blocked", 16), ("open", 7), ("blocked", 5)])
 def test_texel_march_that_stops_early_matches_the_full_march(below, azimuths, device):
     # steep bumps: uphill the march's bound (top - h0) / d falls under the slope found or under
     # the tangent plane within a few samples, so most marches stop before the grid's edge; the
-    # kernel marches two azimuths at a time (7: the last one alone)
+    # kernel marches four azimuths at a time (7: four, then three; 5: four, then one)
     g, res = 40, 14
     h = _bumps(g, 0.25)
     scene = _grid_scene(h)

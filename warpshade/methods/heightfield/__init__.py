@@ -28,7 +28,7 @@ Warp kernels per frame:
    wedge with that azimuth's ``cos m phi``, ``sin m phi``. A march ends early once
    ``(top - h0) / d`` (``top`` the grid's highest height) cannot beat the slope found so far
    nor, with ``below = "open"``, the tangent plane's slope: no later sample could change the
-   wedge. The kernel marches two azimuths in one pass over the samples (two independent
+   wedge. The kernel marches four azimuths in one pass over the samples (four independent
    chains of work per sample, which the CPU overlaps).
 
    Below the local tangent plane (``below``): ``"open"`` (default) counts directions under the

@@ -384,15 +384,25 @@ def horizon_slope(pyr: wp.array(dtype=wp.float32), steps: wp.array(dtype=wp.vec4
 
 
 @wp.func
-def horizon_slope_pair(pyr: wp.array(dtype=wp.float32), steps: wp.array(dtype=wp.vec4),
+def horizon_slope_quad(pyr: wp.array(dtype=wp.float32), steps: wp.array(dtype=wp.vec4),
                        step_level: wp.array2d(dtype=wp.int32), u5: float, v5: float, h0: float, az1: wp.vec4,
-                       az2: wp.vec4, top: float, floor1: float, floor2: float):
-    """:func:`horizon_slope` along two azimuths at once (one pass over the march's samples: two
-    independent chains of work per sample), ``(best1, best2)``."""
+                       az2: wp.vec4, az3: wp.vec4, az4: wp.vec4, top: float, floors: wp.vec4, count: int) -> wp.vec4:
+    """:func:`horizon_slope` along the first ``count`` (1 to 4) of four azimuths in one pass over
+    the march's samples (independent chains of work per sample), per-azimuth ``floors``."""
     best1 = float(-1.0e30)
     best2 = float(-1.0e30)
+    best3 = float(-1.0e30)
+    best4 = float(-1.0e30)
     on1 = int(1)
-    on2 = int(1)
+    on2 = int(0)
+    on3 = int(0)
+    on4 = int(0)
+    if count > 1:
+        on2 = 1
+    if count > 2:
+        on3 = 1
+    if count > 3:
+        on4 = 1
     rise = top - h0
     for j in range(steps.shape[0]):
         st = steps[j]
@@ -402,20 +412,34 @@ def horizon_slope_pair(pyr: wp.array(dtype=wp.float32), steps: wp.array(dtype=wp
         if on1 == 1:
             ci = int(wp.floor((u5 + st[0] * az1[2]) * st[2]))
             ri = int(wp.floor((v5 + st[0] * az1[3]) * st[2]))
-            if bound <= wp.max(best1, floor1) or ci < 0 or ri < 0 or ci >= n_k or ri >= n_k:
+            if bound <= wp.max(best1, floors[0]) or ci < 0 or ri < 0 or ci >= n_k or ri >= n_k:
                 on1 = 0
             else:
                 best1 = wp.max(best1, (pyr[off + ri * n_k + ci] - h0) * st[1])
         if on2 == 1:
             ci = int(wp.floor((u5 + st[0] * az2[2]) * st[2]))
             ri = int(wp.floor((v5 + st[0] * az2[3]) * st[2]))
-            if bound <= wp.max(best2, floor2) or ci < 0 or ri < 0 or ci >= n_k or ri >= n_k:
+            if bound <= wp.max(best2, floors[1]) or ci < 0 or ri < 0 or ci >= n_k or ri >= n_k:
                 on2 = 0
             else:
                 best2 = wp.max(best2, (pyr[off + ri * n_k + ci] - h0) * st[1])
-        if on1 + on2 == 0:
+        if on3 == 1:
+            ci = int(wp.floor((u5 + st[0] * az3[2]) * st[2]))
+            ri = int(wp.floor((v5 + st[0] * az3[3]) * st[2]))
+            if bound <= wp.max(best3, floors[2]) or ci < 0 or ri < 0 or ci >= n_k or ri >= n_k:
+                on3 = 0
+            else:
+                best3 = wp.max(best3, (pyr[off + ri * n_k + ci] - h0) * st[1])
+        if on4 == 1:
+            ci = int(wp.floor((u5 + st[0] * az4[2]) * st[2]))
+            ri = int(wp.floor((v5 + st[0] * az4[3]) * st[2]))
+            if bound <= wp.max(best4, floors[3]) or ci < 0 or ri < 0 or ci >= n_k or ri >= n_k:
+                on4 = 0
+            else:
+                best4 = wp.max(best4, (pyr[off + ri * n_k + ci] - h0) * st[1])
+        if on1 + on2 + on3 + on4 == 0:
             break
-    return best1, best2
+    return wp.vec4(best1, best2, best3, best4)
 
 
 @wp.kernel(enable_backward=False)
@@ -517,25 +541,25 @@ def visibility_kernels(order: int):
             for k in range(N2):
                 acc[k] = texels.full[k]
         na = march.azimuth.shape[0]
-        for p in range((na + 1) // 2):
-            # azimuths i1 = 2p and i2 = 2p + 1 (i2 = i1 for the last of an odd count, added once)
-            i1 = 2 * p
-            i2 = wp.min(i1 + 1, na - 1)
-            az1 = march.azimuth[i1]
-            az2 = march.azimuth[i2]
-            floor1 = float(-1.0e30)
-            floor2 = float(-1.0e30)
-            tau1 = gx * az1[0] + gy * az1[1]
-            tau2 = gx * az2[0] + gy * az2[1]
+        for p in range((na + 3) // 4):
+            # azimuths i0 .. i0 + 3 (those below na) in one march
+            i0 = 4 * p
+            count = wp.min(4, na - i0)
+            az1 = march.azimuth[i0]
+            az2 = march.azimuth[wp.min(i0 + 1, na - 1)]
+            az3 = march.azimuth[wp.min(i0 + 2, na - 1)]
+            az4 = march.azimuth[wp.min(i0 + 3, na - 1)]
+            taus = wp.vec4(gx * az1[0] + gy * az1[1], gx * az2[0] + gy * az2[1], gx * az3[0] + gy * az3[1],
+                           gx * az4[0] + gy * az4[1])
+            floors = wp.vec4(-1.0e30, -1.0e30, -1.0e30, -1.0e30)
             if texels.open_below == 1:
                 # only a horizon above the tangent plane matters: the march may stop below it
-                floor1 = tau1
-                floor2 = tau2
-            best1, best2 = horizon_slope_pair(pyr, march.steps, march.step_level, u + 0.5, v + 0.5, h0, az1, az2, top,
-                                              floor1, floor2)
-            acc = add_wedge(acc, best1, tau1, texels.open_below, table, e, texels.harmonics, i1)
-            if i2 != i1:
-                acc = add_wedge(acc, best2, tau2, texels.open_below, table, e, texels.harmonics, i2)
+                floors = taus
+            best = horizon_slope_quad(pyr, march.steps, march.step_level, u + 0.5, v + 0.5, h0, az1, az2, az3, az4, top,
+                                      floors, count)
+            for q in range(4):
+                if q < count:
+                    acc = add_wedge(acc, best[q], taus[q], texels.open_below, table, e, texels.harmonics, i0 + q)
         for k in range(N2):
             texels.out[t, k] = acc[k]
 
