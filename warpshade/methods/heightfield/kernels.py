@@ -736,8 +736,22 @@ def shade_kernels(order: int, even: bool = False):
                 b2 = sv * g[ta + 2] + tv * g[tb + 2]
                 cell = c0
             su = 1.0 - tu
-            rad = wp.vec3(su * wp.dot(fw, a0) + tu * wp.dot(fw, b0), su * wp.dot(fw, a1) + tu * wp.dot(fw, b1),
-                          su * wp.dot(fw, a2) + tu * wp.dot(fw, b2))
+            # the six dot products in one pass over the coefficients
+            da0 = float(0.0)
+            da1 = float(0.0)
+            da2 = float(0.0)
+            db0 = float(0.0)
+            db1 = float(0.0)
+            db2 = float(0.0)
+            for k in range(wp.static(N2)):
+                fk = fw[k]
+                da0 += fk * a0[k]
+                da1 += fk * a1[k]
+                da2 += fk * a2[k]
+                db0 += fk * b0[k]
+                db1 += fk * b1[k]
+                db2 += fk * b2[k]
+            rad = wp.vec3(su * da0 + tu * db0, su * da1 + tu * db1, su * da2 + tu * db2)
             neg = int(0)
             for ch in range(3):
                 acc = rad[ch]
