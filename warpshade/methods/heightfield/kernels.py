@@ -2,9 +2,12 @@
 shading (float32). Their float64 mirrors are in :mod:`.mirror`.
 
 * :data:`heights_kernel`, :data:`reduce_kernel` -- the frame's heights and the max pyramid;
-* :func:`horizon_slope`, :data:`horizon_kernel` -- the march's horizon slopes;
+* :func:`horizon_slope`, :data:`horizon_kernel` -- the march's horizon slopes
+  (:func:`horizon_slope_quad`: four azimuths in one pass, as the texel kernel marches);
 * :func:`visibility_kernels` -- per order: SH visibility at the texels, bilinear to the vertices;
-* :func:`shade_kernels` -- per order: lighting products at the texels, shading at every vertex;
+* :func:`light_columns_kernel` -- per order: the frame's product matrices of the lighting;
+* :func:`shade_kernels` -- per order: lighting products at the texels, shading at every vertex
+  (by runs of :data:`SHADE_RUN` vertices along a grid row);
 * :func:`static_sh_funcs` -- straight-line SH z-rotation, frame rotation and product.
 """
 
