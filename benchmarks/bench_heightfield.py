@@ -81,43 +81,57 @@ def tm(fn, n=9, name=None):
     cpu[name] = float(np.median(cs) * 1e3)
     return float(np.median(ts) * 1e3)
 g, r = vis.layout.size, vis.params["resolution"]
-def pyramid():
-    wp.launch(K.heights_kernel, dim=g * g, inputs=[vis._points, vis._pyr], device="cpu")
-    for k in range(1, len(vis._sizes)):
-        s = vis._sizes[k]
-        wp.launch(K.reduce_kernel, dim=s * s, inputs=[vis._pyr, int(vis._offs[k - 1]), vis._sizes[k - 1],
-                                                     int(vis._offs[k]), s], device="cpu")
-vertices, texels, out = shade._shade_args
-kern = {"scene": tm(rt.evaluator.launch, name="scene"), "pyramid": tm(pyramid, name="pyramid"),
-        "texels": tm(lambda: launch_parallel(vis._texel_kernel, r * r, lambda a, b: [vis._march, vis._texel_args, a], "cpu"),
-                     name="texels"),
-        "products": tm(lambda: launch_parallel(shade._product, r * r,
-                                               lambda a, b: [shade._texels, shade._lighting.light, a, shade._g], "cpu"),
-                       name="products"),
-        "shading": tm(lambda: launch_parallel(shade._shade, g * g, lambda a, b: [vertices, texels, a, out], "cpu"),
-                      name="shading"),
-        # whole stages as the frame runs them (whatever kernels each tree launches)
-        "vis stage": tm(lambda: vis.launch(rt.state), name="vis stage"),
-        "shade stage": tm(lambda: shade.launch(rt.state), name="shade stage")}
+if hasattr(vis, "launch_parts"):
+    # the stages name their kernels (whatever each tree launches): time each and the stages whole
+    vp, sp = vis.launch_parts(), shade.launch_parts()
+    kern = {"scene": tm(rt.evaluator.launch, name="scene"), "pyramid": tm(vp["pyramid"], name="pyramid"),
+            "texels": tm(vp["texels"], name="texels"),
+            "products": tm(lambda: [sp[k]() for k in sp if k != "shading"], name="products"),
+            "shading": tm(sp["shading"], name="shading")}
+else:
+    def pyramid():
+        wp.launch(K.heights_kernel, dim=g * g, inputs=[vis._points, vis._pyr], device="cpu")
+        for k in range(1, len(vis._sizes)):
+            s = vis._sizes[k]
+            wp.launch(K.reduce_kernel, dim=s * s, inputs=[vis._pyr, int(vis._offs[k - 1]), vis._sizes[k - 1],
+                                                         int(vis._offs[k]), s], device="cpu")
+    vertices, texels, out = shade._shade_args
+    kern = {"scene": tm(rt.evaluator.launch, name="scene"), "pyramid": tm(pyramid, name="pyramid"),
+            "texels": tm(lambda: launch_parallel(vis._texel_kernel, r * r, lambda a, b: [vis._march, vis._texel_args, a],
+                                                 "cpu"), name="texels"),
+            "products": tm(lambda: launch_parallel(shade._product, r * r,
+                                                   lambda a, b: [shade._texels, shade._lighting.light, a, shade._g], "cpu"),
+                           name="products"),
+            "shading": tm(lambda: launch_parallel(shade._shade, g * g, lambda a, b: [vertices, texels, a, out], "cpu"),
+                          name="shading")}
+# whole stages as the frame runs them (whatever kernels each tree launches)
+kern["vis stage"] = tm(lambda: vis.launch(rt.state), name="vis stage")
+kern["shade stage"] = tm(lambda: shade.launch(rt.state), name="shade stage")
 import os
+radiance = rt.step(24.0).numpy()
+if len(sys.argv) > 3:
+    np.save(sys.argv[3], radiance)  # frame 24, for the per-vertex comparison of the two trees
 print("RESULT " + json.dumps({"frame_ms": frame_ms, "kernel_ms": kern, "kernel_cpu_ms": cpu, "load_average": os.getloadavg()[0],
-                              "radiance_sum": float(rt.step(24.0).numpy().sum())}))
+                              "radiance_sum": float(radiance.astype(np.float64).sum())}))
 """
 
 
-def compare(other: str, rounds: int, frames: int, out_dir: Path) -> int:
+def compare(other: str, rounds: int, frames: int, out_dir: Path, suffix: str = "") -> int:
     """Interleaved child runs of this tree and ``other`` (see the module docstring)."""
     import subprocess
 
     graph = str(ROOT / "stages" / "ripples_height_rpo.toml")
     trees = {"this": str(ROOT), "other": str(Path(other).resolve())}
+    import tempfile
+
     runs = {k: [] for k in trees}
+    scratch = tempfile.mkdtemp(prefix="bench_heightfield_")
     for i in range(rounds):
         for key, tree in trees.items():
             env = {**os.environ, "PYTHONPATH": tree}
             t0 = time.perf_counter()
-            res = subprocess.run([sys.executable, "-c", _CHILD, str(frames), graph], env=env, cwd=tree,
-                                 capture_output=True, text=True)
+            res = subprocess.run([sys.executable, "-c", _CHILD, str(frames), graph, os.path.join(scratch, f"{key}.npy")],
+                                 env=env, cwd=tree, capture_output=True, text=True)
             line = [x for x in res.stdout.splitlines() if x.startswith("RESULT ")]
             if res.returncode != 0 or not line:
                 print(res.stdout[-2000:], res.stderr[-4000:], file=sys.stderr)
@@ -139,15 +153,21 @@ def compare(other: str, rounds: int, frames: int, out_dir: Path) -> int:
     cpu_ratio["frame (sum of kernels)"] = this_cpu / other_cpu
     # the same radiance (a sum over every vertex of frame 24) from both trees
     agree = abs(runs["this"][0]["radiance_sum"] - runs["other"][0]["radiance_sum"]) / abs(runs["other"][0]["radiance_sum"])
+    rad = {k: np.load(os.path.join(scratch, f"{k}.npy")).astype(np.float64) for k in trees}
+    per_vertex = float(np.abs(rad["this"] - rad["other"]).max() / np.abs(rad["other"]).max())
+    import shutil
+
+    shutil.rmtree(scratch, ignore_errors=True)
     report = {"benchmark": "bench_heightfield --compare-with", "date": COMPARE_DATE, "cpu_count": os.cpu_count(),
               "platform": platform.platform(), "graph": "stages/ripples_height_rpo.toml", "rounds": rounds,
               "frames": frames, "trees": trees, "median": med, "ratio_this_over_other": ratio,
               "cpu_time_ratio_this_over_other": cpu_ratio,
-              "radiance_sum_relative_difference": agree, "runs": runs,
+              "radiance_sum_relative_difference": agree,
+              "radiance_max_abs_difference_over_max": per_vertex, "runs": runs,
               "note": "interleaved child processes on a shared 2-core machine: compare the ratios",
               "command": "python benchmarks/bench_heightfield.py " + " ".join(sys.argv[1:])}
     out_dir.mkdir(parents=True, exist_ok=True)
-    stem = out_dir / f"heightfield-compare-{COMPARE_DATE}-cpu"
+    stem = out_dir / f"heightfield-compare-{COMPARE_DATE}-cpu{'-' + suffix if suffix else ''}"
     (Path(f"{stem}.json")).write_text(json.dumps(report, indent=1))
     import matplotlib
 
@@ -176,13 +196,14 @@ def compare(other: str, rounds: int, frames: int, out_dir: Path) -> int:
     print(f"absolute: this {1e3 / med['this']['frame_ms']:.1f} Hz ({med['this']['frame_ms']:.1f} ms/frame), other "
           f"{1e3 / med['other']['frame_ms']:.1f} Hz ({med['other']['frame_ms']:.1f} ms/frame); load average "
           + (f"{min(loads):.2f}..{max(loads):.2f}" if loads else "unknown") + " during the runs")
-    print(f"wall-time ratios this/other: { {k: round(v, 3) for k, v in ratio.items()} }; radiance agrees to {agree:.2e}")
+    print(f"wall-time ratios this/other: { {k: round(v, 3) for k, v in ratio.items()} }; radiance agrees to {agree:.2e} (sum), "
+          f"{per_vertex:.2e} (largest per-vertex difference over the largest radiance, frame 24)")
     print(f"CPU-time ratios this/other: { {k: round(v, 3) for k, v in cpu_ratio.items()} }")
     print(f"wrote {stem}.json, {stem}.png")
     return 0
 
 
-def hz(passes: int, out_dir: Path) -> int:
+def hz(passes: int, out_dir: Path, suffix: str = "") -> int:
     """Absolute frame rate of the default graph of this tree (see the module docstring)."""
     import subprocess
 
@@ -223,7 +244,7 @@ def hz(passes: int, out_dir: Path) -> int:
                       "processes shared the cores and the rate is a lower bound",
               "command": "python benchmarks/bench_heightfield.py " + " ".join(sys.argv[1:])}
     out_dir.mkdir(parents=True, exist_ok=True)
-    path = out_dir / f"heightfield-hz-{today}-cpu.json"
+    path = out_dir / f"heightfield-hz-{today}-cpu{'-' + suffix if suffix else ''}.json"
     path.write_text(json.dumps(report, indent=1))
     print(f"ripples_height_rpo on the CPU ({cpu_workers()} threads): {med:.1f} ms/frame = {1e3 / med:.1f} Hz "
           f"(median of {len(frame_ms)} replayed frames; goal 30 Hz); stages (profile, ms) {report['stage_ms']}; "
@@ -285,14 +306,15 @@ def main(argv=None) -> int:
     ap.add_argument("--rounds", type=int, default=5, help="interleaved rounds of --compare-with")
     ap.add_argument("--hz", action="store_true", help="only the absolute frame rate of the default graph (see above)")
     ap.add_argument("--passes", type=int, default=3, help="passes over the clip of --hz")
+    ap.add_argument("--suffix", default="", help="--compare-with, --hz: appended to the output's name (what was measured)")
     args = ap.parse_args(argv)
     if args.hz:
-        return hz(args.passes, Path(args.out or ROOT / "benchmarks" / "results"))
+        return hz(args.passes, Path(args.out or ROOT / "benchmarks" / "results"), args.suffix)
     if args.compare_with:
         if args.quick and args.out is None:
             ap.error("--quick writes only into --out DIR (never benchmarks/results)")
         rounds, frames = (1, 4) if args.quick else (args.rounds, args.frames)
-        return compare(args.compare_with, rounds, frames, Path(args.out or ROOT / "benchmarks" / "results"))
+        return compare(args.compare_with, rounds, frames, Path(args.out or ROOT / "benchmarks" / "results"), args.suffix)
     if args.quick and args.out is None:
         ap.error("--quick writes only into --out DIR (never benchmarks/results)")
     args.out = args.out or str(ROOT / "benchmarks" / "results")

@@ -23,7 +23,13 @@ Warp kernels per frame:
    elevation and 1 above (eq. 4); its SH comes from a canonical wedge about phi = 0 tabulated
    over the sine of the horizon elevation (:func:`.model.wedge_table`, float64 Gauss-Legendre in
    cos(theta) with the azimuthal integral in closed form, built once at set-up) and placed by a
-   z-rotation (``sh_rotate_z``); the wedges are summed (eq. 5).
+   z-rotation (``sh_rotate_z``); the wedges are summed (eq. 5). The kernel reads the canonical
+   wedge's cosine coefficients (the sine terms vanish about phi = 0) and turns each azimuth's
+   wedge with that azimuth's ``cos m phi``, ``sin m phi``. A march ends early once
+   ``(top - h0) / d`` (``top`` the grid's highest height) cannot beat the slope found so far
+   nor, with ``below = "open"``, the tangent plane's slope: no later sample could change the
+   wedge. The kernel marches four azimuths in one pass over the samples (four independent
+   chains of work per sample, which the CPU overlaps).
 
    Below the local tangent plane (``below``): ``"open"`` (default) counts directions under the
    tangent plane as open, the convention of ``rpo.visibility_traced`` and of eq. 1: per wedge
@@ -42,7 +48,11 @@ shades 512^2 vertices at full resolution over sub-sampled visibility):
 * the lighting product ``g_c = l_c * v`` (one order-n SH product per channel) is formed at the
   *visibility* resolution and interpolated bilinearly (it is linear in v, so this equals the
   product of the interpolated visibility); radiance is then ``L_c = F_w(wo) . g_c`` since
-  ``l . (F * v) = F . (l * v)`` (the Gaunt coefficients are symmetric);
+  ``l . (F * v) = F . (l * v)`` (the Gaunt coefficients are symmetric). The lighting is the
+  same at every texel, so each frame first writes the product with ``l_c`` as an n^2 x n^2
+  matrix (by columns) and a texel's product is then n^2 vector multiply-adds per channel;
+* one shading thread covers a run of vertices along a grid row: the products are interpolated
+  along the texel columns once per column the run crosses, then along the row per vertex;
 * per vertex, the tangent frame is chosen about the normal so that the view lies in its x-z
   plane: the local view is ``(sin t, 0, cos t)`` and ``F(wo)`` of the operators (``sum_b (w_b .
   y(wo)) u_b``) is a 1-D table over ``cos t`` (``view_table`` entries, linear interpolation),

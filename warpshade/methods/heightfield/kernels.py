@@ -2,9 +2,12 @@
 shading (float32). Their float64 mirrors are in :mod:`.mirror`.
 
 * :data:`heights_kernel`, :data:`reduce_kernel` -- the frame's heights and the max pyramid;
-* :func:`horizon_slope`, :data:`horizon_kernel` -- the march's horizon slopes;
+* :func:`horizon_slope`, :data:`horizon_kernel` -- the march's horizon slopes
+  (:func:`horizon_slope_quad`: four azimuths in one pass, as the texel kernel marches);
 * :func:`visibility_kernels` -- per order: SH visibility at the texels, bilinear to the vertices;
-* :func:`shade_kernels` -- per order: lighting products at the texels, shading at every vertex;
+* :func:`light_columns_kernel` -- per order: the frame's product matrices of the lighting;
+* :func:`shade_kernels` -- per order: lighting products at the texels, shading at every vertex
+  (by runs of :data:`SHADE_RUN` vertices along a grid row);
 * :func:`static_sh_funcs` -- straight-line SH z-rotation, frame rotation and product.
 """
 
@@ -24,6 +27,7 @@ wp.set_module_options({"enable_backward": False})
 __all__ = [
     "FLAG_BELOW_HORIZON",
     "FLAG_NEGATIVE",
+    "SHADE_RUN",
     "HorizonMarch",
     "ShadeOutputs",
     "ShadeTexels",
@@ -34,13 +38,18 @@ __all__ = [
     "horizon_slope",
     "reduce_kernel",
     "shade_kernels",
+    "light_columns_kernel",
     "static_sh_funcs",
     "even_frame_rotation",
     "table_is_even",
     "EVEN_TABLE_RTOL",
     "texel_weights",
+    "cosine_indices",
     "visibility_kernels",
 ]
+
+#: Grid vertices along a row that one thread of the shading kernel shades (:func:`shade_kernels`).
+SHADE_RUN = 32
 
 #: Bits of the shading kernel's per-vertex ``flags``: a channel clamped from below zero; the eye
 #: at or below the vertex's tangent plane (radiance 0).
@@ -71,21 +80,21 @@ class HorizonMarch:
 
 @wp.struct
 class TexelVisibility:
-    """The wedge sums of the texel kernel and where they go.
+    """The wedge sums of the texel kernel and where they go (the wedge table, typed by the order,
+    is the texel kernel's own argument: see :func:`visibility_kernels`).
 
     Fields:
-        table: SH of the wedge of azimuth i open above ``z0``, for ``z0`` on ``linspace(-1, 1,
-            E)``: the canonical wedge (:func:`.model.wedge_table`) z-rotated to every azimuth
-            (:func:`.model.rotated_wedge_tables`), row ``i * E + e``, (A * E, n*n) float32.
-        entries: E.
+        entries: E, the wedge table's entries over ``z0`` on ``linspace(-1, 1, E)``.
+        harmonics: ``(cos m phi_i for m < n, sin m phi_i for m < n)`` per azimuth i, (A, 2 n)
+            float32: the z-rotation of the canonical wedge to azimuth i.
         full: sum over the azimuths of the whole wedges (open from the nadir), (n*n,) float32.
         open_below: 1 to count directions below the tangent plane as open.
         res: texels per side.
         out: SH visibility per texel, world frame, (res * res, n*n) float32.
     """
 
-    table: wp.array2d(dtype=wp.float32)
     entries: int
+    harmonics: wp.array2d(dtype=wp.float32)
     full: wp.array(dtype=wp.float32)
     open_below: int
     res: int
@@ -110,18 +119,15 @@ class ShadeVertices:
 
 @wp.struct
 class ShadeTexels:
-    """The lighting products at the visibility texels and the BRDF's view table.
+    """The grid of the lighting products and the BRDF's colour (the per-order coefficient arrays,
+    typed by the order, are the shading kernel's own arguments: see :func:`shade_kernels`).
 
     Fields:
-        g: ``L_c * V`` per channel at each texel, (res * res, 3 n*n) float32, world frame.
         res: texels per side.
-        ftable: ``F(wo)`` over ``cos(theta_o)`` in [0, 1], (E, n*n) float32, local frame.
         specular: RGB colour multiplying the radiance, linear.
     """
 
-    g: wp.array2d(dtype=wp.float32)
     res: int
-    ftable: wp.array2d(dtype=wp.float32)
     specular: wp.vec3
 
 
@@ -295,10 +301,11 @@ def static_sh_funcs(order: int):
         cg = float(1.0)
         sg = float(0.0)
         if sb > 1.0e-6:
-            ca = r[0, 2] / sb
-            sa = r[1, 2] / sb
-            cg = -r[2, 0] / sb
-            sg = r[2, 1] / sb
+            q = 1.0 / sb
+            ca = r[0, 2] * q
+            sa = r[1, 2] * q
+            cg = -r[2, 0] * q
+            sg = r[2, 1] * q
         else:
             sb = 0.0
             if cb > 0.0:
@@ -353,15 +360,23 @@ def static_sh_funcs(order: int):
 
 @wp.func
 def horizon_slope(pyr: wp.array(dtype=wp.float32), steps: wp.array(dtype=wp.vec4), step_level: wp.array2d(dtype=wp.int32),
-                  u5: float, v5: float, h0: float, az: wp.vec4) -> float:
+                  u5: float, v5: float, h0: float, az: wp.vec4, top: float, floor: float) -> float:
     """Largest ``(H - h0) / d`` over the march from (u5 - 0.5, v5 - 0.5) (vertex units) along one
     azimuth; -1e30 when no sample is inside the grid.
 
     ``steps[j] = (d_j, 1 / d_j, 2^-k_j, -)``, ``step_level[j] = (offset, side)`` of level k_j in
-    ``pyr``, ``az = (cos phi, sin phi, cos phi / dx, sin phi / dy)``."""
+    ``pyr``, ``az = (cos phi, sin phi, cos phi / dx, sin phi / dy)``, ``top`` the grid's highest
+    height (the pyramid's last level): the march ends once ``(top - h0) / d_j`` cannot beat the
+    slope found so far nor ``floor`` (the distances grow, so no later sample could either). With
+    ``floor = -1e30`` the result is that of marching to the edge; otherwise it is that result
+    wherever that exceeds ``floor`` and at most ``floor`` elsewhere (a caller that only needs
+    slopes above a threshold, like the texel kernel's band above the tangent plane)."""
     best = float(-1.0e30)
+    rise = top - h0
     for j in range(steps.shape[0]):
         st = steps[j]
+        if rise * st[1] <= wp.max(best, floor):
+            break
         n_k = step_level[j, 1]
         ci = int(wp.floor((u5 + st[0] * az[2]) * st[2]))
         ri = int(wp.floor((v5 + st[0] * az[3]) * st[2]))
@@ -371,6 +386,65 @@ def horizon_slope(pyr: wp.array(dtype=wp.float32), steps: wp.array(dtype=wp.vec4
     return best
 
 
+@wp.func
+def horizon_slope_quad(pyr: wp.array(dtype=wp.float32), steps: wp.array(dtype=wp.vec4),
+                       step_level: wp.array2d(dtype=wp.int32), u5: float, v5: float, h0: float, az1: wp.vec4,
+                       az2: wp.vec4, az3: wp.vec4, az4: wp.vec4, top: float, floors: wp.vec4, count: int) -> wp.vec4:
+    """:func:`horizon_slope` along the first ``count`` (1 to 4) of four azimuths in one pass over
+    the march's samples (independent chains of work per sample), per-azimuth ``floors``."""
+    best1 = float(-1.0e30)
+    best2 = float(-1.0e30)
+    best3 = float(-1.0e30)
+    best4 = float(-1.0e30)
+    on1 = int(1)
+    on2 = int(0)
+    on3 = int(0)
+    on4 = int(0)
+    if count > 1:
+        on2 = 1
+    if count > 2:
+        on3 = 1
+    if count > 3:
+        on4 = 1
+    rise = top - h0
+    for j in range(steps.shape[0]):
+        st = steps[j]
+        n_k = step_level[j, 1]
+        off = step_level[j, 0]
+        bound = rise * st[1]
+        if on1 == 1:
+            ci = int(wp.floor((u5 + st[0] * az1[2]) * st[2]))
+            ri = int(wp.floor((v5 + st[0] * az1[3]) * st[2]))
+            if bound <= wp.max(best1, floors[0]) or ci < 0 or ri < 0 or ci >= n_k or ri >= n_k:
+                on1 = 0
+            else:
+                best1 = wp.max(best1, (pyr[off + ri * n_k + ci] - h0) * st[1])
+        if on2 == 1:
+            ci = int(wp.floor((u5 + st[0] * az2[2]) * st[2]))
+            ri = int(wp.floor((v5 + st[0] * az2[3]) * st[2]))
+            if bound <= wp.max(best2, floors[1]) or ci < 0 or ri < 0 or ci >= n_k or ri >= n_k:
+                on2 = 0
+            else:
+                best2 = wp.max(best2, (pyr[off + ri * n_k + ci] - h0) * st[1])
+        if on3 == 1:
+            ci = int(wp.floor((u5 + st[0] * az3[2]) * st[2]))
+            ri = int(wp.floor((v5 + st[0] * az3[3]) * st[2]))
+            if bound <= wp.max(best3, floors[2]) or ci < 0 or ri < 0 or ci >= n_k or ri >= n_k:
+                on3 = 0
+            else:
+                best3 = wp.max(best3, (pyr[off + ri * n_k + ci] - h0) * st[1])
+        if on4 == 1:
+            ci = int(wp.floor((u5 + st[0] * az4[2]) * st[2]))
+            ri = int(wp.floor((v5 + st[0] * az4[3]) * st[2]))
+            if bound <= wp.max(best4, floors[3]) or ci < 0 or ri < 0 or ci >= n_k or ri >= n_k:
+                on4 = 0
+            else:
+                best4 = wp.max(best4, (pyr[off + ri * n_k + ci] - h0) * st[1])
+        if on1 + on2 + on3 + on4 == 0:
+            break
+    return wp.vec4(best1, best2, best3, best4)
+
+
 @wp.kernel(enable_backward=False)
 def horizon_kernel(pyr: wp.array(dtype=wp.float32), steps: wp.array(dtype=wp.vec4), step_level: wp.array2d(dtype=wp.int32),
                    azimuth: wp.array(dtype=wp.vec4), size: int, uv: wp.array(dtype=wp.vec2), out: wp.array2d(dtype=wp.float32)):
@@ -378,36 +452,81 @@ def horizon_kernel(pyr: wp.array(dtype=wp.float32), steps: wp.array(dtype=wp.vec
     kernel computes before the wedges (tests and diagnostics)."""
     p, i = wp.tid()
     h0 = _bilinear_height(pyr, size, uv[p][0], uv[p][1])
-    out[p, i] = horizon_slope(pyr, steps, step_level, uv[p][0] + 0.5, uv[p][1] + 0.5, h0, azimuth[i])
+    out[p, i] = horizon_slope(pyr, steps, step_level, uv[p][0] + 0.5, uv[p][1] + 0.5, h0, azimuth[i],
+                              pyr[pyr.shape[0] - 1], -1.0e30)
+
+
+def cosine_indices(order: int) -> list:
+    """Indices ``l^2 + l + m`` of the cosine coefficients (``m >= 0``) of one order, band by band:
+    the columns of an even table (:func:`table_is_even`, :func:`visibility_kernels`)."""
+    return [l * l + l + m for l in range(order) for m in range(0, l + 1)]
 
 
 @functools.lru_cache(maxsize=None)
 def visibility_kernels(order: int):
     """``(texel_kernel, upsample_kernel)`` of one SH order (cached): ``texel_kernel(march:
-    HorizonMarch, texels: TexelVisibility, start)`` and ``upsample_kernel(texels, size, res, start,
-    out)``, each over items ``start .. start + dim``."""
+    HorizonMarch, texels: TexelVisibility, table, start)`` and ``upsample_kernel(texels, size,
+    res, start, out)``, each over items ``start .. start + dim``.
+
+    ``table`` is the canonical wedge (:func:`.model.wedge_table`, about phi = 0: no sine terms)
+    by its cosine coefficients (:func:`cosine_indices`), (E,) vectors of their count: one read
+    per entry; the kernel turns each azimuth's wedge difference into place with the azimuth's
+    ``cos m phi``, ``sin m phi`` (``TexelVisibility.harmonics``) before adding it."""
     shk = sh_kernels(order)
     N2 = order * order
+    ORDER = order
     vec_t = shk.vec
+    COS = cosine_indices(order)
+    NCOS = len(COS)
+    M_OF = [m for l in range(order) for m in range(0, l + 1)]
+    SIN = [l * l + l - m for l in range(order) for m in range(0, l + 1)]
+    cos_t = wp.types.vector(length=NCOS, dtype=wp.float32)
 
     @wp.func
-    def wedge(table: wp.array2d(dtype=wp.float32), row: int, e: int, z: float) -> vec_t:
-        # rows row .. row + e - 1 of the table: one azimuth's wedge over z0
+    def wedge_at(table: wp.array(dtype=cos_t), e: int, z: float) -> cos_t:
+        # the canonical wedge open above z (linear in the table over z0)
         t = (wp.clamp(z, -1.0, 1.0) + 1.0) * 0.5 * float(e - 1)
         i0 = wp.min(int(t), e - 2)
         f = t - float(i0)
-        out = vec_t()
-        for k in range(N2):
-            out[k] = (1.0 - f) * table[row + i0, k] + f * table[row + i0 + 1, k]
+        return (1.0 - f) * table[i0] + f * table[i0 + 1]
+
+    @wp.func
+    def add_turned(acc: vec_t, w: cos_t, harm: wp.array2d(dtype=wp.float32), i: int) -> vec_t:
+        # acc + Rz(phi_i) w for a w without sine terms: (l, m) -> cos(m phi) w, (l, -m) -> sin(m phi) w
+        out = acc
+        for q in range(wp.static(NCOS)):
+            if wp.static(M_OF[q] == 0):
+                out[wp.static(COS[q])] += w[q]
+            else:
+                out[wp.static(COS[q])] += harm[i, wp.static(M_OF[q])] * w[q]
+                out[wp.static(SIN[q])] += harm[i, wp.static(ORDER + M_OF[q])] * w[q]
+        return out
+
+    @wp.func
+    def add_wedge(acc: vec_t, best: float, tau: float, open_below: int, table: wp.array(dtype=cos_t), e: int,
+                  harm: wp.array2d(dtype=wp.float32), i: int) -> vec_t:
+        # acc + azimuth i's wedge: open below the tangent plane, whole - [tangent, horizon]; or
+        # open above the horizon only
+        out = acc
+        if open_below == 1:
+            if best > tau:  # else the band between tangent and horizon is empty
+                zh = best / wp.sqrt(1.0 + best * best)
+                zt = tau / wp.sqrt(1.0 + tau * tau)
+                out = add_turned(acc, wedge_at(table, e, zh) - wedge_at(table, e, zt), harm, i)
+        else:
+            zh = -1.0
+            if best > -1.0e29:
+                zh = best / wp.sqrt(1.0 + best * best)
+            out = add_turned(acc, wedge_at(table, e, zh), harm, i)
         return out
 
     @wp.kernel(enable_backward=False, module="unique")
-    def texel_kernel(march: HorizonMarch, texels: TexelVisibility, start: int):
+    def texel_kernel(march: HorizonMarch, texels: TexelVisibility, table: wp.array(dtype=cos_t), start: int):
         pyr = march.pyr
         size = march.size
         res = texels.res
-        table = texels.table
         e = texels.entries
+        top = pyr[pyr.shape[0] - 1]
         t = wp.tid() + start
         a = t // res
         b = t - a * res
@@ -424,32 +543,26 @@ def visibility_kernels(order: int):
             # each wedge is open above its horizon and below its tangent: whole - [tangent, horizon]
             for k in range(N2):
                 acc[k] = texels.full[k]
-        for i in range(march.azimuth.shape[0]):
-            az = march.azimuth[i]
-            best = horizon_slope(pyr, march.steps, march.step_level, u + 0.5, v + 0.5, h0, az)
-            zh = -1.0
-            if best > -1.0e29:
-                zh = best / wp.sqrt(1.0 + best * best)
-            row = i * e
+        na = march.azimuth.shape[0]
+        for p in range((na + 3) // 4):
+            # azimuths i0 .. i0 + 3 (those below na) in one march
+            i0 = 4 * p
+            count = wp.min(4, na - i0)
+            az1 = march.azimuth[i0]
+            az2 = march.azimuth[wp.min(i0 + 1, na - 1)]
+            az3 = march.azimuth[wp.min(i0 + 2, na - 1)]
+            az4 = march.azimuth[wp.min(i0 + 3, na - 1)]
+            taus = wp.vec4(gx * az1[0] + gy * az1[1], gx * az2[0] + gy * az2[1], gx * az3[0] + gy * az3[1],
+                           gx * az4[0] + gy * az4[1])
+            floors = wp.vec4(-1.0e30, -1.0e30, -1.0e30, -1.0e30)
             if texels.open_below == 1:
-                tau = gx * az[0] + gy * az[1]
-                zt = tau / wp.sqrt(1.0 + tau * tau)
-                if zt < zh:  # else the band between tangent and horizon is empty
-                    # acc + wedge(zh) - wedge(zt), one coefficient at a time (no vector temporaries)
-                    th = (wp.clamp(zh, -1.0, 1.0) + 1.0) * 0.5 * float(e - 1)
-                    ih = wp.min(int(th), e - 2)
-                    fh = th - float(ih)
-                    tt = (wp.clamp(zt, -1.0, 1.0) + 1.0) * 0.5 * float(e - 1)
-                    it = wp.min(int(tt), e - 2)
-                    ft = tt - float(it)
-                    rh = row + ih
-                    rt = row + it
-                    for k in range(N2):
-                        wh = (1.0 - fh) * table[rh, k] + fh * table[rh + 1, k]
-                        wt = (1.0 - ft) * table[rt, k] + ft * table[rt + 1, k]
-                        acc[k] = acc[k] + wh - wt
-            else:
-                acc = acc + wedge(table, row, e, zh)
+                # only a horizon above the tangent plane matters: the march may stop below it
+                floors = taus
+            best = horizon_slope_quad(pyr, march.steps, march.step_level, u + 0.5, v + 0.5, h0, az1, az2, az3, az4, top,
+                                      floors, count)
+            for q in range(4):
+                if q < count:
+                    acc = add_wedge(acc, best[q], taus[q], texels.open_below, table, e, texels.harmonics, i0 + q)
         for k in range(N2):
             texels.out[t, k] = acc[k]
 
@@ -483,93 +596,173 @@ def table_is_even(table) -> bool:
 
 
 @functools.lru_cache(maxsize=None)
+def light_columns_kernel(order: int):
+    """``light_columns_kernel(light (3, n*n) float32, cols (3 n*n,) vec)`` of one order (cached),
+    3 threads: the order-n SH product with light channel ``c`` as a matrix, stored by columns,
+    ``(l_c * v) = sum_j v_j cols[c n*n + j]`` (unrolled over the Gaunt entries): the texel
+    products then cost one vector multiply-add per coefficient of ``v``."""
+    shk = sh_kernels(order)
+    N2 = order * order
+    vec_t = shk.vec
+    sh_load = shk.load
+    PT = _product_terms(order)
+    NPT = len(PT)
+    mat_t = wp.types.matrix(shape=(N2, N2), dtype=wp.float32)
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def light_columns_kernel(light: wp.array2d(dtype=wp.float32), cols: wp.array(dtype=vec_t)):
+        ch = wp.tid()
+        lc = sh_load(light, ch)
+        # m[j] = column j of the product matrix: (l * v)_i = sum_j m[j, i] v_j
+        m = mat_t()
+        for e in range(wp.static(NPT)):
+            m[wp.static(PT[e][2]), wp.static(PT[e][0])] += wp.static(PT[e][3]) * lc[wp.static(PT[e][1])]
+            m[wp.static(PT[e][1]), wp.static(PT[e][0])] += wp.static(PT[e][3]) * lc[wp.static(PT[e][2])]
+        for j in range(wp.static(N2)):
+            cols[ch * N2 + j] = m[j]
+
+    return light_columns_kernel
+
+
+@functools.lru_cache(maxsize=None)
 def shade_kernels(order: int, even: bool = False):
     """``(product_kernel, shade_kernel, rotate_kernel, pair_product_kernel)`` of one SH order
-    (cached); ``shade_kernel(vertices: ShadeVertices, texels: ShadeTexels, start, out:
-    ShadeOutputs)`` shades grid vertices ``start .. start + dim``. With ``even`` the shading
-    kernel reads only the cosine columns (``m >= 0``) of the view table and rotates with
-    :func:`even_frame_rotation`: for a table whose sine columns are zero (:func:`table_is_even`)."""
+    (cached). With ``even`` the shading kernel reads only the cosine coefficients
+    (``m >= 0``) of the view table and rotates with :func:`even_frame_rotation`: for a table whose
+    sine columns are zero (:func:`table_is_even`).
+
+    The coefficient arrays are 1-D arrays of order-n vectors (``vec``: n*n float32), so that one
+    read fetches a contiguous block and the per-coefficient arithmetic is straight vector code:
+
+    * ``product_kernel(vis (R*R, n*n), cols, start, g (3 R*R,) vec)``: ``g[3 t + c] = l_c * v_t``
+      with the product matrices ``cols`` of :func:`light_columns_kernel`;
+    * ``shade_kernel(vertices: ShadeVertices, texels: ShadeTexels, g, ftable (E,) vec, start, out:
+      ShadeOutputs)``: thread ``start + i`` shades a run of :data:`SHADE_RUN` vertices along a grid
+      row (the products interpolated along the texel columns once per column the run crosses).
+    """
     shk = sh_kernels(order)
     N2 = order * order
     vec_t = shk.vec
     sh_load = shk.load
     _, rotate_frame, product = static_sh_funcs(order)
     rotate_shade = even_frame_rotation(order) if even else rotate_frame
-    EVEN = bool(even)
-    COS_IDX = [l * l + l + m for l in range(order) for m in range(0, l + 1)]
-    NCOS = len(COS_IDX)
 
     @wp.kernel(enable_backward=False, module="unique")
-    def product_kernel(vis: wp.array2d(dtype=wp.float32), light: wp.array2d(dtype=wp.float32), start: int,
-                       out: wp.array2d(dtype=wp.float32)):
+    def product_kernel(vis: wp.array2d(dtype=wp.float32), cols: wp.array(dtype=vec_t), start: int,
+                       out: wp.array(dtype=vec_t)):
         t = wp.tid() + start
         v = sh_load(vis, t)
         for ch in range(3):
-            g = product(sh_load(light, ch), v)
-            for k in range(N2):
-                out[t, ch * N2 + k] = g[k]
+            g = vec_t()
+            for j in range(wp.static(N2)):
+                g = g + v[j] * cols[ch * N2 + j]
+            out[3 * t + ch] = g
 
     @wp.kernel(enable_backward=False, module="unique")
-    def shade_kernel(vertices: ShadeVertices, texels: ShadeTexels, start: int, out: ShadeOutputs):
-        vtx = wp.tid() + start
-        g = texels.g
-        ftable = texels.ftable
+    def shade_kernel(vertices: ShadeVertices, texels: ShadeTexels, g: wp.array(dtype=vec_t),
+                     ftable: wp.array(dtype=vec_t), start: int, out: ShadeOutputs):
+        # one thread per run of SHADE_RUN vertices along a grid row: the lighting products are
+        # interpolated along the texel columns once per texel column the run crosses, then
+        # along the row per vertex
+        item = wp.tid() + start
+        size = vertices.size
         res = texels.res
-        n = vertices.normals[vtx]
-        d = vertices.eye[0] - vertices.points[vtx]
-        dl = wp.length(d)
-        mu = float(0.0)
-        if dl > 0.0:
-            d = d / dl
-            mu = wp.dot(n, d)
-        if mu <= 0.0:
-            out.radiance[vtx, 0] = 0.0
-            out.radiance[vtx, 1] = 0.0
-            out.radiance[vtx, 2] = 0.0
-            out.flags[vtx] = FLAG_BELOW_HORIZON
-            return
-        # local frame about n with the view in its x-z plane
-        x = d - mu * n
-        xl = wp.length(x)
-        if xl > 1.0e-6:
-            x = x / xl
-        else:
-            x = wp.vec3(1.0, 0.0, 0.0) - n[0] * n
-            if wp.length(x) < 1.0e-3:
-                x = wp.vec3(0.0, 1.0, 0.0) - n[1] * n
-            x = wp.normalize(x)
-        y = wp.cross(n, x)
-        # F(wo) from the table over cos(theta_o)
+        runs = (size + SHADE_RUN - 1) // SHADE_RUN
+        row = item // runs
+        c_begin = (item - row * runs) * SHADE_RUN
+        c_end = wp.min(c_begin + SHADE_RUN, size)
+        scale = float(res - 1) / float(size - 1)
+        fv = float(row) * scale
+        r0 = wp.min(int(fv), res - 2)
+        tv = fv - float(r0)
+        sv = 1.0 - tv
+        cell = int(-2)
+        a0 = vec_t()
+        a1 = vec_t()
+        a2 = vec_t()
+        b0 = vec_t()
+        b1 = vec_t()
+        b2 = vec_t()
+        eye = vertices.eye[0]
         e = ftable.shape[0]
-        tt = wp.min(mu, 1.0) * float(e - 1)
-        i0 = wp.min(int(tt), e - 2)
-        fr = tt - float(i0)
-        f = vec_t()
-        if wp.static(EVEN):
-            for q in range(wp.static(NCOS)):
-                f[wp.static(COS_IDX[q])] = (1.0 - fr) * ftable[i0, wp.static(COS_IDX[q])] + \
-                    fr * ftable[i0 + 1, wp.static(COS_IDX[q])]
-        else:
-            for k in range(N2):
-                f[k] = (1.0 - fr) * ftable[i0, k] + fr * ftable[i0 + 1, k]
-        # to the world: f(F s) with F rows (x, y, n), i.e. the rotation R = F^T
-        rt = wp.mat33(x[0], y[0], n[0], x[1], y[1], n[1], x[2], y[2], n[2])
-        fw = rotate_shade(f, rt)
-        # g at the vertex (bilinear over the visibility texels)
-        t00, w = texel_weights(vtx, vertices.size, res)
-        w00, w01, w10, w11 = w[0], w[1], w[2], w[3]
-        neg = int(0)
-        for ch in range(3):
-            acc = float(0.0)
-            for k in range(N2):
-                col = ch * N2 + k
-                gk = w00 * g[t00, col] + w01 * g[t00 + 1, col] + w10 * g[t00 + res, col] + w11 * g[t00 + res + 1, col]
-                acc += fw[k] * gk
-            if acc < 0.0:
-                acc = 0.0
-                neg = 1
-            out.radiance[vtx, ch] = texels.specular[ch] * acc
-        out.flags[vtx] = neg * FLAG_NEGATIVE
+        for c in range(c_begin, c_end):
+            vtx = row * size + c
+            n = vertices.normals[vtx]
+            d = eye - vertices.points[vtx]
+            dl = wp.length(d)
+            mu = float(0.0)
+            if dl > 0.0:
+                d = d * (1.0 / dl)
+                mu = wp.dot(n, d)
+            if mu <= 0.0:
+                out.radiance[vtx, 0] = 0.0
+                out.radiance[vtx, 1] = 0.0
+                out.radiance[vtx, 2] = 0.0
+                out.flags[vtx] = FLAG_BELOW_HORIZON
+                continue
+            # local frame about n with the view in its x-z plane
+            x = d - mu * n
+            xl = wp.length(x)
+            if xl > 1.0e-6:
+                x = x * (1.0 / xl)
+            else:
+                x = wp.vec3(1.0, 0.0, 0.0) - n[0] * n
+                if wp.length(x) < 1.0e-3:
+                    x = wp.vec3(0.0, 1.0, 0.0) - n[1] * n
+                x = wp.normalize(x)
+            y = wp.cross(n, x)
+            # F(wo) from the table over cos(theta_o)
+            tt = wp.min(mu, 1.0) * float(e - 1)
+            i0 = wp.min(int(tt), e - 2)
+            fr = tt - float(i0)
+            f = (1.0 - fr) * ftable[i0] + fr * ftable[i0 + 1]
+            # to the world: f(F s) with F rows (x, y, n), i.e. the rotation R = F^T
+            fw = rotate_shade(f, wp.mat33(x[0], y[0], n[0], x[1], y[1], n[1], x[2], y[2], n[2]))
+            fu = float(c) * scale
+            c0 = wp.min(int(fu), res - 2)
+            tu = fu - float(c0)
+            if c0 != cell:
+                if c0 == cell + 1:
+                    a0 = b0
+                    a1 = b1
+                    a2 = b2
+                else:
+                    ta = 3 * (r0 * res + c0)
+                    tb = ta + 3 * res
+                    a0 = sv * g[ta] + tv * g[tb]
+                    a1 = sv * g[ta + 1] + tv * g[tb + 1]
+                    a2 = sv * g[ta + 2] + tv * g[tb + 2]
+                ta = 3 * (r0 * res + c0 + 1)
+                tb = ta + 3 * res
+                b0 = sv * g[ta] + tv * g[tb]
+                b1 = sv * g[ta + 1] + tv * g[tb + 1]
+                b2 = sv * g[ta + 2] + tv * g[tb + 2]
+                cell = c0
+            su = 1.0 - tu
+            # the six dot products in one pass over the coefficients
+            da0 = float(0.0)
+            da1 = float(0.0)
+            da2 = float(0.0)
+            db0 = float(0.0)
+            db1 = float(0.0)
+            db2 = float(0.0)
+            for k in range(wp.static(N2)):
+                fk = fw[k]
+                da0 += fk * a0[k]
+                da1 += fk * a1[k]
+                da2 += fk * a2[k]
+                db0 += fk * b0[k]
+                db1 += fk * b1[k]
+                db2 += fk * b2[k]
+            rad = wp.vec3(su * da0 + tu * db0, su * da1 + tu * db1, su * da2 + tu * db2)
+            neg = int(0)
+            for ch in range(3):
+                acc = rad[ch]
+                if acc < 0.0:
+                    acc = 0.0
+                    neg = 1
+                out.radiance[vtx, ch] = texels.specular[ch] * acc
+            out.flags[vtx] = neg * FLAG_NEGATIVE
 
     @wp.kernel(enable_backward=False, module="unique")
     def rotate_kernel(f: wp.array2d(dtype=wp.float32), rot: wp.array(dtype=wp.mat33), out: wp.array2d(dtype=wp.float32)):

@@ -8,12 +8,13 @@ import math
 import numpy as np
 
 from ..._wp import launch_parallel, wp
+from ...basis.sh_warp import sh_kernels
 from ..common import ShLighting, order_param
 from ..rpo import OPERATORS, SHADE_PARAMS, GlossyStage
 from ..stage import FrameStage, Param, Port, StageError, register_stage
-from .kernels import (FLAG_BELOW_HORIZON, FLAG_NEGATIVE, HorizonMarch, ShadeOutputs, ShadeTexels, ShadeVertices,
-                      TexelVisibility, heights_kernel, horizon_kernel, reduce_kernel, shade_kernels, table_is_even,
-                      visibility_kernels)
+from .kernels import (FLAG_BELOW_HORIZON, FLAG_NEGATIVE, SHADE_RUN, HorizonMarch, ShadeOutputs, ShadeTexels,
+                      ShadeVertices, TexelVisibility, cosine_indices, heights_kernel, horizon_kernel, light_columns_kernel,
+                      reduce_kernel, shade_kernels, table_is_even, visibility_kernels)
 from .model import (WEDGE_ENTRIES, GridLayout, grid_layout, march_plan, pyramid_levels, rotated_wedge_tables, view_table,
                     wedge_table)
 
@@ -27,6 +28,11 @@ BELOW_MODES = ("open", "blocked")
 FACTOR_MODES = ("rpo", "exact")
 
 _ORDER = order_param(4, minimum=2, maximum=6)
+
+
+def shade_runs(size: int) -> int:
+    """Threads of the shading kernel per grid row (runs of :data:`.kernels.SHADE_RUN` vertices)."""
+    return (size + SHADE_RUN - 1) // SHADE_RUN
 
 
 def _layout(stage, ctx) -> GridLayout:
@@ -93,9 +99,13 @@ class HeightFieldVisibilityStage(FrameStage):
         az = np.stack([np.cos(phi), np.sin(phi), np.cos(phi) / lay.dx, np.sin(phi) / lay.dy], 1)
         self._azimuth = wp.array(az.astype(np.float32), dtype=wp.vec4, device=dev)
         self.table = wedge_table(n, a, p["table_entries"])
-        rotated, full = rotated_wedge_tables(self.table, a)
-        self._table = wp.array(rotated.astype(np.float32), dtype=wp.float32, device=dev)
+        _, full = rotated_wedge_tables(self.table, a)
+        cos_t = wp.types.vector(length=len(cosine_indices(n)), dtype=wp.float32)
+        self._table = wp.array(self.table[:, cosine_indices(n)].astype(np.float32), dtype=cos_t, device=dev)
         self._full = wp.array(full.astype(np.float32), dtype=wp.float32, device=dev)
+        m = np.arange(n)
+        harmonics = np.concatenate([np.cos(np.outer(phi, m)), np.sin(np.outer(phi, m))], 1)
+        self._harmonics = wp.array(harmonics.astype(np.float32), dtype=wp.float32, device=dev)
         self._points = inputs["points"]
         r = p["resolution"]
         self._texels = wp.zeros((r * r, n * n), dtype=wp.float32, device=dev)
@@ -104,7 +114,7 @@ class HeightFieldVisibilityStage(FrameStage):
         march.pyr, march.steps, march.step_level, march.azimuth = self._pyr, self._steps, self._step_level, self._azimuth
         march.size, march.dx, march.dy = lay.size, lay.dx, lay.dy
         texels = TexelVisibility()
-        texels.table, texels.res, texels.out = self._table, r, self._texels
+        texels.harmonics, texels.res, texels.out = self._harmonics, r, self._texels
         texels.entries, texels.full = int(self.table.shape[0]), self._full
         texels.open_below = 1 if p["below"] == "open" else 0
         self._march, self._texel_args = march, texels
@@ -116,25 +126,36 @@ class HeightFieldVisibilityStage(FrameStage):
         return out
 
     def launch(self, state):
-        p, lay = self.params, self.layout
+        for name, fn in self.launch_parts().items():
+            fn()
+
+    def launch_parts(self) -> dict:
+        """The frame's kernels in order, as ``{name: launch()}`` (the frame runs them all;
+        ``benchmarks/bench_heightfield.py`` times them one by one)."""
+        lay = self.layout
         dev = self._pyr.device
         g = lay.size
-        wp.launch(heights_kernel, dim=g * g, inputs=[self._points, self._pyr], device=dev)
-        for k in range(1, len(self._sizes)):
-            s = self._sizes[k]
-            wp.launch(reduce_kernel, dim=s * s, inputs=[self._pyr, int(self._offs[k - 1]), self._sizes[k - 1],
-                                                         int(self._offs[k]), s], device=dev)
-        r = p["resolution"]
+        r = self.params["resolution"]
 
-        def texel_inputs(start, stop):
-            return [self._march, self._texel_args, start]
+        def pyramid():
+            wp.launch(heights_kernel, dim=g * g, inputs=[self._points, self._pyr], device=dev)
+            for k in range(1, len(self._sizes)):
+                s = self._sizes[k]
+                wp.launch(reduce_kernel, dim=s * s, inputs=[self._pyr, int(self._offs[k - 1]), self._sizes[k - 1],
+                                                             int(self._offs[k]), s], device=dev)
 
-        launch_parallel(self._texel_kernel, r * r, texel_inputs, dev, min_count=CPU_CHUNK_MIN)
+        def texels():
+            launch_parallel(self._texel_kernel, r * r, lambda a, b: [self._march, self._texel_args, self._table, a], dev,
+                            min_count=CPU_CHUNK_MIN)
+
+        parts = {"pyramid": pyramid, "texels": texels}
         if self._vertex is not None:
-            def up_inputs(start, stop):
-                return [self._texels, g, r, start, self._vertex]
+            def upsample():
+                launch_parallel(self._upsample_kernel, g * g, lambda a, b: [self._texels, g, r, a, self._vertex], dev,
+                                min_count=CPU_CHUNK_MIN)
 
-            launch_parallel(self._upsample_kernel, g * g, up_inputs, dev, min_count=CPU_CHUNK_MIN)
+            parts["upsample"] = upsample
+        return parts
 
     def horizons(self, uv) -> np.ndarray:
         """The march's horizon slopes of the current pyramid at points ``uv`` (P, 2) (column,
@@ -153,7 +174,8 @@ class HeightFieldVisibilityStage(FrameStage):
                 "march_levels": [int(x) for x in lev]}
 
     def model_bytes(self) -> int:
-        return int(self._table.capacity + self._full.capacity + self._steps.capacity + self._step_level.capacity)
+        return int(self._table.capacity + self._full.capacity + self._harmonics.capacity + self._steps.capacity +
+                   self._step_level.capacity)
 
 
 @register_stage
@@ -188,14 +210,16 @@ class HeightFieldShadeStage(GlossyStage):
         n = p["order"]
         self._points, self._normals, self._texels = inputs["points"], inputs["normals"], texels
         self._lighting = ShLighting(inputs["lighting"], n)
-        self._g = wp.zeros((r * r, 3 * n * n), dtype=wp.float32, device=dev)
-        self._ftable = wp.zeros((p["view_table"], n * n), dtype=wp.float32, device=dev)
+        vec_t = sh_kernels(n).vec
+        self._cols = wp.zeros(3 * n * n, dtype=vec_t, device=dev)
+        self._g = wp.zeros(3 * r * r, dtype=vec_t, device=dev)
+        self._ftable = wp.zeros(p["view_table"], dtype=vec_t, device=dev)
         self._flags = wp.zeros(ctx.dims["V"], dtype=wp.int32, device=dev)
         self._radiance = wp.zeros((ctx.dims["V"], 3), dtype=wp.float32, device=dev)
         vertices = ShadeVertices()
         vertices.points, vertices.normals, vertices.eye, vertices.size = self._points, self._normals, self._eye, lay.size
         shade_texels = ShadeTexels()
-        shade_texels.g, shade_texels.res, shade_texels.ftable = self._g, r, self._ftable
+        shade_texels.res = r
         shade_texels.specular = self._specular
         out = ShadeOutputs()
         out.radiance, out.flags = self._radiance, self._flags
@@ -204,6 +228,7 @@ class HeightFieldShadeStage(GlossyStage):
         # the view table decides the shading kernel (an isotropic lobe: the half first z-rotation)
         self._even = table_is_even(self.table)
         self._product, self._shade, _, _ = shade_kernels(n, self._even)
+        self._light_columns = light_columns_kernel(n)
         return {"radiance": self._radiance}
 
     def _current_brdf(self):
@@ -239,20 +264,28 @@ class HeightFieldShadeStage(GlossyStage):
 
     def launch(self, state):
         self._lighting.launch()
+        for name, fn in self.launch_parts().items():
+            fn()
+
+    def launch_parts(self) -> dict:
+        """The frame's kernels after the lighting refresh, in order, as ``{name: launch()}``
+        (the frame runs them all; ``benchmarks/bench_heightfield.py`` times them one by one)."""
         dev = self._radiance.device
         r, g = self.resolution, self.layout.size
-
-        def product_inputs(start, stop):
-            return [self._texels, self._lighting.light, start, self._g]
-
-        launch_parallel(self._product, r * r, product_inputs, dev, min_count=CPU_CHUNK_MIN)
-
         vertices, texels, out = self._shade_args
 
-        def shade_inputs(start, stop):
-            return [vertices, texels, start, out]
+        def columns():
+            wp.launch(self._light_columns, dim=3, inputs=[self._lighting.light, self._cols], device=dev)
 
-        launch_parallel(self._shade, g * g, shade_inputs, dev, min_count=CPU_CHUNK_MIN)
+        def products():
+            launch_parallel(self._product, r * r, lambda a, b: [self._texels, self._cols, a, self._g], dev,
+                            min_count=CPU_CHUNK_MIN)
+
+        def shading():
+            launch_parallel(self._shade, g * shade_runs(g), lambda a, b: [vertices, texels, self._g, self._ftable, a, out],
+                            dev, min_count=CPU_CHUNK_MIN // SHADE_RUN)
+
+        return {"light columns": columns, "products": products, "shading": shading}
 
     def diagnostics(self) -> dict:
         f = self._flags.numpy()
@@ -262,4 +295,4 @@ class HeightFieldShadeStage(GlossyStage):
                 "operator_build_s": round(self.operator.build_s, 4)}
 
     def model_bytes(self) -> int:
-        return int(self._ftable.capacity)
+        return int(self._ftable.capacity + self._cols.capacity)
