@@ -4,8 +4,8 @@ against a float64 quadrature of the exact per-texel materials.
 One run of the graph (SSDFs and the sky's SG mixture and prefiltered table precomputed), frame
 0, rendered per pixel by ``sg.shade`` with ``brdf = "svbrdf"``: each pixel's texel (nearest, at
 the UV interpolated at the hit) gives its NDF lobes and its shadowing decoded from the PCA. The
-glossy ray-traced reference does not shade tabulated materials, so the oracle is
-:func:`warpshade.methods.sg.svbrdf.eq13_quadrature_f64`: for each pixel of a subset of the dish's
+oracle here is :func:`warpshade.methods.sg.svbrdf.eq13_quadrature_f64` (the glossy ray-traced
+reference shades the texture too: ``--validate`` and ``bench_svbrdf_reference.py``): for each pixel of a subset of the dish's
 pixels, eq. 13 with the texel's EXACT analytic ``D`` and ``S``
 (:func:`warpshade.usd_assets.generator.svbrdf.texel_material`) integrated against the sky
 (bilinear radiance) over the hemisphere of the pixel's shading normal by Gauss-Legendre x uniform
