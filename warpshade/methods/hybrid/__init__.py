@@ -15,7 +15,7 @@ frames, the history cut where the surface moves fast or fresh rays disagree with
 * :mod:`.budget` -- the candidate settings an error budget chooses from.
 """
 
-from .mirror import cycle_directions_f64, estimate_f64, filter_f64, residual_f64, temporal_f64
+from .mirror import cycle_directions_f64, estimate_f64, filter_f64, reproject_f64, residual_f64, temporal_f64
 from .model import SurfaceNeighbours, surface_neighbours
 from .rows import glossy_stages_for, harness_rows, stages_for
 from .stages import HybridTraceStage
@@ -27,6 +27,7 @@ __all__ = [
     "estimate_f64",
     "filter_f64",
     "glossy_stages_for",
+    "reproject_f64",
     "harness_rows",
     "residual_f64",
     "stages_for",

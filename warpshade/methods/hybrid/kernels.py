@@ -41,6 +41,12 @@ fixed point set under a uniform random rotation, so every frame's estimate is un
   With ``test_raw`` the test compares the unfiltered one-frame estimate (``raw``) instead, against
   the one-frame variance before the filter (``var_mean`` times the filter's gain): less sensitive
   by that gain, so it keeps more history (less noise) and follows a slowly drifting transfer later.
+* :func:`reproject_kernel` -- with ``reproject`` on, before the rays: the per-vertex history (the
+  averaged residual, or the last estimate when it is the control) is carried by the rotation of
+  the vertex's tangent frame since the last frame, ``R = F_now^T F_prev`` (``F`` rows t, b, n:
+  world to local), so that a history kept in the world frame follows the surface's turn
+  (``h(w) <- h(R^T w)``: what was seen along the local direction ``F_prev w`` is now seen along
+  ``F_now^T F_prev w``); vertices without history, or whose frames are not finite, are left as they are.
 * :func:`advance_kernel` -- the frame counter, incremented at the end of every frame.
 """
 
@@ -49,7 +55,7 @@ from __future__ import annotations
 import functools
 
 from ..._wp import wp
-from ...basis.sh_warp import sh_kernels
+from ...basis.sh_warp import SHTables, sh_kernels
 from ...geometry.bvh import RAY_MAX_DISTANCE
 from ...transfer.raytrace import random_rotation
 
@@ -233,6 +239,35 @@ def filter_kernel(order: int):
         for i in range(C):
             dst[v, i] = dst[v, i] * inv
         gain[v] = wsum * wsum / w2
+
+    return kernel
+
+
+@functools.lru_cache(maxsize=None)
+def reproject_kernel(order: int):
+    """Rotate each vertex's history by its tangent frame's turn since the last frame (cached)."""
+    sh = sh_kernels(order)
+    sh_rotate, sh_load, sh_store = sh.rotate, sh.load, sh.store
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def kernel(
+        frames: wp.array(dtype=wp.mat33),
+        prev_frames: wp.array(dtype=wp.mat33),
+        count: wp.array(dtype=wp.float32),
+        tables: SHTables,
+        target: wp.array2d(dtype=wp.float32),
+    ):
+        v = wp.tid()
+        f = frames[v]
+        r = wp.transpose(f) * prev_frames[v]
+        ok = count[v] > 0.0
+        for i in range(3):
+            for j in range(3):
+                if not wp.isfinite(r[i, j]):
+                    ok = False
+        if ok:
+            sh_store(target, v, sh_rotate(sh_load(target, v), r, tables))
+        prev_frames[v] = f
 
     return kernel
 

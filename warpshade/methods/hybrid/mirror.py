@@ -177,6 +177,28 @@ def temporal_f64(state: dict, points, normals, scale, fresh, fresh_variance, gai
     return out, st
 
 
+def reproject_f64(target, frames, prev_frames, count):
+    """The history carried by each vertex's tangent-frame turn (:func:`.kernels.reproject_kernel`):
+    ``sh.rotate(h, F^T F_prev)`` where ``count > 0`` and both frames are finite, else ``h`` as it is.
+
+    Args:
+        target: (V, C) per-vertex SH history (world frame); frames, prev_frames: (V, 3, 3) tangent
+            frames (rows t, b, n) now and at the last frame; count: (V,) effective frames of history.
+
+    Returns:
+        (V, C) float64.
+    """
+    out = np.array(target, np.float64)
+    f = np.asarray(frames, np.float64)
+    fp = np.asarray(prev_frames, np.float64)
+    with np.errstate(invalid="ignore"):
+        r = np.einsum("vji,vjk->vik", f, fp)  # F^T F_prev
+    ok = (np.asarray(count) > 0) & np.all(np.isfinite(r), axis=(1, 2))
+    if np.any(ok):
+        out[ok] = sh.rotate(out[ok], r[ok])
+    return out
+
+
 def estimate_f64(normals, rotations, samples, occluded, order: int, control=None):
     """One frame without reuse: ``T = T_hat + r`` (the unbiased control-variate estimate)."""
     r, _ = residual_f64(normals, rotations, samples, occluded, order, control)

@@ -32,6 +32,8 @@ def stages_for(control: str, samples: int, order: int = 6, training: str | None 
         shade = ("shade", "ldprt.shade_rotated", {"order": order}, {"transfer": "trace.transfer", "frames": "frames.frames"})
     else:
         pre, wires = (), {}
+        if params.get("reproject"):
+            pre, wires = (("frames", "ldprt.frames", {}, {}),), {"frames": "frames.frames"}
         shade = ("shade", "prt.shade", {"order": order}, {"transfer": "trace.transfer"})
     if control in ("previous", "none"):
         return (*pre, ("trace", "hybrid.trace", {**params, "control": control}, wires), shade)
@@ -44,7 +46,7 @@ def stages_for(control: str, samples: int, order: int = 6, training: str | None 
         return (("data", "datadriven.data", data, {}),
                 ("fit", "datadriven.fit", {"model": "reduced"}, {"data": "data.data"}),
                 ("model", "datadriven.transfer", {"order": order}, {"model": "fit.model"}),
-                ("trace", "hybrid.trace", {**params, "control": "model"}, {"control": "model.transfer"}), shade)
+                *pre, ("trace", "hybrid.trace", {**params, "control": "model"}, {"control": "model.transfer", **wires}), shade)
     if control == "ldprt":
         return (("bake", "ldprt.transfer", {"order": order, "samples": bake_samples}, {}), *pre,
                 ("trace", "hybrid.trace", {**params, "control": "model"}, {"control": "bake.transfer", **wires}), shade)
