@@ -16,9 +16,16 @@ DATADRIVEN_SCENES = {"figure": ("bundled:figure_train", None), "figure_walk": ("
                      "wanderer": ("bundled:wanderer_train", "0:1000:2")}
 
 
+#: The data-driven visibility model used as control (stages/figure_visibility_diffuse.toml's fit:
+#: per cluster a quadratic ridge model of the first 12 input-PCA components, PCA to 99 %).
+VISIBILITY_FIT = {"model": "quadratic", "input_max": 12, "variance": 0.99, "k_max": 64}
+
+
 def stages_for(control: str, samples: int, order: int = 6, training: str | None = None, frames: str | None = None,
                training_samples: int = 256, bake_samples: int = 256, space: str = "world", trace: dict | None = None) -> tuple:
     """The stages of a hybrid graph with a control: ``"datadriven"`` (needs ``training``),
+    ``"visibility"`` (the data-driven visibility model of ``visibility.fit`` trained on
+    ``training``, its prediction turned into world-frame transfer by ``hybrid.visibility_transfer``),
     ``"ldprt"`` (local transfer baked at the first frame, rotated with the surface: always in the
     tangent frames), ``"previous"`` or ``"none"`` (in ``space``, world or the tangent frames); the
     ray count ``samples`` is ``hybrid.trace``'s. Local-frame graphs shade with
@@ -47,6 +54,20 @@ def stages_for(control: str, samples: int, order: int = 6, training: str | None 
                 ("fit", "datadriven.fit", {"model": "reduced"}, {"data": "data.data"}),
                 ("model", "datadriven.transfer", {"order": order}, {"model": "fit.model"}),
                 *pre, ("trace", "hybrid.trace", {**params, "control": "model"}, {"control": "model.transfer", **wires}), shade)
+    if control == "visibility":
+        if training is None or local:
+            raise ValueError("stages_for: the visibility control needs a training clip and the world frame")
+        data = {"training": training, "order": order, "samples": training_samples}
+        if frames is not None:
+            data["frames"] = frames
+        if params.get("reproject"):  # the history turns with the visibility's own tangent frames
+            wires = {"frames": "predict.frames"}
+        return (("data", "visibility.data", data, {}),
+                ("fit", "visibility.fit", dict(VISIBILITY_FIT), {"data": "data.data"}),
+                ("predict", "visibility.predict", {"order": order}, {"model": "fit.model"}),
+                ("model", "hybrid.visibility_transfer", {"order": order},
+                 {"visibility": "predict.visibility", "frames": "predict.frames"}),
+                ("trace", "hybrid.trace", {**params, "control": "model"}, {"control": "model.transfer", **wires}), shade)
     if control == "ldprt":
         return (("bake", "ldprt.transfer", {"order": order, "samples": bake_samples}, {}), *pre,
                 ("trace", "hybrid.trace", {**params, "control": "model"}, {"control": "bake.transfer", **wires}), shade)
