@@ -38,7 +38,11 @@ fixed point set under a uniform random rotation, so every frame's estimate is un
   residual holds still) the weight of the fresh frame is ``max(alpha, 1 / (n + 1), s^2)``,
   ``s = clamp((z - fade) / (threshold - fade), 0, 1)``, so the history fades as the fresh rays drift
   from it, and is cut (weight 1) for ``z > threshold`` or when the vertex moved or turned fast.
-  With ``test_raw`` the test compares the unfiltered one-frame estimate (``raw``) instead, against
+  With ``soft`` (the ``reset = "soft"`` parameter) the fade is replaced by the weight that
+  minimises the mean squared error of the blend for the history's estimated bias
+  ``b^2 = max(0, d^2 - var_mean - var_h)``: ``a = (var_h + b^2) / (var_h + b^2 + var_mean)`` (for an
+  unbiased history that is the running average's own ``var_h / (var_h + var_fresh)``); the cut
+  above the threshold stays. With ``test_raw`` the test compares the unfiltered one-frame estimate (``raw``) instead, against
   the one-frame variance before the filter (``var_mean`` times the filter's gain): less sensitive
   by that gain, so it keeps more history (less noise) and follows a slowly drifting transfer later.
 * :func:`reproject_kernel` -- with ``reproject`` on, before the rays: the per-vertex history (the
@@ -305,6 +309,7 @@ class TemporalParams:
     in_control: int  # 1: the control is the last estimate (the history lives in it; fresh = T_prev + r)
     fade: float  # z above which the history fades (the fresh frame's weight s^2 reaches 1 at the threshold)
     test_raw: int  # 1: the variance test compares the unfiltered one-frame estimate with the history
+    soft: int  # 1: below the threshold the fresh frame's weight is the MSE-optimal one for the estimated bias (no fade)
 
 
 @functools.lru_cache(maxsize=None)
@@ -361,6 +366,10 @@ def temporal_kernel(order: int):
                 z = d2 / (vm + state.variance[v] + 1.0e-12)
                 if z > params.threshold:
                     code = RESET_VARIANCE
+                elif params.soft != 0:
+                    vh = state.variance[v]
+                    b2 = wp.max(d2 - vm - vh, 0.0)
+                    drift = (vh + b2) / (vh + b2 + vm + 1.0e-12)
                 elif params.threshold > params.fade:
                     s = wp.clamp((z - params.fade) / (params.threshold - params.fade), 0.0, 1.0)
                     drift = s * s

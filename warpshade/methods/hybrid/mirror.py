@@ -110,7 +110,8 @@ def temporal_f64(state: dict, points, normals, scale, fresh, fresh_variance, gai
         state: ``history`` (V, C), ``frames`` (V,), ``variance_mean`` (V,), ``variance`` (V,),
             ``prev_points`` (V, 3), ``prev_normals`` (V, 3).
         control: (V, C) or None; params: ``alpha``, ``motion``, ``normal_cos``, ``threshold``,
-            ``in_control``, ``fade`` (optional, default 1), ``test_raw`` (optional, 0: the variance test on ``fresh``; 1: on ``raw``,
+            ``in_control``, ``fade`` (optional, default 1), ``soft`` (optional, default 0: the
+            MSE-optimal weight for the estimated bias instead of the fade), ``test_raw`` (optional, 0: the variance test on ``fresh``; 1: on ``raw``,
             the unfiltered one-frame estimate, against the variance before the filter).
         raw: (V, C) the unfiltered one-frame estimate (``fresh`` when None).
 
@@ -150,6 +151,10 @@ def temporal_f64(state: dict, points, normals, scale, fresh, fresh_variance, gai
                 z = d2 / (vm + st["variance"][v] + 1e-12)
                 if z > params["threshold"]:
                     code = _RESET_VARIANCE
+                elif params.get("soft", 0):
+                    vh = st["variance"][v]
+                    b2 = max(d2 - vm - vh, 0.0)
+                    drift = (vh + b2) / (vh + b2 + vm + 1e-12)
                 elif params["threshold"] > fade:
                     drift = min(max((z - fade) / (params["threshold"] - fade), 0.0), 1.0) ** 2
         if not (np.isfinite(d2) and np.isfinite(vf)):

@@ -83,6 +83,9 @@ class HybridTraceStage(FrameStage):
                       "the filter (raw, against its own variance) or after it (filtered)", choices=("raw", "filtered")),
         "reproject": Param(False, bool, "world frame: carry each vertex's history by its tangent frame's turn since the "
                            "last frame (port 'frames'), so that a turning surface keeps it"),
+        "reset": Param("hard", str, "below the threshold: the history fades from 'fade' on (hard), or the fresh frame "
+                       "gets the weight of least mean squared error for the history's estimated bias (soft)",
+                       choices=("hard", "soft")),
         "motion": Param(1.0, float, "history cut when a vertex moves more than this many mean edge lengths per frame",
                         minimum=0.0),
         "normal_turn": Param(20.0, float, "history cut when a normal turns more than this (degrees) per frame",
@@ -170,6 +173,7 @@ class HybridTraceStage(FrameStage):
         tp.in_control = 1 if p["control"] == "previous" else 0
         tp.fade = float(p["fade"])
         tp.test_raw = 1 if p["test"] == "raw" else 0
+        tp.soft = 1 if p["reset"] == "soft" else 0
         self._params = tp
         if p["reproject"]:
             self._prev_frames = wp.zeros(v, dtype=wp.mat33, device=dev)
