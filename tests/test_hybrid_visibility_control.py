@@ -7,7 +7,7 @@ from warpshade._wp import wp
 from warpshade.basis import quadrature, sh
 from warpshade.basis.sh_warp import sh_kernels
 from warpshade.methods.hybrid import visibility_transfer_f64
-from warpshade.methods.hybrid.adapter import visibility_transfer_kernel
+from warpshade.methods.hybrid.kernels import visibility_transfer_kernel
 from warpshade.methods.rpo.model import cosine_sh
 
 from tolerances import assert_close

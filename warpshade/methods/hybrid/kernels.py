@@ -51,6 +51,10 @@ fixed point set under a uniform random rotation, so every frame's estimate is un
   world to local), so that a history kept in the world frame follows the surface's turn
   (``h(w) <- h(R^T w)``: what was seen along the local direction ``F_prev w`` is now seen along
   ``F_now^T F_prev w``); vertices without history, or whose frames are not finite, are left as they are.
+* :func:`visibility_transfer_kernel` -- a visibility model as control (``hybrid.visibility_transfer``):
+  local SH visibility ``v`` (open below the horizon, tangent frame ``F``) as world-frame diffuse
+  transfer ``T = R(F^T) (v * c)``, ``c`` the SH of the clamped cosine ``max(0, s_z)`` and ``v * c``
+  the order-n truncated SH product (as ``visibility.diffuse`` shades it).
 * :func:`advance_kernel` -- the frame counter, incremented at the end of every frame.
 """
 
@@ -415,3 +419,24 @@ def temporal_kernel(order: int):
 
     return kernel
 
+
+@functools.lru_cache(maxsize=None)
+def visibility_transfer_kernel(order: int):
+    """``kernel(visibility, frames, cos_sh, tables, start, transfer)``: ``R(F^T)(v * cos)`` per vertex."""
+    shk = sh_kernels(order)
+    n2 = order * order
+    vec_t = shk.vec
+    sh_rotate, sh_product, sh_load, sh_store = shk.rotate, shk.product, shk.load, shk.store
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def kernel(visibility: wp.array2d(dtype=wp.float32), frames: wp.array(dtype=wp.mat33),
+               cos_sh: wp.array(dtype=wp.float32), tables: SHTables, start: int,
+               transfer: wp.array2d(dtype=wp.float32)):
+        v = wp.tid() + start
+        c = vec_t()
+        for i in range(n2):
+            c[i] = cos_sh[i]
+        t = sh_product(sh_load(visibility, v), c, tables)
+        sh_store(transfer, v, sh_rotate(t, wp.transpose(frames[v]), tables))
+
+    return kernel

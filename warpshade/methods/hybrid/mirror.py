@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from ...basis import sh
+from ..rpo.model import cosine_sh
 
 __all__: list[str] = []
 
@@ -208,3 +209,10 @@ def estimate_f64(normals, rotations, samples, occluded, order: int, control=None
     """One frame without reuse: ``T = T_hat + r`` (the unbiased control-variate estimate)."""
     r, _ = residual_f64(normals, rotations, samples, occluded, order, control)
     return r if control is None else np.asarray(control, np.float64) + r
+
+
+def visibility_transfer_f64(visibility, frames, order: int) -> np.ndarray:
+    """Float64 mirror of :func:`visibility_transfer_kernel`: (V, C) world-frame transfer from
+    (V, C) local visibility and (V, 3, 3) tangent frames (rows t, b, n)."""
+    local = sh.product(np.asarray(visibility, np.float64), np.broadcast_to(cosine_sh(order), np.shape(visibility)))
+    return sh.rotate(local, np.swapaxes(np.asarray(frames, np.float64), 1, 2))

@@ -1,5 +1,9 @@
 """Per-frame ray tracing with few rays and a control variate, reused over frames and the mesh.
 
+* ``hybrid.visibility_transfer`` (per frame): a data-driven visibility model's local SH
+  visibility (``visibility.predict``) as world-frame diffuse transfer, ``R(F^T)(v * cos)``, the
+  control of ``hybrid.trace`` (:func:`.kernels.visibility_transfer_kernel`).
+
 * ``hybrid.trace`` (per frame): the diffuse transfer of every vertex from ``samples`` rays per
   vertex and frame (a spherical Fibonacci set rotated per vertex and per frame), with a control
   model's transfer ``T_hat`` as control variate (frames in cycles of ``cycle`` shifted Fibonacci
@@ -43,6 +47,7 @@ import numpy as np
 from ..._wp import cpu_workers, launch_parallel, wp
 from ...basis.sh_warp import sh_kernels
 from ..common import order_param, rays_param
+from ..rpo.model import cosine_sh
 from ..stage import FrameStage, Param, Port, StageError, register_stage
 from . import kernels
 from .model import surface_neighbours
@@ -239,3 +244,40 @@ class HybridTraceStage(FrameStage):
             "steps": int(self._step.numpy()[0]),
             **{f"surface_{k}": v for k, v in self.setup_report.items()},
         }
+
+
+@register_stage
+class HybridVisibilityTransferStage(FrameStage):
+    type_name = "hybrid.visibility_transfer"
+    description = "world-frame diffuse transfer from local SH visibility (cosine re-applied, rotated): a control for hybrid.trace"
+    parameters = {"order": order_param(6, minimum=1, maximum=8)}
+
+    def dims(self):
+        return {"C": self.params["order"] ** 2}
+
+    def input_ports(self):
+        return {"visibility": Port("float32", ("V", "C"), "SH visibility (no cosine, open below the horizon), tangent frame",
+                                   space="local"),
+                "frames": Port("mat33", ("V",), "the tangent frames of the visibility, rows (t, b, n)")}
+
+    def output_ports(self):
+        return {"transfer": Port("float32", ("V", "C"), "diffuse transfer implied by the visibility, world frame",
+                                 space="world")}
+
+    def setup(self, ctx, inputs):
+        dev = ctx.device
+        n = self.params["order"]
+        self._vis, self._frames = inputs["visibility"], inputs["frames"]
+        self._cos = wp.array(cosine_sh(n).astype(np.float32), dtype=wp.float32, device=dev)
+        self._tables = sh_kernels(n).tables(dev)
+        self._kernel = kernels.visibility_transfer_kernel(n)
+        self._transfer = wp.zeros((ctx.dims["V"], n * n), dtype=wp.float32, device=dev)
+        return {"transfer": self._transfer}
+
+    def launch(self, state):
+        launch_parallel(self._kernel, self._transfer.shape[0],
+                        lambda a, b: [self._vis, self._frames, self._cos, self._tables, a, self._transfer],
+                        self._transfer.device, min_count=_CHUNK_MIN_VERTICES)
+
+    def model_bytes(self) -> int:
+        return int(self._transfer.size * 4) if hasattr(self, "_transfer") else 0
