@@ -21,6 +21,11 @@ DATADRIVEN_SCENES = {"figure": ("bundled:figure_train", None), "figure_walk": ("
 VISIBILITY_FIT = {"model": "quadratic", "input_max": 12, "variance": 0.99, "k_max": 64}
 
 
+#: hybrid.trace settings that keep the history through a turn (reprojected; no cut by the normal's
+#: turn, motion cut at 4 edge lengths per frame) and blend by the estimated bias (soft reset, cut at z > 8).
+REPROJECT_SOFT = {"reproject": True, "normal_turn": 180.0, "motion": 4.0, "reset": "soft", "threshold": 8.0}
+
+
 def stages_for(control: str, samples: int, order: int = 6, training: str | None = None, frames: str | None = None,
                training_samples: int = 256, bake_samples: int = 256, space: str = "world", trace: dict | None = None) -> tuple:
     """The stages of a hybrid graph with a control: ``"datadriven"`` (needs ``training``),
@@ -111,6 +116,14 @@ def harness_rows(quick: bool = False) -> list:
                 "shade.radiance", scenes=(scene,), quick=False,
                 notes=f"{samples} rays per vertex per frame, control: data-driven transfer trained on {training.split(':')[-1]}",
             ))
+    rows.append(HarnessRow(
+        "hybrid", "n6 K64 visibility rps",
+        stages_for("visibility", 64, training="bundled:figure_train", frames="0:600:3", training_samples=128,
+                   trace=REPROJECT_SOFT),
+        "shade.radiance", scenes=("figure",), quick=False,
+        notes="64 rays per vertex per frame, control: the data-driven visibility model (as "
+              "stages/figure_visibility_diffuse.toml) as transfer; history reprojected by the frames' turn, soft reset",
+    ))
     for samples in (16, 32):
         rows.append(HarnessRow(
             "hybrid-glossy", f"n4 K{samples} static", glossy_stages_for(samples, bake_samples=1024), "shade.radiance",
