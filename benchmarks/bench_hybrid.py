@@ -14,7 +14,9 @@ For each scene and setting, in one run on one device:
 
 Settings: ``prt.trace`` n6 1024 rays; ``hybrid.trace`` n6 with K in {8, 16, 32, 64} and each
 applicable control (none, previous, ldprt; datadriven on the figure, trained on figure_train with
-``--training-frames`` and ``--training-samples``).
+``--training-frames`` and ``--training-samples``; visibility on the figure: the data-driven
+visibility model of stages/figure_visibility_diffuse.toml, trained on figure_train with
+``--visibility-training-frames`` and ``--visibility-training-samples``).
 
 Usage::
 
@@ -57,18 +59,19 @@ TRAINING = {"figure": "bundled:figure_train", "figure_walk": "bundled:figure_tra
 
 
 def settings(scene_key, order, samples_list, controls, reference_rays, training_frames, training_samples,
-             variants=None, baseline=True):
+             variants=None, baseline=True, visibility_training=("0:600:3", 128)):
     """The rows of a scene: ``(method, rays, stages)``; ``variants`` ``{name: hybrid.trace parameters}``
     (None: the defaults, unnamed) are run for every ray count and control."""
     out = [("traced", reference_rays, (("shade", "prt.trace", {"order": order, "samples": reference_rays}, {}),))] if baseline else []
     for k in samples_list:
         for control in controls:
             for name, trace in (variants or {"": {}}).items():
-                if control == "datadriven":
+                if control in ("datadriven", "visibility"):
                     if scene_key not in TRAINING:
                         continue
-                    st = stages_for("datadriven", k, order, training=TRAINING[scene_key], frames=training_frames,
-                                    training_samples=training_samples, trace=trace)
+                    tf, ts = (training_frames, training_samples) if control == "datadriven" else visibility_training
+                    st = stages_for(control, k, order, training=TRAINING[scene_key], frames=tf, training_samples=ts,
+                                    trace=trace)
                 else:
                     st = stages_for(control, k, order, trace=trace)
                 out.append((f"hybrid {control}" + (f" {name}" if name else ""), k, st))
@@ -96,7 +99,8 @@ def parse_variants(text):
 #: Line styles of the named variants (in name order).
 STYLES = ("s--", "^:", "v-.", "D-")
 #: One colour per setting family in every panel.
-COLORS = {"hybrid none": "C1", "hybrid previous": "C2", "hybrid ldprt": "C0", "hybrid datadriven": "C3"}
+COLORS = {"hybrid none": "C1", "hybrid previous": "C2", "hybrid ldprt": "C0", "hybrid datadriven": "C3",
+          "hybrid visibility": "C4"}
 
 
 def chart(results, path):
@@ -153,6 +157,9 @@ def main(argv=None) -> int:
     ap.add_argument("--seeds", type=int, default=8)
     ap.add_argument("--training-frames", default="0:600:20", help="data-driven control: training frames")
     ap.add_argument("--training-samples", type=int, default=32, help="data-driven control: rays per training frame")
+    ap.add_argument("--visibility-training-frames", default="0:600:3",
+                    help="visibility control: training frames (as stages/figure_visibility_diffuse.toml)")
+    ap.add_argument("--visibility-training-samples", type=int, default=128, help="visibility control: rays per training frame")
     ap.add_argument("--variants", default=None, metavar="NAME=JSON;...",
                     help='hybrid.trace parameter sets run side by side, e.g. \'old={"threshold": 2};new={}\'')
     ap.add_argument("--suffix", default="", help="added to the results' file name (hybrid-<date>-<device>-SUFFIX)")
@@ -195,7 +202,8 @@ def main(argv=None) -> int:
 
         noise_frame = float(scene.frames[min(args.noise_frame, len(scene.frames) - 1)])
         rows = settings(key, args.order, samples, controls, args.reference_rays, args.training_frames, args.training_samples,
-                        parse_variants(args.variants), baseline=not args.no_baseline)
+                        parse_variants(args.variants), baseline=not args.no_baseline,
+                        visibility_training=(args.visibility_training_frames, args.visibility_training_samples))
         for method, rays, stages in progress_bar(rows, desc=f"{key}: settings", unit="setting"):
             t0 = time.perf_counter()
             try:

@@ -269,6 +269,27 @@ def test_fade_starts_at_its_z(device):
         assert_close(runs[-1][0], np.full((v, c), weight * x), rtol=1e-4, what=f"fresh weight at fade {fade}")
 
 
+def test_soft_reset_weight_is_least_squares_for_the_estimated_bias(device):
+    """After 9 agreeing frames (history variance vf / 9), a fresh frame at z = 3: the estimated
+    bias is b^2 = d^2 - vf - vf / 9 = 20 vf / 9 and the fresh weight (vf / 9 + b^2) / (vf / 9 + b^2 + vf)
+    = 0.7; at z = 1 no bias is seen and the weight is the running average's 1 / (n + 1) = 0.1."""
+    v, c = 6, ORDER * ORDER
+    pts = np.zeros((v, 3))
+    nrm = np.tile([0.0, 0.0, 1.0], (v, 1))
+    var, gain = 1e-4 * c, 2.0
+    vf = var / gain
+    for z, weight in ((3.0, 0.7), (1.0, 0.1)):
+        x = np.sqrt(z * vf * (1.0 + 1.0 / 9.0) / c)
+        frames_in = [(pts, nrm, np.zeros((v, c)), np.full(v, var), np.zeros((v, c))) for _ in range(9)]
+        frames_in.append((pts, nrm, np.full((v, c), x), np.full(v, var), np.zeros((v, c))))
+        runs = _temporal_run(device, frames_in, dict(PARAMS, soft=1, threshold=4.0), gain=gain)
+        for tr, reset, fr, t64, reset64, fr64 in runs:
+            assert_close(tr, t64, atol=ATOL_AVERAGE, what="transfer")
+            assert_close(fr, fr64, rtol=ATOL_AVERAGE, what="effective frames")
+            assert np.all(reset == 0)
+        assert_close(runs[-1][0], np.full((v, c), weight * x), rtol=1e-4, what=f"fresh weight at z {z}")
+
+
 def test_history_is_the_running_average_up_to_one_over_alpha(device, rng):
     """While the fresh frames agree with the history, frame t's weight is max(alpha, 1 / (t + 1)):
     the transfer is the plain mean of the first 1 / alpha = 10 fresh frames, and the effective

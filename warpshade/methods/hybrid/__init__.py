@@ -7,7 +7,9 @@ frame's estimate, or nothing), an unbiased control-variate estimate whose varian
 model's residual; the residual is filtered over mesh neighbours and averaged per vertex over
 frames, the history cut where the surface moves fast or fresh rays disagree with it.
 
-* :mod:`.stages` -- ``hybrid.trace`` (per frame): ports, parameters, buffers;
+* :mod:`.stages` -- ``hybrid.trace`` (per frame): ports, parameters, buffers; and
+  ``hybrid.visibility_transfer``: a data-driven visibility model's prediction as world-frame
+  transfer, the control of ``hybrid.trace``;
 * :mod:`.kernels` -- the residual (rays), the edge-aware filter, the moving average;
 * :mod:`.mirror` -- their float64 mirror, the tests' oracle;
 * :mod:`.model` -- the surface neighbourhood built at set-up (any topology, reported);
@@ -15,21 +17,25 @@ frames, the history cut where the surface moves fast or fresh rays disagree with
 * :mod:`.budget` -- the candidate settings an error budget chooses from.
 """
 
-from .mirror import cycle_directions_f64, estimate_f64, filter_f64, residual_f64, temporal_f64
+from .mirror import (cycle_directions_f64, estimate_f64, filter_f64, reproject_f64, residual_f64, temporal_f64,
+                     visibility_transfer_f64)
 from .model import SurfaceNeighbours, surface_neighbours
 from .rows import glossy_stages_for, harness_rows, stages_for
-from .stages import HybridTraceStage
+from .stages import HybridTraceStage, HybridVisibilityTransferStage
 
 __all__ = [
     "HybridTraceStage",
+    "HybridVisibilityTransferStage",
     "SurfaceNeighbours",
     "cycle_directions_f64",
     "estimate_f64",
     "filter_f64",
     "glossy_stages_for",
+    "reproject_f64",
     "harness_rows",
     "residual_f64",
     "stages_for",
     "surface_neighbours",
     "temporal_f64",
+    "visibility_transfer_f64",
 ]

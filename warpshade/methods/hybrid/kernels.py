@@ -38,9 +38,23 @@ fixed point set under a uniform random rotation, so every frame's estimate is un
   residual holds still) the weight of the fresh frame is ``max(alpha, 1 / (n + 1), s^2)``,
   ``s = clamp((z - fade) / (threshold - fade), 0, 1)``, so the history fades as the fresh rays drift
   from it, and is cut (weight 1) for ``z > threshold`` or when the vertex moved or turned fast.
-  With ``test_raw`` the test compares the unfiltered one-frame estimate (``raw``) instead, against
+  With ``soft`` (the ``reset = "soft"`` parameter) the fade is replaced by the weight that
+  minimises the mean squared error of the blend for the history's estimated bias
+  ``b^2 = max(0, d^2 - var_mean - var_h)``: ``a = (var_h + b^2) / (var_h + b^2 + var_mean)`` (for an
+  unbiased history that is the running average's own ``var_h / (var_h + var_fresh)``); the cut
+  above the threshold stays. With ``test_raw`` the test compares the unfiltered one-frame estimate (``raw``) instead, against
   the one-frame variance before the filter (``var_mean`` times the filter's gain): less sensitive
   by that gain, so it keeps more history (less noise) and follows a slowly drifting transfer later.
+* :func:`reproject_kernel` -- with ``reproject`` on, before the rays: the per-vertex history (the
+  averaged residual, or the last estimate when it is the control) is carried by the rotation of
+  the vertex's tangent frame since the last frame, ``R = F_now^T F_prev`` (``F`` rows t, b, n:
+  world to local), so that a history kept in the world frame follows the surface's turn
+  (``h(w) <- h(R^T w)``: what was seen along the local direction ``F_prev w`` is now seen along
+  ``F_now^T F_prev w``); vertices without history, or whose frames are not finite, are left as they are.
+* :func:`visibility_transfer_kernel` -- a visibility model as control (``hybrid.visibility_transfer``):
+  local SH visibility ``v`` (open below the horizon, tangent frame ``F``) as world-frame diffuse
+  transfer ``T = R(F^T) (v * c)``, ``c`` the SH of the clamped cosine ``max(0, s_z)`` and ``v * c``
+  the order-n truncated SH product (as ``visibility.diffuse`` shades it).
 * :func:`advance_kernel` -- the frame counter, incremented at the end of every frame.
 """
 
@@ -49,7 +63,7 @@ from __future__ import annotations
 import functools
 
 from ..._wp import wp
-from ...basis.sh_warp import sh_kernels
+from ...basis.sh_warp import SHTables, sh_kernels
 from ...geometry.bvh import RAY_MAX_DISTANCE
 from ...transfer.raytrace import random_rotation
 
@@ -237,6 +251,35 @@ def filter_kernel(order: int):
     return kernel
 
 
+@functools.lru_cache(maxsize=None)
+def reproject_kernel(order: int):
+    """Rotate each vertex's history by its tangent frame's turn since the last frame (cached)."""
+    sh = sh_kernels(order)
+    sh_rotate, sh_load, sh_store = sh.rotate, sh.load, sh.store
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def kernel(
+        frames: wp.array(dtype=wp.mat33),
+        prev_frames: wp.array(dtype=wp.mat33),
+        count: wp.array(dtype=wp.float32),
+        tables: SHTables,
+        target: wp.array2d(dtype=wp.float32),
+    ):
+        v = wp.tid()
+        f = frames[v]
+        r = wp.transpose(f) * prev_frames[v]
+        ok = count[v] > 0.0
+        for i in range(3):
+            for j in range(3):
+                if not wp.isfinite(r[i, j]):
+                    ok = False
+        if ok:
+            sh_store(target, v, sh_rotate(sh_load(target, v), r, tables))
+        prev_frames[v] = f
+
+    return kernel
+
+
 @wp.struct
 class TemporalState:
     """Per-vertex history of the moving average (device arrays, fixed for a run).
@@ -270,6 +313,7 @@ class TemporalParams:
     in_control: int  # 1: the control is the last estimate (the history lives in it; fresh = T_prev + r)
     fade: float  # z above which the history fades (the fresh frame's weight s^2 reaches 1 at the threshold)
     test_raw: int  # 1: the variance test compares the unfiltered one-frame estimate with the history
+    soft: int  # 1: below the threshold the fresh frame's weight is the MSE-optimal one for the estimated bias (no fade)
 
 
 @functools.lru_cache(maxsize=None)
@@ -326,6 +370,10 @@ def temporal_kernel(order: int):
                 z = d2 / (vm + state.variance[v] + 1.0e-12)
                 if z > params.threshold:
                     code = RESET_VARIANCE
+                elif params.soft != 0:
+                    vh = state.variance[v]
+                    b2 = wp.max(d2 - vm - vh, 0.0)
+                    drift = (vh + b2) / (vh + b2 + vm + 1.0e-12)
                 elif params.threshold > params.fade:
                     s = wp.clamp((z - params.fade) / (params.threshold - params.fade), 0.0, 1.0)
                     drift = s * s
@@ -371,3 +419,24 @@ def temporal_kernel(order: int):
 
     return kernel
 
+
+@functools.lru_cache(maxsize=None)
+def visibility_transfer_kernel(order: int):
+    """``kernel(visibility, frames, cos_sh, tables, start, transfer)``: ``R(F^T)(v * cos)`` per vertex."""
+    shk = sh_kernels(order)
+    n2 = order * order
+    vec_t = shk.vec
+    sh_rotate, sh_product, sh_load, sh_store = shk.rotate, shk.product, shk.load, shk.store
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def kernel(visibility: wp.array2d(dtype=wp.float32), frames: wp.array(dtype=wp.mat33),
+               cos_sh: wp.array(dtype=wp.float32), tables: SHTables, start: int,
+               transfer: wp.array2d(dtype=wp.float32)):
+        v = wp.tid() + start
+        c = vec_t()
+        for i in range(n2):
+            c[i] = cos_sh[i]
+        t = sh_product(sh_load(visibility, v), c, tables)
+        sh_store(transfer, v, sh_rotate(t, wp.transpose(frames[v]), tables))
+
+    return kernel

@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from ...basis import sh
+from ..rpo.model import cosine_sh
 
 __all__: list[str] = []
 
@@ -110,7 +111,8 @@ def temporal_f64(state: dict, points, normals, scale, fresh, fresh_variance, gai
         state: ``history`` (V, C), ``frames`` (V,), ``variance_mean`` (V,), ``variance`` (V,),
             ``prev_points`` (V, 3), ``prev_normals`` (V, 3).
         control: (V, C) or None; params: ``alpha``, ``motion``, ``normal_cos``, ``threshold``,
-            ``in_control``, ``fade`` (optional, default 1), ``test_raw`` (optional, 0: the variance test on ``fresh``; 1: on ``raw``,
+            ``in_control``, ``fade`` (optional, default 1), ``soft`` (optional, default 0: the
+            MSE-optimal weight for the estimated bias instead of the fade), ``test_raw`` (optional, 0: the variance test on ``fresh``; 1: on ``raw``,
             the unfiltered one-frame estimate, against the variance before the filter).
         raw: (V, C) the unfiltered one-frame estimate (``fresh`` when None).
 
@@ -150,6 +152,10 @@ def temporal_f64(state: dict, points, normals, scale, fresh, fresh_variance, gai
                 z = d2 / (vm + st["variance"][v] + 1e-12)
                 if z > params["threshold"]:
                     code = _RESET_VARIANCE
+                elif params.get("soft", 0):
+                    vh = st["variance"][v]
+                    b2 = max(d2 - vm - vh, 0.0)
+                    drift = (vh + b2) / (vh + b2 + vm + 1e-12)
                 elif params["threshold"] > fade:
                     drift = min(max((z - fade) / (params["threshold"] - fade), 0.0), 1.0) ** 2
         if not (np.isfinite(d2) and np.isfinite(vf)):
@@ -177,7 +183,36 @@ def temporal_f64(state: dict, points, normals, scale, fresh, fresh_variance, gai
     return out, st
 
 
+def reproject_f64(target, frames, prev_frames, count):
+    """The history carried by each vertex's tangent-frame turn (:func:`.kernels.reproject_kernel`):
+    ``sh.rotate(h, F^T F_prev)`` where ``count > 0`` and both frames are finite, else ``h`` as it is.
+
+    Args:
+        target: (V, C) per-vertex SH history (world frame); frames, prev_frames: (V, 3, 3) tangent
+            frames (rows t, b, n) now and at the last frame; count: (V,) effective frames of history.
+
+    Returns:
+        (V, C) float64.
+    """
+    out = np.array(target, np.float64)
+    f = np.asarray(frames, np.float64)
+    fp = np.asarray(prev_frames, np.float64)
+    with np.errstate(invalid="ignore"):
+        r = np.einsum("vji,vjk->vik", f, fp)  # F^T F_prev
+    ok = (np.asarray(count) > 0) & np.all(np.isfinite(r), axis=(1, 2))
+    if np.any(ok):
+        out[ok] = sh.rotate(out[ok], r[ok])
+    return out
+
+
 def estimate_f64(normals, rotations, samples, occluded, order: int, control=None):
     """One frame without reuse: ``T = T_hat + r`` (the unbiased control-variate estimate)."""
     r, _ = residual_f64(normals, rotations, samples, occluded, order, control)
     return r if control is None else np.asarray(control, np.float64) + r
+
+
+def visibility_transfer_f64(visibility, frames, order: int) -> np.ndarray:
+    """Float64 mirror of :func:`visibility_transfer_kernel`: (V, C) world-frame transfer from
+    (V, C) local visibility and (V, 3, 3) tangent frames (rows t, b, n)."""
+    local = sh.product(np.asarray(visibility, np.float64), np.broadcast_to(cosine_sh(order), np.shape(visibility)))
+    return sh.rotate(local, np.swapaxes(np.asarray(frames, np.float64), 1, 2))

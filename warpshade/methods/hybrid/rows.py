@@ -16,9 +16,21 @@ DATADRIVEN_SCENES = {"figure": ("bundled:figure_train", None), "figure_walk": ("
                      "wanderer": ("bundled:wanderer_train", "0:1000:2")}
 
 
+#: The data-driven visibility model used as control (stages/figure_visibility_diffuse.toml's fit:
+#: per cluster a quadratic ridge model of the first 12 input-PCA components, PCA to 99 %).
+VISIBILITY_FIT = {"model": "quadratic", "input_max": 12, "variance": 0.99, "k_max": 64}
+
+
+#: hybrid.trace settings that keep the history through a turn (reprojected; no cut by the normal's
+#: turn, motion cut at 4 edge lengths per frame) and blend by the estimated bias (soft reset, cut at z > 8).
+REPROJECT_SOFT = {"reproject": True, "normal_turn": 180.0, "motion": 4.0, "reset": "soft", "threshold": 8.0}
+
+
 def stages_for(control: str, samples: int, order: int = 6, training: str | None = None, frames: str | None = None,
                training_samples: int = 256, bake_samples: int = 256, space: str = "world", trace: dict | None = None) -> tuple:
     """The stages of a hybrid graph with a control: ``"datadriven"`` (needs ``training``),
+    ``"visibility"`` (the data-driven visibility model of ``visibility.fit`` trained on
+    ``training``, its prediction turned into world-frame transfer by ``hybrid.visibility_transfer``),
     ``"ldprt"`` (local transfer baked at the first frame, rotated with the surface: always in the
     tangent frames), ``"previous"`` or ``"none"`` (in ``space``, world or the tangent frames); the
     ray count ``samples`` is ``hybrid.trace``'s. Local-frame graphs shade with
@@ -32,6 +44,8 @@ def stages_for(control: str, samples: int, order: int = 6, training: str | None 
         shade = ("shade", "ldprt.shade_rotated", {"order": order}, {"transfer": "trace.transfer", "frames": "frames.frames"})
     else:
         pre, wires = (), {}
+        if params.get("reproject"):
+            pre, wires = (("frames", "ldprt.frames", {}, {}),), {"frames": "frames.frames"}
         shade = ("shade", "prt.shade", {"order": order}, {"transfer": "trace.transfer"})
     if control in ("previous", "none"):
         return (*pre, ("trace", "hybrid.trace", {**params, "control": control}, wires), shade)
@@ -44,7 +58,21 @@ def stages_for(control: str, samples: int, order: int = 6, training: str | None 
         return (("data", "datadriven.data", data, {}),
                 ("fit", "datadriven.fit", {"model": "reduced"}, {"data": "data.data"}),
                 ("model", "datadriven.transfer", {"order": order}, {"model": "fit.model"}),
-                ("trace", "hybrid.trace", {**params, "control": "model"}, {"control": "model.transfer"}), shade)
+                *pre, ("trace", "hybrid.trace", {**params, "control": "model"}, {"control": "model.transfer", **wires}), shade)
+    if control == "visibility":
+        if training is None or local:
+            raise ValueError("stages_for: the visibility control needs a training clip and the world frame")
+        data = {"training": training, "order": order, "samples": training_samples}
+        if frames is not None:
+            data["frames"] = frames
+        if params.get("reproject"):  # the history turns with the visibility's own tangent frames
+            wires = {"frames": "predict.frames"}
+        return (("data", "visibility.data", data, {}),
+                ("fit", "visibility.fit", dict(VISIBILITY_FIT), {"data": "data.data"}),
+                ("predict", "visibility.predict", {"order": order}, {"model": "fit.model"}),
+                ("model", "hybrid.visibility_transfer", {"order": order},
+                 {"visibility": "predict.visibility", "frames": "predict.frames"}),
+                ("trace", "hybrid.trace", {**params, "control": "model"}, {"control": "model.transfer", **wires}), shade)
     if control == "ldprt":
         return (("bake", "ldprt.transfer", {"order": order, "samples": bake_samples}, {}), *pre,
                 ("trace", "hybrid.trace", {**params, "control": "model"}, {"control": "bake.transfer", **wires}), shade)
@@ -88,6 +116,14 @@ def harness_rows(quick: bool = False) -> list:
                 "shade.radiance", scenes=(scene,), quick=False,
                 notes=f"{samples} rays per vertex per frame, control: data-driven transfer trained on {training.split(':')[-1]}",
             ))
+    rows.append(HarnessRow(
+        "hybrid", "n6 K64 visibility rps",
+        stages_for("visibility", 64, training="bundled:figure_train", frames="0:600:3", training_samples=128,
+                   trace=REPROJECT_SOFT),
+        "shade.radiance", scenes=("figure",), quick=False,
+        notes="64 rays per vertex per frame, control: the data-driven visibility model (as "
+              "stages/figure_visibility_diffuse.toml) as transfer; history reprojected by the frames' turn, soft reset",
+    ))
     for samples in (16, 32):
         rows.append(HarnessRow(
             "hybrid-glossy", f"n4 K{samples} static", glossy_stages_for(samples, bake_samples=1024), "shade.radiance",

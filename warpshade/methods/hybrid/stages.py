@@ -1,5 +1,9 @@
 """Per-frame ray tracing with few rays and a control variate, reused over frames and the mesh.
 
+* ``hybrid.visibility_transfer`` (per frame): a data-driven visibility model's local SH
+  visibility (``visibility.predict``) as world-frame diffuse transfer, ``R(F^T)(v * cos)``, the
+  control of ``hybrid.trace`` (:func:`.kernels.visibility_transfer_kernel`).
+
 * ``hybrid.trace`` (per frame): the diffuse transfer of every vertex from ``samples`` rays per
   vertex and frame (a spherical Fibonacci set rotated per vertex and per frame), with a control
   model's transfer ``T_hat`` as control variate (frames in cycles of ``cycle`` shifted Fibonacci
@@ -41,7 +45,9 @@ import math
 import numpy as np
 
 from ..._wp import cpu_workers, launch_parallel, wp
+from ...basis.sh_warp import sh_kernels
 from ..common import order_param, rays_param
+from ..rpo.model import cosine_sh
 from ..stage import FrameStage, Param, Port, StageError, register_stage
 from . import kernels
 from .model import surface_neighbours
@@ -80,6 +86,11 @@ class HybridTraceStage(FrameStage):
                       "fresh frame ((z - fade) / (threshold - fade))^2), is cut above the threshold", minimum=0.0),
         "test": Param("filtered", str, "what the variance test compares with the history: the one-frame estimate before "
                       "the filter (raw, against its own variance) or after it (filtered)", choices=("raw", "filtered")),
+        "reproject": Param(False, bool, "world frame: carry each vertex's history by its tangent frame's turn since the "
+                           "last frame (port 'frames'), so that a turning surface keeps it"),
+        "reset": Param("hard", str, "below the threshold: the history fades from 'fade' on (hard), or the fresh frame "
+                       "gets the weight of least mean squared error for the history's estimated bias (soft)",
+                       choices=("hard", "soft")),
         "motion": Param(1.0, float, "history cut when a vertex moves more than this many mean edge lengths per frame",
                         minimum=0.0),
         "normal_turn": Param(20.0, float, "history cut when a normal turns more than this (degrees) per frame",
@@ -99,7 +110,7 @@ class HybridTraceStage(FrameStage):
         if self.params["control"] == "model":
             ports["control"] = Port("float32", ("V", "C"), f"control model's {self.params['quantity']}, {space} frame",
                                     space=space)
-        if space == "local":
+        if space == "local" or self.params["reproject"]:
             ports["frames"] = Port("mat33", ("V",), "tangent frames, world space, rows (t, b, n)")
         return ports
 
@@ -116,6 +127,9 @@ class HybridTraceStage(FrameStage):
         where = f"stage {self.name!r} ({self.type_name})"
         if ctx.state is None or ctx.state.bvh is None:
             raise StageError(f"{where}: needs the frame's BVH (state.bvh)")
+        if p["reproject"] and p["space"] == "local":
+            raise StageError(f"{where}: reproject applies to the world frame (in the tangent frames the history "
+                             "turns with the surface already)")
         v, c = ctx.dims["V"], p["order"] ** 2
         try:
             self.neighbours = surface_neighbours(ctx.scene.faces, ctx.scene.points_at(float(ctx.scene.frames[0])))
@@ -126,7 +140,7 @@ class HybridTraceStage(FrameStage):
         self._bvh = ctx.state.bvh
         self._points, self._normals = inputs["points"], inputs["normals"]
         self._use_local = 1 if p["space"] == "local" else 0
-        self._frames_in = inputs["frames"] if p["space"] == "local" else wp.empty(0, dtype=wp.mat33, device=dev)
+        self._frames_in = inputs["frames"] if "frames" in inputs else wp.empty(0, dtype=wp.mat33, device=dev)
         self._transfer = wp.zeros((v, c), dtype=wp.float32, device=dev)
         if p["control"] == "model":
             self._control, self._use_control = inputs["control"], 1
@@ -164,7 +178,12 @@ class HybridTraceStage(FrameStage):
         tp.in_control = 1 if p["control"] == "previous" else 0
         tp.fade = float(p["fade"])
         tp.test_raw = 1 if p["test"] == "raw" else 0
+        tp.soft = 1 if p["reset"] == "soft" else 0
         self._params = tp
+        if p["reproject"]:
+            self._prev_frames = wp.zeros(v, dtype=wp.mat33, device=dev)
+            self._reproject_kernel = kernels.reproject_kernel(p["order"])
+            self._tables = sh_kernels(p["order"]).tables(dev)
         self._residual_kernel = kernels.residual_kernel(p["order"])
         self._filter_kernel = kernels.filter_kernel(p["order"])
         self._temporal_kernel = kernels.temporal_kernel(p["order"])
@@ -181,6 +200,10 @@ class HybridTraceStage(FrameStage):
                     self._use_control, self._params.in_control,
                     1 if p["quantity"] == "visibility" else 0, p["samples"], p["cycle"], p["seed"], self._step, offset, start, self._raw, self._variance]
 
+        if p["reproject"]:
+            target = self._transfer if self._params.in_control else self._state.history
+            wp.launch(self._reproject_kernel, dim=v, device=dev,
+                      inputs=[self._frames_in, self._prev_frames, self._state.frames, self._tables, target])
         launch_parallel(self._residual_kernel, v, ray_inputs, dev, self._workers, min_count=_CHUNK_MIN_VERTICES)
         src = self._raw
         for i in range(p["filter_iterations"]):
@@ -221,3 +244,40 @@ class HybridTraceStage(FrameStage):
             "steps": int(self._step.numpy()[0]),
             **{f"surface_{k}": v for k, v in self.setup_report.items()},
         }
+
+
+@register_stage
+class HybridVisibilityTransferStage(FrameStage):
+    type_name = "hybrid.visibility_transfer"
+    description = "world-frame diffuse transfer from local SH visibility (cosine re-applied, rotated): a control for hybrid.trace"
+    parameters = {"order": order_param(6, minimum=1, maximum=8)}
+
+    def dims(self):
+        return {"C": self.params["order"] ** 2}
+
+    def input_ports(self):
+        return {"visibility": Port("float32", ("V", "C"), "SH visibility (no cosine, open below the horizon), tangent frame",
+                                   space="local"),
+                "frames": Port("mat33", ("V",), "the tangent frames of the visibility, rows (t, b, n)")}
+
+    def output_ports(self):
+        return {"transfer": Port("float32", ("V", "C"), "diffuse transfer implied by the visibility, world frame",
+                                 space="world")}
+
+    def setup(self, ctx, inputs):
+        dev = ctx.device
+        n = self.params["order"]
+        self._vis, self._frames = inputs["visibility"], inputs["frames"]
+        self._cos = wp.array(cosine_sh(n).astype(np.float32), dtype=wp.float32, device=dev)
+        self._tables = sh_kernels(n).tables(dev)
+        self._kernel = kernels.visibility_transfer_kernel(n)
+        self._transfer = wp.zeros((ctx.dims["V"], n * n), dtype=wp.float32, device=dev)
+        return {"transfer": self._transfer}
+
+    def launch(self, state):
+        launch_parallel(self._kernel, self._transfer.shape[0],
+                        lambda a, b: [self._vis, self._frames, self._cos, self._tables, a, self._transfer],
+                        self._transfer.device, min_count=_CHUNK_MIN_VERTICES)
+
+    def model_bytes(self) -> int:
+        return int(self._transfer.size * 4) if hasattr(self, "_transfer") else 0
