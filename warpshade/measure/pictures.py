@@ -166,6 +166,10 @@ def comparison_panels(scene, frame, estimate, reference, *, label: str = "estima
     return images, titles, f"frame {float(frame):g}"
 
 
+#: Narrowest panel of :func:`write_panels`, inches at 100 dpi (room for a two-line title).
+PANEL_MIN_INCHES = 3.0
+
+
 def write_panels(path, images, titles, limit: float = ERROR_LIMIT, caption: str = "") -> Path:
     """Write three images side by side -- method | reference | error -- with a title over each
     and a colour bar for the error panel (``ERROR_COLORMAP`` from ``-limit`` to ``+limit``,
@@ -219,24 +223,26 @@ def _panels_figure(images, titles, limit: float, caption: str):
         raise ValueError(f"write_panels: needs three uint8 (H, W, 3) images of one size, got "
                          f"{[(str(img.dtype), img.shape) for img in images]}")
     height, width = images[0].shape[:2]
-    # panels placed by hand in inches: three images side by side, a colour bar, room for titles
+    # panels placed by hand in inches: three images side by side, a colour bar, room for titles;
+    # a small image is shown enlarged (nearest pixels) so that its panel is wide enough for its title
     top, bottom, bar = 0.55, 0.25, 1.1
-    fig_w, fig_h = 3 * width / 100 + bar, height / 100 + top + bottom
+    pw, ph = (max(1.0, PANEL_MIN_INCHES * 100 / width) * n / 100 for n in (width, height))
+    fig_w, fig_h = 3 * pw + bar, ph + top + bottom
     fig = plt.figure(figsize=(fig_w, fig_h), dpi=100)
-    axes = [fig.add_axes([i * width / 100 / fig_w, bottom / fig_h, width / 100 / fig_w, height / 100 / fig_h])
-            for i in range(3)]
+    axes = [fig.add_axes([i * pw / fig_w, bottom / fig_h, pw / fig_w, ph / fig_h]) for i in range(3)]
+    for ax in axes:
+        ax.title.set_wrap(True)
     for ax, img, title in zip(axes, images, titles):
         ax.imshow(img, interpolation="nearest")
         ax.set_title(title, fontsize=9)
         ax.set_axis_off()
-    cax = fig.add_axes([(3 * width / 100 + 0.12) / fig_w, (bottom + 0.1 * height / 100) / fig_h, 0.12 / fig_w,
-                        0.8 * height / 100 / fig_h])
+    cax = fig.add_axes([(3 * pw + 0.12) / fig_w, (bottom + 0.1 * ph) / fig_h, 0.12 / fig_w, 0.8 * ph / fig_h])
     mappable = plt.cm.ScalarMappable(norm=matplotlib.colors.Normalize(-limit, limit), cmap=ERROR_COLORMAP)
     cbar = fig.colorbar(mappable, cax=cax)
     cbar.ax.tick_params(labelsize=7)
     cbar.set_label(ERROR_LABEL, fontsize=7)
     if caption:
-        fig.text(0.5 * 3 * width / 100 / fig_w, 0.04, caption, fontsize=9, ha="center")
+        fig.text(0.5 * 3 * pw / fig_w, 0.04, caption, fontsize=9, ha="center")
     return fig
 
 
