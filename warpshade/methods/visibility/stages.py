@@ -192,6 +192,10 @@ class VisibilityFitStage(PrecomputeStage):
 # ---- per frame -------------------------------------------------------------------------------------
 #: Vertices per CPU chunk below which a launch is not split over cores.
 _CHUNK_MIN = 2048
+#: The same for the per-frame model's own launches (the reconstruction and the frames: well under a
+#: microsecond per vertex), where a chunked launch costs more than it saves below this many vertices
+#: (its pool round trip and the break of the recorded frame: ~0.5 ms each, measured on the figure).
+_PREDICT_CHUNK_MIN = 16384
 
 
 def _f32(a, dev, dtype=None):
@@ -318,13 +322,13 @@ class VisibilityPredictStage(FrameStage):
                       inputs=[self._act, self._w2, self._b2, self._src, self._len, self._woff, self._y])
         launch_parallel(self._recon, self._vis.shape[0],
                         lambda a, b: [self._vmean, self._basis, self._labels, self._comps, self._yoff, self._y, a,
-                                      self._vis], dev, self._workers, min_count=_CHUNK_MIN)
+                                      self._vis], dev, self._workers, min_count=_PREDICT_CHUNK_MIN)
         if self._frame_kind == "cluster":
             wp.launch(kernels.cluster_axes_kernel, dim=self._axes.shape[0], device=dev,
                       inputs=[self._points, self._order, self._offsets, self._fweights, self._rest_axes, self._axes])
             launch_parallel(kernels.cluster_frames_kernel, self._frames.shape[0],
                             lambda a, b: [self._normals, self._labels, self._axes, a, self._frames], dev, self._workers,
-                            min_count=_CHUNK_MIN)
+                            min_count=_PREDICT_CHUNK_MIN)
         else:
             self._tf.compute(self._points, self._normals, out=self._frames)
 
