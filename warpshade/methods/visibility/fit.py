@@ -23,6 +23,10 @@ The inputs ``x`` are the standardised input-PCA coordinates of the frame (:mod:`
   the training frames (the best iterate on it is kept; ``PATIENCE`` iterations without
   improvement end the fit).
 
+* ``"auto"``: per cluster, the ridge map (linear or quadratic, on the first few input components
+  or on the inputs of the joints near the cluster) that blocked cross-validation over pose
+  segments of the training clip prefers (:mod:`.select`, :mod:`.locality`).
+
 The regulariser (and, for the network, ``H``) is chosen by ``FOLDS``-fold cross-validation over
 contiguous blocks of training frames (neighbouring frames are near-duplicates). A network whose
 fit is not finite, or whose cross-validated error is not below the linear model's, is replaced

@@ -13,7 +13,10 @@ Made by :func:`fit_visibility` from the training data of ``visibility.data``:
    (:mod:`warpshade.geometry.frames`) or ``"world"`` (no frame: the paper's Fig. 9 comparison;
    the frame stages take local frames only).
 3. **Per cluster** (:mod:`.fit`, executor tasks): PCA of its local visibility to the budget
-   ``variance`` and a linear, quadratic or network model from ``x`` to the PCA weights.
+   ``variance`` and a linear, quadratic or network model from ``x`` to the PCA weights, or
+   (``"auto"``) the ridge model cross-validation on the training clip picks for the cluster,
+   possibly from inputs of its own: the PCA of the rotations of the joints near it, appended to
+   ``x`` (:func:`_auto_layout`).
 
 Arrays (``arrays()`` / :func:`model_from_arrays`): the input statistics; per vertex its cluster,
 its mean visibility (V, C) and basis (V, C, k_max) (zero past its cluster's ``k``); per cluster its
