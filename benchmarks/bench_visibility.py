@@ -11,7 +11,8 @@ fit time (every cluster, cross-validation included), model size.
 Part 2 -- diffuse: ``stages/figure_visibility_diffuse.toml`` against the 2007 linear model
 (``stages/figure_datadriven.toml``) with the *same* training frames and rays as the visibility
 graph (its own graph traces every frame at 256 rays; this is said in the JSON; ``--diffuse-as-written`` runs it as
-written too), and the floors of the diffuse path (:func:`diffuse_floors`): visibility ray traced at
+written too) and against the graph's previous settings (:data:`PREVIOUS_DIFFUSE_FIT`), on the
+figure clip and on figure_walk (``stages/figure_walk_datadriven.toml``'s frames), and the floors of the diffuse path (:func:`diffuse_floors`): visibility ray traced at
 the frame through eq. 14 (training rays and 1024 rays), the held-out visibility projected on the
 model's PCA bases, the model's prediction; eq. 14 with the cosine truncated (the kernel) or exact.
 
@@ -117,22 +118,52 @@ def part_glossy(scene_name, quick, timed_frames=TIMED_FRAMES, models=MODELS):
     return out
 
 
-def part_diffuse(quick, as_written=False):
+#: The previous settings of stages/figure_visibility_diffuse.toml (chosen on the held-out figure clip).
+PREVIOUS_DIFFUSE_FIT = {"model": "quadratic", "input_max": 12}
+#: Held-out clips of part 2 and their validation frames (those of the 2007 graphs).
+DIFFUSE_CLIPS = {"figure": ("figure_datadriven", None), "figure_walk": ("figure_walk_datadriven", "bundled:figure_walk")}
+
+
+def _diffuse_clip(quick, clip, previous=True):
+    """The diffuse graph, its previous settings and the 2007 model (same training frames and rays)
+    on one held-out clip."""
+    dd_name, scene = DIFFUSE_CLIPS[clip]
+    vis_spec = _spec("figure_visibility_diffuse", quick)
+    dd_spec0 = _spec(dd_name, quick)
+    if scene is not None:
+        vis_spec.scene = scene
+        vis_spec.validate_spec["frames"] = list(dd_spec0.validate_spec["frames"])
+    data = next(st.params for st in vis_spec.stages if st.type == "visibility.data")
+    print(f"== {clip}: figure_visibility_diffuse", flush=True)
+    vis_rt, vis = _measure(vis_spec, quick)
+    out = {"visibility": vis, "frames": vis_spec.validate_spec["frames"]}
+    if previous:
+        prev_spec = _spec("figure_visibility_diffuse", quick, fit=PREVIOUS_DIFFUSE_FIT)
+        prev_spec.scene, prev_spec.validate_spec = vis_spec.scene, dict(vis_spec.validate_spec)
+        print(f"== {clip}: previous settings {PREVIOUS_DIFFUSE_FIT}", flush=True)
+        _, out["previous"] = _measure(prev_spec, quick)
+    print(f"== {clip}: {dd_name} on the same training frames and rays", flush=True)
+    _, out["datadriven_2007"] = _measure(_spec(dd_name, quick, data={"frames": data["frames"], "samples": data["samples"]}),
+                                         quick)
+    out["error_ratio"] = vis["rel_rms"] / out["datadriven_2007"]["rel_rms"]
+    return vis_rt, out
+
+
+def part_diffuse(quick, as_written=False, walk=True, previous=True):
     vis_spec = _spec("figure_visibility_diffuse", quick)
     data = next(st.params for st in vis_spec.stages if st.type == "visibility.data")
-    vis_rt, vis = _measure(vis_spec, quick)
-    dd_spec = _spec("figure_datadriven", quick, data={"frames": data["frames"], "samples": data["samples"]})
-    _, dd = _measure(dd_spec, quick)
     fit = next(st.params for st in vis_spec.stages if st.type == "visibility.fit")
-    out = {"visibility": vis, "visibility_settings": {"data": dict(data), "fit": dict(fit)}, "datadriven_2007": dd,
-           "note": f"both trained on figure_train frames {data['frames']} at {data['samples']} rays "
-                   "(stages/figure_datadriven.toml as written: every frame at 256 rays)",
-           "error_ratio": vis["rel_rms"] / dd["rel_rms"]}
+    vis_rt, out = _diffuse_clip(quick, "figure", previous)
+    out.update({"visibility_settings": {"data": dict(data), "fit": dict(fit)}, "previous_settings": PREVIOUS_DIFFUSE_FIT,
+                "note": f"both trained on figure_train frames {data['frames']} at {data['samples']} rays "
+                        "(stages/figure_datadriven.toml as written: every frame at 256 rays)"})
     if as_written:
         print("== figure_datadriven as written (every training frame, 256 rays)", flush=True)
         _, out["datadriven_2007_as_written"] = _measure(_spec("figure_datadriven", quick), quick)
-        out["error_ratio_to_as_written"] = vis["rel_rms"] / out["datadriven_2007_as_written"]["rel_rms"]
+        out["error_ratio_to_as_written"] = out["visibility"]["rel_rms"] / out["datadriven_2007_as_written"]["rel_rms"]
     out["floors"] = diffuse_floors(vis_rt, quick)
+    if walk:
+        _, out["figure_walk"] = _diffuse_clip(quick, "figure_walk", previous)
     return out
 
 
@@ -322,17 +353,26 @@ def _plot_diffuse(plt, diffuse, path):
     if "datadriven_2007_as_written" in diffuse:
         bars.append(("2007 linear\n(as written)", diffuse["datadriven_2007_as_written"]["rel_rms"]))
     bars.append(("visibility\nmodel", diffuse["visibility"]["rel_rms"]))
+    if "previous" in diffuse:
+        bars.append(("visibility\nprevious", diffuse["previous"]["rel_rms"]))
     names = {"pca_projection": "traced, PCA\nprojection", "traced_exact_cosine": "traced,\nexact cosine"}
     for key, value in fl.items():
         if key.startswith("traced_") and key.endswith("_rays"):
             bars.append((f"traced\n{key.split('_')[1]} rays", value))
         elif key in names:
             bars.append((names[key], value))
-    fig, ax = plt.subplots(figsize=(10, 4))
-    colors = ["C1" if b[0].startswith("2007") else "C0" if b[0].startswith("visibility") else "C2" for b in bars]
+    walk = diffuse.get("figure_walk")
+    if walk:
+        bars.append(("walk: 2007\nlinear", walk["datadriven_2007"]["rel_rms"]))
+        bars.append(("walk: visibility\nmodel", walk["visibility"]["rel_rms"]))
+        if "previous" in walk:
+            bars.append(("walk: visibility\nprevious", walk["previous"]["rel_rms"]))
+    fig, ax = plt.subplots(figsize=(12, 4))
+    colors = ["C1" if "2007" in b[0] else "C0" if "visibility" in b[0] else "C2" for b in bars]
     ax.bar([b[0] for b in bars], [b[1] for b in bars], color=colors)
     ax.set_ylabel("relative RMS vs diffuse reference")
-    ax.set_title(f"figure, diffuse, held-out frames: visibility model (order {fl.get('order', '?')}) and the floors of its parts")
+    ax.set_title(f"figure (and figure_walk), diffuse, held-out frames: visibility model (order {fl.get('order', '?')}), "
+                 "the floors of its parts")
     ax.tick_params(axis="x", labelsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -384,6 +424,9 @@ def main(argv=None) -> int:
     ap.add_argument("--tag", default="", help="suffix of the output names (e.g. the scene of a separate run)")
     ap.add_argument("--skip-diffuse", action="store_true")
     ap.add_argument("--skip-studies", action="store_true")
+    ap.add_argument("--skip-walk", action="store_true", help="part 2 on the figure clip only (not figure_walk too)")
+    ap.add_argument("--skip-previous", action="store_true",
+                    help="part 2 without the diffuse graph's previous settings (PREVIOUS_DIFFUSE_FIT)")
     ap.add_argument("--diffuse-as-written", action="store_true",
                     help="part 2 also runs stages/figure_datadriven.toml as written (every training frame, 256 rays)")
     ap.add_argument("--out", default=None, help="output directory (default benchmarks/results; required with --quick)")
@@ -400,7 +443,7 @@ def main(argv=None) -> int:
         result["glossy"][scene] = part_glossy(scene, args.quick, args.timed_frames, tuple(args.models.split(",")))
         (out_dir / f"{tag}.json").write_text(json.dumps(result, indent=1, default=str))
     if not args.skip_diffuse:
-        result["diffuse"] = part_diffuse(args.quick, args.diffuse_as_written)
+        result["diffuse"] = part_diffuse(args.quick, args.diffuse_as_written, not args.skip_walk, not args.skip_previous)
         (out_dir / f"{tag}.json").write_text(json.dumps(result, indent=1, default=str))
     if not args.skip_studies:
         rt = _spec("figure_visibility", args.quick, "linear").compile(device="cpu", progress=True)

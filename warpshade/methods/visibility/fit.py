@@ -23,6 +23,10 @@ The inputs ``x`` are the standardised input-PCA coordinates of the frame (:mod:`
   the training frames (the best iterate on it is kept; ``PATIENCE`` iterations without
   improvement end the fit).
 
+* ``"auto"``: per cluster, the ridge map (linear or quadratic, on the first few input components
+  or on the inputs of the joints near the cluster) that blocked cross-validation over pose
+  segments of the training clip prefers (:mod:`.select`, :mod:`.locality`).
+
 The regulariser (and, for the network, ``H``) is chosen by ``FOLDS``-fold cross-validation over
 contiguous blocks of training frames (neighbouring frames are near-duplicates). A network whose
 fit is not finite, or whose cross-validated error is not below the linear model's, is replaced
@@ -245,12 +249,28 @@ def fit_cluster(task: dict) -> dict:
         out["report"] = report
         return out
     target = yc @ basis  # (p, k)
+    norm = float((y * y).sum()) or 1.0
+    truncation = float(((yc - target @ basis.T) ** 2).sum())
+    if model == "auto":
+        from . import select
+        from .select import fit_selected, prefix_features, select_ridge
+
+        sets = task.get("input_sets") or {"global": (x, ("linear", "quadratic"))}
+        sel = select_ridge(sets, target, rule=task.get("rule", select.RULE))
+        xs = np.asarray(sets[sel["set"]][0], np.float64)
+        w, b = fit_selected(xs, target, sel["kind"], sel["inputs"], sel["penalty"])
+        out.update(w2=w.astype(np.float32), b2=b.astype(np.float32), select=(sel["set"], sel["kind"], sel["inputs"]))
+        report.update(model_used=sel["kind"], input_set=sel["set"], inputs=sel["inputs"], ridge=sel["penalty"],
+                      cv_error=float(np.sqrt((sel["sse"] + truncation) / norm)),
+                      cv_table={k: float(np.sqrt((v + truncation) / norm)) for k, v in sel["table"].items()})
+        _keep_predictable(out, prefix_features(xs, sel["kind"], sel["inputs"]), task["predictable"], report)
+        report["fit_s"] = time.perf_counter() - t0
+        out["report"] = report
+        return out
     scale = float(np.sqrt((target ** 2).mean())) or 1.0
     splits = folds(x.shape[0])
     feats = expand_features(x, model)
     w, b, sse, g = _ridge_fit(feats, target, splits)
-    norm = float((y * y).sum()) or 1.0
-    truncation = float(((yc - target @ basis.T) ** 2).sum())
     report.update(ridge=g, cv_error=float(np.sqrt((sse + truncation) / norm)))
     out.update(w2=w.astype(np.float32), b2=b.astype(np.float32))
     report["model_used"] = "quadratic" if model == "quadratic" else "linear"
@@ -291,23 +311,24 @@ def fit_cluster(task: dict) -> dict:
                 report.update(model_used="network", hidden=int(hidden), penalty=float(lam),
                               cv_error=float(np.sqrt((err + truncation) / norm)), iterations=info["iterations"],
                               stopped_early=info["stopped_early"])
-    _keep_predictable(out, x, model, task["predictable"], report)
+    _keep_predictable(out, x if "w1" in out else feats, task["predictable"], report)
     report["fit_s"] = time.perf_counter() - t0
     out["report"] = report
     return out
 
 
-def _keep_predictable(out: dict, x: np.ndarray, model: str, budget: float, report: dict) -> None:
+def _keep_predictable(out: dict, x: np.ndarray, budget: float, report: dict) -> None:
     """Keep the fewest PCA components holding ``budget`` of the variance the fitted model
     predicts over the training inputs (components it cannot predict, the training data's ray
-    noise among them, cost a product per vertex and add nothing); in place."""
+    noise among them, cost a product per vertex and add nothing); in place. ``x``: the network's
+    inputs, or the features of the output layer of a ridge model."""
     if budget >= 1.0 or out["basis"].shape[1] == 0:
         return
     if "w1" in out:
         pred = network_forward(x, out["w1"].astype(np.float64), out["b1"].astype(np.float64),
                                out["w2"].astype(np.float64), out["b2"].astype(np.float64))
     else:
-        pred = expand_features(x, model) @ out["w2"].T.astype(np.float64) + out["b2"]
+        pred = x @ out["w2"].T.astype(np.float64) + out["b2"]
     var = pred.var(0)
     total = float(var.sum())
     if total <= 0.0:

@@ -13,7 +13,10 @@ Made by :func:`fit_visibility` from the training data of ``visibility.data``:
    (:mod:`warpshade.geometry.frames`) or ``"world"`` (no frame: the paper's Fig. 9 comparison;
    the frame stages take local frames only).
 3. **Per cluster** (:mod:`.fit`, executor tasks): PCA of its local visibility to the budget
-   ``variance`` and a linear, quadratic or network model from ``x`` to the PCA weights.
+   ``variance`` and a linear, quadratic or network model from ``x`` to the PCA weights, or
+   (``"auto"``) the ridge model cross-validation on the training clip picks for the cluster,
+   possibly from inputs of its own: the PCA of the rotations of the joints near it, appended to
+   ``x`` (:func:`_auto_layout`).
 
 Arrays (``arrays()`` / :func:`model_from_arrays`): the input statistics; per vertex its cluster,
 its mean visibility (V, C) and basis (V, C, k_max) (zero past its cluster's ``k``); per cluster its
@@ -35,11 +38,12 @@ import numpy as np
 from ..datadriven.model import PoseSpace, pose_space
 from .clusters import cluster_frame_rule, cluster_frames_f64, cluster_vertices
 from .fit import expand_features, fit_cluster
+from .select import prefix_pairs
 from .training import to_local
 
 __all__ = ["FRAME_KINDS", "cosine_product_matrix", "input_space", "local_frames_f64"]
 
-MODELS = ("linear", "quadratic", "network")
+MODELS = ("linear", "quadratic", "network", "auto")
 FRAME_KINDS = ("cluster", "one_ring", "world")
 
 
@@ -153,11 +157,15 @@ def fit_visibility(data: dict, *, model: str = "network", frames: str = "cluster
     if target == "transfer":
         local = local @ cosine_product_matrix(order).T.astype(np.float32)
     tasks = []
+    local_w = [{} for _ in range(kc)]
     for cl in range(kc):
         rows = np.flatnonzero(labels == cl)
         tasks.append({"x": x, "y": local[:, rows, :].reshape(pcount, -1), "model": model, "variance": variance,
                       "predictable": predictable, "k_max": k_max, "hidden": tuple(int(h) for h in hidden), "max_iterations": max_iterations,
                       "seed": seed, "cluster": cl, "vertices": int(rows.size)})
+        if model == "auto":
+            tasks[-1]["input_sets"] = _input_sets(data, source, pose, root, a, x, labels, cl, input_variance, input_max,
+                                                  local_w[cl])
     tasks_order = sorted(range(kc), key=lambda i: -tasks[i]["vertices"])
     own = executor is None
     ex = new_executor() if own else executor
@@ -170,7 +178,13 @@ def fit_visibility(data: dict, *, model: str = "network", frames: str = "cluster
     results = [None] * kc
     for i, r in zip(tasks_order, done):
         results[i] = r
-    arrays = _pack(results, labels, order, model, frames, source, space, w_in, lo, hi, data, a, pose, root)
+    layout = None
+    if model == "auto":
+        w_in, layout = _auto_layout(results, local_w, w_in)
+        xa = (a - space.mean) @ w_in
+        span = xa.max(0) - xa.min(0)
+        lo, hi = xa.min(0) - margin * span, xa.max(0) + margin * span
+    arrays = _pack(results, labels, order, model, frames, source, space, w_in, lo, hi, data, a, pose, root, layout)
     reports = [r["report"] for r in results]
     fallbacks = [r for r in reports if "fallback" in r]
     report = {"clusters": kc, "cluster_sizes": [int(r["vertices"]) for r in reports],
@@ -178,6 +192,8 @@ def fit_visibility(data: dict, *, model: str = "network", frames: str = "cluster
               "input_features": int(a.shape[1]), "model": model, "frames": frames,
               "models_used": {m: sum(r["model_used"] == m for r in reports) for m in ("constant", "linear", "quadratic", "network")},
               "fallbacks": [{"cluster": r["cluster"], "reason": r["fallback"]} for r in fallbacks],
+              **({"selected": [{k: r[k] for k in ("cluster", "vertices", "model_used", "input_set", "inputs", "ridge", "cv_error")
+                                if k in r} for r in reports]} if model == "auto" else {}),
               "cv_error": float(np.sqrt(sum(r["cv_error"] ** 2 * r["vertices"] for r in reports) / vcount)),
               "cluster_fit_s": [round(r["fit_s"], 3) for r in reports], "total_fit_s": time.perf_counter() - t0,
               "retained_variance_min": float(min(r["retained_variance"] for r in reports))}
@@ -186,14 +202,72 @@ def fit_visibility(data: dict, *, model: str = "network", frames: str = "cluster
     return out
 
 
-def _pack(results, labels, order, model, frames, source, space, w_in, lo, hi, data, a, pose, root) -> dict:
+def _input_sets(data, source, pose, root, a, x, labels, cluster, variance, k_max, weights_out) -> dict:
+    """Candidate inputs of one cluster for :mod:`.select`: the global input PCA (linear and
+    quadratic) and, for a skinned cluster with joint inputs, its local joints' inputs per
+    skeleton ring (:mod:`.locality`, linear); the local inputs' weights go to ``weights_out``."""
+    from .locality import RINGS, cluster_joints, joint_columns, local_inputs
+
+    sets = {"global": (x, ("linear", "quadratic"))}
+    if source != 0:
+        return sets
+    try:
+        columns = joint_columns(data[f"root_{pose}"], pose, root)
+    except ValueError:
+        return sets  # the pose vectors are not joint rotations: global inputs only
+    if len(columns) != np.asarray(data["skin_weights"]).shape[1] or max(int(c.max(initial=-1)) for c in columns) >= a.shape[1]:
+        return sets  # the pose vectors do not follow the joints of the skinning weights: global inputs only
+    seen = set()
+    for ring in RINGS:
+        joints = cluster_joints(data["skin_weights"], labels, cluster, ring)
+        if joints is None:
+            break
+        if tuple(joints) in seen or len(joints) == len(columns):
+            continue
+        seen.add(tuple(joints))
+        w, xl = local_inputs(a, np.concatenate([columns[j] for j in joints]), variance, k_max)
+        if w.shape[1]:
+            sets[f"ring{ring}"] = (xl, ("linear",))
+            weights_out[f"ring{ring}"] = w
+    return sets
+
+
+def _auto_layout(results, local_w, w_in):
+    """Input weights and activation layout of a model of per-cluster selections (``"auto"``).
+
+    The inputs ``x`` are the global input PCA, then every chosen local block (linear in its
+    cluster's output rows); the products are those of the first global inputs
+    (:func:`.select.prefix_pairs`, as many as the largest global quadratic cluster uses). Returns
+    ``(W, {"qi", "qj", "source", "picks"})``; ``source[c]`` is the first activation cluster ``c``
+    reads (a global quadratic cluster reads from 0, its linear weights padded to every input)."""
+    picks = [r.get("select", ("global", "linear", 0)) if r["basis"].shape[1] else ("global", "linear", 0)
+             for r in results]
+    blocks, pos = [w_in], w_in.shape[1]
+    source = [0] * len(picks)
+    for cl, (name, kind, m) in enumerate(picks):
+        if name != "global":
+            if kind != "linear":
+                raise ValueError(f"cluster {cl}: local inputs take linear maps only, got {kind!r}")
+            blocks.append(local_w[cl][name][:, :m])
+            source[cl] = pos
+            pos += m
+    qi, qj = prefix_pairs(max([m for name, kind, m in picks if name == "global" and kind == "quadratic"], default=0))
+    return np.concatenate(blocks, axis=1), {"qi": qi, "qj": qj, "source": source, "picks": picks}
+
+
+def _pack(results, labels, order, model, frames, source, space, w_in, lo, hi, data, a, pose, root, layout) -> dict:
     from ..datadriven.pose import PARAMETERISATIONS, ROOT_MODES
 
     vcount = labels.shape[0]
     c = order * order
     kc = len(results)
     kin = w_in.shape[1]
-    d = expand_features(np.zeros((1, kin)), model).shape[1]
+    if model == "auto":
+        picks, qi, qj = layout["picks"], layout["qi"], layout["qj"]
+        d = kin + qi.size
+    else:
+        qi, qj = _quadratic_pairs(kin) if model == "quadratic" else (np.zeros(0, np.int64), np.zeros(0, np.int64))
+        d = expand_features(np.zeros((1, kin)), model).shape[1]
     comps = np.array([r["basis"].shape[1] for r in results], np.int32)
     kmax = max(int(comps.max()), 1)
     mean = np.zeros((vcount, c), np.float32)
@@ -214,13 +288,15 @@ def _pack(results, labels, order, model, frames, source, space, w_in, lo, hi, da
             b1[h_offset[cl]:h_offset[cl + 1]] = r["b1"]
         for o in range(comps[cl]):
             row = np.asarray(r["w2"][o], np.float32)
-            source_.append(d + int(h_offset[cl]) if hidden[cl] else 0)
+            if model == "auto" and picks[cl][:2] == ("global", "quadratic"):  # [x_0..x_m-1, 0.., products]
+                m = picks[cl][2]
+                row = np.concatenate([row[:m], np.zeros(kin - m, np.float32), row[m:]])
+            source_.append(d + int(h_offset[cl]) if hidden[cl] else layout["source"][cl] if layout else 0)
             length.append(row.size)
             w_offset.append(pos)
             w2.append(row)
             b2.append(float(r["b2"][o]))
             pos += row.size
-    qi, qj = _quadratic_pairs(kin) if model == "quadratic" else (np.zeros(0, np.int64), np.zeros(0, np.int64))
     rule = cluster_frame_rule(data["rest_points"], labels)
     kinds = list(PARAMETERISATIONS)
     return {

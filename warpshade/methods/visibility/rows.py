@@ -18,6 +18,9 @@ TRAINING_RAYS = {"figure": 128, "figure_walk": 128, "wanderer": 64, "cloth_heldo
 #: Pose inputs of each clip: joint rotations of a skinned character, dihedral angles of the
 #: simulated cloth (its inputs' PCA keeps 90 % of their variance, as stages/cloth_visibility.toml).
 FEATURES = {"cloth_heldout": ("dihedral", {"input_variance": 0.9})}
+#: Fit settings of the diffuse rows (stages/figure_visibility_diffuse.toml): per-cluster PCA to 99 %
+#: of the variance, at most 64 components, the model chosen per cluster (``model = "auto"``).
+DIFFUSE_FIT = {"variance": 0.99, "k_max": 64}
 #: The glossy material of the RPO rows (:mod:`warpshade.methods.rpo.rows`).
 GLOSSY = {"brdf": "ggx", "roughness": 0.5}
 
@@ -41,7 +44,8 @@ def stages_for(training: str, frames: str | None, model: str = "network", order:
 
 def harness_rows(quick: bool = False) -> list:
     """The three models per held-out clip, glossy (against the glossy reference; RPO over traced
-    visibility is the rpo rows' 'traced n4 k8 s256'), and the network diffuse."""
+    visibility is the rpo rows' 'traced n4 k8 s256'), and the diffuse graph's settings (order 6,
+    the model chosen per cluster by cross-validation on the training clip)."""
     rows = []
     for scene, (training, frames) in TRAINING_CLIPS.items():
         rays = TRAINING_RAYS[scene]
@@ -54,8 +58,10 @@ def harness_rows(quick: bool = False) -> list:
                 notes=f"trained on {training.split(':')[-1]} frames {frames} ({rays} rays); {model} per cluster; "
                       "RPO GGX 0.5 vs the glossy reference"))
         rows.append(HarnessRow(
-            "visibility", "network n4 diffuse", stages_for(training, frames, "network", samples=rays, shade="diffuse", fit=fit,
-                                                           features=features),
+            "visibility", "auto n6 diffuse", stages_for(training, frames, "auto", order=6, samples=rays, shade="diffuse",
+                                                        fit={**DIFFUSE_FIT, **fit}, features=features),
             "shade.radiance", scenes=(scene,), quick=False,
-            notes="cosine re-applied to the predicted visibility (eq. 14) vs the diffuse reference"))
+            notes="stages/figure_visibility_diffuse.toml's settings: order 6, per-cluster model chosen by blocked "
+                  "cross-validation on the training clip; cosine re-applied to the predicted visibility (eq. 14) vs the "
+                  "diffuse reference"))
     return rows

@@ -1,0 +1,172 @@
+"""Model selection of data-driven visibility (``model = "auto"``, methods/visibility/select.py and
+locality.py): the blocked folds, the product ordering every cluster shares, the selection
+against known generating models, the local joints of a cluster, and the packed model's kernels
+against its float64 mirror."""
+
+import numpy as np
+import pytest
+
+from tolerances import ATOL_FLOAT32
+
+from warpshade.io import load_scene
+from warpshade.methods.visibility import fit_visibility, predict_f64
+from warpshade.methods.visibility.fit import expand_features
+from warpshade.methods.visibility.locality import cluster_joints, joint_columns, local_inputs
+from warpshade.methods.visibility.mirror import inputs_f64
+from warpshade.methods.visibility.select import (blocked_folds, fit_selected, prefix_features, prefix_pairs,
+                                                 select_ridge)
+
+from test_visibility import _rest, _run_predict, _serial
+
+
+def test_blocked_folds_hold_out_contiguous_segments_with_a_gap():
+    splits = blocked_folds(100, blocks=8, gap=3)
+    held = np.concatenate([va for _, va in splits])
+    np.testing.assert_array_equal(np.sort(held), np.arange(100))  # every frame validated once
+    for tr, va in splits:
+        assert np.all(np.diff(va) == 1)  # contiguous
+        dist = np.abs(tr[:, None] - va[None, :]).min(1)
+        assert dist.min() > 3  # nothing within the gap of the held-out segment is trained on
+        assert tr.size >= 100 - va.size - 6
+
+
+def test_prefix_pairs_are_every_product_and_shared_by_shorter_prefixes():
+    i, j = prefix_pairs(6)
+    assert set(zip(i.tolist(), j.tolist())) == {(a, b) for b in range(6) for a in range(b + 1)}
+    for m in range(1, 6):
+        pi, pj = prefix_pairs(m)
+        np.testing.assert_array_equal(pi, i[:pi.size])
+        np.testing.assert_array_equal(pj, j[:pj.size])
+    x = np.random.default_rng(1).normal(size=(5, 6))
+    # the same features as the fixed-size quadratic model, in another column order
+    a, b = prefix_features(x, "quadratic", 6), expand_features(x, "quadratic")
+    np.testing.assert_allclose(np.sort(a, axis=1), np.sort(b, axis=1), atol=1e-15)
+    np.testing.assert_array_equal(prefix_features(x, "linear", 4), x[:, :4])
+
+
+def test_selection_recovers_the_generating_model(rng):
+    p = 160
+    x = rng.normal(size=(p, 16))
+    noise = 0.05 * rng.normal(size=(p, 3))
+    # linear in the first two inputs: few inputs, linear
+    y = x[:, :2] @ rng.normal(size=(2, 3)) + noise
+    sel = select_ridge({"global": (x, ("linear", "quadratic"))}, y)
+    assert sel["kind"] == "linear" and sel["inputs"] <= 4
+    # a product of the first two inputs: quadratic, with at least those two
+    yq = np.c_[x[:, 0] * x[:, 1], x[:, 0], x[:, 1] ** 2] + noise
+    sel = select_ridge({"global": (x, ("linear", "quadratic"))}, yq)
+    assert sel["kind"] == "quadratic" and 2 <= sel["inputs"] <= 8
+    w, b = fit_selected(x, yq, sel["kind"], sel["inputs"], sel["penalty"])
+    fit = prefix_features(x, sel["kind"], sel["inputs"]) @ w.T + b
+    assert np.linalg.norm(fit - yq) < 2 * np.linalg.norm(noise)
+    # a second input set that holds the signal alone wins over the global one with 16 inputs
+    local = x[:, [5, 9]]
+    yl = local @ rng.normal(size=(2, 3)) + noise
+    sel = select_ridge({"global": (x, ("linear",)), "ring0": (local, ("linear",))}, yl)
+    assert sel["set"] == "ring0"
+    assert sel["table"]["ring0 linear 2"] <= sel["table"]["global linear 16"]
+
+
+def test_joint_columns_follow_the_pose_layout():
+    mask = np.r_[np.ones(6), np.zeros(12)].astype(np.int8)  # a root and three quaternion joints
+    cols = joint_columns(mask, "quaternion", "include")
+    assert [c.tolist() for c in cols] == [list(range(6)), [6, 7, 8, 9], [10, 11, 12, 13], [14, 15, 16, 17]]
+    cols = joint_columns(mask, "quaternion", "exclude")  # root dropped: the others move down by 6
+    assert [c.tolist() for c in cols] == [[], [0, 1, 2, 3], [4, 5, 6, 7], [8, 9, 10, 11]]
+
+
+def test_cluster_joints_grow_by_skeleton_rings():
+    # a chain of four joints; vertices skinned to (0), (0, 1), (1), (1, 2), (2), (2, 3), (3); one unskinned
+    w = np.zeros((8, 4))
+    for v, (a, b) in enumerate([(0, 0), (0, 1), (1, 1), (1, 2), (2, 2), (2, 3), (3, 3)]):
+        w[v, a] += 0.5
+        w[v, b] += 0.5
+    labels = np.array([0, 0, 1, 1, 2, 2, 3, 4])
+    assert cluster_joints(w, labels, 3, 0).tolist() == [3]
+    assert cluster_joints(w, labels, 3, 1).tolist() == [2, 3]
+    assert cluster_joints(w, labels, 3, 2).tolist() == [1, 2, 3]
+    assert cluster_joints(w, labels, 4, 1) is None  # unskinned: global inputs only
+
+
+def test_local_inputs_read_their_columns_only(rng):
+    a = rng.normal(size=(50, 10)) * np.arange(1, 11)
+    a[:, 4] = 3.0  # constant
+    w, x = local_inputs(a, np.array([1, 2, 4, 7]), 1.0, 8)
+    assert w.shape == (10, 3) and np.all(w[[0, 3, 4, 5, 6, 8, 9]] == 0.0)
+    np.testing.assert_allclose(x.std(0), 1.0, rtol=1e-10)
+    np.testing.assert_allclose(x.T @ x / 50, np.eye(3), atol=1e-10)  # principal components, unit variance
+
+
+@pytest.fixture(scope="module")
+def bend():
+    return load_scene("bundled:bend")
+
+
+def _local_data(scene, rng, p=90):
+    """Visibility of the bend character that depends on each vertex's own joints' rotations only
+    (linear in them, weighted by the skinning), plus noise; every joint's inputs vary at random."""
+    from warpshade.methods.visibility.training import dense_skin_weights, mesh_ids
+
+    v = scene.vertex_count
+    w = dense_skin_weights(scene).astype(np.float64)
+    joints = w.shape[1]
+    poses = rng.uniform(-1, 1, (p, 6 + 4 * (joints - 1)))
+    cols = [np.arange(6)] + [6 + 4 * (j - 1) + np.arange(4) for j in range(1, joints)]
+    base = rng.normal(size=(v, 9))
+    vis = np.broadcast_to(base, (p, v, 9)).copy()
+    for j in range(joints):
+        d = rng.normal(size=(cols[j].size, v, 9)) * 0.3
+        vis += w[None, :, j, None] * np.einsum("pc,cvk->pvk", poses[:, cols[j]], d)
+    vis += 0.05 * rng.normal(size=vis.shape)
+    pts = np.broadcast_to(_rest(scene), (p, v, 3))
+    nrm = np.broadcast_to(scene.normals_at(0.0), (p, v, 3))
+    return {"visibility": vis.astype(np.float32), "points": pts.astype(np.float32), "normals": nrm.astype(np.float32),
+            "rest_points": _rest(scene), "faces": scene.faces.astype(np.int32), "skin_weights": w.astype(np.float32),
+            "mesh_ids": mesh_ids(scene), "poses_quaternion": poses,
+            "root_quaternion": np.r_[np.ones(6), np.zeros(poses.shape[1] - 6)].astype(np.int8),
+            "topology": np.zeros(4, np.int64), "root_reference": np.zeros((0, 3, 3)), "settings": np.array([3, 16, 0, 0])}
+
+
+def _frames_subset(data, rows):
+    out = dict(data)
+    for k in ("visibility", "points", "normals", "poses_quaternion"):
+        out[k] = data[k][rows]
+    return out
+
+
+def test_auto_model_chooses_local_inputs_and_its_kernels_match_the_mirror(device, bend, rng):
+    from warpshade.methods.visibility import cluster_frame_rule, cluster_frames_f64, to_local
+
+    full = _local_data(bend, rng, p=110)
+    data, test = _frames_subset(full, slice(0, 90)), _frames_subset(full, slice(90, 110))
+    model = fit_visibility(data, model="auto", executor=_serial())
+    rep = model.report
+    assert model.model == "auto" and len(rep["selected"]) == rep["clusters"]
+    assert any(s.get("input_set", "global") != "global" for s in rep["selected"])
+    a = model.arrays
+    scale = np.abs(a["mean"]).max()
+    for pose in (data["poses_quaternion"][3], test["poses_quaternion"][0],
+                 np.full(data["poses_quaternion"].shape[1], 30.0)):
+        got = _run_predict(a, pose, device)
+        want = predict_f64(a, inputs_f64(a, pose[None])[0])
+        assert np.all(np.isfinite(got))
+        np.testing.assert_allclose(got, want, atol=50 * ATOL_FLOAT32 * scale)
+
+    # on novel poses the chosen models are closer to the truth than one linear map from every input
+    def heldout_error(m):
+        rule = cluster_frame_rule(data["rest_points"], m.arrays["labels"])
+        fr = cluster_frames_f64(test["points"][0], test["normals"][0], rule)  # the rest pose: one frame for all
+        x = inputs_f64(m.arrays, test["poses_quaternion"])
+        num = sum(np.sum((predict_f64(m.arrays, x[t]) - to_local(test["visibility"][t], fr)) ** 2) for t in range(20))
+        return float(num)
+
+    linear = fit_visibility(data, model="linear", executor=_serial())
+    assert heldout_error(model) < heldout_error(linear)
+
+
+def test_auto_falls_back_to_global_inputs_without_a_joint_layout(rng):
+    from test_visibility import _synthetic_data
+
+    data = _synthetic_data(rng)  # five inputs that are not joint rotations of the skinning joints
+    model = fit_visibility(data, model="auto", executor=_serial())
+    assert all(s.get("input_set", "global") == "global" for s in model.report["selected"])
