@@ -40,12 +40,12 @@ import time
 import numpy as np
 from scipy.optimize import minimize
 
-__all__ = ["FOLDS", "RIDGE_GRID", "expand_features", "fit_network", "folds", "network_forward", "pca_size", "warm_start"]
+from .select import RIDGE_GRID
+
+__all__ = ["FOLDS", "expand_features", "fit_network", "folds", "network_forward", "pca_size", "warm_start"]
 
 #: Cross-validation folds.
 FOLDS = 4
-#: Ridge penalties as multiples of the largest squared singular value of the centred inputs.
-RIDGE_GRID = np.logspace(-7.0, 0.0, 15)
 #: Network penalties (eq. 13 lambda, on inputs of unit variance and targets of unit RMS).
 NETWORK_PENALTIES = (1e-4, 1e-3, 1e-2)
 #: Network fits: most L-BFGS iterations, iterations without improvement on the stopping block.

@@ -3,7 +3,7 @@
 A cluster's candidates are ridge maps from the first ``m`` input-PCA components (``m`` in
 :data:`INPUT_COUNTS`, at most the model's input components) to its PCA weights, on those inputs
 (``"linear"``) or on them and their products (``"quadratic"``); each with every ridge penalty
-of :data:`~.fit.RIDGE_GRID`. The one with the least validation error is refitted on every training frame.
+of :data:`RIDGE_GRID`. The one with the least validation error is refitted on every training frame.
 
 The validation is **blocked**: the training frames (in clip order) are cut into
 :data:`BLOCKS` contiguous segments; each is held out in turn, and the model is fitted on the rest
@@ -25,10 +25,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from .fit import RIDGE_GRID
+__all__ = ["RIDGE_GRID", "BLOCKS", "GAP", "INPUT_COUNTS", "blocked_folds", "prefix_pairs", "prefix_features", "select_ridge"]
 
-__all__ = ["BLOCKS", "GAP", "INPUT_COUNTS", "blocked_folds", "prefix_pairs", "prefix_features", "select_ridge"]
-
+#: Ridge penalties as multiples of the largest squared singular value of the centred inputs (the
+#: grid of the 4-fold ridge fits of :mod:`.fit` and of the blocked selection here).
+RIDGE_GRID = np.logspace(-7.0, 0.0, 15)
 #: Contiguous segments of the training frames held out in turn.
 BLOCKS = 8
 #: Training frames left out on either side of a held-out segment.

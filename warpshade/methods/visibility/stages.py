@@ -131,8 +131,10 @@ class VisibilityFitStage(PrecomputeStage):
     description = ("clusters, cluster frames, input PCA, per-cluster visibility PCA and a linear / quadratic / "
                    "network model per cluster (sizes from the error budget, cross-validated)")
     parameters = {
-        "model": Param("network", str, "per-cluster model: ridge, ridge on second-order features, or a "
-                       "one-hidden-layer tanh network (eq. 12-13)", choices=MODELS),
+        "model": Param("network", str, "per-cluster model: ridge, ridge on second-order features, a "
+                       "one-hidden-layer tanh network (eq. 12-13), or 'auto': each cluster's ridge map (linear or "
+                       "quadratic, global or nearby-joint inputs, input count, penalty) chosen by blocked "
+                       "cross-validation over contiguous segments of the training clip", choices=MODELS),
         "frames": Param("cluster", str, "frames the visibility is modelled in: cluster PCA directions in the "
                         "tangent plane, the one-ring frames of warpshade.geometry.frames, or the world frame "
                         "(measurements only: the frame stages take local frames)", choices=FRAME_KINDS),
