@@ -53,7 +53,7 @@ import numpy as np
 from .._wp import wp
 from . import materials
 from .tabulated_aniso_warp import (ANISO_LOBE_WEIGHT, ANISO_TABLE_MODEL, aniso_table_eval, aniso_table_pdf,
-                                   aniso_table_sample, table_lobe_aniso)
+                                   aniso_table_sample, table_lobe_aniso, tangent_frame_from)
 
 __all__ = [
     "ANISOTROPIC_MODELS",
@@ -377,16 +377,7 @@ def brdf_with_tangent(b: BRDFParams, tangent: wp.vec3) -> BRDFParams:
 def tangent_frame(b: BRDFParams, n: wp.vec3) -> wp.mat33:
     """Rows (t, n x t, n): ``b.tangent`` projected on the tangent plane of ``n``, normalised (an
     orthonormal-basis tangent where it is parallel to ``n``)."""
-    t = b.tangent - wp.dot(b.tangent, n) * n
-    tl = wp.length(t)
-    if tl > 1.0e-6:
-        t = t / tl
-    else:
-        sign = wp.where(n[2] >= 0.0, 1.0, -1.0)
-        a = -1.0 / (sign + n[2])
-        t = wp.vec3(1.0 + sign * n[0] * n[0] * a, sign * n[0] * n[1] * a, -sign * n[0])
-    bt = wp.cross(n, t)
-    return wp.mat33(t[0], t[1], t[2], bt[0], bt[1], bt[2], n[0], n[1], n[2])
+    return tangent_frame_from(b.tangent, n)
 
 
 @wp.func

@@ -33,7 +33,7 @@ from .._wp import wp
 wp.set_module_options({"enable_backward": False})
 
 __all__ = ["ANISO_LOBE_WEIGHT", "ANISO_TABLE_MODEL", "aniso_table_eval", "aniso_table_pdf", "aniso_table_sample",
-           "table_lobe_aniso"]
+           "table_lobe_aniso", "tangent_frame_from"]
 
 #: Model code of a tabulated anisotropic BRDF in :class:`~warpshade.scene.materials_warp.BRDFParams`
 #: (the next free code after ``tabulated``, 8).
@@ -84,8 +84,9 @@ def table_lobe_aniso(table: np.ndarray) -> tuple[float, float]:
 
 
 @wp.func
-def _frame(tangent: wp.vec3, n: wp.vec3) -> wp.mat33:
-    """Rows (t, n x t, n) (as :func:`warpshade.scene.materials_warp.tangent_frame`)."""
+def tangent_frame_from(tangent: wp.vec3, n: wp.vec3) -> wp.mat33:
+    """Rows (t, n x t, n): ``tangent`` projected on the tangent plane of ``n``, normalised (an
+    orthonormal-basis tangent where it is parallel to ``n``)."""
     t = tangent - wp.dot(tangent, n) * n
     tl = wp.length(t)
     if tl > 1.0e-6:
@@ -138,7 +139,7 @@ def _fold(phi: float) -> float:
 def aniso_table_eval(b_table: wp.uint64, dims: wp.vec4i, linear: float, tangent: wp.vec3, n: wp.vec3, v: wp.vec3,
                      s: wp.vec3) -> float:
     """The table at world ``v``, ``s`` (above the horizon of ``n``) in the frame of ``tangent``."""
-    frame = _frame(tangent, n)
+    frame = tangent_frame_from(tangent, n)
     vl = frame * v
     sl = frame * s
     h = vl + sl
@@ -207,7 +208,7 @@ def _lobe_d(hl: wp.vec3, ax: float, ay: float) -> float:
 def aniso_table_sample(ax: float, ay: float, weight: float, tangent: wp.vec3, n: wp.vec3, v: wp.vec3, u1: float,
                        u2: float) -> wp.vec3:
     """A direction from the mixture (module docstring); u1, u2 uniform in [0, 1)."""
-    frame = _frame(tangent, n)
+    frame = tangent_frame_from(tangent, n)
     if u1 < weight:
         u = u1 / weight
         ang = 2.0 * _PI * u2
@@ -237,6 +238,6 @@ def aniso_table_pdf(ax: float, ay: float, weight: float, tangent: wp.vec3, n: wp
         h = h / hl
         vh = wp.abs(wp.dot(v, h))
         if vh > 1.0e-12:
-            hloc = _frame(tangent, n) * h
+            hloc = tangent_frame_from(tangent, n) * h
             pdf += weight * _lobe_d(hloc, ax, ay) * wp.max(hloc[2], 0.0) / (4.0 * vh)
     return pdf
