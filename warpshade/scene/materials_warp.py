@@ -53,7 +53,7 @@ import numpy as np
 from .._wp import wp
 from . import materials
 from .tabulated_aniso_warp import (ANISO_LOBE_WEIGHT, ANISO_TABLE_MODEL, aniso_table_eval, aniso_table_pdf,
-                                   aniso_table_sample, table_lobe_aniso, tangent_frame_from)
+                                   aniso_table_sample, clamped_axis, table_lobe_aniso, tangent_frame_from)
 
 __all__ = [
     "ANISOTROPIC_MODELS",
@@ -485,15 +485,6 @@ def _table_cell(b: BRDFParams, i: int, j: int, k: int) -> float:
 
 
 @wp.func
-def _linear_axis(u: float, n: int) -> wp.vec3:
-    """Clamped linear interpolation along one cell-index axis: (i0, i1, t) (indices as floats)."""
-    uc = wp.clamp(u, 0.0, float(n) - 1.0)
-    i0 = wp.min(int(wp.floor(uc)), wp.max(n - 2, 0))
-    i1 = wp.min(i0 + 1, n - 1)
-    return wp.vec3(float(i0), float(i1), wp.clamp(uc - float(i0), 0.0, 1.0))
-
-
-@wp.func
 def _tabulated_eval(b: BRDFParams, n: wp.vec3, v: wp.vec3, s: wp.vec3) -> float:
     """One channel of a tabulated BRDF (``v``, ``s`` above the horizon of ``n``): the
     :class:`~warpshade.scene.tabulated.TabulatedBRDF` lookup, "nearest" or "linear"."""
@@ -532,8 +523,8 @@ def _tabulated_eval(b: BRDFParams, n: wp.vec3, v: wp.vec3, s: wp.vec3) -> float:
         j = wp.clamp(int(wp.floor(uj)), 0, n_td - 1)
         k = wp.clamp(int(wp.floor(uk)), 0, n_pd - 1)
         return b.scale * wp.max(_table_cell(b, i, j, k), 0.0)
-    ai = _linear_axis(ui - 0.5, n_th)
-    aj = _linear_axis(uj - 0.5, n_td)
+    ai = clamped_axis(ui - 0.5, n_th)
+    aj = clamped_axis(uj - 0.5, n_td)
     fk = wp.floor(uk - 0.5)
     tk = uk - 0.5 - fk
     k0 = int(fk) % n_pd

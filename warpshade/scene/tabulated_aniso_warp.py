@@ -33,7 +33,7 @@ from .._wp import wp
 wp.set_module_options({"enable_backward": False})
 
 __all__ = ["ANISO_LOBE_WEIGHT", "ANISO_TABLE_MODEL", "aniso_table_eval", "aniso_table_pdf", "aniso_table_sample",
-           "table_lobe_aniso", "tangent_frame_from"]
+           "clamped_axis", "table_lobe_aniso", "tangent_frame_from"]
 
 #: Model code of a tabulated anisotropic BRDF in :class:`~warpshade.scene.materials_warp.BRDFParams`
 #: (the next free code after ``tabulated``, 8).
@@ -106,8 +106,8 @@ def _cell(table: wp.uint64, dims: wp.vec4i, i: int, j: int, k: int, l: int) -> f
 
 
 @wp.func
-def _clamped(u: float, n: int) -> wp.vec3:
-    """Clamped linear interpolation along one cell-index axis: (i0, i1, t)."""
+def clamped_axis(u: float, n: int) -> wp.vec3:
+    """Clamped linear interpolation along one cell-index axis: (i0, i1, t) (indices as floats)."""
     uc = wp.clamp(u, 0.0, float(n) - 1.0)
     i0 = wp.min(int(wp.floor(uc)), wp.max(n - 2, 0))
     i1 = wp.min(i0 + 1, n - 1)
@@ -171,9 +171,9 @@ def aniso_table_eval(b_table: wp.uint64, dims: wp.vec4i, linear: float, tangent:
         k = wp.clamp(int(wp.floor(u2)), 0, dims[2] - 1)
         l = wp.clamp(int(wp.floor(u3)), 0, dims[3] - 1)
         return wp.max(_cell(b_table, dims, i, j, k, l), 0.0)
-    a0 = _clamped(u0 - 0.5, dims[0])
+    a0 = clamped_axis(u0 - 0.5, dims[0])
     a1 = _periodic(u1 - 0.5, dims[1])
-    a2 = _clamped(u2 - 0.5, dims[2])
+    a2 = clamped_axis(u2 - 0.5, dims[2])
     a3 = _periodic(u3 - 0.5, dims[3])
     num = float(0.0)
     den = float(0.0)
