@@ -9,7 +9,9 @@ For each scene and setting, in one run on one device:
   ``lag`` = mean on the fast frames / ``error`` (:func:`warpshade.measure.lag`); the time per frame
   is the median of those steps after the first two (compilation, recording);
 * ``noise``: per-vertex relative standard deviation over 8 seeds at frame index ``--noise-frame``,
-  each seed's run stepped from the clip's start (:func:`warpshade.measure.noise`);
+  each seed's run stepped from the clip's start (:func:`warpshade.measure.noise`); a comma list
+  of frame indices measures it at each (``noise_at``, ``noise_ratio_at``): the first frames of a
+  clip show the history's warm-up, later ones the reuse while the scene moves;
 * ratios against ``prt.trace`` at 1024 rays (same order) measured in the same run.
 
 Settings: ``prt.trace`` n6 1024 rays; ``hybrid.trace`` n6 with K in {8, 16, 32, 64} and each
@@ -153,7 +155,8 @@ def main(argv=None) -> int:
     ap.add_argument("--order", type=int, default=6)
     ap.add_argument("--reference-rays", type=int, default=1024, help="rays per vertex of the prt.trace baseline")
     ap.add_argument("--gt-samples", type=int, default=1024, help="ground-truth samples per vertex")
-    ap.add_argument("--noise-frame", type=int, default=12, help="frame index of the noise metric")
+    ap.add_argument("--noise-frame", default="12", help="frame index of the noise metric; a comma list measures it at "
+                    "each (the first is the row's 'noise'; all in 'noise_at')")
     ap.add_argument("--seeds", type=int, default=8)
     ap.add_argument("--training-frames", default="0:600:20", help="data-driven control: training frames")
     ap.add_argument("--training-samples", type=int, default=32, help="data-driven control: rays per training frame")
@@ -177,7 +180,7 @@ def main(argv=None) -> int:
         ap.error("--quick writes only into --out DIR (never benchmarks/results)")
     if args.quick:
         args.scenes, args.samples, args.controls, args.reference_rays = "bend", "8", "none", 64
-        args.gt_samples, args.noise_frame, args.seeds, args.order = 32, 2, 2, 3
+        args.gt_samples, args.noise_frame, args.seeds, args.order = 32, "2", 2, 3
     out_dir = Path(args.out or ROOT / "benchmarks" / "results")
     out_dir.mkdir(parents=True, exist_ok=True)
     date = datetime.date.today().isoformat()
@@ -200,7 +203,7 @@ def main(argv=None) -> int:
         def truth_for(frames, scene=scene, lighting=lighting):
             return ground_truth(scene, lighting, frames, args.gt_samples, args.device, progress=True)
 
-        noise_frame = float(scene.frames[min(args.noise_frame, len(scene.frames) - 1)])
+        noise_frames = [float(scene.frames[min(int(i), len(scene.frames) - 1)]) for i in str(args.noise_frame).split(",")]
         rows = settings(key, args.order, samples, controls, args.reference_rays, args.training_frames, args.training_samples,
                         parse_variants(args.variants), baseline=not args.no_baseline,
                         visibility_training=(args.visibility_training_frames, args.visibility_training_samples))
@@ -208,14 +211,16 @@ def main(argv=None) -> int:
             t0 = time.perf_counter()
             try:
                 lg = lag(scene, lighting, stages, truth_for, device=args.device)
-                nz = noise(scene, lighting, stages, frame=noise_frame, seeds=args.seeds, device=args.device)
+                nzs = {f: noise(scene, lighting, stages, frame=f, seeds=args.seeds, device=args.device) for f in noise_frames}
+                nz = nzs[noise_frames[0]]
             except Exception as exc:  # reported, never dropped
                 print(f"  {method} K{rays}: FAILED {exc!r}", flush=True)
                 results.append({"scene": key, "method": method, "rays": rays, "failed": repr(exc)})
                 continue
             r = {"scene": key, "method": method, "rays": rays, "error": lg["lag_mean_error"], "lag": lg["lag"],
                  "fast_error": lg["lag_fast_error"], "frame_ms": lg["frame_ms"], "noise": nz["noise_rel"],
-                 "noise_p99": nz["noise_rel_p99"], "lag_frames": lg["lag_frames"], "fast_frames": lg["lag_fast_frames"],
+                 "noise_p99": nz["noise_rel_p99"], "noise_at": {str(int(f)): x["noise_rel"] for f, x in nzs.items()},
+                 "lag_frames": lg["lag_frames"], "lag_errors": lg["lag_errors"], "fast_frames": lg["lag_fast_frames"],
                  "diagnostics": lg.get("diagnostics"), "seconds": time.perf_counter() - t0,
                  "stages": [dict(name=n, type=t, **p) for (n, t, p, _) in stages]}
             results.append(r)
@@ -227,6 +232,8 @@ def main(argv=None) -> int:
                     x["error_ratio"] = x["error"] / ref["error"]
                     x["speedup"] = ref["frame_ms"] / x["frame_ms"]
                     x["noise_ratio"] = x["noise"] / ref["noise"] if ref["noise"] > 0 else None
+                    x["noise_ratio_at"] = {f: (x["noise_at"][f] / ref["noise_at"][f] if ref["noise_at"].get(f) else None)
+                                           for f in x["noise_at"]}
             meta["seconds"] = time.perf_counter() - t_all
             write_json_atomic(Path(f"{stem}.json"), {"meta": meta, "results": results}, indent=1)
     ok = [r for r in results if "failed" not in r]

@@ -122,4 +122,5 @@ def lag(scene, lighting, stages, truth_for, output: str = "shade.radiance", fast
     mean_e = float(np.mean(list(errors.values())))
     return {"lag": fast_e / mean_e if mean_e > 0 else None, "lag_fast_error": fast_e, "lag_mean_error": mean_e,
             "lag_fast_frames": [float(f) for f in fast_f], "lag_frames": [float(f) for f in wanted],
+            "lag_errors": [errors[float(f)] for f in wanted],
             "frame_ms": 1e3 * float(np.median(steps)), "diagnostics": rt.describe().get("diagnostics")}

@@ -42,7 +42,10 @@ fixed point set under a uniform random rotation, so every frame's estimate is un
   minimises the mean squared error of the blend for the history's estimated bias
   ``b^2 = max(0, d^2 - var_mean - var_h)``: ``a = (var_h + b^2) / (var_h + b^2 + var_mean)`` (for an
   unbiased history that is the running average's own ``var_h / (var_h + var_fresh)``); the cut
-  above the threshold stays. With ``test_raw`` the test compares the unfiltered one-frame estimate (``raw``) instead, against
+  above the threshold stays. One frame's excess ``d^2 - var_mean - var_h`` is as noisy as the fresh
+  frame, so ``b^2`` is the positive part of its moving average (weight ``max(bias_weight,
+  1 / (n + 1))``, restarted at every cut; ``bias_weight`` 1: this frame's alone): a weight drawn
+  from one frame's noise would put that noise back into the history. With ``test_raw`` the test compares the unfiltered one-frame estimate (``raw``) instead, against
   the one-frame variance before the filter (``var_mean`` times the filter's gain): less sensitive
   by that gain, so it keeps more history (less noise) and follows a slowly drifting transfer later.
 * :func:`reproject_kernel` -- with ``reproject`` on, before the rays: the per-vertex history (the
@@ -291,6 +294,8 @@ class TemporalState:
         variance: variance of the average (trace of its covariance), (V,) float32.
         prev_points, prev_normals: the vertex at the last frame, (V,) vec3.
         reset: why the history was cut this frame (RESET_* codes), (V,) int32.
+        excess: moving average of the squared difference's excess over its variance (the soft
+            reset's estimate of the history's squared bias), (V,) float32.
     """
 
     history: wp.array2d(dtype=wp.float32)
@@ -300,6 +305,7 @@ class TemporalState:
     prev_points: wp.array(dtype=wp.vec3)
     prev_normals: wp.array(dtype=wp.vec3)
     reset: wp.array(dtype=wp.int32)
+    excess: wp.array(dtype=wp.float32)
 
 
 @wp.struct
@@ -314,6 +320,7 @@ class TemporalParams:
     fade: float  # z above which the history fades (the fresh frame's weight s^2 reaches 1 at the threshold)
     test_raw: int  # 1: the variance test compares the unfiltered one-frame estimate with the history
     soft: int  # 1: below the threshold the fresh frame's weight is the MSE-optimal one for the estimated bias (no fade)
+    bias_weight: float  # soft: smallest weight of a new frame in the moving average of the excess (1: this frame's alone)
 
 
 @functools.lru_cache(maxsize=None)
@@ -372,13 +379,18 @@ def temporal_kernel(order: int):
                     code = RESET_VARIANCE
                 elif params.soft != 0:
                     vh = state.variance[v]
-                    b2 = wp.max(d2 - vm - vh, 0.0)
+                    beta = wp.max(params.bias_weight, 1.0 / (count + 1.0))
+                    excess = (1.0 - beta) * state.excess[v] + beta * (d2 - vm - vh)
+                    state.excess[v] = excess
+                    b2 = wp.max(excess, 0.0)
                     drift = (vh + b2) / (vh + b2 + vm + 1.0e-12)
                 elif params.threshold > params.fade:
                     s = wp.clamp((z - params.fade) / (params.threshold - params.fade), 0.0, 1.0)
                     drift = s * s
         if not (wp.isfinite(d2) and wp.isfinite(vf)):
             code = RESET_NONFINITE
+        if code != RESET_NONE or count <= 0.0:
+            state.excess[v] = 0.0
         a = float(1.0)
         if count > 0.0 and code == RESET_NONE:
             a = wp.max(wp.max(params.alpha, 1.0 / (count + 1.0)), drift)

@@ -112,7 +112,8 @@ def temporal_f64(state: dict, points, normals, scale, fresh, fresh_variance, gai
             ``prev_points`` (V, 3), ``prev_normals`` (V, 3).
         control: (V, C) or None; params: ``alpha``, ``motion``, ``normal_cos``, ``threshold``,
             ``in_control``, ``fade`` (optional, default 1), ``soft`` (optional, default 0: the
-            MSE-optimal weight for the estimated bias instead of the fade), ``test_raw`` (optional, 0: the variance test on ``fresh``; 1: on ``raw``,
+            MSE-optimal weight for the estimated bias instead of the fade), ``bias_weight`` (optional,
+            default 1: the smallest weight of a new frame in the moving average of the excess), ``test_raw`` (optional, 0: the variance test on ``fresh``; 1: on ``raw``,
             the unfiltered one-frame estimate, against the variance before the filter).
         raw: (V, C) the unfiltered one-frame estimate (``fresh`` when None).
 
@@ -120,6 +121,7 @@ def temporal_f64(state: dict, points, normals, scale, fresh, fresh_variance, gai
         ``(transfer (V, C), new_state)`` with ``new_state["reset"]`` the per-vertex codes.
     """
     st = {k: np.array(v, np.float64) for k, v in state.items()}
+    st.setdefault("excess", np.zeros(np.shape(fresh)[0]))
     p = np.asarray(points, np.float64)
     n = np.asarray(normals, np.float64)
     fr = np.asarray(fresh, np.float64)
@@ -154,12 +156,16 @@ def temporal_f64(state: dict, points, normals, scale, fresh, fresh_variance, gai
                     code = _RESET_VARIANCE
                 elif params.get("soft", 0):
                     vh = st["variance"][v]
-                    b2 = max(d2 - vm - vh, 0.0)
+                    beta = max(float(params.get("bias_weight", 1.0)), 1.0 / (count + 1.0))
+                    st["excess"][v] = (1 - beta) * st["excess"][v] + beta * (d2 - vm - vh)
+                    b2 = max(st["excess"][v], 0.0)
                     drift = (vh + b2) / (vh + b2 + vm + 1e-12)
                 elif params["threshold"] > fade:
                     drift = min(max((z - fade) / (params["threshold"] - fade), 0.0), 1.0) ** 2
         if not (np.isfinite(d2) and np.isfinite(vf)):
             code = _RESET_NONFINITE
+        if code != _RESET_NONE or count <= 0:
+            st["excess"][v] = 0.0
         if code == _RESET_NONFINITE:
             st["history"][v] = 0.0
             out[v] = np.where(np.isfinite(ctl[v]), ctl[v], 0.0) if control is not None else 0.0

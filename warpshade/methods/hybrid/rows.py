@@ -22,8 +22,10 @@ VISIBILITY_FIT = {"model": "quadratic", "input_max": 12, "variance": 0.99, "k_ma
 
 
 #: hybrid.trace settings that keep the history through a turn (reprojected; no cut by the normal's
-#: turn, motion cut at 4 edge lengths per frame) and blend by the estimated bias (soft reset, cut at z > 8).
-REPROJECT_SOFT = {"reproject": True, "normal_turn": 180.0, "motion": 4.0, "reset": "soft", "threshold": 8.0}
+#: turn, motion cut at 4 edge lengths per frame) and blend by the bias estimated over 4 frames (soft
+#: reset, cut at z > 8).
+REPROJECT_SOFT = {"reproject": True, "normal_turn": 180.0, "motion": 4.0, "reset": "soft", "threshold": 8.0,
+                  "bias_frames": 4}
 
 
 def stages_for(control: str, samples: int, order: int = 6, training: str | None = None, frames: str | None = None,

@@ -91,6 +91,9 @@ class HybridTraceStage(FrameStage):
         "reset": Param("hard", str, "below the threshold: the history fades from 'fade' on (hard), or the fresh frame "
                        "gets the weight of least mean squared error for the history's estimated bias (soft)",
                        choices=("hard", "soft")),
+        "bias_frames": Param(1, int, "soft reset: frames over which the history's bias is estimated (a moving average "
+                             "of the excess of |fresh - history|^2 over its variance; 1: this frame's alone)",
+                             minimum=1, maximum=64),
         "motion": Param(1.0, float, "history cut when a vertex moves more than this many mean edge lengths per frame",
                         minimum=0.0),
         "normal_turn": Param(20.0, float, "history cut when a normal turns more than this (degrees) per frame",
@@ -169,6 +172,7 @@ class HybridTraceStage(FrameStage):
         st.prev_points = wp.zeros(v, dtype=wp.vec3, device=dev)
         st.prev_normals = wp.zeros(v, dtype=wp.vec3, device=dev)
         st.reset = wp.zeros(v, dtype=wp.int32, device=dev)
+        st.excess = wp.zeros(v, dtype=wp.float32, device=dev)
         self._state = st
         tp = kernels.TemporalParams()
         tp.alpha = float(p["alpha"])
@@ -179,6 +183,7 @@ class HybridTraceStage(FrameStage):
         tp.fade = float(p["fade"])
         tp.test_raw = 1 if p["test"] == "raw" else 0
         tp.soft = 1 if p["reset"] == "soft" else 0
+        tp.bias_weight = 1.0 / float(p["bias_frames"])
         self._params = tp
         if p["reproject"]:
             self._prev_frames = wp.zeros(v, dtype=wp.mat33, device=dev)
