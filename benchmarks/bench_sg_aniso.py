@@ -24,31 +24,21 @@ isotropic | error of the anisotropic, on the dish) into ``--out`` (default bench
 from __future__ import annotations
 
 import argparse
-import datetime
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 
 import warpshade.graph as graph
-from warpshade._fileio import write_json_atomic
-from warpshade.measure import ground_truth_model
-from warpshade.measure.pictures import ERROR_LIMIT, write_panels
-from warpshade.measure.pixels import exposure_for, pixel_stage, render_frame
-from warpshade.reference import reference_image
-from warpshade.render import tonemap_f64
+from warpshade.measure.pixels import render_frame
+
+from _dish import (best_isotropic, pixel_masks, quick_overrides, rel_rms, relative_noise, render_and_reference,
+                   write_aniso_outputs)
 
 ROOT = Path(__file__).resolve().parents[1]
 GRAPH = ROOT / "stages" / "dish_sg_aniso.toml"
 #: Isotropic alphas tried, as fractions of the way from alpha_x to alpha_y in log space.
 ISO_SWEEP = 7
-
-
-def rel_rms(est, ref, mask):
-    d = (est - ref)[mask]
-    r = ref[mask]
-    return float(np.sqrt(np.mean(d * d)) / np.sqrt(np.mean(r * r)))
 
 
 def main(argv=None):
@@ -69,90 +59,35 @@ def main(argv=None):
     spec = graph.load(GRAPH)
     if args.quick:
         args.width, args.height, args.samples, sweep = 48, 36, 64, 2
-        for st in spec.stages:
-            if st.type == "sg.ssdf":
-                st.params.update(resolution=16, supersample=1)
-            if st.type == "sg.shade":
-                st.params.update(lobes=2)
-    t0 = time.perf_counter()
-    rt = spec.compile(device=args.device, progress=not args.quick)
-    compile_s = time.perf_counter() - t0
-    frame = float(rt.scene.frames[0])
-    rt.step(frame)
-    st = pixel_stage(rt)
+        quick_overrides(spec, resolution=16, lobes=2)
+    run = render_and_reference(spec, args.device, args.width, args.height, args.samples, args.seed, not args.quick)
+    rt, frame, st, im = run.rt, run.frame, run.stage, run.image
     p = st.params
-    t0 = time.perf_counter()
-    im = render_frame(rt, frame, args.width, args.height)
-    sg_s = time.perf_counter() - t0
-    model = ground_truth_model(st, rt.state.materials, rt.state.eye.numpy()[0], per_pixel=True)
-    t0 = time.perf_counter()
-    ref = reference_image(rt.scene, frame, model["brdf"], camera=im.camera, width=args.width, height=args.height,
-                          samples=args.samples, eye=model["eye"], lighting=rt.lighting.lights_at(frame),
-                          specular=im.materials["specular"], include=("specular",), seed=args.seed, device=rt.device,
-                          tangents=model["tangents"])
-    ref_s = time.perf_counter() - t0
-    dish = next(k for k, m in enumerate(rt.scene.meshes) if m.path.endswith("Dish"))
-    start = sum(m.triangle_count for m in rt.scene.meshes[:dish])
-    tri = ref.hits.triangles.reshape(args.height, args.width)
-    on_dish = (tri >= start) & (tri < start + rt.scene.meshes[dish].triangle_count)
-    mask = ref.mask & on_dish & (im.coverage >= 1.0)
-    covered = ref.mask & (im.coverage >= 1.0)
-    scale = np.sqrt(np.mean(ref.radiance[mask] ** 2))
+    ref, compile_s, sg_s, ref_s = run.references["reference"], run.compile_s, run.sg_s, run.reference_s["reference"]
+    mask, covered = pixel_masks(rt.scene, ref, im, args.width, args.height)
     result = {"rel_rms_dish": rel_rms(im.linear, ref.radiance, mask), "rel_rms_all": rel_rms(im.linear, ref.radiance, covered),
-              "reference_noise_dish": float(np.sqrt(np.mean(ref.stderr[mask] ** 2)) / scale),
+              "reference_noise_dish": relative_noise(ref.stderr, ref.radiance, mask),
               "dish_pixels": int(mask.sum()), "covered_pixels": int(covered.sum()),
               "ndf_lobes": st.diagnostics().get("ndf_lobes")}
     print(f"anisotropic SG: dish rel RMS {result['rel_rms_dish']:.4f} (reference noise {result['reference_noise_dish']:.4f}, "
           f"{result['dish_pixels']} pixels), all {result['rel_rms_all']:.4f}; SG {sg_s:.2f} s, reference {ref_s:.1f} s", flush=True)
     ax, ay = float(p["roughness"]), float(p["roughness_y"])
-    iso = []
-    best = None
+    iso, images = [], []
     for a in np.geomspace(ax, ay, sweep):
         rt.set_parameter("shade", "roughness_y", None)
         rt.set_parameter("shade", "roughness", float(a))
         rt.step(frame)
         iso_im = render_frame(rt, frame, args.width, args.height)
-        row = {"alpha": float(a), "rel_rms_dish": rel_rms(iso_im.linear, ref.radiance, mask),
-               "rel_rms_all": rel_rms(iso_im.linear, ref.radiance, covered)}
-        iso.append(row)
-        print(f"isotropic Ward alpha {a:.3f}: dish rel RMS {row['rel_rms_dish']:.4f}", flush=True)
-        if best is None or row["rel_rms_dish"] < best[0]["rel_rms_dish"]:
-            best = (row, iso_im.linear)
-    ratio = result["rel_rms_dish"] / best[0]["rel_rms_dish"]
-    print(f"best isotropic: alpha {best[0]['alpha']:.3f}, dish rel RMS {best[0]['rel_rms_dish']:.4f}; "
-          f"anisotropic / best isotropic = {ratio:.3f}", flush=True)
-    date = datetime.date.today().isoformat()
-    stem = f"sg-aniso-{date}-cpu" + ("-quick" if args.quick else "")
-    exposure = exposure_for(ref.radiance[mask].reshape(-1, 3))
-    y_scale = float(np.mean(ref.radiance[mask].sum(-1))) if mask.any() else 1.0
-    err = np.where(mask, (im.linear - ref.radiance).sum(-1) / max(y_scale, 1e-30), 0.0)
-    import matplotlib
-
-    from warpshade.measure.pictures import ERROR_COLORMAP
-
-    err_rgb = matplotlib.colormaps[ERROR_COLORMAP](np.clip(0.5 + 0.5 * err / ERROR_LIMIT, 0, 1))[..., :3]
-    err_img = np.where(mask[..., None], err_rgb, 0.5)
-    sg_img, ref_img, iso_img = (tonemap_f64(x, exposure=exposure) for x in (im.linear, ref.radiance, best[1]))
-    err_u8 = np.clip(err_img * 255.0 + 0.5, 0, 255).astype(np.uint8)
-    grey = np.full_like(err_u8, 128)
-    png = write_panels(out / f"{stem}.png",
-                       [np.concatenate([sg_img, ref_img], 1), np.concatenate([iso_img, ref_img], 1),
-                        np.concatenate([err_u8, grey], 1)],
-                       [f"SG, Ward {ax:g} x {ay:g} | reference\ndish rel RMS {result['rel_rms_dish']:.3f}",
-                        f"SG, isotropic {best[0]['alpha']:.3f} | ref.\ndish rel RMS {best[0]['rel_rms_dish']:.3f}",
-                        "error (anisotropic SG)"],
-                       ERROR_LIMIT, f"{args.width}x{args.height} pixels, reference {args.samples} spp; "
-                                    f"anisotropic / best isotropic = {ratio:.2f}")
-    report = {"date": date, "device": str(rt.device), "quick": args.quick, "graph": str(GRAPH.relative_to(ROOT)),
-              "width": args.width, "height": args.height, "reference_samples": args.samples,
-              "material": {"model": "ward", "alpha_x": ax, "alpha_y": ay, "tangent": p["tangent"]},
-              "anisotropic": result, "isotropic_sweep": iso, "best_isotropic": best[0],
-              "ratio_anisotropic_to_best_isotropic": ratio,
-              "goals": {"rel_rms_dish_below_0.25": result["rel_rms_dish"] < 0.25, "ratio_below_0.5": ratio <= 0.5},
-              "seconds": {"compile": compile_s, "sg_frame": sg_s, "reference": ref_s},
-              "png": png.name, "command": "python benchmarks/bench_sg_aniso.py " + " ".join(argv if argv is not None else sys.argv[1:])}
-    path = write_json_atomic(out / f"{stem}.json", report)
-    print(f"wrote {path} and {png}")
+        iso.append({"alpha": float(a), "rel_rms_dish": rel_rms(iso_im.linear, ref.radiance, mask),
+                    "rel_rms_all": rel_rms(iso_im.linear, ref.radiance, covered)})
+        images.append(iso_im.linear)
+        print(f"isotropic Ward alpha {a:.3f}: dish rel RMS {iso[-1]['rel_rms_dish']:.4f}", flush=True)
+    best, best_image, ratio = best_isotropic(result, iso, images, lambda row: f"alpha {row['alpha']:.3f}")
+    write_aniso_outputs(out, "sg-aniso", __file__, argv, args, GRAPH, ROOT, rt, im.linear, ref.radiance, mask,
+                        titles=(f"SG, Ward {ax:g} x {ay:g} | reference", f"SG, isotropic {best['alpha']:.3f} | ref."),
+                        material={"model": "ward", "alpha_x": ax, "alpha_y": ay, "tangent": p["tangent"]},
+                        result=result, iso_key="isotropic_sweep", iso=iso, best=best, best_image=best_image, ratio=ratio,
+                        seconds={"compile": compile_s, "sg_frame": sg_s, "reference": ref_s})
     return 0
 
 

@@ -24,7 +24,6 @@ dish pixel of an 80 x 60 image (96 x 192 nodes).
 from __future__ import annotations
 
 import argparse
-import datetime
 import time
 from pathlib import Path
 
@@ -33,18 +32,15 @@ import numpy as np
 import warpshade.graph as graph
 from warpshade._fileio import write_json_atomic
 from warpshade.measure.pictures import ERROR_COLORMAP, ERROR_LIMIT, write_panels
-from warpshade.measure.pixels import exposure_for, pixel_bvh, pixel_stage, render_frame
+from warpshade.measure.pixels import exposure_for, pixel_bvh
 from warpshade.methods.sg.svbrdf import eq13_quadrature_f64, scene_uvs
 from warpshade.render import render_gbuffer, tonemap_f64
-from warpshade.scene import Environment
 from warpshade.usd_assets.generator.svbrdf import SVBRDF_ETA, texel_material
+
+from _dish import dated_stem, dish_mask, quick_overrides, rel_rms, render_first_frame, sole_environment
 
 ROOT = Path(__file__).resolve().parents[1]
 GRAPH = ROOT / "stages" / "dish_sg_svbrdf.toml"
-
-
-def rel_rms(est, ref):
-    return float(np.sqrt(np.mean((est - ref) ** 2)) / np.sqrt(np.mean(ref**2)))
 
 
 def main(argv=None):
@@ -66,29 +62,16 @@ def main(argv=None):
     spec = graph.load(GRAPH)
     if args.quick:
         args.width, args.height, args.pixels, args.z_nodes, args.phi_nodes = 32, 24, 40, 64, 128
-        for st in spec.stages:
-            if st.type == "sg.ssdf":
-                st.params.update(resolution=16, supersample=1)
-    rt = spec.compile(device=args.device, progress=not args.quick)
-    frame = float(rt.scene.frames[0])
-    rt.step(frame)
-    st = pixel_stage(rt)
-    t0 = time.perf_counter()
-    im = render_frame(rt, frame, args.width, args.height)
-    sg_s = time.perf_counter() - t0
-    lights = rt.lighting.lights_at(frame)
-    envs = [light for light in lights if isinstance(light, Environment)]
-    if len(envs) != 1 or len(lights) != 1:
-        raise SystemExit(f"{GRAPH.name}: the quadrature takes one environment and no other light; the scene has {lights}")
-    env = envs[0]
+        quick_overrides(spec, resolution=16)
+    run = render_first_frame(spec, args.device, args.width, args.height, not args.quick)
+    rt, frame, st, im, sg_s = run.rt, run.frame, run.stage, run.image, run.sg_s
+    env = sole_environment(rt, frame, GRAPH)
     # the same rays as render_frame (supersample 1): which pixels are on the dish, and where
     bvh = pixel_bvh(rt)
     gb = render_gbuffer(bvh, rt.state.normals, im.camera, args.width, args.height)
     hit = gb.hit.numpy().astype(bool)
     face = gb.face.numpy()
-    dish = next(k for k, m in enumerate(rt.scene.meshes) if m.path.endswith("Dish"))
-    start = sum(m.triangle_count for m in rt.scene.meshes[:dish])
-    on_dish = hit & (face >= start) & (face < start + rt.scene.meshes[dish].triangle_count)
+    on_dish = hit & dish_mask(rt.scene, face)
     idx = np.flatnonzero(on_dish)
     rng = np.random.default_rng(args.seed)
     pick = np.sort(rng.choice(idx, size=idx.size if args.pixels <= 0 else min(args.pixels, idx.size), replace=False))
@@ -126,8 +109,7 @@ def main(argv=None):
           f"{result['svbrdf']['lobes']} lobes (worst texel {result['svbrdf']['ndf_error_max']:.4f}), "
           f"{result['svbrdf']['shadow_terms']} shadowing terms (RMS {result['svbrdf']['shadow_rms']:.2e}); "
           f"SG {sg_s:.2f} s, quadrature {oracle_s:.1f} s", flush=True)
-    date = datetime.date.today().isoformat()
-    stem = f"sg-svbrdf-{date}-cpu" + ("-quick" if args.quick else "")
+    date, stem = dated_stem("sg-svbrdf", args.quick)
     exposure = exposure_for(im.linear[on_dish.reshape(args.height, args.width)].reshape(-1, 3))
     ref_img = np.full((args.height * args.width, 3), 0.0)
     ref_img[pick] = oracle

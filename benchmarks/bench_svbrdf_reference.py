@@ -32,7 +32,6 @@ Writes ``svbrdf-reference-<date>-cpu[-quick].json`` into ``--out`` (default benc
 from __future__ import annotations
 
 import argparse
-import datetime
 import time
 from pathlib import Path
 
@@ -46,16 +45,14 @@ from warpshade.methods.sg import decode_maps, shade_f64
 from warpshade.methods.sg.slices import duff_frame_f64
 from warpshade.methods.sg.svbrdf import eq13_quadrature_f64, scene_uvs, svbrdf_slices_f64
 from warpshade.reference.svbrdf_warp import vertex_texels
-from warpshade.scene import Environment, SphereLight
+from warpshade.scene import SphereLight
 from warpshade.scene.materials import hemisphere_quadrature
 from warpshade.usd_assets.generator.svbrdf import texel_material
 
+from _dish import dated_stem, quick_overrides, rel_rms, relative_noise, sole_environment
+
 ROOT = Path(__file__).resolve().parents[1]
 GRAPH = ROOT / "stages" / "dish_sg_svbrdf.toml"
-
-
-def rel_rms(est, ref):
-    return float(np.sqrt(np.mean((np.asarray(est) - ref) ** 2)) / np.sqrt(np.mean(np.asarray(ref) ** 2)))
 
 
 def _mirror(rt, idx, open_sky: bool, texels):
@@ -103,9 +100,7 @@ def main(argv=None):
     cache = "default"
     if args.quick:
         args.vertices, args.z_nodes, args.phi_nodes, samples, cache = 30, 32, 64, 64, None
-        for st in spec.stages:
-            if st.type == "sg.ssdf":
-                st.params.update(resolution=8, supersample=1)
+        quick_overrides(spec, resolution=8)
     rt = spec.compile(device=args.device, progress=not args.quick)
     frame = float(rt.scene.frames[0])
     rt.run([frame])
@@ -116,11 +111,7 @@ def main(argv=None):
     truth = ground_truth(rt.scene, rt.lighting, [frame], samples, rt.device, cache, model, VALIDATE_SEED)[frame]
     truth_s = time.perf_counter() - t0
     reference, stderr = truth["radiance"].astype(np.float64), truth["stderr"].astype(np.float64)
-    lights = rt.lighting.lights_at(frame)
-    envs = [light for light in lights if isinstance(light, Environment)]
-    if len(envs) != 1 or len(lights) != 1:
-        raise SystemExit(f"{GRAPH.name}: the quadrature takes one environment and no other light; the scene has {lights}")
-    env = envs[0]
+    env = sole_environment(rt, frame, GRAPH)
 
     pts = rt.state.points.numpy().astype(np.float64)
     nrm = rt.state.normals.numpy().astype(np.float64)
@@ -184,7 +175,7 @@ def main(argv=None):
     vis_true = quad["fit_ndf_pca"] - quad["fit_open"]
     split = {
         "reference_vs_file_quadrature": rel_rms(ref, quad["file"]),
-        "reference_noise": float(np.sqrt(np.mean(stderr[idx] ** 2)) / np.sqrt(np.mean(ref**2))),
+        "reference_noise": relative_noise(stderr, reference, idx),
         "file_vs_exact": rel_rms(quad["file"], quad["exact"]),
         "ndf_fit": rel_rms(quad["fit_ndf"], quad["file"]),
         "shadowing_pca": rel_rms(quad["fit_ndf_pca"], quad["fit_ndf"]),
@@ -215,8 +206,7 @@ def main(argv=None):
     print("dish_sg_svbrdf, float64 split at", idx.size, "vertices (relative RMS):")
     for k, v in split.items():
         print(f"  {k:32s} {v:.4f}")
-    date = datetime.date.today().isoformat()
-    stem = f"svbrdf-reference-{date}-cpu" + ("-quick" if args.quick else "")
+    date, stem = dated_stem("svbrdf-reference", args.quick)
     report = {"date": date, "device": str(rt.device), "quick": args.quick, "graph": str(GRAPH.relative_to(ROOT)),
               "vertices": int(idx.size), "texel_mismatch_float64": texel_mismatch, "facing_vertices": int(facing.size), "samples": samples,
               "quadrature": [args.z_nodes, args.phi_nodes], "seed": args.seed, "split": split,
