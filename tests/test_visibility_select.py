@@ -220,15 +220,32 @@ def test_metric_pca_is_the_pca_of_the_cosine_weighted_transfer(rng):
     assert metric_residual(out["basis"]) < 0.9 * metric_residual(plain["basis"])
 
 
-def test_diffuse_metric_fit_and_its_parameter(bend, rng):
-    from warpshade.methods.stage import get_stage_type
+@pytest.mark.parametrize("precision", ["single", "half"])
+def test_diffuse_metric_fit_kernels_match_the_mirror(device, bend, rng, precision):
+    """A model fitted in the diffuse metric (its basis mapped back through the pseudo-inverse of the
+    cosine product matrix) runs on the same kernels: they match the float64 mirror (over the stored,
+    float16-rounded basis for half storage), and the transfer M_cos v they give matches too."""
+    from warpshade.methods.visibility.model import cosine_product_matrix
 
     data = _local_data(bend, rng, p=60)
     model = fit_visibility(data, model="auto", executor=_serial(), metric="diffuse")
     assert model.report["metric"] == "diffuse" and model.model == "auto"
     a = model.arrays
-    x = inputs_f64(a, data["poses_quaternion"][:1])[0]
-    assert np.all(np.isfinite(predict_f64(a, x)))
+    stored = dict(a, basis=np.asarray(a["basis"], np.float16).astype(np.float64)) if precision == "half" else a
+    m = cosine_product_matrix(3)
+    scale = np.abs(a["mean"]).max()
+    for pose in (data["poses_quaternion"][3], rng.uniform(-1, 1, data["poses_quaternion"].shape[1])):
+        got = _run_predict(a, pose, device, precision)
+        want = predict_f64(stored, inputs_f64(a, pose[None])[0])
+        assert np.all(np.isfinite(got))
+        np.testing.assert_allclose(got, want, atol=50 * ATOL_FLOAT32 * scale)
+        np.testing.assert_allclose(got @ m.T, want @ m.T, atol=50 * ATOL_FLOAT32 * scale)
+
+
+def test_diffuse_metric_parameter(bend, rng):
+    from warpshade.methods.stage import get_stage_type
+
+    data = _local_data(bend, rng, p=60)
     with pytest.raises(ValueError, match="metric"):
         fit_visibility(data, model="linear", frames="world", executor=_serial(), metric="diffuse")
     fit_stage = get_stage_type("visibility.fit")
