@@ -178,7 +178,8 @@ def test_metric_pca_is_the_pca_of_the_cosine_weighted_transfer(rng):
     spans the leading principal subspace of the transfer ``M v`` (numpy float64 eigen-decomposition
     of its covariance), its mean is the visibility's, and no basis of the same size reconstructs the
     transfer better (the unweighted PCA of the visibility is strictly worse in the metric)."""
-    from warpshade.methods.visibility.fit import fit_cluster, metric_apply, metric_inverse
+    from warpshade.methods.visibility import fit_cluster
+    from warpshade.methods.visibility.fit import metric_apply, metric_inverse
     from warpshade.methods.visibility.model import cosine_product_matrix
 
     order, n, p = 3, 4, 40
@@ -243,7 +244,7 @@ def test_diffuse_metric_fit_kernels_match_the_mirror(device, bend, rng, precisio
 
 
 def test_diffuse_metric_parameter(bend, rng):
-    from warpshade.methods.stage import get_stage_type
+    from warpshade.graph import get_stage_type
 
     data = _local_data(bend, rng, p=60)
     with pytest.raises(ValueError, match="metric"):

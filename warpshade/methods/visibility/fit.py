@@ -50,7 +50,8 @@ from scipy.optimize import minimize
 
 from .select import RIDGE_GRID
 
-__all__ = ["FOLDS", "expand_features", "fit_network", "folds", "network_forward", "pca_size", "warm_start"]
+__all__ = ["FOLDS", "expand_features", "fit_network", "folds", "metric_apply", "metric_inverse", "network_forward", "pca_size",
+           "warm_start"]
 
 #: Cross-validation folds.
 FOLDS = 4
