@@ -24,6 +24,9 @@ measured in the world frame (local predictions turned back by their frames); and
 cosine-weighted transfer on the held-out frames predicted by a visibility model (the cosine
 applied after, eq. 14) or by a model of the transfer itself (the cosine in the training targets).
 
+``--wanderer-diffuse``: the harness's wanderer diffuse row next to the 2007 linear model
+(``stages/wanderer_datadriven.toml``) trained on the same frames and rays (:func:`part_wanderer_diffuse`).
+
 Writes ``visibility-<date>-cpu[-quick][-tag].json`` and ``-models.png``, ``-studies.png``, ``-diffuse.png``
 into ``--out``.
 
@@ -164,6 +167,30 @@ def part_diffuse(quick, as_written=False, walk=True, previous=True):
     out["floors"] = diffuse_floors(vis_rt, quick)
     if walk:
         _, out["figure_walk"] = _diffuse_clip(quick, "figure_walk", previous)
+    return out
+
+
+def part_wanderer_diffuse(quick):
+    """The harness's wanderer diffuse row (``visibility auto n6 diffuse``: the settings of
+    stages/figure_visibility_diffuse.toml on the wanderer's training data of
+    :data:`warpshade.methods.visibility.rows.TRAINING_CLIPS`) next to the 2007 linear model
+    (stages/wanderer_datadriven.toml) trained on the *same* frames and rays, both on the wanderer's
+    held-out clip against the diffuse reference at stages/wanderer_datadriven.toml's [validate] frames."""
+    from warpshade.methods.visibility.rows import TRAINING_CLIPS, TRAINING_RAYS
+
+    training, frames = TRAINING_CLIPS["wanderer"]
+    rays = TRAINING_RAYS["wanderer"]
+    dd_spec = _spec("wanderer_datadriven", quick, data={"frames": frames, "samples": rays})
+    vis_spec = _spec("figure_visibility_diffuse", quick, data={"training": training, "frames": frames, "samples": rays})
+    vis_spec.scene = dd_spec.scene
+    vis_spec.validate_spec = dict(dd_spec.validate_spec)
+    out = {"training": training, "frames": frames, "samples": rays, "validate_frames": dd_spec.validate_spec["frames"]}
+    print(f"== wanderer: figure_visibility_diffuse's settings on {training} {frames} ({rays} rays)", flush=True)
+    _, out["visibility"] = _measure(vis_spec, quick)
+    print("== wanderer: wanderer_datadriven (2007 linear) on the same training frames and rays", flush=True)
+    _, out["datadriven_2007"] = _measure(dd_spec, quick)
+    out["error_ratio"] = out["visibility"]["rel_rms"] / out["datadriven_2007"]["rel_rms"]
+    print("wanderer diffuse:", json.dumps({k: out[k]["rel_rms"] for k in ("visibility", "datadriven_2007")}), flush=True)
     return out
 
 
@@ -429,6 +456,9 @@ def main(argv=None) -> int:
                     help="part 2 without the diffuse graph's previous settings (PREVIOUS_DIFFUSE_FIT)")
     ap.add_argument("--diffuse-as-written", action="store_true",
                     help="part 2 also runs stages/figure_datadriven.toml as written (every training frame, 256 rays)")
+    ap.add_argument("--wanderer-diffuse", action="store_true",
+                    help="also the wanderer's diffuse row against the 2007 linear model on the same training data "
+                         "(part_wanderer_diffuse)")
     ap.add_argument("--out", default=None, help="output directory (default benchmarks/results; required with --quick)")
     args = ap.parse_args(argv)
     if args.quick and args.out is None:
@@ -444,6 +474,9 @@ def main(argv=None) -> int:
         (out_dir / f"{tag}.json").write_text(json.dumps(result, indent=1, default=str))
     if not args.skip_diffuse:
         result["diffuse"] = part_diffuse(args.quick, args.diffuse_as_written, not args.skip_walk, not args.skip_previous)
+        (out_dir / f"{tag}.json").write_text(json.dumps(result, indent=1, default=str))
+    if args.wanderer_diffuse:
+        result["wanderer_diffuse"] = part_wanderer_diffuse(args.quick)
         (out_dir / f"{tag}.json").write_text(json.dumps(result, indent=1, default=str))
     if not args.skip_studies:
         rt = _spec("figure_visibility", args.quick, "linear").compile(device="cpu", progress=True)

@@ -170,3 +170,85 @@ def test_auto_falls_back_to_global_inputs_without_a_joint_layout(rng):
     data = _synthetic_data(rng)  # five inputs that are not joint rotations of the skinning joints
     model = fit_visibility(data, model="auto", executor=_serial())
     assert all(s.get("input_set", "global") == "global" for s in model.report["selected"])
+
+
+# ---- the diffuse metric (metric = "diffuse") -------------------------------------------------------
+def test_metric_pca_is_the_pca_of_the_cosine_weighted_transfer(rng):
+    """With a metric ``M`` (the cosine product matrix of eq. 14), a cluster's basis mapped by ``M``
+    spans the leading principal subspace of the transfer ``M v`` (numpy float64 eigen-decomposition
+    of its covariance), its mean is the visibility's, and no basis of the same size reconstructs the
+    transfer better (the unweighted PCA of the visibility is strictly worse in the metric)."""
+    from warpshade.methods.visibility import fit_cluster
+    from warpshade.methods.visibility.fit import metric_apply, metric_inverse
+    from warpshade.methods.visibility.model import cosine_product_matrix
+
+    order, n, p = 3, 4, 40
+    c = order * order
+    m = cosine_product_matrix(order)
+    np.testing.assert_allclose(m @ metric_inverse(m) @ m, m, atol=1e-12)  # a pseudo-inverse
+    # visibility with large variance in directions the cosine barely sees, small in the ones it sees
+    scales = 1.0 / (0.05 + np.abs(np.linalg.eigvalsh(m)))
+    evecs = np.linalg.eigh(m)[1]
+    y = np.concatenate([(rng.normal(size=(p, c)) * scales) @ evecs.T + rng.normal(size=c) for _ in range(n)], axis=1)
+    x = rng.normal(size=(p, 3))
+
+    def fit(weighted):
+        task = {"x": x, "y": y, "model": "linear", "variance": 0.999, "predictable": 1.0, "k_max": 5, "hidden": (4,),
+                "max_iterations": 10, "seed": 0, "cluster": 0, "vertices": n}
+        if weighted:
+            task.update(metric=m, metric_inverse=metric_inverse(m))
+        return fit_cluster(task)
+
+    out = fit(True)
+    k = out["basis"].shape[1]
+    assert k == 5
+    np.testing.assert_allclose(out["mean"], y.mean(0), rtol=1e-6, atol=1e-5)
+    z = metric_apply(y, m)
+    zc = z - z.mean(0)
+    w, v = np.linalg.eigh(zc.T @ zc)
+    want = v[:, np.argsort(w)[::-1][:k]]
+    got = metric_apply(out["basis"].astype(np.float64).T, m).T  # the basis in transfer space
+    np.testing.assert_allclose(got.T @ got, np.eye(k), atol=1e-5)  # orthonormal in the metric (float32 storage)
+    np.testing.assert_allclose(got @ got.T, want @ want.T, atol=1e-4)
+
+    def metric_residual(basis):
+        b = metric_apply(np.asarray(basis, np.float64).T, m).T
+        q, _ = np.linalg.qr(b)
+        return float(np.sum((zc - zc @ q @ q.T) ** 2))
+
+    plain = fit(False)
+    assert plain["basis"].shape[1] == k
+    assert metric_residual(out["basis"]) < 0.9 * metric_residual(plain["basis"])
+
+
+@pytest.mark.parametrize("precision", ["single", "half"])
+def test_diffuse_metric_fit_kernels_match_the_mirror(device, bend, rng, precision):
+    """A model fitted in the diffuse metric (its basis mapped back through the pseudo-inverse of the
+    cosine product matrix) runs on the same kernels: they match the float64 mirror (over the stored,
+    float16-rounded basis for half storage), and the transfer M_cos v they give matches too."""
+    from warpshade.methods.visibility.model import cosine_product_matrix
+
+    data = _local_data(bend, rng, p=60)
+    model = fit_visibility(data, model="auto", executor=_serial(), metric="diffuse")
+    assert model.report["metric"] == "diffuse" and model.model == "auto"
+    a = model.arrays
+    stored = dict(a, basis=np.asarray(a["basis"], np.float16).astype(np.float64)) if precision == "half" else a
+    m = cosine_product_matrix(3)
+    scale = np.abs(a["mean"]).max()
+    for pose in (data["poses_quaternion"][3], rng.uniform(-1, 1, data["poses_quaternion"].shape[1])):
+        got = _run_predict(a, pose, device, precision)
+        want = predict_f64(stored, inputs_f64(a, pose[None])[0])
+        assert np.all(np.isfinite(got))
+        np.testing.assert_allclose(got, want, atol=50 * ATOL_FLOAT32 * scale)
+        np.testing.assert_allclose(got @ m.T, want @ m.T, atol=50 * ATOL_FLOAT32 * scale)
+
+
+def test_diffuse_metric_parameter(bend, rng):
+    from warpshade.graph import get_stage_type
+
+    data = _local_data(bend, rng, p=60)
+    with pytest.raises(ValueError, match="metric"):
+        fit_visibility(data, model="linear", frames="world", executor=_serial(), metric="diffuse")
+    fit_stage = get_stage_type("visibility.fit")
+    assert "metric" not in fit_stage("fit", {}).cache_params()  # the key of artifacts fitted before the parameter
+    assert fit_stage("fit", {"metric": "diffuse"}).cache_params()["metric"] == "diffuse"

@@ -10,6 +10,14 @@ training inputs: with noisy training visibility (a few hundred rays per vertex a
 the variance of the later components is ray noise no input explains, which a model maps to
 ~0 at the cost of a product per vertex.
 
+**Metric** (task keys ``metric``, ``metric_inverse``; the stage parameter ``metric``): with a
+per-vertex matrix ``M`` (the cosine product matrix of eq. 14 for ``metric = "diffuse"``) the PCA,
+the selection and the fits minimise ``sum ||M (v - v_hat)||^2`` instead of the visibility's
+squared error: the PCA is that of the mapped rows ``M v`` (the transfer diffuse shading reads), its
+basis stored mapped back by the pseudo-inverse ``M^+`` (so ``M`` times the stored basis is the
+transfer basis; directions ``M`` does not see are dropped), the mean the visibility's own (``M``
+of it is the transfer's mean). The reported errors are then relative to the training transfer.
+
 The inputs ``x`` are the standardised input-PCA coordinates of the frame (:mod:`.model`). Models
 (the stage parameter ``model``):
 
@@ -42,7 +50,8 @@ from scipy.optimize import minimize
 
 from .select import RIDGE_GRID
 
-__all__ = ["FOLDS", "expand_features", "fit_network", "folds", "network_forward", "pca_size", "warm_start"]
+__all__ = ["FOLDS", "expand_features", "fit_network", "folds", "metric_apply", "metric_inverse", "network_forward", "pca_size",
+           "warm_start"]
 
 #: Cross-validation folds.
 FOLDS = 4
@@ -53,6 +62,8 @@ MAX_ITERATIONS = 300
 PATIENCE = 25
 #: Largest |first-layer pre-activation| of the warm start (tanh is ~linear below it).
 WARM_START_ACTIVATION = 0.5
+#: Singular values of a fit metric below this fraction of the largest are dropped by its pseudo-inverse.
+METRIC_RCOND = 1e-6
 
 
 def expand_features(x: np.ndarray, model: str) -> np.ndarray:
@@ -219,6 +230,24 @@ def _principal(yc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return s * keep, vt
 
 
+# ---- the metric of the fit ---------------------------------------------------------------------------
+def metric_apply(y: np.ndarray, matrix) -> np.ndarray:
+    """Rows of per-vertex blocks ``y`` (p, n_c C) with every vertex's C coefficients mapped by
+    ``matrix`` (C, C): ``v -> M v``; ``y`` itself (float64) when ``matrix`` is None."""
+    y = np.asarray(y, np.float64)
+    if matrix is None:
+        return y
+    m = np.asarray(matrix, np.float64)
+    c = m.shape[0]
+    return (y.reshape(y.shape[0], -1, c) @ m.T).reshape(y.shape)
+
+
+def metric_inverse(matrix: np.ndarray, rcond: float = METRIC_RCOND) -> np.ndarray:
+    """Pseudo-inverse of a metric matrix ``M`` (C, C): singular values below ``rcond`` times the
+    largest dropped (directions the metric does not see)."""
+    return np.linalg.pinv(np.asarray(matrix, np.float64), rcond=rcond)
+
+
 # ---- one cluster ---------------------------------------------------------------------------------
 def fit_cluster(task: dict) -> dict:
     """PCA and model of one cluster (an executor task; everything it needs is in ``task``).
@@ -230,18 +259,21 @@ def fit_cluster(task: dict) -> dict:
     """
     t0 = time.perf_counter()
     x = np.asarray(task["x"], np.float64)
-    y = np.asarray(task["y"], np.float64)
     model = task["model"]
+    vis_mean = np.asarray(task["y"], np.float64).mean(0)
+    y = metric_apply(task["y"], task.get("metric"))
     mean = y.mean(0)
     yc = y - mean
     s, vt = _principal(yc)
     k = pca_size(s, task["variance"], min(task["k_max"], max(y.shape[0] - 1, 0)))
-    basis = vt[:k].T  # (n_c C, k)
+    basis = vt[:k].T  # (n_c C, k), orthonormal in the metric
     total = float((s * s).sum())
     retained = float((s[:k] ** 2).sum() / total) if total > 0 else 1.0
     report = {"cluster": int(task["cluster"]), "vertices": int(task["vertices"]), "components": int(k),
               "retained_variance": retained, "model": model}
-    out = {"mean": mean.astype(np.float32), "basis": basis.astype(np.float32)}
+    # stored in visibility space: the mean, and the basis mapped back through the metric's pseudo-inverse
+    out = {"mean": vis_mean.astype(np.float32),
+           "basis": metric_apply(basis.T, task.get("metric_inverse")).T.astype(np.float32)}
     feats_dim = expand_features(x[:1], "quadratic" if model == "quadratic" else "linear").shape[1]
     if k == 0:
         out.update(w2=np.zeros((0, feats_dim), np.float32), b2=np.zeros(0, np.float32))

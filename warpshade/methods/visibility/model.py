@@ -44,6 +44,8 @@ from .training import to_local
 __all__ = ["FRAME_KINDS", "cosine_product_matrix", "input_space", "local_frames_f64"]
 
 MODELS = ("linear", "quadratic", "network", "auto")
+#: Errors the per-cluster fits minimise (:func:`fit_visibility`'s ``metric``).
+METRICS = ("visibility", "diffuse")
 FRAME_KINDS = ("cluster", "one_ring", "world")
 
 
@@ -115,18 +117,28 @@ def fit_visibility(data: dict, *, model: str = "network", frames: str = "cluster
                    root: str = "include", input_variance: float = 0.99, input_max: int = 24, variance: float = 0.95,
                    predictable: float = 0.99, k_max: int = 32, bandwidth: float = 0.3, min_cluster: int = 8, hidden=(8, 16),
                    max_iterations: int = 300, margin: float = 0.25, seed: int = 0, labels=None, executor=None,
-                   progress: bool = False, target: str = "visibility") -> VisibilityModel:
+                   progress: bool = False, target: str = "visibility", metric: str = "visibility") -> VisibilityModel:
     """Fit the model to a ``visibility.data`` artifact (module docstring). ValueError on bad input.
 
     ``target = "transfer"`` fits the cosine-weighted transfer instead (each local visibility vector
     times the clamped cosine about the normal, the SH product of eq. 14): the paper's Fig. 8
     comparison, measured by ``benchmarks/bench_visibility.py``; the stages fit visibility.
+
+    ``metric``: the error the per-cluster PCA, the model selection and the fits minimise:
+    ``"visibility"`` (the squared error of the local visibility) or ``"diffuse"`` (of the
+    cosine-weighted transfer ``M_cos v`` of eq. 14, the only part of ``v`` diffuse shading sees:
+    the PCA of the transfer, the selection's errors in it; the basis is stored in visibility space,
+    mapped back by the pseudo-inverse of ``M_cos``, so that the model's arrays and stages are those
+    of the visibility metric). Local frames only.
     """
     from ...tasks import executor as new_executor
 
     t0 = time.perf_counter()
     if model not in MODELS or frames not in FRAME_KINDS:
         raise ValueError(f"model must be one of {MODELS} and frames one of {FRAME_KINDS}")
+    if metric not in METRICS or (metric == "diffuse" and (frames == "world" or target == "transfer")):
+        raise ValueError(f"metric must be one of {METRICS} ('diffuse': a visibility target in a local frame), got "
+                         f"{metric!r} with target {target!r} and frames {frames!r}")
     if target not in ("visibility", "transfer") or (target == "transfer" and frames == "world"):
         raise ValueError(f"target must be 'visibility' or 'transfer' (the latter in a local frame), got {target!r} "
                          f"with frames {frames!r}")
@@ -156,13 +168,19 @@ def fit_visibility(data: dict, *, model: str = "network", frames: str = "cluster
         local[t] = vis[t] if frames == "world" else to_local(vis[t], fr[t])
     if target == "transfer":
         local = local @ cosine_product_matrix(order).T.astype(np.float32)
+    weight = {}
+    if metric == "diffuse":
+        from .fit import metric_inverse
+
+        cos = cosine_product_matrix(order)
+        weight = {"metric": cos, "metric_inverse": metric_inverse(cos)}
     tasks = []
     local_w = [{} for _ in range(kc)]
     for cl in range(kc):
         rows = np.flatnonzero(labels == cl)
         tasks.append({"x": x, "y": local[:, rows, :].reshape(pcount, -1), "model": model, "variance": variance,
                       "predictable": predictable, "k_max": k_max, "hidden": tuple(int(h) for h in hidden), "max_iterations": max_iterations,
-                      "seed": seed, "cluster": cl, "vertices": int(rows.size)})
+                      "seed": seed, "cluster": cl, "vertices": int(rows.size), **weight})
         if model == "auto":
             tasks[-1]["input_sets"] = _input_sets(data, source, pose, root, a, x, labels, cl, input_variance, input_max,
                                                   local_w[cl])
@@ -189,7 +207,7 @@ def fit_visibility(data: dict, *, model: str = "network", frames: str = "cluster
     fallbacks = [r for r in reports if "fallback" in r]
     report = {"clusters": kc, "cluster_sizes": [int(r["vertices"]) for r in reports],
               "components": [int(r["components"]) for r in reports], "input_components": int(w_in.shape[1]),
-              "input_features": int(a.shape[1]), "model": model, "frames": frames,
+              "input_features": int(a.shape[1]), "model": model, "frames": frames, "metric": metric,
               "models_used": {m: sum(r["model_used"] == m for r in reports) for m in ("constant", "linear", "quadratic", "network")},
               "fallbacks": [{"cluster": r["cluster"], "reason": r["fallback"]} for r in fallbacks],
               **({"selected": [{k: r[k] for k in ("cluster", "vertices", "model_used", "input_set", "inputs", "ridge", "cv_error")

@@ -26,7 +26,7 @@ from ..datadriven.stages import TrainingClipStage
 from ..datadriven.training import check_same_character, parse_frame_selection, topology_key, trace_training
 from ..stage import FrameStage, Param, Port, PrecomputeStage, StageError, register_stage
 from . import cloth, kernels
-from .model import FRAME_KINDS, MODELS, fit_visibility, model_from_arrays
+from .model import FRAME_KINDS, METRICS, MODELS, fit_visibility, model_from_arrays
 from .training import FEATURE_SOURCES, dense_skin_weights, mesh_ids, rest_points
 
 __all__: list[str] = []
@@ -156,7 +156,14 @@ class VisibilityFitStage(PrecomputeStage):
         "margin": Param(0.25, float, "inputs clamped to their training range widened by this fraction",
                         minimum=0.0),
         "seed": Param(0, int, "seed of the networks' extra hidden units"),
+        "metric": Param("visibility", str, "error the per-cluster PCA, model selection and fits minimise: of the "
+                        "local visibility (any shading), or of the cosine-weighted transfer M_cos v of eq. 14, the "
+                        "part of the visibility diffuse shading sees (visibility.diffuse only)", choices=METRICS),
     }
+
+    def cache_params(self):
+        # the metric at its default leaves the key of the artifacts fitted before it was a parameter
+        return {k: v for k, v in self.params.items() if not (k == "metric" and v == "visibility")}
 
     def input_ports(self):
         return {"data": Port("arrays", (), "training data of visibility.data")}
@@ -181,7 +188,7 @@ class VisibilityFitStage(PrecomputeStage):
                                        variance=p["variance"], predictable=p["predictable"], k_max=p["k_max"], bandwidth=p["bandwidth"],
                                        min_cluster=p["min_cluster"], hidden=hidden,
                                        max_iterations=p["max_iterations"], margin=p["margin"], seed=p["seed"],
-                                       labels=labels, executor=ex, progress=ctx.progress)
+                                       labels=labels, executor=ex, progress=ctx.progress, metric=p["metric"])
         except ValueError as exc:
             raise StageError(f"{where}: {exc}") from None
         self.report = model.report
