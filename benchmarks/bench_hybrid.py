@@ -32,7 +32,7 @@ control (methods ``hybrid <control> <name>``); ``--no-baseline`` leaves out ``pr
 ratios; for settings compared with each other only). The machine's load average at the start
 and the end is in ``meta``.
 
-Writes ``benchmarks/results/hybrid-<date>-<device>.json`` and ``.png`` (error and time per frame
+Writes ``benchmarks/results/hybrid-<date>-<device>.json`` and ``.png`` (error, time per frame and noise
 against rays per vertex, per scene), the JSON rewritten after every setting.
 """
 
@@ -113,7 +113,7 @@ def chart(results, path):
 
     scenes = sorted({r["scene"] for r in results})
     variants = sorted({" ".join(r["method"].split()[2:]) for r in results} - {""})
-    fig, axes = plt.subplots(2, len(scenes), figsize=(4.2 * len(scenes), 7), squeeze=False)
+    fig, axes = plt.subplots(3, len(scenes), figsize=(4.2 * len(scenes), 10), squeeze=False)
     for j, s in enumerate(scenes):
         rs = [r for r in results if r["scene"] == s]
         ref = next((r for r in rs if r["method"] == "traced"), None)
@@ -125,16 +125,21 @@ def chart(results, path):
             style = "o-" if not variant else STYLES[variants.index(variant) % len(STYLES)]
             axes[0, j].plot([r["rays"] for r in m], [r["error"] for r in m], style, color=color, label=method)
             axes[1, j].plot([r["rays"] for r in m], [r["frame_ms"] for r in m], style, color=color, label=method)
+            axes[2, j].plot([r["rays"] for r in m], [r["noise"] for r in m], style, color=color, label=method)
         if ref is not None:
             axes[0, j].axhline(ref["error"], color="k", ls="--", label=f"prt.trace {ref['rays']} rays")
             axes[0, j].axhline(1.2 * ref["error"], color="k", ls=":", label="1.2x prt.trace")
             axes[1, j].axhline(ref["frame_ms"], color="k", ls="--", label=f"prt.trace {ref['rays']} rays")
             axes[1, j].axhline(ref["frame_ms"] / 8, color="k", ls=":", label="1/8 of prt.trace")
+            axes[2, j].axhline(ref["noise"], color="k", ls="--", label=f"prt.trace {ref['rays']} rays")
         axes[0, j].set_title(s)
         axes[0, j].set_xscale("log", base=2)
         axes[1, j].set_xscale("log", base=2)
         axes[1, j].set_yscale("log")
-        axes[1, j].set_xlabel("rays per vertex per frame")
+        axes[2, j].set_xscale("log", base=2)
+        axes[2, j].set_yscale("log")
+        axes[2, j].set_xlabel("rays per vertex per frame")
+        axes[2, j].set_ylabel("noise over seeds (relative, first --noise-frame)")
         axes[0, j].set_ylabel("relative RMS error (clip mean)")
         axes[1, j].set_ylabel("ms per frame")
     for ax in axes[0]:

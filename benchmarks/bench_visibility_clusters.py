@@ -27,7 +27,8 @@ Writes ``visibility-clusters-<date>-cpu.json`` into ``--out``.
 
 Usage::
 
-    python benchmarks/bench_visibility_clusters.py [--worst 4] [--out DIR]
+    python benchmarks/bench_visibility_clusters.py [--worst 4] [--nested] [--out DIR]
+    python benchmarks/bench_visibility_clusters.py --quick --out /tmp/vc     # smoke profile
 """
 
 from __future__ import annotations
@@ -62,11 +63,21 @@ def main(argv=None) -> int:
     ap.add_argument("--worst", type=int, default=4, help="clusters whose candidates are tabulated")
     ap.add_argument("--truth-rays", type=int, default=1024, help="rays of the held-out traced visibility")
     ap.add_argument("--nested", action="store_true", help="nested blocked CV of candidate families (minutes)")
-    ap.add_argument("--out", default=None, help="output directory (default benchmarks/results)")
+    ap.add_argument("--quick", action="store_true", help="smoke profile: 30 training frames at 16 rays, 64-ray "
+                    "references, one cluster's candidates")
+    ap.add_argument("--out", default=None, help="output directory (default benchmarks/results; required with --quick)")
     args = ap.parse_args(argv)
+    if args.quick and args.out is None:
+        ap.error("--quick writes only into --out DIR (never benchmarks/results)")
     t_all = time.perf_counter()
     load0 = os.getloadavg()
     spec = load(GRAPH)
+    if args.quick:
+        args.worst, args.truth_rays, args.nested = 1, 32, False
+        spec.validate_spec["samples"] = 64
+        for st in spec.stages:
+            if st.type == "visibility.data":
+                st.params.update(frames="0:600:20", samples=16)
     rt = spec.compile(None, device="cpu", progress=True)
     frames = [float(f) for f in spec.validate_spec["frames"]]
     m = measure_error(rt, frames)

@@ -40,6 +40,9 @@ SLOW.add("bench_sg_svbrdf")
 #: bench_visibility_frame (a visibility training trace and fit in a fresh cache, then the figure's
 #: frame and its traced baseline).
 SLOW.add("bench_visibility_frame")
+#: bench_visibility_clusters (25 s on a loaded machine: a 30-frame training trace, the auto fit with
+#: its cross-validation, references and one cluster's refitted candidates).
+SLOW.add("bench_visibility_clusters")
 #: Seconds one smoke run may take before it counts as hung.
 TIMEOUT_S = 300
 
