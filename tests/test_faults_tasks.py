@@ -107,11 +107,15 @@ def test_a_bad_connect_timeout_is_named(monkeypatch, value):
 
 # ---- family 2: local workers die with their run ----------------------------------------------
 RUN_LONG_TASKS = """
+import signal
 import sys
 from warpshade.tasks import ProcessExecutor
 import task_helpers
 
 if __name__ == "__main__":
+    # a terminal's Ctrl-C meets Python's own handler; a suite started as a background job of a
+    # non-interactive shell inherits SIGINT ignored, and so would this process
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     marker_dir, mode = sys.argv[1], sys.argv[2]
     with ProcessExecutor(2) as ex:
         if mode == "fail":  # the first task raises while the other is still running
