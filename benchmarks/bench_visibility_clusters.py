@@ -246,11 +246,7 @@ def nested_cv(data, labels, fr_train, poses, xg, fit_params) -> dict:
                     u = vt[:k].T
                     target = (y[tr] - ym) @ u
                     sub = {n: (xs[tr], kinds) for n, (xs, kinds) in fsets.items()}
-                    old, S.INPUT_COUNTS = S.INPUT_COUNTS, counts
-                    try:
-                        sel = S.select_ridge(sub, target)
-                    finally:
-                        S.INPUT_COUNTS = old
+                    sel = S.select_ridge(sub, target, input_counts=counts)
                     xs = fsets[sel["set"]][0]
                     w, b = S.fit_selected(xs[tr], target, sel["kind"], sel["inputs"], sel["penalty"])
                     pred = ym + (S.prefix_features(xs[va], sel["kind"], sel["inputs"]) @ w.T + b) @ u.T

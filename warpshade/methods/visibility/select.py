@@ -89,7 +89,7 @@ def _path_sse(f_tr, y_tr, f_va, y_va):
     return out
 
 
-def select_ridge(sets: dict, y: np.ndarray, splits=None, rule: str = RULE) -> dict:
+def select_ridge(sets: dict, y: np.ndarray, splits=None, rule: str = RULE, input_counts=INPUT_COUNTS) -> dict:
     """Blocked CV over (inputs, kind, count, penalty) for targets ``y`` (p, k).
 
     ``sets``: name -> ``(x (p, D), kinds)``, the candidate inputs (the global input PCA, a
@@ -97,7 +97,8 @@ def select_ridge(sets: dict, y: np.ndarray, splits=None, rule: str = RULE) -> di
     summed validation SSE; ``"1se"`` the candidate with the fewest features among those whose
     SSE is within one standard error (over the folds) of the least (Hastie, Tibshirani and
     Friedman's one-standard-error rule: a simpler model the validation cannot tell apart from the
-    best). Returns ``{"set", "kind", "inputs", "penalty", "sse", "table"}``: the chosen candidate,
+    best). ``input_counts``: the leading input counts tried (each set's full width is always tried).
+    Returns ``{"set", "kind", "inputs", "penalty", "sse", "table"}``: the chosen candidate,
     its summed validation SSE, and the best SSE of every (set, kind, count) for the report."""
     y = np.asarray(y, np.float64)
     cands, table = [], {}
@@ -107,7 +108,7 @@ def select_ridge(sets: dict, y: np.ndarray, splits=None, rule: str = RULE) -> di
             splits = blocked_folds(x.shape[0], BLOCKS, GAP)
         if x.shape[1] == 0:
             continue
-        counts = sorted({m for m in INPUT_COUNTS if m <= x.shape[1]} | {x.shape[1]})
+        counts = sorted({m for m in input_counts if m <= x.shape[1]} | {x.shape[1]})
         for kind in kinds:
             for m in counts:
                 feats = prefix_features(x, kind, m)

@@ -161,10 +161,6 @@ class VisibilityFitStage(PrecomputeStage):
                         "part of the visibility diffuse shading sees (visibility.diffuse only)", choices=METRICS),
     }
 
-    def cache_params(self):
-        # the metric at its default leaves the key of the artifacts fitted before it was a parameter
-        return {k: v for k, v in self.params.items() if not (k == "metric" and v == "visibility")}
-
     def input_ports(self):
         return {"data": Port("arrays", (), "training data of visibility.data")}
 
