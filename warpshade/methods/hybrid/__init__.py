@@ -18,7 +18,7 @@ frames, the history cut where the surface moves fast or fresh rays disagree with
 """
 
 from .mirror import (cycle_directions_f64, estimate_f64, filter_f64, reproject_f64, residual_f64, temporal_f64,
-                     visibility_transfer_f64)
+                     visibility_transfer_f64, world_visibility_transfer_f64)
 from .model import SurfaceNeighbours, surface_neighbours
 from .rows import glossy_stages_for, harness_rows, stages_for
 from .stages import HybridTraceStage, HybridVisibilityTransferStage
@@ -38,4 +38,5 @@ __all__ = [
     "surface_neighbours",
     "temporal_f64",
     "visibility_transfer_f64",
+    "world_visibility_transfer_f64",
 ]

@@ -452,3 +452,37 @@ def visibility_transfer_kernel(order: int):
         sh_store(transfer, v, sh_rotate(t, wp.transpose(frames[v]), tables))
 
     return kernel
+
+
+@functools.lru_cache(maxsize=None)
+def world_visibility_transfer_kernel(order: int, visibility_order: int):
+    """``kernel(visibility, normals, cos_zh, tables, start, transfer)``: ``v * cos_n`` per vertex,
+    the world-frame SH visibility ``v`` (order ``visibility_order`` <= ``order``, zero above it)
+    times the clamped cosine about the vertex normal ``n``, projected to ``order`` (a vertex with
+    a zero normal gets zero)."""
+    if not 1 <= visibility_order <= order:
+        raise ValueError(f"world_visibility_transfer_kernel: visibility order {visibility_order} not in 1..{order}")
+    shk = sh_kernels(order)
+    nv2 = visibility_order * visibility_order
+    vec_t, bands_t = shk.vec, shk.bands
+    sh_product, sh_zh_to_sh, sh_store = shk.product, shk.zh_to_sh, shk.store
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def kernel(visibility: wp.array2d(dtype=wp.float32), normals: wp.array(dtype=wp.vec3),
+               cos_zh: wp.array(dtype=wp.float32), tables: SHTables, start: int,
+               transfer: wp.array2d(dtype=wp.float32)):
+        v = wp.tid() + start
+        g = bands_t()
+        for l in range(order):
+            g[l] = cos_zh[l]
+        vis = vec_t()
+        for i in range(nv2):
+            vis[i] = visibility[v, i]
+        n = normals[v]
+        length = wp.length(n)
+        if length > 0.0:  # a vertex without a normal gets no control (zero: the plain estimate)
+            sh_store(transfer, v, sh_product(vis, sh_zh_to_sh(n / length, g), tables))
+        else:
+            sh_store(transfer, v, vec_t())
+
+    return kernel

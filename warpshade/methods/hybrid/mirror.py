@@ -222,3 +222,20 @@ def visibility_transfer_f64(visibility, frames, order: int) -> np.ndarray:
     (V, C) local visibility and (V, 3, 3) tangent frames (rows t, b, n)."""
     local = sh.product(np.asarray(visibility, np.float64), np.broadcast_to(cosine_sh(order), np.shape(visibility)))
     return sh.rotate(local, np.swapaxes(np.asarray(frames, np.float64), 1, 2))
+
+
+def world_visibility_transfer_f64(visibility, normals, order: int) -> np.ndarray:
+    """Float64 mirror of :func:`world_visibility_transfer_kernel`: (V, order^2) world-frame transfer
+    from (V, Cv) world-frame visibility (zero-padded to ``order``) and (V, 3) vertex normals (a zero
+    normal gives zero)."""
+    vis = np.asarray(visibility, np.float64)
+    v = np.zeros((vis.shape[0], order * order))
+    v[:, : vis.shape[1]] = vis
+    nrm = np.asarray(normals, np.float64)
+    length = np.linalg.norm(nrm, axis=1)
+    ok = length > 0.0
+    axis = np.where(ok[:, None], nrm / np.where(ok, length, 1.0)[:, None], [0.0, 0.0, 1.0])
+    zh = sh.clamped_cosine_zh(order, "zh")
+    band = np.concatenate([np.full(2 * l + 1, np.sqrt(4.0 * np.pi / (2 * l + 1)) * zh[l]) for l in range(order)])
+    cos_n = sh.basis(axis, order) * band
+    return np.where(ok[:, None], sh.product(v, cos_n), 0.0)

@@ -28,13 +28,34 @@ REPROJECT_SOFT = {"reproject": True, "normal_turn": 180.0, "motion": 4.0, "reset
                   "bias_frames": 4}
 
 
+#: SHEXP as control: its world-frame visibility of the blocker spheres (HYB, the sphere budget of
+#: stages/blockers_shexp.toml), the cosine re-applied about each normal, at the transfer's order up
+#: to 6 (on the blockers order 6 leaves a residual that filters better than order 4's: 0.0468
+#: against 0.0499 at 64 rays, alpha 0.5, 3 filter passes).
+SHEXP_CONTROL = {"order": 6, "budget": 8, "method": "hyb"}
+#: hybrid.trace settings for a control that follows the motion (SHEXP's spheres): a short history
+#: (a new frame weighs at least 0.3) and 3 filter passes over mesh neighbours, since averaging over
+#: frames blurs a moving shadow (any reuse costs the 1024-ray blockers 0.0414 -> 0.043) while the
+#: residual against the spheres is smooth over the surface.
+SHEXP_TRACE = {"alpha": 0.3, "filter_iterations": 3}
+#: hybrid.trace settings for LDPRT's transfer as control (rotated with the surface, tangent frames):
+#: its residual is the change of the self-shadowing since the bake, smooth over the surface, so 4
+#: filter passes and a history blended by its estimated bias (soft reset over 4 frames) with a new
+#: frame weighing at least 0.2 (bend, 64 rays: error 0.0259 against 0.0287 for the last estimate as
+#: control with REPROJECT_SOFT, at about the 1024-ray tracer's noise).
+LDPRT_TRACE = {"alpha": 0.2, "filter_iterations": 4, "reset": "soft", "threshold": 8.0, "bias_frames": 4}
+#: The trace settings each control's harness rows use (others: the stage's defaults).
+CONTROL_TRACE = {"shexp": SHEXP_TRACE, "ldprt": LDPRT_TRACE}
+
+
 def stages_for(control: str, samples: int, order: int = 6, training: str | None = None, frames: str | None = None,
                training_samples: int = 256, bake_samples: int = 256, space: str = "world", trace: dict | None = None) -> tuple:
     """The stages of a hybrid graph with a control: ``"datadriven"`` (needs ``training``),
     ``"visibility"`` (the data-driven visibility model of ``visibility.fit`` trained on
     ``training``, its prediction turned into world-frame transfer by ``hybrid.visibility_transfer``),
     ``"ldprt"`` (local transfer baked at the first frame, rotated with the surface: always in the
-    tangent frames), ``"previous"`` or ``"none"`` (in ``space``, world or the tangent frames); the
+    tangent frames), ``"shexp"`` (SHEXP's visibility of the scene's blocker spheres, world frame,
+    :data:`SHEXP_CONTROL`), ``"previous"`` or ``"none"`` (in ``space``, world or the tangent frames); the
     ray count ``samples`` is ``hybrid.trace``'s. Local-frame graphs shade with
     ``ldprt.shade_rotated``, world-frame ones with ``prt.shade``."""
     params = {"order": order, "samples": samples, **(trace or {})}
@@ -75,6 +96,16 @@ def stages_for(control: str, samples: int, order: int = 6, training: str | None 
                 ("model", "hybrid.visibility_transfer", {"order": order},
                  {"visibility": "predict.visibility", "frames": "predict.frames"}),
                 ("trace", "hybrid.trace", {**params, "control": "model"}, {"control": "model.transfer", **wires}), shade)
+    if control == "shexp":
+        if local:
+            raise ValueError("stages_for: the SHEXP control is a world-frame visibility (use the world frame)")
+        so = min(order, SHEXP_CONTROL["order"])
+        return (("tables", "shexp.tables", {"order": so}, {}),
+                ("blockers", "shexp.blockers", {"budget": SHEXP_CONTROL["budget"]}, {}),
+                ("spheres", "shexp.visibility", {"order": so, "method": SHEXP_CONTROL["method"]}, {}),
+                ("model", "hybrid.visibility_transfer", {"order": order, "space": "world", "visibility_order": so},
+                 {"visibility": "spheres.visibility"}),
+                *pre, ("trace", "hybrid.trace", {**params, "control": "model"}, {"control": "model.transfer", **wires}), shade)
     if control == "ldprt":
         return (("bake", "ldprt.transfer", {"order": order, "samples": bake_samples}, {}), *pre,
                 ("trace", "hybrid.trace", {**params, "control": "model"}, {"control": "bake.transfer", **wires}), shade)
@@ -108,7 +139,8 @@ def harness_rows(quick: bool = False) -> list:
     for samples in SAMPLES:
         for control in ("none", "previous", "ldprt"):
             rows.append(HarnessRow(
-                "hybrid", f"n6 K{samples} {control}", stages_for(control, samples), "shade.radiance", scenes=SCENES,
+                "hybrid", f"n6 K{samples} {control}", stages_for(control, samples, trace=CONTROL_TRACE.get(control)),
+                "shade.radiance", scenes=SCENES,
                 quick=(samples == 16 and control == "none"),
                 notes=f"{samples} rays per vertex per frame, control: {control}; residual filtered and averaged over frames",
             ))
@@ -118,6 +150,12 @@ def harness_rows(quick: bool = False) -> list:
                 "shade.radiance", scenes=(scene,), quick=False,
                 notes=f"{samples} rays per vertex per frame, control: data-driven transfer trained on {training.split(':')[-1]}",
             ))
+        rows.append(HarnessRow(
+            "hybrid", f"n6 K{samples} shexp", stages_for("shexp", samples, trace=CONTROL_TRACE["shexp"]), "shade.radiance",
+            scenes=("blockers",), quick=False,
+            notes=f"{samples} rays per vertex per frame, control: SHEXP's blocker-sphere visibility (order 6, budget 8); "
+                  "short history, 3 filter passes",
+        ))
     rows.append(HarnessRow(
         "hybrid", "n6 K64 visibility rps",
         stages_for("visibility", 64, training="bundled:figure_train", frames="0:600:3", training_samples=128,

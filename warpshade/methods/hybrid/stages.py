@@ -1,8 +1,11 @@
 """Per-frame ray tracing with few rays and a control variate, reused over frames and the mesh.
 
-* ``hybrid.visibility_transfer`` (per frame): a data-driven visibility model's local SH
-  visibility (``visibility.predict``) as world-frame diffuse transfer, ``R(F^T)(v * cos)``, the
-  control of ``hybrid.trace`` (:func:`.kernels.visibility_transfer_kernel`).
+* ``hybrid.visibility_transfer`` (per frame): SH visibility as world-frame diffuse transfer, the
+  control of ``hybrid.trace``: a data-driven visibility model's local visibility
+  (``visibility.predict``), ``R(F^T)(v * cos)`` (:func:`.kernels.visibility_transfer_kernel`), or
+  with ``space = "world"`` a world-frame visibility such as SHEXP's (``shexp.visibility``),
+  ``v * cos_n`` with the clamped cosine about the vertex normal, at a visibility order up to the
+  transfer's (:func:`.kernels.world_visibility_transfer_kernel`).
 
 * ``hybrid.trace`` (per frame): the diffuse transfer of every vertex from ``samples`` rays per
   vertex and frame (a spherical Fibonacci set rotated per vertex and per frame), with a control
@@ -45,6 +48,7 @@ import math
 import numpy as np
 
 from ..._wp import cpu_workers, launch_parallel, wp
+from ...basis import sh
 from ...basis.sh_warp import sh_kernels
 from ..common import order_param, rays_param
 from ..rpo.model import cosine_sh
@@ -254,15 +258,27 @@ class HybridTraceStage(FrameStage):
 @register_stage
 class HybridVisibilityTransferStage(FrameStage):
     type_name = "hybrid.visibility_transfer"
-    description = "world-frame diffuse transfer from local SH visibility (cosine re-applied, rotated): a control for hybrid.trace"
-    parameters = {"order": order_param(6, minimum=1, maximum=8)}
+    description = ("diffuse transfer (world frame) from SH visibility, the clamped cosine re-applied: "
+                   "a control for hybrid.trace")
+    parameters = {
+        "order": order_param(6, minimum=1, maximum=8),
+        "space": Param("local", str, "frame of the visibility: local (tangent frames on 'frames', e.g. "
+                       "visibility.predict) or world (e.g. shexp.visibility; the cosine about the vertex normal)",
+                       choices=SPACES),
+        "visibility_order": Param(None, int, "SH order of the visibility (default: order); lower orders are "
+                                  "zero-padded", minimum=1, maximum=8),
+    }
 
     def dims(self):
-        return {"C": self.params["order"] ** 2}
+        nv = self.params["visibility_order"] or self.params["order"]
+        return {"C": self.params["order"] ** 2, "Cv": nv * nv}
 
     def input_ports(self):
-        return {"visibility": Port("float32", ("V", "C"), "SH visibility (no cosine, open below the horizon), tangent frame",
-                                   space="local"),
+        if self.params["space"] == "world":
+            return {"visibility": Port("float32", ("V", "Cv"), "SH visibility (no cosine), world frame", space="world"),
+                    "normals": Port("vec3", ("V",))}
+        return {"visibility": Port("float32", ("V", "Cv"), "SH visibility (no cosine, open below the horizon), "
+                                   "tangent frame", space="local"),
                 "frames": Port("mat33", ("V",), "the tangent frames of the visibility, rows (t, b, n)")}
 
     def output_ports(self):
@@ -272,10 +288,23 @@ class HybridVisibilityTransferStage(FrameStage):
     def setup(self, ctx, inputs):
         dev = ctx.device
         n = self.params["order"]
-        self._vis, self._frames = inputs["visibility"], inputs["frames"]
-        self._cos = wp.array(cosine_sh(n).astype(np.float32), dtype=wp.float32, device=dev)
+        nv = self.params["visibility_order"] or n
+        if nv > n:
+            raise StageError(f"stage {self.name!r} ({self.type_name}): parameter 'visibility_order' = {nv} is above "
+                             f"'order' = {n} (the transfer cannot hold it)")
+        self._vis = inputs["visibility"]
         self._tables = sh_kernels(n).tables(dev)
-        self._kernel = kernels.visibility_transfer_kernel(n)
+        if self.params["space"] == "world":
+            self._frames = inputs["normals"]
+            self._cos = wp.array(sh.clamped_cosine_zh(n, "zh").astype(np.float32), dtype=wp.float32, device=dev)
+            self._kernel = kernels.world_visibility_transfer_kernel(n, nv)
+        else:
+            if nv != n:
+                raise StageError(f"stage {self.name!r} ({self.type_name}): 'visibility_order' applies to "
+                                 "space = 'world' only")
+            self._frames = inputs["frames"]
+            self._cos = wp.array(cosine_sh(n).astype(np.float32), dtype=wp.float32, device=dev)
+            self._kernel = kernels.visibility_transfer_kernel(n)
         self._transfer = wp.zeros((ctx.dims["V"], n * n), dtype=wp.float32, device=dev)
         return {"transfer": self._transfer}
 
