@@ -16,9 +16,12 @@ For each scene and setting, in one run on one device:
 
 Settings: ``prt.trace`` n6 1024 rays; ``hybrid.trace`` n6 with K in {8, 16, 32, 64} and each
 applicable control (none, previous, ldprt; datadriven on the figure, trained on figure_train with
-``--training-frames`` and ``--training-samples``; visibility on the figure: the data-driven
-visibility model of stages/figure_visibility_diffuse.toml, trained on figure_train with
-``--visibility-training-frames`` and ``--visibility-training-samples``).
+``--training-frames`` and ``--training-samples``; visibility on the figure and the wanderer: the
+data-driven visibility model as control (``stages_for("visibility", ...)``), trained on the scene's
+clip, frames and rays of :data:`VISIBILITY_TRAINING` -- figure_train every third frame at 128 rays,
+wanderer_train every eighth frame at 64 rays, the selections of the visibility graphs, so that the
+traced training data is shared with them -- or on ``--visibility-training-frames`` and
+``--visibility-training-samples`` when given).
 
 Usage::
 
@@ -58,26 +61,45 @@ from warpshade.tasks import progress_bar  # noqa: E402
 
 SCENES = ("blockers", "cloth", "bend", "figure")
 TRAINING = {"figure": "bundled:figure_train", "figure_walk": "bundled:figure_train"}
+#: Visibility control: per scene the training clip, frames and rays per vertex per training frame
+#: (as warpshade.methods.visibility.rows.TRAINING_CLIPS / TRAINING_RAYS and the scenes'
+#: stages/*_visibility*.toml: a traced wanderer frame costs ~4x a figure frame, hence every eighth
+#: of its 1000 frames at 64 rays).
+VISIBILITY_TRAINING = {"figure": ("bundled:figure_train", "0:600:3", 128),
+                       "figure_walk": ("bundled:figure_train", "0:600:3", 128),
+                       "wanderer": ("bundled:wanderer_train", "0:1000:8", 64)}
 
 
 def settings(scene_key, order, samples_list, controls, reference_rays, training_frames, training_samples,
-             variants=None, baseline=True, visibility_training=("0:600:3", 128)):
+             variants=None, baseline=True, visibility_training=(None, None)):
     """The rows of a scene: ``(method, rays, stages)``; ``variants`` ``{name: hybrid.trace parameters}``
-    (None: the defaults, unnamed) are run for every ray count and control."""
+    (None: the defaults, unnamed) are run for every ray count and control. ``visibility_training``
+    ``(frames, samples)`` overrides the scene's :data:`VISIBILITY_TRAINING` where not None."""
     out = [("traced", reference_rays, (("shade", "prt.trace", {"order": order, "samples": reference_rays}, {}),))] if baseline else []
     for k in samples_list:
         for control in controls:
             for name, trace in (variants or {"": {}}).items():
-                if control in ("datadriven", "visibility"):
+                if control == "datadriven":
                     if scene_key not in TRAINING:
                         continue
-                    tf, ts = (training_frames, training_samples) if control == "datadriven" else visibility_training
-                    st = stages_for(control, k, order, training=TRAINING[scene_key], frames=tf, training_samples=ts,
-                                    trace=trace)
+                    st = stages_for(control, k, order, training=TRAINING[scene_key], frames=training_frames,
+                                    training_samples=training_samples, trace=trace)
+                elif control == "visibility":
+                    if scene_key not in VISIBILITY_TRAINING:
+                        continue
+                    clip, tf, ts = visibility_settings(scene_key, *visibility_training)
+                    st = stages_for(control, k, order, training=clip, frames=tf, training_samples=ts, trace=trace)
                 else:
                     st = stages_for(control, k, order, trace=trace)
                 out.append((f"hybrid {control}" + (f" {name}" if name else ""), k, st))
     return out
+
+
+def visibility_settings(scene_key, frames=None, samples=None):
+    """The visibility control's training ``(clip, frames, samples)`` of a scene: its
+    :data:`VISIBILITY_TRAINING` entry, ``frames``/``samples`` replacing it where not None."""
+    clip, tf, ts = VISIBILITY_TRAINING[scene_key]
+    return clip, (tf if frames is None else frames), (ts if samples is None else samples)
 
 
 def parse_variants(text):
@@ -102,7 +124,7 @@ def parse_variants(text):
 STYLES = ("s--", "^:", "v-.", "D-")
 #: One colour per setting family in every panel.
 COLORS = {"hybrid none": "C1", "hybrid previous": "C2", "hybrid ldprt": "C0", "hybrid datadriven": "C3",
-          "hybrid visibility": "C4"}
+          "hybrid visibility": "C4", "hybrid shexp": "C5"}
 
 
 def chart(results, path):
@@ -165,9 +187,10 @@ def main(argv=None) -> int:
     ap.add_argument("--seeds", type=int, default=8)
     ap.add_argument("--training-frames", default="0:600:20", help="data-driven control: training frames")
     ap.add_argument("--training-samples", type=int, default=32, help="data-driven control: rays per training frame")
-    ap.add_argument("--visibility-training-frames", default="0:600:3",
-                    help="visibility control: training frames (as stages/figure_visibility_diffuse.toml)")
-    ap.add_argument("--visibility-training-samples", type=int, default=128, help="visibility control: rays per training frame")
+    ap.add_argument("--visibility-training-frames", default=None,
+                    help="visibility control: training frames of every scene (default: the scene's VISIBILITY_TRAINING)")
+    ap.add_argument("--visibility-training-samples", type=int, default=None,
+                    help="visibility control: rays per training frame of every scene (default: the scene's VISIBILITY_TRAINING)")
     ap.add_argument("--variants", default=None, metavar="NAME=JSON;...",
                     help='hybrid.trace parameter sets run side by side, e.g. \'old={"threshold": 2};new={}\'')
     ap.add_argument("--suffix", default="", help="added to the results' file name (hybrid-<date>-<device>-SUFFIX)")
@@ -195,6 +218,8 @@ def main(argv=None) -> int:
             "threads": cpu_workers() if args.device == "cpu" else None, "order": args.order,
             "gt_samples": args.gt_samples, "noise_seeds": args.seeds, "noise_frame_index": args.noise_frame,
             "training_frames": args.training_frames, "training_samples": args.training_samples,
+            "visibility_training": {s: visibility_settings(s, args.visibility_training_frames, args.visibility_training_samples)
+                                    for s in args.scenes.split(",") if s in VISIBILITY_TRAINING} or None,
             "variants": parse_variants(args.variants), "load_average": os.getloadavg(),
             "command": " ".join(["python", "benchmarks/bench_hybrid.py", *(argv if argv is not None else sys.argv[1:])])}
     results = []
