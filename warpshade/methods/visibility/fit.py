@@ -33,7 +33,10 @@ The inputs ``x`` are the standardised input-PCA coordinates of the frame (:mod:`
 
 * ``"auto"``: per cluster, the ridge map (linear or quadratic, on the first few input components
   or on the inputs of the joints near the cluster) that blocked cross-validation over pose
-  segments of the training clip prefers (:mod:`.select`, :mod:`.locality`).
+  segments of the training clip prefers (:mod:`.select`, :mod:`.locality`);
+* ``"stack"``: per cluster, the non-negative combination (weights summing to one) of those
+  candidates that minimises their blocked out-of-fold error, as one map on the union of their
+  features (:mod:`.stack`).
 
 The regulariser (and, for the network, ``H``) is chosen by ``FOLDS``-fold cross-validation over
 contiguous blocks of training frames (neighbouring frames are near-duplicates). A network whose

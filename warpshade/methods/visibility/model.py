@@ -16,7 +16,8 @@ Made by :func:`fit_visibility` from the training data of ``visibility.data``:
    ``variance`` and a linear, quadratic or network model from ``x`` to the PCA weights, or
    (``"auto"``) the ridge model cross-validation on the training clip picks for the cluster,
    possibly from inputs of its own: the PCA of the rotations of the joints near it, appended to
-   ``x`` (:func:`_auto_layout`).
+   ``x`` (:func:`_auto_layout`); or (``"stack"``, :mod:`.stack`) a weighted sum of those candidates,
+   one map per cluster on the union of their inputs.
 
 Arrays (``arrays()`` / :func:`model_from_arrays`): the input statistics; per vertex its cluster,
 its mean visibility (V, C) and basis (V, C, k_max) (zero past its cluster's ``k``); per cluster its
