@@ -10,7 +10,7 @@ on the graph's [validate] frames against the same diffuse reference (``measure_e
   at ``--truth-rays`` projected on the cluster's PCA basis (the floor of the PCA), and that traced
   visibility itself (the floor of the SH order);
 * for the ``--worst`` clusters with the largest excess of the model over its PCA floor, every
-  candidate of the ``auto`` selection (:mod:`warpshade.methods.visibility.select`: input set,
+  candidate of the ``auto`` selection and their stacked combination (``model = "stack"``) (:mod:`warpshade.methods.visibility.select`: input set,
   kind, input count, its blocked-CV penalty), refitted in-process on the training clip: its
   blocked cross-validation error on the training clip (the selection's criterion) next to its
   held-out contribution -- a diagnosis of the selection, never a selection (the held-out clip
@@ -21,7 +21,8 @@ per-cluster procedure (PCA, then the selection among a family of candidates with
 blocked CV) repeated inside each outer fold, the outer segment's visibility error summed over every
 cluster -- for candidate families: every candidate (``auto``), the global inputs only (linear and
 quadratic), the nearby joints' inputs only, and 12 quadratic global inputs for every cluster (the
-graph's settings before ``auto``). It compares selection procedures without the held-out clip.
+graph's settings before ``auto``), and the stacked combination of every candidate (``stack``). It
+compares selection procedures without the held-out clip.
 
 Writes ``visibility-clusters-<date>-cpu.json`` into ``--out``.
 
@@ -57,6 +58,7 @@ def main(argv=None) -> int:
     from warpshade.methods.visibility.fit import _principal, pca_size
     from warpshade.methods.visibility.mirror import inputs_f64
     from warpshade.methods.visibility.model import _input_sets, cosine_product_matrix, input_space, local_frames_f64
+    from warpshade.methods.visibility.stack import fit_stack, union_features
     from warpshade.transfer import compute
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
@@ -165,7 +167,7 @@ def main(argv=None) -> int:
         local_w = {}
         sets = _input_sets(data, 0, fit_params["pose"], fit_params["root"], train_poses, xg, labels, cl,
                            fit_params["input_variance"], fit_params["input_max"], local_w)
-        table = []
+        table, held_sets = [], {}
         for name, (xs, kinds) in sets.items():
             if name == "global":
                 xh = xh_global
@@ -173,6 +175,7 @@ def main(argv=None) -> int:
                 span = xs.max(0) - xs.min(0)
                 xh = np.clip((poses - train_poses.mean(0)) @ local_w[name], xs.min(0) - fit_params["margin"] * span,
                              xs.max(0) + fit_params["margin"] * span)
+            held_sets[name] = (xh, kinds)
             for kind in kinds:
                 for mm in sorted({q for q in S.INPUT_COUNTS if q <= xs.shape[1]} | {xs.shape[1]}):
                     fe = S.prefix_features(xs, kind, mm)
@@ -192,9 +195,21 @@ def main(argv=None) -> int:
         cv = np.array([r["cv_error"] for r in table])
         ho = np.array([r["heldout_rel"] for r in table])
         rank = lambda v: np.argsort(np.argsort(v))  # noqa: E731
-        out["candidates"][cl] = {"table": table, "spearman_cv_heldout": float(np.corrcoef(rank(cv), rank(ho))[0, 1])}
+        # the stacked combination of every candidate (model = "stack"): its weighted out-of-fold error
+        # on the training clip next to its held-out contribution
+        st = fit_stack(sets, target)
+        ph = union_features(held_sets, st["layout"]) @ st["w"].T + st["b"]
+        err = 0.0
+        for i, f in enumerate(frames):
+            fr, ref = held[f]
+            err += float(((shade((ym + u @ ph[i]).reshape(rows.size, c), fr[rows], rows) - ref[rows]) ** 2).sum())
+        stacked = {"cv_error_oof": float(np.sqrt((st["sse"] + trunc) / norm)), "heldout_rel": float(np.sqrt(err / den)),
+                   "weights": {f"{p['set']} {p['kind']} {p['inputs']}": p["weight"] for p in st["picks"]}}
+        out["candidates"][cl] = {"table": table, "spearman_cv_heldout": float(np.corrcoef(rank(cv), rank(ho))[0, 1]),
+                                 "stack": stacked}
         print(f"cluster {cl}: {len(table)} candidates, CV-best held-out {table[0]['heldout_rel']:.4f}, "
-              f"least held-out {ho.min():.4f}, rank correlation {out['candidates'][cl]['spearman_cv_heldout']:.2f}",
+              f"least held-out {ho.min():.4f}, stacked {stacked['heldout_rel']:.4f}, "
+              f"rank correlation {out['candidates'][cl]['spearman_cv_heldout']:.2f}",
               flush=True)
     if args.nested:
         out["nested_cv"] = nested_cv(data, labels, fr_train, train_poses, xg, fit_params)
@@ -222,7 +237,9 @@ def nested_cv(data, labels, fr_train, poses, xg, fit_params) -> dict:
     pcount = xg.shape[0]
     kc = int(labels.max()) + 1
     outer = S.blocked_folds(pcount)
-    fams = ("auto", "global", "local", "quadratic 12")
+    from warpshade.methods.visibility.stack import fit_stack, union_features
+
+    fams = ("auto", "global", "local", "quadratic 12", "stack")
     sse = {f: np.zeros(kc) for f in fams}
     norm = 0.0
     for cl in range(kc):
@@ -235,7 +252,7 @@ def nested_cv(data, labels, fr_train, poses, xg, fit_params) -> dict:
         glob = {"global": sets["global"]}
         family = {"auto": (sets, S.INPUT_COUNTS), "global": (glob, S.INPUT_COUNTS),
                   "local": ({k: v for k, v in sets.items() if k != "global"} or glob, S.INPUT_COUNTS),
-                  "quadratic 12": ({"global": (xg[:, :12], ("quadratic",))}, (12,))}
+                  "quadratic 12": ({"global": (xg[:, :12], ("quadratic",))}, (12,)), "stack": (sets, S.INPUT_COUNTS)}
         for name, (fsets, counts) in family.items():
             for tr, va in outer:
                 ym = y[tr].mean(0)
@@ -246,6 +263,12 @@ def nested_cv(data, labels, fr_train, poses, xg, fit_params) -> dict:
                     u = vt[:k].T
                     target = (y[tr] - ym) @ u
                     sub = {n: (xs[tr], kinds) for n, (xs, kinds) in fsets.items()}
+                    if name == "stack":  # the combination of every candidate, weighted on the inner out-of-fold error
+                        st = fit_stack(sub, target)
+                        feats = union_features({n: (xs[va], kinds) for n, (xs, kinds) in fsets.items()}, st["layout"])
+                        pred = ym + (feats @ st["w"].T + st["b"]) @ u.T
+                        sse[name][cl] += float(((pred - y[va]) ** 2).sum())
+                        continue
                     sel = S.select_ridge(sub, target, input_counts=counts)
                     xs = fsets[sel["set"]][0]
                     w, b = S.fit_selected(xs[tr], target, sel["kind"], sel["inputs"], sel["penalty"])

@@ -33,7 +33,10 @@ The inputs ``x`` are the standardised input-PCA coordinates of the frame (:mod:`
 
 * ``"auto"``: per cluster, the ridge map (linear or quadratic, on the first few input components
   or on the inputs of the joints near the cluster) that blocked cross-validation over pose
-  segments of the training clip prefers (:mod:`.select`, :mod:`.locality`).
+  segments of the training clip prefers (:mod:`.select`, :mod:`.locality`);
+* ``"stack"``: per cluster, the non-negative combination (weights summing to one) of those
+  candidates that minimises their blocked out-of-fold error, as one map on the union of their
+  features (:mod:`.stack`).
 
 The regulariser (and, for the network, ``H``) is chosen by ``FOLDS``-fold cross-validation over
 contiguous blocks of training frames (neighbouring frames are near-duplicates). A network whose
@@ -283,6 +286,20 @@ def fit_cluster(task: dict) -> dict:
     target = yc @ basis  # (p, k)
     norm = float((y * y).sum()) or 1.0
     truncation = float(((yc - target @ basis.T) ** 2).sum())
+    if model == "stack":
+        from .stack import TOP, fit_stack, union_features
+
+        sets = task.get("input_sets") or {"global": (x, ("linear", "quadratic"))}
+        st = fit_stack(sets, target, top=task.get("stack_top", TOP), total=task.get("stack_total", "one"))
+        out.update(w2=st["w"].astype(np.float32), b2=st["b"].astype(np.float32), stack=st["layout"])
+        report.update(model_used="stack", stack=[{k: p[k] for k in ("set", "kind", "inputs", "penalty", "weight")}
+                                                 for p in st["picks"]],
+                      cv_error=float(np.sqrt((st["sse"] + truncation) / norm)),
+                      cv_error_best=float(np.sqrt((st["best_sse"] + truncation) / norm)))
+        _keep_predictable(out, union_features(sets, st["layout"]), task["predictable"], report)
+        report["fit_s"] = time.perf_counter() - t0
+        out["report"] = report
+        return out
     if model == "auto":
         from . import select
         from .select import fit_selected, prefix_features, select_ridge

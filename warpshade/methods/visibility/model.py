@@ -16,7 +16,8 @@ Made by :func:`fit_visibility` from the training data of ``visibility.data``:
    ``variance`` and a linear, quadratic or network model from ``x`` to the PCA weights, or
    (``"auto"``) the ridge model cross-validation on the training clip picks for the cluster,
    possibly from inputs of its own: the PCA of the rotations of the joints near it, appended to
-   ``x`` (:func:`_auto_layout`).
+   ``x`` (:func:`_auto_layout`); or (``"stack"``, :mod:`.stack`) a weighted sum of those candidates,
+   one map per cluster on the union of their inputs.
 
 Arrays (``arrays()`` / :func:`model_from_arrays`): the input statistics; per vertex its cluster,
 its mean visibility (V, C) and basis (V, C, k_max) (zero past its cluster's ``k``); per cluster its
@@ -43,7 +44,7 @@ from .training import to_local
 
 __all__ = ["FRAME_KINDS", "cosine_product_matrix", "input_space", "local_frames_f64"]
 
-MODELS = ("linear", "quadratic", "network", "auto")
+MODELS = ("linear", "quadratic", "network", "auto", "stack")
 #: Errors the per-cluster fits minimise (:func:`fit_visibility`'s ``metric``).
 METRICS = ("visibility", "diffuse")
 FRAME_KINDS = ("cluster", "one_ring", "world")
@@ -117,7 +118,8 @@ def fit_visibility(data: dict, *, model: str = "network", frames: str = "cluster
                    root: str = "include", input_variance: float = 0.99, input_max: int = 24, variance: float = 0.95,
                    predictable: float = 0.99, k_max: int = 32, bandwidth: float = 0.3, min_cluster: int = 8, hidden=(8, 16),
                    max_iterations: int = 300, margin: float = 0.25, seed: int = 0, labels=None, executor=None,
-                   progress: bool = False, target: str = "visibility", metric: str = "visibility") -> VisibilityModel:
+                   progress: bool = False, target: str = "visibility", metric: str = "visibility", stack_top: int = 0,
+                   stack_total: str = "one") -> VisibilityModel:
     """Fit the model to a ``visibility.data`` artifact (module docstring). ValueError on bad input.
 
     ``target = "transfer"`` fits the cosine-weighted transfer instead (each local visibility vector
@@ -130,10 +132,18 @@ def fit_visibility(data: dict, *, model: str = "network", frames: str = "cluster
     the PCA of the transfer, the selection's errors in it; the basis is stored in visibility space,
     mapped back by the pseudo-inverse of ``M_cos``, so that the model's arrays and stages are those
     of the visibility metric). Local frames only.
+
+    ``stack_top``, ``stack_total`` (``model = "stack"``, :mod:`.stack`): the candidates (least
+    blocked-CV error first; 0: all) the per-cluster combination may use, and the constraint on its weights.
     """
     from ...tasks import executor as new_executor
 
     t0 = time.perf_counter()
+    from .stack import TOTALS
+
+    if model == "stack" and (int(stack_top) < 0 or stack_total not in TOTALS):
+        raise ValueError(f"stack_top must be 0 (every candidate) or more and stack_total one of {TOTALS}, got "
+                         f"{stack_top!r} and {stack_total!r}")
     if model not in MODELS or frames not in FRAME_KINDS:
         raise ValueError(f"model must be one of {MODELS} and frames one of {FRAME_KINDS}")
     if metric not in METRICS or (metric == "diffuse" and (frames == "world" or target == "transfer")):
@@ -180,8 +190,9 @@ def fit_visibility(data: dict, *, model: str = "network", frames: str = "cluster
         rows = np.flatnonzero(labels == cl)
         tasks.append({"x": x, "y": local[:, rows, :].reshape(pcount, -1), "model": model, "variance": variance,
                       "predictable": predictable, "k_max": k_max, "hidden": tuple(int(h) for h in hidden), "max_iterations": max_iterations,
-                      "seed": seed, "cluster": cl, "vertices": int(rows.size), **weight})
-        if model == "auto":
+                      "seed": seed, "cluster": cl, "vertices": int(rows.size), "stack_top": int(stack_top),
+                      "stack_total": stack_total, **weight})
+        if model in ("auto", "stack"):
             tasks[-1]["input_sets"] = _input_sets(data, source, pose, root, a, x, labels, cl, input_variance, input_max,
                                                   local_w[cl])
     tasks_order = sorted(range(kc), key=lambda i: -tasks[i]["vertices"])
@@ -197,7 +208,7 @@ def fit_visibility(data: dict, *, model: str = "network", frames: str = "cluster
     for i, r in zip(tasks_order, done):
         results[i] = r
     layout = None
-    if model == "auto":
+    if model in ("auto", "stack"):
         w_in, layout = _auto_layout(results, local_w, w_in)
         xa = (a - space.mean) @ w_in
         span = xa.max(0) - xa.min(0)
@@ -208,10 +219,12 @@ def fit_visibility(data: dict, *, model: str = "network", frames: str = "cluster
     report = {"clusters": kc, "cluster_sizes": [int(r["vertices"]) for r in reports],
               "components": [int(r["components"]) for r in reports], "input_components": int(w_in.shape[1]),
               "input_features": int(a.shape[1]), "model": model, "frames": frames, "metric": metric,
-              "models_used": {m: sum(r["model_used"] == m for r in reports) for m in ("constant", "linear", "quadratic", "network")},
+              "models_used": {m: sum(r["model_used"] == m for r in reports)
+                              for m in ("constant", "linear", "quadratic", "network", "stack")},
               "fallbacks": [{"cluster": r["cluster"], "reason": r["fallback"]} for r in fallbacks],
-              **({"selected": [{k: r[k] for k in ("cluster", "vertices", "model_used", "input_set", "inputs", "ridge", "cv_error")
-                                if k in r} for r in reports]} if model == "auto" else {}),
+              **({"selected": [{k: r[k] for k in ("cluster", "vertices", "model_used", "input_set", "inputs", "ridge", "cv_error",
+                                                  "cv_error_best", "stack") if k in r} for r in reports]}
+                 if model in ("auto", "stack") else {}),
               "cv_error": float(np.sqrt(sum(r["cv_error"] ** 2 * r["vertices"] for r in reports) / vcount)),
               "cluster_fit_s": [round(r["fit_s"], 3) for r in reports], "total_fit_s": time.perf_counter() - t0,
               "retained_variance_min": float(min(r["retained_variance"] for r in reports))}
@@ -262,15 +275,44 @@ def _auto_layout(results, local_w, w_in):
              for r in results]
     blocks, pos = [w_in], w_in.shape[1]
     source = [0] * len(picks)
+    stacked = [None] * len(picks)  # a stacked cluster: {set: first input of its local block}
+    quad = [m for name, kind, m in picks if name == "global" and kind == "quadratic"]
+    for cl, r in enumerate(results):
+        if "stack" not in r or not r["basis"].shape[1]:
+            continue
+        picks[cl] = ("stack", "union", 0)
+        stacked[cl] = {}
+        for name, m in r["stack"]["local"]:
+            blocks.append(local_w[cl][name][:, :m])
+            stacked[cl][name] = pos
+            pos += m
+        quad.append(r["stack"]["quad"])
     for cl, (name, kind, m) in enumerate(picks):
-        if name != "global":
+        if name not in ("global", "stack"):
             if kind != "linear":
                 raise ValueError(f"cluster {cl}: local inputs take linear maps only, got {kind!r}")
             blocks.append(local_w[cl][name][:, :m])
             source[cl] = pos
             pos += m
-    qi, qj = prefix_pairs(max([m for name, kind, m in picks if name == "global" and kind == "quadratic"], default=0))
-    return np.concatenate(blocks, axis=1), {"qi": qi, "qj": qj, "source": source, "picks": picks}
+    qi, qj = prefix_pairs(max(quad, default=0))
+    return np.concatenate(blocks, axis=1), {"qi": qi, "qj": qj, "source": source, "picks": picks, "stacked": stacked}
+
+
+def _stack_row(row: np.ndarray, union: dict, at: dict, kin: int) -> np.ndarray:
+    """A stacked cluster's output row on its union (:mod:`.stack`) laid out on the model's
+    activations (read from 0): the global inputs, its local blocks at ``at``, the products after
+    the ``kin`` inputs (zeros between)."""
+    dg = union["global"]
+    nq = union["quad"] * (union["quad"] + 1) // 2
+    ends = [dg] + [at[name] + m for name, m in union["local"]]
+    out = np.zeros(kin + nq if nq else max(ends), np.float32)
+    out[:dg] = row[:dg]
+    pos = dg
+    for name, m in union["local"]:
+        out[at[name]:at[name] + m] = row[pos:pos + m]
+        pos += m
+    out[kin:kin + nq] = row[pos:pos + nq]
+    return out
 
 
 def _pack(results, labels, order, model, frames, source, space, w_in, lo, hi, data, a, pose, root, layout) -> dict:
@@ -280,7 +322,7 @@ def _pack(results, labels, order, model, frames, source, space, w_in, lo, hi, da
     c = order * order
     kc = len(results)
     kin = w_in.shape[1]
-    if model == "auto":
+    if model in ("auto", "stack"):
         picks, qi, qj = layout["picks"], layout["qi"], layout["qj"]
         d = kin + qi.size
     else:
@@ -306,9 +348,11 @@ def _pack(results, labels, order, model, frames, source, space, w_in, lo, hi, da
             b1[h_offset[cl]:h_offset[cl + 1]] = r["b1"]
         for o in range(comps[cl]):
             row = np.asarray(r["w2"][o], np.float32)
-            if model == "auto" and picks[cl][:2] == ("global", "quadratic"):  # [x_0..x_m-1, 0.., products]
+            if layout and picks[cl][:2] == ("global", "quadratic"):  # [x_0..x_m-1, 0.., products]
                 m = picks[cl][2]
                 row = np.concatenate([row[:m], np.zeros(kin - m, np.float32), row[m:]])
+            elif layout and layout["stacked"][cl] is not None:
+                row = _stack_row(row, r["stack"], layout["stacked"][cl], kin)
             source_.append(d + int(h_offset[cl]) if hidden[cl] else layout["source"][cl] if layout else 0)
             length.append(row.size)
             w_offset.append(pos)

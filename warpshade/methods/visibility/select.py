@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["RIDGE_GRID", "BLOCKS", "GAP", "INPUT_COUNTS", "blocked_folds", "prefix_pairs", "prefix_features", "select_ridge"]
+__all__ = ["RIDGE_GRID", "BLOCKS", "GAP", "INPUT_COUNTS", "blocked_folds", "candidates", "prefix_pairs", "prefix_features", "select_ridge"]
 
 #: Ridge penalties as multiples of the largest squared singular value of the centred inputs (the
 #: grid of the 4-fold ridge fits of :mod:`.fit` and of the blocked selection here).
@@ -71,9 +71,10 @@ def blocked_folds(count: int, blocks: int = BLOCKS, gap: int = GAP) -> list[tupl
     return out
 
 
-def _path_sse(f_tr, y_tr, f_va, y_va):
+def _path_sse(f_tr, y_tr, f_va, y_va, predictions: bool = False):
     """Validation SSE of the ridge map fitted on (f_tr, y_tr) for every penalty of RIDGE_GRID
-    (relative to the largest squared singular value of the centred training features)."""
+    (relative to the largest squared singular value of the centred training features); with
+    ``predictions`` also the validation predictions of every penalty (grid, n, k)."""
     mx, my = f_tr.mean(0), y_tr.mean(0)
     u, s, vt = np.linalg.svd(f_tr - mx, full_matrices=False)
     a = u.T @ (y_tr - my)  # (r, k)
@@ -81,12 +82,44 @@ def _path_sse(f_tr, y_tr, f_va, y_va):
     base = y_va - my
     smax = float(s[0] ** 2) if s.size else 0.0
     out = np.empty(RIDGE_GRID.size)
+    preds = np.empty((RIDGE_GRID.size,) + y_va.shape) if predictions else None
     for g, rel in enumerate(RIDGE_GRID):
         den = s * s + rel * max(smax, 1e-30)
         d = np.divide(s, den, out=np.zeros_like(s), where=den > 0.0)
         r = (b * d) @ a - base
         out[g] = float((r * r).sum())
-    return out
+        if predictions:
+            preds[g] = r + y_va
+    return (out, preds) if predictions else out
+
+
+def candidates(sets: dict, y: np.ndarray, splits=None, input_counts=INPUT_COUNTS, oof: bool = False) -> list[dict]:
+    """Every candidate of :func:`select_ridge` at its best penalty: ``{"set", "kind", "inputs",
+    "penalty", "sse", "features", "folds"}`` (the summed and per-fold validation SSE), and with
+    ``oof`` its out-of-fold predictions ``"oof"`` (p, k)."""
+    y = np.asarray(y, np.float64)
+    cands = []
+    for name, (x, kinds) in sets.items():
+        x = np.asarray(x, np.float64)
+        if splits is None:
+            splits = blocked_folds(x.shape[0], BLOCKS, GAP)
+        if x.shape[1] == 0:
+            continue
+        counts = sorted({m for m in input_counts if m <= x.shape[1]} | {x.shape[1]})
+        for kind in kinds:
+            for m in counts:
+                feats = prefix_features(x, kind, m)
+                paths = [_path_sse(feats[tr], y[tr], feats[va], y[va], oof) for tr, va in splits]
+                per = np.stack([p[0] for p in paths] if oof else paths)  # (folds, grid)
+                g = int(np.argmin(per.sum(0)))
+                c = {"set": name, "kind": kind, "inputs": int(m), "penalty": float(RIDGE_GRID[g]),
+                     "sse": float(per[:, g].sum()), "features": feats.shape[1], "folds": per[:, g]}
+                if oof:  # each validation segment predicted by the map fitted without it (rows no fold validates: 0)
+                    c["oof"] = np.zeros(y.shape)
+                    for (_, va), (_, pr) in zip(splits, paths):
+                        c["oof"][va] = pr[g]
+                cands.append(c)
+    return cands
 
 
 def select_ridge(sets: dict, y: np.ndarray, splits=None, rule: str = RULE, input_counts=INPUT_COUNTS) -> dict:
@@ -100,23 +133,8 @@ def select_ridge(sets: dict, y: np.ndarray, splits=None, rule: str = RULE, input
     best). ``input_counts``: the leading input counts tried (each set's full width is always tried).
     Returns ``{"set", "kind", "inputs", "penalty", "sse", "table"}``: the chosen candidate,
     its summed validation SSE, and the best SSE of every (set, kind, count) for the report."""
-    y = np.asarray(y, np.float64)
-    cands, table = [], {}
-    for name, (x, kinds) in sets.items():
-        x = np.asarray(x, np.float64)
-        if splits is None:
-            splits = blocked_folds(x.shape[0], BLOCKS, GAP)
-        if x.shape[1] == 0:
-            continue
-        counts = sorted({m for m in input_counts if m <= x.shape[1]} | {x.shape[1]})
-        for kind in kinds:
-            for m in counts:
-                feats = prefix_features(x, kind, m)
-                per = np.stack([_path_sse(feats[tr], y[tr], feats[va], y[va]) for tr, va in splits])  # (folds, grid)
-                g = int(np.argmin(per.sum(0)))
-                table[f"{name} {kind} {m}"] = float(per[:, g].sum())
-                cands.append({"set": name, "kind": kind, "inputs": int(m), "penalty": float(RIDGE_GRID[g]),
-                              "sse": float(per[:, g].sum()), "features": feats.shape[1], "folds": per[:, g]})
+    cands = candidates(sets, y, splits, input_counts)
+    table = {f"{c['set']} {c['kind']} {c['inputs']}": c["sse"] for c in cands}
     best = min(cands, key=lambda c: c["sse"])
     if rule == "1se":
         f = best["folds"].size

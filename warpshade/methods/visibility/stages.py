@@ -27,6 +27,7 @@ from ..datadriven.training import check_same_character, parse_frame_selection, t
 from ..stage import FrameStage, Param, Port, PrecomputeStage, StageError, register_stage
 from . import cloth, kernels
 from .model import FRAME_KINDS, METRICS, MODELS, fit_visibility, model_from_arrays
+from .stack import TOTALS
 from .training import FEATURE_SOURCES, dense_skin_weights, mesh_ids, rest_points
 
 __all__: list[str] = []
@@ -134,7 +135,9 @@ class VisibilityFitStage(PrecomputeStage):
         "model": Param("network", str, "per-cluster model: ridge, ridge on second-order features, a "
                        "one-hidden-layer tanh network (eq. 12-13), or 'auto': each cluster's ridge map (linear or "
                        "quadratic, global or nearby-joint inputs, input count, penalty) chosen by blocked "
-                       "cross-validation over contiguous segments of the training clip", choices=MODELS),
+                       "cross-validation over contiguous segments of the training clip, or 'stack': each cluster's "
+                       "non-negative combination of the best of those candidates, weighted to minimise their "
+                       "blocked out-of-fold error (stacked regression)", choices=MODELS),
         "frames": Param("cluster", str, "frames the visibility is modelled in: cluster PCA directions in the "
                         "tangent plane, the one-ring frames of warpshade.geometry.frames, or the world frame "
                         "(measurements only: the frame stages take local frames)", choices=FRAME_KINDS),
@@ -159,6 +162,11 @@ class VisibilityFitStage(PrecomputeStage):
         "metric": Param("visibility", str, "error the per-cluster PCA, model selection and fits minimise: of the "
                         "local visibility (any shading), or of the cosine-weighted transfer M_cos v of eq. 14, the "
                         "part of the visibility diffuse shading sees (visibility.diffuse only)", choices=METRICS),
+        "stack_top": Param(0, int, "stack: candidates (least blocked cross-validation error first) a cluster's "
+                           "combination may use; 0: every candidate", minimum=0),
+        "stack_total": Param("one", str, "stack: non-negative weights summing to one ('one'), non-negative "
+                             "least squares ('free': a shrinkage towards the cluster mean), or equal weights "
+                             "('equal', a plain average of the stack_top best)", choices=TOTALS),
     }
 
     def input_ports(self):
@@ -184,7 +192,8 @@ class VisibilityFitStage(PrecomputeStage):
                                        variance=p["variance"], predictable=p["predictable"], k_max=p["k_max"], bandwidth=p["bandwidth"],
                                        min_cluster=p["min_cluster"], hidden=hidden,
                                        max_iterations=p["max_iterations"], margin=p["margin"], seed=p["seed"],
-                                       labels=labels, executor=ex, progress=ctx.progress, metric=p["metric"])
+                                       labels=labels, executor=ex, progress=ctx.progress, metric=p["metric"],
+                                       stack_top=p["stack_top"], stack_total=p["stack_total"])
         except ValueError as exc:
             raise StageError(f"{where}: {exc}") from None
         self.report = model.report
