@@ -219,9 +219,9 @@ def main(argv=None) -> int:
     out_dir = Path(args.out or RESULTS)
     out_dir.mkdir(parents=True, exist_ok=True)
     path = out_dir / f"visibility-clusters-{datetime.date.today().isoformat()}-cpu.json"
-    from warpshade._fileio import write_text_atomic
+    from warpshade._fileio import write_json_atomic
 
-    write_text_atomic(path, json.dumps(out, indent=1))
+    write_json_atomic(path, out, indent=1)
     print(f"wrote {path}")
     return 0
 

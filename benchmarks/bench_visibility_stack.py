@@ -14,13 +14,13 @@ Writes ``visibility-stack-<date>-cpu.json`` into ``--out`` (default benchmarks/r
 Usage::
 
     python benchmarks/bench_visibility_stack.py [--clips figure,figure_walk] [--out DIR]
+    python benchmarks/bench_visibility_stack.py --quick --out /tmp/vs      # smoke profile
 """
 
 from __future__ import annotations
 
 import argparse
 import datetime
-import json
 import os
 import time
 from pathlib import Path
@@ -40,15 +40,22 @@ VARIANTS = {
 CLIPS = {"figure": (None, None), "figure_walk": ("bundled:figure_walk", "figure_walk_datadriven")}
 
 
-def run(variant: dict, clip: str) -> dict:
+def run(variant: dict, clip: str, quick: bool = False) -> dict:
     from warpshade.graph import load
     from warpshade.measure import measure_error
 
     spec = load(GRAPH)
+    if quick:  # smoke profile: 30 training frames at 16 rays, 64-ray references
+        spec.validate_spec["samples"] = 64
+        for st in spec.stages:
+            if st.type == "visibility.data":
+                st.params.update(frames="0:600:20", samples=16)
     scene, frames_of = CLIPS[clip]
     if scene is not None:
         spec.scene = scene
         spec.validate_spec["frames"] = list(load(ROOT / "stages" / f"{frames_of}.toml").validate_spec["frames"])
+    if quick:
+        spec.validate_spec["frames"] = spec.validate_spec["frames"][:1]
     for st in spec.stages:
         if st.type == "visibility.fit":
             st.params.update(variant)
@@ -70,8 +77,14 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--clips", default="figure,figure_walk", help="held-out clips (figure, figure_walk)")
     ap.add_argument("--variants", default=",".join(VARIANTS), help="variants measured (names of VARIANTS)")
-    ap.add_argument("--out", default=None, help="output directory (default benchmarks/results)")
+    ap.add_argument("--quick", action="store_true", help="smoke profile: the figure, 'auto' and 'stack', 30 training "
+                    "frames at 16 rays, one frame against a 64-ray reference")
+    ap.add_argument("--out", default=None, help="output directory (default benchmarks/results; required with --quick)")
     args = ap.parse_args(argv)
+    if args.quick and args.out is None:
+        ap.error("--quick writes only into --out DIR (never benchmarks/results)")
+    if args.quick:
+        args.clips, args.variants = "figure", "auto,stack"
     clips = [c for c in args.clips.split(",") if c]
     names = [v for v in args.variants.split(",") if v]
     bad = [c for c in clips if c not in CLIPS] + [v for v in names if v not in VARIANTS]
@@ -80,16 +93,16 @@ def main(argv=None) -> int:
     out = {"graph": str(GRAPH.relative_to(ROOT)), "variants": {v: VARIANTS[v] for v in names}, "results": {}}
     for clip in clips:
         for name in names:
-            r = run(VARIANTS[name], clip)
+            r = run(VARIANTS[name], clip, quick=args.quick)
             out["results"].setdefault(clip, {})[name] = r
             print(f"{clip:12s} {name:18s} rel_rms {r['rel_rms']:.4f}  cv {r['cv_error'] or float('nan'):.4f}  "
                   f"load {r['load_average'][1][0]:.2f}", flush=True)
     out_dir = Path(args.out or RESULTS)
     out_dir.mkdir(parents=True, exist_ok=True)
     path = out_dir / f"visibility-stack-{datetime.date.today().isoformat()}-cpu.json"
-    from warpshade._fileio import write_text_atomic
+    from warpshade._fileio import write_json_atomic
 
-    write_text_atomic(path, json.dumps(out, indent=1))
+    write_json_atomic(path, out, indent=1)
     print(f"wrote {path}")
     return 0
 

@@ -43,6 +43,8 @@ SLOW.add("bench_visibility_frame")
 #: bench_visibility_clusters (25 s on a loaded machine: a 30-frame training trace, the auto fit with
 #: its cross-validation, references and one cluster's refitted candidates).
 SLOW.add("bench_visibility_clusters")
+#: bench_visibility_stack (the same training trace and references, the auto and stacked fits).
+SLOW.add("bench_visibility_stack")
 #: Seconds one smoke run may take before it counts as hung.
 TIMEOUT_S = 300
 
