@@ -1,15 +1,19 @@
-"""hybrid.visibility_transfer: local SH visibility as world-frame diffuse transfer (the control of
-hybrid.trace), against its float64 mirror and the exact clamped cosine of an open vertex."""
+"""hybrid.visibility_transfer: local or world-frame SH visibility as world-frame diffuse transfer
+(the control of hybrid.trace), against the float64 mirrors and the exact clamped cosine of an open
+vertex; SHEXP's blocker spheres as control through stages_for("shexp")."""
 
 import numpy as np
 import pytest
+import trimesh
 
 from warpshade._wp import wp
 from warpshade.basis import quadrature, sh
 from warpshade.basis.sh_warp import sh_kernels
-from warpshade.methods.hybrid import visibility_transfer_f64, world_visibility_transfer_f64
+from warpshade.graph import GraphSpec, StageError, StageSpec
+from warpshade.methods.hybrid import stages_for, visibility_transfer_f64, world_visibility_transfer_f64
 from warpshade.methods.hybrid.kernels import visibility_transfer_kernel, world_visibility_transfer_kernel
 from warpshade.methods.rpo.model import cosine_sh
+from warpshade.scene import Environment, Mesh, Scene
 
 from tolerances import assert_close
 
@@ -124,10 +128,6 @@ FAST_FIT = {"budget": 4, "grid_cells": 4000, "teleports": 0}
 
 
 def _plane_sphere(frames=3):
-    import trimesh
-
-    from warpshade.scene import Environment, Mesh, Scene
-
     quad = np.array([[-1.5, -1.5, 0.0], [1.5, -1.5, 0.0], [1.5, 1.5, 0.0], [-1.5, 1.5, 0.0]])
     plane = trimesh.Trimesh(*trimesh.remesh.subdivide_to_size(quad, np.array([[0, 1, 2], [0, 2, 3]]), 0.2))
     ball = trimesh.creation.icosphere(subdivisions=2, radius=0.4)
@@ -140,9 +140,6 @@ def _plane_sphere(frames=3):
 
 
 def _hybrid_graph(control, order=4, **trace):
-    from warpshade.graph import GraphSpec, StageSpec
-    from warpshade.methods.hybrid import stages_for
-
     stages = stages_for(control, 16, order=order, trace={"alpha": 1.0, "filter_iterations": 0, **trace})
     # a small sphere fit (the ball is the only closed mesh; the open plane blocks as a disc)
     stages = [(n, t, {**p, **FAST_FIT}, i) if t == "shexp.blockers" else (n, t, p, i) for n, t, p, i in stages]
@@ -163,8 +160,6 @@ def test_shexp_control_lowers_the_variance_and_stays_bounded(device):
 
 
 def test_visibility_order_above_the_order_is_refused_by_the_stage(device):
-    from warpshade.graph import GraphSpec, StageError, StageSpec
-
     spec = GraphSpec([StageSpec("tables", "shexp.tables", {"order": 4}),
                       StageSpec("blockers", "shexp.blockers", FAST_FIT),
                       StageSpec("spheres", "shexp.visibility", {"order": 4}),

@@ -294,15 +294,15 @@ class HybridVisibilityTransferStage(FrameStage):
                              f"'order' = {n} (the transfer cannot hold it)")
         self._vis = inputs["visibility"]
         self._tables = sh_kernels(n).tables(dev)
-        if self.params["space"] == "world":
-            self._frames = inputs["normals"]
+        if self.params["space"] == "world":  # the cosine's axis per vertex: its normal
+            self._axes = inputs["normals"]
             self._cos = wp.array(sh.clamped_cosine_zh(n, "zh").astype(np.float32), dtype=wp.float32, device=dev)
             self._kernel = kernels.world_visibility_transfer_kernel(n, nv)
         else:
             if nv != n:
                 raise StageError(f"stage {self.name!r} ({self.type_name}): 'visibility_order' applies to "
                                  "space = 'world' only")
-            self._frames = inputs["frames"]
+            self._axes = inputs["frames"]  # the visibility's tangent frames (the cosine about their n row)
             self._cos = wp.array(cosine_sh(n).astype(np.float32), dtype=wp.float32, device=dev)
             self._kernel = kernels.visibility_transfer_kernel(n)
         self._transfer = wp.zeros((ctx.dims["V"], n * n), dtype=wp.float32, device=dev)
@@ -310,7 +310,7 @@ class HybridVisibilityTransferStage(FrameStage):
 
     def launch(self, state):
         launch_parallel(self._kernel, self._transfer.shape[0],
-                        lambda a, b: [self._vis, self._frames, self._cos, self._tables, a, self._transfer],
+                        lambda a, b: [self._vis, self._axes, self._cos, self._tables, a, self._transfer],
                         self._transfer.device, min_count=_CHUNK_MIN_VERTICES)
 
     def model_bytes(self) -> int:
