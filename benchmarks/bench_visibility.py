@@ -121,8 +121,11 @@ def part_glossy(scene_name, quick, timed_frames=TIMED_FRAMES, models=MODELS):
     return out
 
 
-#: The previous settings of stages/figure_visibility_diffuse.toml (chosen on the held-out figure clip).
-PREVIOUS_DIFFUSE_FIT = {"model": "quadratic", "input_max": 12}
+#: The previous settings of stages/figure_visibility_diffuse.toml: the per-cluster selection without
+#: the relative inputs (joint rotations only). The settings before those (12 quadratic global inputs
+#: for every cluster, chosen on the held-out figure clip: {"model": "quadratic", "input_max": 12})
+#: are in benchmarks/results/visibility-2026-12-02-cpu-diffuse-auto.json.
+PREVIOUS_DIFFUSE_FIT = {"relative": 0}
 #: Held-out clips of part 2 and their validation frames (those of the 2007 graphs).
 DIFFUSE_CLIPS = {"figure": ("figure_datadriven", None), "figure_walk": ("figure_walk_datadriven", "bundled:figure_walk")}
 
@@ -234,7 +237,7 @@ def diffuse_floors(rt, quick):
     kc = int(labels.max()) + 1
     idx = [scene.frame_index(f) for f in frames]
     poses = pose_features(scene, idx, pose_layout(scene, "quaternion", "include"), root_reference=data["root_reference"])
-    x = inputs_f64(a, poses)
+    x = inputs_f64(a, poses, np.stack([scene.points_at(f) for f in frames]))
     albedo = rt.evaluator.albedo.numpy().astype(np.float64)
     lw = light.numpy().astype(np.float64)
     cos_trunc = sh.product_matrix(cosine_sh(order))
@@ -288,7 +291,7 @@ def part_studies(quick, rt):
 
     def error(model):
         a = model.arrays
-        x = inputs_f64(a, poses)
+        x = inputs_f64(a, poses, np.stack([scene.points_at(f) for f in frames]))
         num = den = 0.0
         for i, f in enumerate(frames):
             local = predict_f64(a, x[i])
@@ -309,7 +312,7 @@ def part_studies(quick, rt):
         transfer model (cosine in its training targets)."""
         a = model.arrays
         cos = cosine_product_matrix(4)
-        x = inputs_f64(a, poses)
+        x = inputs_f64(a, poses, np.stack([scene.points_at(f) for f in frames]))
         num = den = 0.0
         for i, f in enumerate(frames):
             fr = local_frames_f64(model.frames, scene.points_at(f)[None], scene.normals_at(f)[None], a["rest_points"],

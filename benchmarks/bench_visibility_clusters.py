@@ -10,7 +10,8 @@ on the graph's [validate] frames against the same diffuse reference (``measure_e
   at ``--truth-rays`` projected on the cluster's PCA basis (the floor of the PCA), and that traced
   visibility itself (the floor of the SH order);
 * for the ``--worst`` clusters with the largest excess of the model over its PCA floor, every
-  candidate of the ``auto`` selection and their stacked combination (``model = "stack"``) (:mod:`warpshade.methods.visibility.select`: input set,
+  candidate of the ``auto`` selection (the relative inputs' too when the graph's fit has them,
+  ``visibility.fit relative``) and their stacked combination (``model = "stack"``) (:mod:`warpshade.methods.visibility.select`: input set,
   kind, input count, its blocked-CV penalty), refitted in-process on the training clip: its
   blocked cross-validation error on the training clip (the selection's criterion) next to its
   held-out contribution -- a diagnosis of the selection, never a selection (the held-out clip
@@ -19,8 +20,8 @@ on the graph's [validate] frames against the same diffuse reference (``measure_e
 With ``--nested``: nested blocked cross-validation on the training clip alone -- the whole
 per-cluster procedure (PCA, then the selection among a family of candidates with its own inner
 blocked CV) repeated inside each outer fold, the outer segment's visibility error summed over every
-cluster -- for candidate families: every candidate (``auto``), the global inputs only (linear and
-quadratic), the nearby joints' inputs only, and 12 quadratic global inputs for every cluster (the
+cluster -- for candidate families: every candidate (``auto``), every candidate but the relative
+inputs (``auto without relative``), the global inputs only (linear and quadratic), the nearby joints' inputs only, and 12 quadratic global inputs for every cluster (the
 graph's settings before ``auto``), and the stacked combination of every candidate (``stack``). It
 compares selection procedures without the held-out clip.
 
@@ -58,6 +59,7 @@ def main(argv=None) -> int:
     from warpshade.methods.visibility.fit import _principal, pca_size
     from warpshade.methods.visibility.mirror import inputs_f64
     from warpshade.methods.visibility.model import _input_sets, cosine_product_matrix, input_space, local_frames_f64
+    from warpshade.methods.visibility.relative import relative_features_f64
     from warpshade.methods.visibility.stack import fit_stack, union_features
     from warpshade.transfer import compute
 
@@ -98,7 +100,7 @@ def main(argv=None) -> int:
     idx = [scene.frame_index(f) for f in frames]
     poses = pose_features(scene, idx, pose_layout(scene, fit_params["pose"], fit_params["root"]),
                           root_reference=data["root_reference"])
-    x = inputs_f64(a, poses)
+    x = inputs_f64(a, poses, np.stack([scene.points_at(f) for f in frames]))
     mean, basis = np.asarray(a["mean"], np.float64), np.asarray(a["basis"], np.float64)
 
     def shade(local, fr, rows=slice(None)):
@@ -151,6 +153,14 @@ def main(argv=None) -> int:
     pcount = xg.shape[0]
     fr_train = local_frames_f64("cluster", data["points"], data["normals"], data["rest_points"], data["faces"], labels)
     xh_global = x[:, :w_in.shape[1]]  # the model's global inputs (clamped) come first
+    # the relative inputs (visibility.fit relative), appended to the pose vectors as the fit does
+    nb = np.asarray(a["relative_neighbours"]) if "relative_neighbours" in a else np.zeros((kc, 0), np.int32)
+    a_train, a_held = train_poses, poses
+    if nb.shape[1]:
+        a_train = np.concatenate([train_poses, relative_features_f64(data["points"], data["rest_points"], labels, nb)], 1)
+        a_held = np.concatenate([poses, relative_features_f64(np.stack([scene.points_at(f) for f in frames]),
+                                                              data["rest_points"], labels, nb)], 1)
+    relative = (nb if nb.shape[1] else None, train_poses.shape[1])
     splits = S.blocked_folds(pcount)
     out["candidates"] = {}
     for row in clusters[:args.worst]:
@@ -165,15 +175,15 @@ def main(argv=None) -> int:
         target = (y - ym) @ u
         norm, trunc = float((y * y).sum()), float((((y - ym) - target @ u.T) ** 2).sum())
         local_w = {}
-        sets = _input_sets(data, 0, fit_params["pose"], fit_params["root"], train_poses, xg, labels, cl,
-                           fit_params["input_variance"], fit_params["input_max"], local_w)
+        sets = _input_sets(data, 0, fit_params["pose"], fit_params["root"], a_train, xg, labels, cl,
+                           fit_params["input_variance"], fit_params["input_max"], local_w, *relative)
         table, held_sets = [], {}
         for name, (xs, kinds) in sets.items():
             if name == "global":
                 xh = xh_global
             else:  # the model's clamp: the training range widened by the margin
                 span = xs.max(0) - xs.min(0)
-                xh = np.clip((poses - train_poses.mean(0)) @ local_w[name], xs.min(0) - fit_params["margin"] * span,
+                xh = np.clip((a_held - a_train.mean(0)) @ local_w[name], xs.min(0) - fit_params["margin"] * span,
                              xs.max(0) + fit_params["margin"] * span)
             held_sets[name] = (xh, kinds)
             for kind in kinds:
@@ -197,7 +207,7 @@ def main(argv=None) -> int:
         rank = lambda v: np.argsort(np.argsort(v))  # noqa: E731
         # the stacked combination of every candidate (model = "stack"): its weighted out-of-fold error
         # on the training clip next to its held-out contribution
-        st = fit_stack(sets, target)
+        st = fit_stack(_linear_local(sets), target)
         ph = union_features(held_sets, st["layout"]) @ st["w"].T + st["b"]
         err = 0.0
         for i, f in enumerate(frames):
@@ -212,7 +222,7 @@ def main(argv=None) -> int:
               f"rank correlation {out['candidates'][cl]['spearman_cv_heldout']:.2f}",
               flush=True)
     if args.nested:
-        out["nested_cv"] = nested_cv(data, labels, fr_train, train_poses, xg, fit_params)
+        out["nested_cv"] = nested_cv(data, labels, fr_train, a_train, xg, fit_params, relative)
         print("nested blocked CV:", json.dumps(out["nested_cv"]["rel"]), flush=True)
     out["load_average_end"] = os.getloadavg()
     out["wall_s"] = time.perf_counter() - t_all
@@ -226,7 +236,12 @@ def main(argv=None) -> int:
     return 0
 
 
-def nested_cv(data, labels, fr_train, poses, xg, fit_params) -> dict:
+def _linear_local(sets: dict) -> dict:
+    """The candidate sets with linear maps only on local inputs (what ``model = "stack"`` combines)."""
+    return {k: (v[0], v[1] if k == "global" else ("linear",)) for k, v in sets.items()}
+
+
+def nested_cv(data, labels, fr_train, poses, xg, fit_params, relative=(None, None)) -> dict:
     """Nested blocked CV of candidate families (module docstring): ``{"rel": family -> relative
     error over every cluster, "per_cluster": family -> [squared error per cluster]}``."""
     from warpshade.methods.visibility import select as S
@@ -239,7 +254,7 @@ def nested_cv(data, labels, fr_train, poses, xg, fit_params) -> dict:
     outer = S.blocked_folds(pcount)
     from warpshade.methods.visibility.stack import fit_stack, union_features
 
-    fams = ("auto", "global", "local", "quadratic 12", "stack")
+    fams = ("auto", "auto without relative", "global", "local", "quadratic 12", "stack")
     sse = {f: np.zeros(kc) for f in fams}
     norm = 0.0
     for cl in range(kc):
@@ -248,11 +263,14 @@ def nested_cv(data, labels, fr_train, poses, xg, fit_params) -> dict:
                       for t in range(pcount)]).reshape(pcount, -1)
         norm += float((y * y).sum())
         sets = _input_sets(data, 0, fit_params["pose"], fit_params["root"], poses, xg, labels, cl,
-                           fit_params["input_variance"], fit_params["input_max"], {})
+                           fit_params["input_variance"], fit_params["input_max"], {}, *relative)
         glob = {"global": sets["global"]}
-        family = {"auto": (sets, S.INPUT_COUNTS), "global": (glob, S.INPUT_COUNTS),
+        joints = {k: v for k, v in sets.items() if not k.startswith("near")}
+        family = {"auto": (sets, S.INPUT_COUNTS), "auto without relative": (joints, S.INPUT_COUNTS),
+                  "global": (glob, S.INPUT_COUNTS),
                   "local": ({k: v for k, v in sets.items() if k != "global"} or glob, S.INPUT_COUNTS),
-                  "quadratic 12": ({"global": (xg[:, :12], ("quadratic",))}, (12,)), "stack": (sets, S.INPUT_COUNTS)}
+                  "quadratic 12": ({"global": (xg[:, :12], ("quadratic",))}, (12,)),
+                  "stack": (_linear_local(sets), S.INPUT_COUNTS)}
         for name, (fsets, counts) in family.items():
             for tr, va in outer:
                 ym = y[tr].mean(0)

@@ -221,7 +221,8 @@ def _run_predict(arrays, features, device, precision="single"):
     y = wp.zeros(max(int(a["y_offset"][-1]), 1), dtype=wp.float32, device=device)
     vis = wp.zeros(a["mean"].shape, dtype=wp.float32, device=device)
     wp.launch(kernels.inputs_kernel, dim=kin, device=device,
-              inputs=[f32(features), f32(a["pose_mean"]), f32(a["input_weights"]), f32(a["x_low"]), f32(a["x_high"]), x])
+              inputs=[f32(features), f32(a["pose_mean"]), f32(a["input_weights"]),
+                      *(i32(r) for r in kernels.input_rows(a["input_weights"])), f32(a["x_low"]), f32(a["x_high"]), x])
     wp.launch(kernels.features_kernel, dim=d, device=device, inputs=[x, i32(a["quad_i"]), i32(a["quad_j"]), act])
     if int(a["hidden_offset"][-1]):
         wp.launch(kernels.hidden_kernel, dim=int(a["hidden_offset"][-1]), device=device,

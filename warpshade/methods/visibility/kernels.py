@@ -14,6 +14,10 @@ A frame (all launches on buffers bound at set-up, recorded with the rest of the 
 7. the frames: :func:`cluster_axes_kernel` (thread per cluster) and :func:`cluster_frames_kernel`
    (thread per vertex), or the one-ring frames of :mod:`warpshade.geometry.frames`.
 
+With relative inputs (``visibility.fit relative``, :mod:`.relative`), before step 2 the pose vector is
+copied in front of them (:func:`copy_prefix_kernel`), then :func:`cluster_rigid_kernel` (thread per
+cluster) and :func:`relative_features_kernel` (thread per cluster and neighbour) append them.
+
 :func:`diffuse_kernel` is the diffuse path (eq. 14): ``albedo / pi * L . R(F^T) (v * cos)``.
 """
 
@@ -23,20 +27,37 @@ from ..._wp import wp
 from ...basis.sh_warp import SHTables, sh_kernels
 from ...geometry.frames import onb_tangent
 from .clusters import BLEND
+from .relative import RANK_TOL
 
 wp.set_module_options({"enable_backward": False})
 
 _BLEND = wp.constant(BLEND)
+_RANK_TOL = wp.constant(RANK_TOL)
+
+
+def input_rows(weights) -> tuple:
+    """Per input component ``k`` the rows ``[lo, hi)`` of ``weights`` (a, k_in) outside which its column
+    is zero (a local block reads one cluster's relative inputs or some joints'), int32 arrays; an
+    all-zero column gets an empty range."""
+    import numpy as np
+
+    nz = np.asarray(weights) != 0.0
+    any_ = nz.any(0)
+    lo = np.where(any_, nz.argmax(0), 0)
+    hi = np.where(any_, nz.shape[0] - nz[::-1].argmax(0), 0)
+    return lo.astype(np.int32), hi.astype(np.int32)
 
 
 @wp.kernel
 def inputs_kernel(features: wp.array(dtype=wp.float32), mean: wp.array(dtype=wp.float32),
-                  weights: wp.array2d(dtype=wp.float32), low: wp.array(dtype=wp.float32),
+                  weights: wp.array2d(dtype=wp.float32), rows_lo: wp.array(dtype=wp.int32),
+                  rows_hi: wp.array(dtype=wp.int32), low: wp.array(dtype=wp.float32),
                   high: wp.array(dtype=wp.float32), x: wp.array(dtype=wp.float32)):
-    """``x[k] = clip(sum_i (features[i] - mean[i]) weights[i, k], low[k], high[k])``."""
+    """``x[k] = clip(sum_i (features[i] - mean[i]) weights[i, k], low[k], high[k])``, the sum over the
+    rows where column ``k`` is not zero (:func:`input_rows`)."""
     k = wp.tid()
     acc = float(0.0)
-    for i in range(features.shape[0]):
+    for i in range(rows_lo[k], rows_hi[k]):
         acc += (features[i] - mean[i]) * weights[i, k]
     x[k] = wp.clamp(acc, low[k], high[k])
 
@@ -173,6 +194,72 @@ def cluster_frames_kernel(normals: wp.array(dtype=wp.vec3), labels: wp.array(dty
     t = _unit_or(t, onb_tangent(n))
     b = wp.cross(n, t)
     frames[v] = wp.matrix_from_rows(t, b, n)
+
+
+@wp.kernel
+def copy_prefix_kernel(source: wp.array(dtype=wp.float32), out: wp.array(dtype=wp.float32)):
+    """``out[i] = source[i]``: the pose vector in front of the relative inputs (thread per number)."""
+    i = wp.tid()
+    out[i] = source[i]
+
+
+@wp.kernel
+def cluster_rigid_kernel(points: wp.array(dtype=wp.vec3), rest: wp.array(dtype=wp.vec3), order: wp.array(dtype=wp.int32),
+                         offsets: wp.array(dtype=wp.int32), rest_centroids: wp.array(dtype=wp.vec3),
+                         rotations: wp.array(dtype=wp.mat33), centroids: wp.array(dtype=wp.vec3)):
+    """A cluster's rigid motion in this pose (Kabsch, :mod:`.relative`): ``R = V diag(1, 1, det(V U^T)) U^T``
+    from the SVD of ``sum (q - q_bar)(p - p_bar)^T``, and its posed centroid (thread per cluster)."""
+    c = wp.tid()
+    lo = offsets[c]
+    hi = offsets[c + 1]
+    pc = wp.vec3(0.0, 0.0, 0.0)
+    for r in range(lo, hi):
+        pc += points[order[r]]
+    pc = pc / float(wp.max(hi - lo, 1))
+    qc = rest_centroids[c]
+    h = wp.mat33(0.0)
+    for r in range(lo, hi):
+        v = order[r]
+        h += wp.outer(rest[v] - qc, points[v] - pc)
+    u = wp.mat33()
+    s = wp.vec3()
+    vm = wp.mat33()
+    wp.svd3(h, u, s, vm)
+    rot = vm * wp.transpose(u)
+    if wp.determinant(rot) < 0.0:
+        flip = wp.mat33(1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, -1.0)
+        rot = vm * flip * wp.transpose(u)
+    s_max = wp.max(s[0], wp.max(s[1], s[2]))
+    s_mid = s[0] + s[1] + s[2] - s_max - wp.min(s[0], wp.min(s[1], s[2]))
+    if s_mid <= _RANK_TOL * s_max:  # points on a line or one point: no rotation (as the mirror)
+        rot = wp.identity(n=3, dtype=float)
+    rotations[c] = rot
+    centroids[c] = pc
+
+
+@wp.kernel
+def relative_features_kernel(rotations: wp.array(dtype=wp.mat33), centroids: wp.array(dtype=wp.vec3),
+                             neighbours: wp.array2d(dtype=wp.int32), base: int, features: wp.array(dtype=wp.float32)):
+    """Cluster ``k``'s relative inputs (:mod:`.relative`), three numbers per thread: slot ``s < N`` its
+    ``s``-th neighbour's centroid ``R_k^T (c_j - c_k)``, then ``R_k^T e_y``, ``R_k^T e_z``, ``c_k``
+    (thread per cluster and slot)."""
+    tid = wp.tid()
+    n = neighbours.shape[1]
+    k = tid / (n + 3)
+    s = tid - k * (n + 3)
+    rt = wp.transpose(rotations[k])
+    ck = centroids[k]
+    out = ck
+    if s < n:
+        out = rt * (centroids[neighbours[k, s]] - ck)
+    elif s == n:
+        out = rt * wp.vec3(0.0, 1.0, 0.0)
+    elif s == n + 1:
+        out = rt * wp.vec3(0.0, 0.0, 1.0)
+    at = base + k * (3 * n + 9) + 3 * s
+    features[at] = out[0]
+    features[at + 1] = out[1]
+    features[at + 2] = out[2]
 
 
 @functools.lru_cache(maxsize=None)

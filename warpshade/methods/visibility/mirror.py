@@ -1,6 +1,7 @@
 """Float64 mirrors of the per-frame kernels of :mod:`.kernels` (the tests' oracle, never ground truth).
 
-* :func:`inputs_f64` -- standardised, clamped input-PCA coordinates ``x`` of pose vectors;
+* :func:`inputs_f64` -- standardised, clamped input-PCA coordinates ``x`` of pose vectors (and the
+  relative inputs of the posed points, :mod:`.relative`);
 * :func:`predict_f64` -- the per-vertex local visibility (V, C) of one input vector;
 * :func:`diffuse_f64` -- eq. 14 and the lighting: ``albedo / pi * L . R(F^T) (v * cos)``.
 """
@@ -15,9 +16,19 @@ from ..rpo.model import cosine_sh
 __all__ = ["inputs_f64"]
 
 
-def inputs_f64(arrays: dict, features: np.ndarray) -> np.ndarray:
-    """``clip((a - mean) @ W, x_low, x_high)`` for pose vectors (n, a) -> (n, k_in)."""
+def inputs_f64(arrays: dict, features: np.ndarray, points=None) -> np.ndarray:
+    """``clip((a - mean) @ W, x_low, x_high)`` for pose vectors (n, a) -> (n, k_in); a model with
+    relative inputs needs the posed points of the same poses (n, V, 3) to append them."""
     a = np.atleast_2d(np.asarray(features, np.float64))
+    width = np.asarray(arrays["pose_mean"]).size
+    if a.shape[1] != width:
+        if points is None:
+            raise ValueError(f"inputs_f64: the model reads {width} inputs per pose and the pose vectors have "
+                             f"{a.shape[1]}: pass the posed points for its relative inputs")
+        from .relative import relative_features_f64
+
+        g = relative_features_f64(points, arrays["rest_points"], arrays["labels"], arrays["relative_neighbours"])
+        a = np.concatenate([a, g], axis=1)
     x = (a - np.asarray(arrays["pose_mean"], np.float64)) @ np.asarray(arrays["input_weights"], np.float64)
     return np.clip(x, arrays["x_low"], arrays["x_high"])
 

@@ -39,6 +39,7 @@ import numpy as np
 from ..datadriven.model import PoseSpace, pose_space
 from .clusters import cluster_frame_rule, cluster_frames_f64, cluster_vertices
 from .fit import expand_features, fit_cluster
+from .relative import cluster_neighbours, relative_features_f64
 from .select import prefix_pairs
 from .training import to_local
 
@@ -119,7 +120,7 @@ def fit_visibility(data: dict, *, model: str = "network", frames: str = "cluster
                    predictable: float = 0.99, k_max: int = 32, bandwidth: float = 0.3, min_cluster: int = 8, hidden=(8, 16),
                    max_iterations: int = 300, margin: float = 0.25, seed: int = 0, labels=None, executor=None,
                    progress: bool = False, target: str = "visibility", metric: str = "visibility", stack_top: int = 0,
-                   stack_total: str = "one") -> VisibilityModel:
+                   stack_total: str = "one", relative: int = 0) -> VisibilityModel:
     """Fit the model to a ``visibility.data`` artifact (module docstring). ValueError on bad input.
 
     ``target = "transfer"`` fits the cosine-weighted transfer instead (each local visibility vector
@@ -135,6 +136,11 @@ def fit_visibility(data: dict, *, model: str = "network", frames: str = "cluster
 
     ``stack_top``, ``stack_total`` (``model = "stack"``, :mod:`.stack`): the candidates (least
     blocked-CV error first; 0: all) the per-cluster combination may use, and the constraint on its weights.
+
+    ``relative`` (``"auto"``, ``"stack"``): the most neighbouring clusters whose centroids, in each
+    cluster's rigid frame, are candidate inputs of the cluster (:mod:`.relative`; 0: none). They
+    are appended to the input vector, after the pose vector (``pose_mean`` and the rows of
+    ``input_weights`` cover both; ``relative_neighbours`` stores the neighbours).
     """
     from ...tasks import executor as new_executor
 
@@ -149,6 +155,9 @@ def fit_visibility(data: dict, *, model: str = "network", frames: str = "cluster
     if metric not in METRICS or (metric == "diffuse" and (frames == "world" or target == "transfer")):
         raise ValueError(f"metric must be one of {METRICS} ('diffuse': a visibility target in a local frame), got "
                          f"{metric!r} with target {target!r} and frames {frames!r}")
+    if int(relative) < 0 or (int(relative) > 0 and model not in ("auto", "stack")):
+        raise ValueError(f"relative must be 0 or a neighbour count for model 'auto' or 'stack', got {relative!r} "
+                         f"with model {model!r}")
     if target not in ("visibility", "transfer") or (target == "transfer" and frames == "world"):
         raise ValueError(f"target must be 'visibility' or 'transfer' (the latter in a local frame), got {target!r} "
                          f"with frames {frames!r}")
@@ -172,6 +181,15 @@ def fit_visibility(data: dict, *, model: str = "network", frames: str = "cluster
                                   min_size=min_cluster)
     labels = np.asarray(labels, np.int32)
     kc = int(labels.max()) + 1
+    neighbours = cluster_neighbours(data["rest_points"], labels, int(relative))
+    if int(relative) > 0 and kc > 1:  # relative inputs appended to the pose vectors (a_full), none in the global PCA
+        g = relative_features_f64(data["points"], data["rest_points"], labels, neighbours)
+        a_full = np.concatenate([a, g], axis=1)
+        w_in = np.concatenate([w_in, np.zeros((g.shape[1], w_in.shape[1]))], axis=0)
+        mean_full = np.concatenate([space.mean, g.mean(0)])
+    else:
+        neighbours = neighbours[:, :0]
+        a_full, mean_full = a, space.mean
     fr = local_frames_f64(frames, data["points"], data["normals"], data["rest_points"], data["faces"], labels)
     local = np.empty(vis.shape, np.float32)
     for t in range(pcount):
@@ -193,8 +211,9 @@ def fit_visibility(data: dict, *, model: str = "network", frames: str = "cluster
                       "seed": seed, "cluster": cl, "vertices": int(rows.size), "stack_top": int(stack_top),
                       "stack_total": stack_total, **weight})
         if model in ("auto", "stack"):
-            tasks[-1]["input_sets"] = _input_sets(data, source, pose, root, a, x, labels, cl, input_variance, input_max,
-                                                  local_w[cl])
+            tasks[-1]["input_sets"] = _input_sets(data, source, pose, root, a_full, x, labels, cl, input_variance, input_max,
+                                                  local_w[cl], neighbours, a.shape[1],
+                                                  ("linear", "quadratic") if model == "auto" else ("linear",))
     tasks_order = sorted(range(kc), key=lambda i: -tasks[i]["vertices"])
     own = executor is None
     ex = new_executor() if own else executor
@@ -210,15 +229,17 @@ def fit_visibility(data: dict, *, model: str = "network", frames: str = "cluster
     layout = None
     if model in ("auto", "stack"):
         w_in, layout = _auto_layout(results, local_w, w_in)
-        xa = (a - space.mean) @ w_in
+        xa = (a_full - mean_full) @ w_in
         span = xa.max(0) - xa.min(0)
         lo, hi = xa.min(0) - margin * span, xa.max(0) + margin * span
     arrays = _pack(results, labels, order, model, frames, source, space, w_in, lo, hi, data, a, pose, root, layout)
+    arrays["pose_mean"] = np.asarray(mean_full, np.float64)
+    arrays["relative_neighbours"] = np.asarray(neighbours, np.int32)
     reports = [r["report"] for r in results]
     fallbacks = [r for r in reports if "fallback" in r]
     report = {"clusters": kc, "cluster_sizes": [int(r["vertices"]) for r in reports],
               "components": [int(r["components"]) for r in reports], "input_components": int(w_in.shape[1]),
-              "input_features": int(a.shape[1]), "model": model, "frames": frames, "metric": metric,
+              "input_features": int(a.shape[1]), "relative_inputs": int(a_full.shape[1] - a.shape[1]), "model": model, "frames": frames, "metric": metric,
               "models_used": {m: sum(r["model_used"] == m for r in reports)
                               for m in ("constant", "linear", "quadratic", "network", "stack")},
               "fallbacks": [{"cluster": r["cluster"], "reason": r["fallback"]} for r in fallbacks],
@@ -233,13 +254,23 @@ def fit_visibility(data: dict, *, model: str = "network", frames: str = "cluster
     return out
 
 
-def _input_sets(data, source, pose, root, a, x, labels, cluster, variance, k_max, weights_out) -> dict:
+def _input_sets(data, source, pose, root, a, x, labels, cluster, variance, k_max, weights_out, neighbours=None,
+                pose_width=None, relative_kinds=("linear", "quadratic")) -> dict:
     """Candidate inputs of one cluster for :mod:`.select`: the global input PCA (linear and
-    quadratic) and, for a skinned cluster with joint inputs, its local joints' inputs per
-    skeleton ring (:mod:`.locality`, linear); the local inputs' weights go to ``weights_out``."""
+    quadratic); with ``neighbours`` (K, N), N > 0, the centroids of its nearest clusters in its frame
+    (:mod:`.relative`, columns from ``pose_width`` on, ``near<n>`` for n in :data:`.relative.COUNTS`
+    up to N, and N; ``relative_kinds``); and, for a skinned cluster with joint inputs, its local joints' inputs
+    per skeleton ring (:mod:`.locality`, linear). The local inputs' weights go to ``weights_out``."""
     from .locality import RINGS, cluster_joints, joint_columns, local_inputs
+    from .relative import COUNTS, candidate_columns
 
     sets = {"global": (x, ("linear", "quadratic"))}
+    n = 0 if neighbours is None else int(np.asarray(neighbours).shape[1])
+    for count in sorted({q for q in COUNTS if q < n} | ({n} if n else set())):
+        w, xl = local_inputs(a, candidate_columns(cluster, count, n, int(pose_width)), variance, k_max)
+        if w.shape[1]:
+            sets[f"near{count}"] = (xl, relative_kinds)
+            weights_out[f"near{count}"] = w
     if source != 0:
         return sets
     try:
@@ -266,11 +297,14 @@ def _input_sets(data, source, pose, root, a, x, labels, cluster, variance, k_max
 def _auto_layout(results, local_w, w_in):
     """Input weights and activation layout of a model of per-cluster selections (``"auto"``).
 
-    The inputs ``x`` are the global input PCA, then every chosen local block (linear in its
-    cluster's output rows); the products are those of the first global inputs
-    (:func:`.select.prefix_pairs`, as many as the largest global quadratic cluster uses). Returns
-    ``(W, {"qi", "qj", "source", "picks"})``; ``source[c]`` is the first activation cluster ``c``
-    reads (a global quadratic cluster reads from 0, its linear weights padded to every input)."""
+    The inputs ``x`` are the global input PCA, then every chosen local block, the linear ones first
+    and the quadratic ones (a relative set's, :mod:`.relative`) last; the products are those of the
+    first global inputs (:func:`.select.prefix_pairs`, as many as the largest global quadratic
+    cluster uses), then each quadratic local block's own (``qoff[c]``: where cluster ``c``'s start,
+    counted from the first product). Returns ``(W, {"qi", "qj", "qoff", "source", "picks"})``;
+    ``source[c]`` is the first activation cluster ``c`` reads (a global quadratic cluster reads from
+    0, its linear weights padded to every input; a local quadratic one from its block, its row
+    padded with zeros up to its products)."""
     picks = [r.get("select", ("global", "linear", 0)) if r["basis"].shape[1] else ("global", "linear", 0)
              for r in results]
     blocks, pos = [w_in], w_in.shape[1]
@@ -287,15 +321,26 @@ def _auto_layout(results, local_w, w_in):
             stacked[cl][name] = pos
             pos += m
         quad.append(r["stack"]["quad"])
-    for cl, (name, kind, m) in enumerate(picks):
-        if name not in ("global", "stack"):
-            if kind != "linear":
-                raise ValueError(f"cluster {cl}: local inputs take linear maps only, got {kind!r}")
+    qi, qj = prefix_pairs(max(quad, default=0))
+    qi, qj, qoff = [qi], [qj], [0] * len(picks)
+    nq = int(qi[0].size)
+    for kind_now in ("linear", "quadratic"):
+        for cl, (name, kind, m) in enumerate(picks):
+            if name in ("global", "stack") or kind != kind_now:
+                continue
+            if kind not in ("linear", "quadratic"):
+                raise ValueError(f"cluster {cl}: local inputs take linear or quadratic maps, got {kind!r}")
             blocks.append(local_w[cl][name][:, :m])
             source[cl] = pos
+            if kind == "quadratic":
+                i, j = prefix_pairs(m)
+                qi.append(i + pos)
+                qj.append(j + pos)
+                qoff[cl] = nq
+                nq += int(i.size)
             pos += m
-    qi, qj = prefix_pairs(max(quad, default=0))
-    return np.concatenate(blocks, axis=1), {"qi": qi, "qj": qj, "source": source, "picks": picks, "stacked": stacked}
+    return np.concatenate(blocks, axis=1), {"qi": np.concatenate(qi), "qj": np.concatenate(qj), "qoff": qoff,
+                                            "source": source, "picks": picks, "stacked": stacked}
 
 
 def _stack_row(row: np.ndarray, union: dict, at: dict, kin: int) -> np.ndarray:
@@ -351,6 +396,10 @@ def _pack(results, labels, order, model, frames, source, space, w_in, lo, hi, da
             if layout and picks[cl][:2] == ("global", "quadratic"):  # [x_0..x_m-1, 0.., products]
                 m = picks[cl][2]
                 row = np.concatenate([row[:m], np.zeros(kin - m, np.float32), row[m:]])
+            elif layout and picks[cl][1] == "quadratic":  # a local block: [its m inputs, 0.., its products]
+                m = picks[cl][2]
+                gap = kin - layout["source"][cl] - m + layout["qoff"][cl]
+                row = np.concatenate([row[:m], np.zeros(gap, np.float32), row[m:]])
             elif layout and layout["stacked"][cl] is not None:
                 row = _stack_row(row, r["stack"], layout["stacked"][cl], kin)
             source_.append(d + int(h_offset[cl]) if hidden[cl] else layout["source"][cl] if layout else 0)
@@ -406,12 +455,21 @@ def model_from_arrays(arrays: dict) -> VisibilityModel:
         (a["mean"].shape == (v, c), f"mean {a['mean'].shape} is not ({v}, {c})"),
         (a["basis"].shape == (v, c, kmax), f"basis {a['basis'].shape} is not ({v}, {c}, {kmax})"),
         (a["input_weights"].shape[1] == kin, "input weights do not match the input components"),
+        (a["input_weights"].shape[0] == a["pose_mean"].size, "input weights do not match the input mean"),
         (a["components"].shape == (kc,) and a["y_offset"].shape == (kc + 1,), "per-cluster arrays"),
         (int(a["labels"].min(initial=0)) >= 0 and int(a["labels"].max(initial=0)) < kc, "labels out of range"),
         (int(a["components"].max(initial=0)) <= kmax, "components exceed the basis"),
         (a["source"].shape[0] == int(a["y_offset"][-1]) == a["b2"].shape[0], "output layer size"),
         (a["w1"].shape[1] == kin, "hidden layer width"),
     ]
+    nb = a.get("relative_neighbours")
+    if nb is not None and nb.size:
+        from .relative import width
+
+        checks += [(nb.ndim == 2 and nb.shape[0] == kc and int(nb.min()) >= 0 and int(nb.max()) < kc,
+                    "relative neighbours out of range"),
+                   (a["pose_mean"].size == a["pose_scale"].size + kc * width(nb.shape[1]),
+                    "the input mean does not hold the relative inputs")]
     for ok, what in checks:
         if not ok:
             raise ValueError(f"visibility model: {what}")
@@ -427,7 +485,8 @@ def model_from_arrays(arrays: dict) -> VisibilityModel:
 
 def pose_space_of(model: VisibilityModel) -> PoseSpace:
     a = model.arrays
-    return PoseSpace(np.asarray(a["pose_mean"], np.float64), np.asarray(a["pose_scale"], np.float64),
+    width = np.asarray(a["pose_scale"]).size  # the pose vector's (relative inputs follow it in pose_mean)
+    return PoseSpace(np.asarray(a["pose_mean"], np.float64)[:width], np.asarray(a["pose_scale"], np.float64),
                      np.asarray(a["pose_active"]).astype(bool), np.asarray(a["pose_components"], np.float64),
                      np.asarray(a["pose_variance"], np.float64), float(np.asarray(a["pose_total_variance"])[0]),
                      np.asarray(a["pose_low"], np.float64), np.asarray(a["pose_high"], np.float64))

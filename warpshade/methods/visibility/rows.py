@@ -19,8 +19,10 @@ TRAINING_RAYS = {"figure": 128, "figure_walk": 128, "wanderer": 64, "cloth_heldo
 #: simulated cloth (its inputs' PCA keeps 90 % of their variance, as stages/cloth_visibility.toml).
 FEATURES = {"cloth_heldout": ("dihedral", {"input_variance": 0.9})}
 #: Fit settings of the diffuse rows (stages/figure_visibility_diffuse.toml): per-cluster PCA to 99 %
-#: of the variance, at most 64 components, the model chosen per cluster (``model = "auto"``).
-DIFFUSE_FIT = {"variance": 0.99, "k_max": 64}
+#: of the variance, at most 64 components, the model chosen per cluster (``model = "auto"``) among
+#: maps from the joint rotations (or dihedral angles) and from the 4 or 8 nearest clusters' centroids
+#: in the cluster's frame (``relative``).
+DIFFUSE_FIT = {"variance": 0.99, "k_max": 64, "relative": 8}
 #: The glossy material of the RPO rows (:mod:`warpshade.methods.rpo.rows`).
 GLOSSY = {"brdf": "ggx", "roughness": 0.5}
 

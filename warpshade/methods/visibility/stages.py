@@ -27,6 +27,7 @@ from ..datadriven.training import check_same_character, parse_frame_selection, t
 from ..stage import FrameStage, Param, Port, PrecomputeStage, StageError, register_stage
 from . import cloth, kernels
 from .model import FRAME_KINDS, METRICS, MODELS, fit_visibility, model_from_arrays
+from .relative import relative_features_f64
 from .stack import TOTALS
 from .training import FEATURE_SOURCES, dense_skin_weights, mesh_ids, rest_points
 
@@ -127,7 +128,7 @@ class VisibilityDataStage(TrainingClipStage):
 @register_stage
 class VisibilityFitStage(PrecomputeStage):
     type_name = "visibility.fit"
-    version = 2
+    version = 3  # 3: relative inputs (pose_mean may hold them; relative_neighbours)
     uses_scene = False
     description = ("clusters, cluster frames, input PCA, per-cluster visibility PCA and a linear / quadratic / "
                    "network model per cluster (sizes from the error budget, cross-validated)")
@@ -164,6 +165,9 @@ class VisibilityFitStage(PrecomputeStage):
                         "part of the visibility diffuse shading sees (visibility.diffuse only)", choices=METRICS),
         "stack_top": Param(0, int, "stack: candidates (least blocked cross-validation error first) a cluster's "
                            "combination may use; 0: every candidate", minimum=0),
+        "relative": Param(0, int, "auto, stack: candidate inputs of each cluster from its nearest clusters' "
+                          "centroids in its rigid frame, at most this many neighbours (0: none; "
+                          "methods/visibility/relative.py)", minimum=0),
         "stack_total": Param("one", str, "stack: non-negative weights summing to one ('one'), non-negative "
                              "least squares ('free': a shrinkage towards the cluster mean), or equal weights "
                              "('equal', a plain average of the stack_top best)", choices=TOTALS),
@@ -193,7 +197,8 @@ class VisibilityFitStage(PrecomputeStage):
                                        min_cluster=p["min_cluster"], hidden=hidden,
                                        max_iterations=p["max_iterations"], margin=p["margin"], seed=p["seed"],
                                        labels=labels, executor=ex, progress=ctx.progress, metric=p["metric"],
-                                       stack_top=p["stack_top"], stack_total=p["stack_total"])
+                                       stack_top=p["stack_top"], stack_total=p["stack_total"],
+                                       relative=p["relative"])
         except ValueError as exc:
             raise StageError(f"{where}: {exc}") from None
         self.report = model.report
@@ -272,8 +277,8 @@ class VisibilityPredictStage(FrameStage):
                 raise StageError(f"{where}: scene {scene.source or '<arrays>'} is not the character the model was "
                                  "trained on (vertex count, faces, skin weights, rest or bind transforms differ)")
             self._pose = _PoseInputs(scene, list(PARAMETERISATIONS)[kind], ROOT_MODES[root], a["root_reference"], dev)
-            if self._pose.layout.size != a["pose_mean"].size:
-                raise StageError(f"{where}: the model expects {a['pose_mean'].size} inputs, the scene gives "
+            if self._pose.layout.size != a["pose_scale"].size:
+                raise StageError(f"{where}: the model expects {a['pose_scale'].size} pose inputs, the scene gives "
                                  f"{self._pose.layout.size}")
             features = self._pose.features
             poses = pose_features(scene, np.arange(len(scene.frames)), self._pose.layout,
@@ -282,8 +287,17 @@ class VisibilityPredictStage(FrameStage):
             self._pose = cloth.DihedralInputs(scene, dev)
             features = self._pose.features
             poses = np.stack([cloth.dihedral_angles(scene.points_at(float(f)), scene.faces) for f in scene.frames])
+        self._relative = _RelativeInputs(a, features, dev)
+        features = self._relative.features
+        if self._relative.count:
+            poses = np.concatenate([poses, relative_features_f64(np.stack([scene.points_at(float(f)) for f in scene.frames]),
+                                                                 a["rest_points"], a["labels"], a["relative_neighbours"])], 1)
+        if features.shape[0] != max(a["pose_mean"].size, 1):
+            raise StageError(f"{where}: the model expects {a['pose_mean'].size} inputs, the scene gives "
+                             f"{features.shape[0]}")
         self._mean = _f32(a["pose_mean"], dev)
         self._w_in = wp.array(np.asarray(a["input_weights"], np.float32), dtype=wp.float32, device=dev)
+        self._rows = tuple(_i32(r, dev) for r in kernels.input_rows(a["input_weights"]))
         self._low, self._high = _f32(a["x_low"], dev), _f32(a["x_high"], dev)
         self._x = wp.zeros(kin, dtype=wp.float32, device=dev)
         self._quad_i, self._quad_j = _i32(a["quad_i"], dev), _i32(a["quad_j"], dev)
@@ -325,8 +339,9 @@ class VisibilityPredictStage(FrameStage):
 
         dev = self._device
         self._pose.launch(state)
+        self._relative.launch(self._points)
         wp.launch(kernels.inputs_kernel, dim=self._x.shape[0], device=dev,
-                  inputs=[self._features, self._mean, self._w_in, self._low, self._high, self._x])
+                  inputs=[self._features, self._mean, self._w_in, *self._rows, self._low, self._high, self._x])
         wp.launch(kernels.features_kernel, dim=self._d, device=dev, inputs=[self._x, self._quad_i, self._quad_j, self._act])
         if self._hidden:
             wp.launch(kernels.hidden_kernel, dim=self._hidden, device=dev,
@@ -354,6 +369,48 @@ class VisibilityPredictStage(FrameStage):
         """Bytes of the model on the device: float32 arrays, the basis at its precision."""
         half = self.params["basis"] == "half"
         return 4 * self.model.stored_floats() - (2 * int(np.asarray(self.model.arrays["basis"]).size) if half else 0)
+
+
+class _RelativeInputs:
+    """The relative inputs of the frame (:mod:`.relative`) after the pose vector ``pose`` (a copy of it
+    in front of them); without relative inputs ``features`` is ``pose`` and nothing is launched."""
+
+    def __init__(self, arrays, pose, dev):
+        from ..._wp import wp
+        from .relative import width
+
+        nb = np.asarray(arrays.get("relative_neighbours", np.zeros((0, 0))), np.int32)
+        self.count = int(nb.shape[1]) if nb.size else 0
+        self.features, self._pose, self._dev = pose, pose, dev
+        if not self.count:
+            return
+        labels = np.asarray(arrays["labels"])
+        kc = nb.shape[0]
+        rest = np.asarray(arrays["rest_points"], np.float64)
+        self._base = int(np.asarray(arrays["pose_scale"]).size)
+        self.features = wp.zeros(self._base + kc * width(self.count), dtype=wp.float32, device=dev)
+        self._order = _i32(np.argsort(labels, kind="stable"), dev)
+        self._offsets = _i32(np.concatenate([[0], np.cumsum(np.bincount(labels, minlength=kc))]), dev)
+        self._rest = _f32(rest, dev, wp.vec3)
+        self._rest_centroids = _f32(np.stack([rest[labels == k].mean(0) for k in range(kc)]), dev, wp.vec3)
+        self._neighbours = wp.array(nb, dtype=wp.int32, device=dev)
+        self._rotations = wp.zeros(kc, dtype=wp.mat33, device=dev)
+        self._centroids = wp.zeros(kc, dtype=wp.vec3, device=dev)
+
+    def launch(self, points):
+        from ..._wp import wp
+
+        if not self.count:
+            return
+        dev = self._dev
+        if self._base:
+            wp.launch(kernels.copy_prefix_kernel, dim=self._base, device=dev, inputs=[self._pose, self.features])
+        kc = self._rotations.shape[0]
+        wp.launch(kernels.cluster_rigid_kernel, dim=kc, device=dev,
+                  inputs=[points, self._rest, self._order, self._offsets, self._rest_centroids, self._rotations,
+                          self._centroids])
+        wp.launch(kernels.relative_features_kernel, dim=kc * (self.count + 3), device=dev,
+                  inputs=[self._rotations, self._centroids, self._neighbours, self._base, self.features])
 
 
 class _PoseInputs:
@@ -398,7 +455,7 @@ def novelty_report(model, poses: np.ndarray) -> dict:
     from .model import pose_space_of
 
     a = model.arrays
-    nov = novelty(pose_space_of(model), poses, a["training_poses"])
+    nov = novelty(pose_space_of(model), np.atleast_2d(poses)[:, :np.asarray(a["pose_scale"]).size], a["training_poses"])
     x = (np.atleast_2d(poses) - a["pose_mean"]) @ a["input_weights"]
     clamped = np.any(np.abs(inputs_f64(a, poses) - x) > 0, axis=1)
     return {"novelty_max": float(nov["nearest"].max()), "novelty_mean": float(nov["nearest"].mean()),
