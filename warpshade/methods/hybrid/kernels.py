@@ -64,7 +64,11 @@ fixed point set under a uniform random rotation, so every frame's estimate is un
 
   (``w = 0`` for ``n >= N``, or where the passes do not reduce the variance, ``rho >= 1``; ``w = 1``
   where even the full ``B(h)`` does not reach the target). The filter adds bias where the residual
-  varies over the surface, so it is applied only as far as the missing frames need.
+  varies over the surface, so it is applied only as far as the missing frames need, and with
+  ``limit`` (``warmup_limit = "mse"``) no further than the weight of least mean squared error for
+  the bias it adds: in the same model the blend's error is ``var_B + (1 - w)^2 (var_h - var_B) +
+  w^2 b^2``, ``b^2 = max(0, |B(h) - h|^2 - (var_h - var_B))`` the estimated squared bias of
+  ``B(h)``, least at ``w = (var_h - var_B) / (var_h - var_B + b^2)``.
 * :func:`reproject_kernel` -- with ``reproject`` on, before the rays: the per-vertex history (the
   averaged residual, or the last estimate when it is the control) is carried by the rotation of
   the vertex's tangent frame since the last frame, ``R = F_now^T F_prev`` (``F`` rows t, b, n:
@@ -506,7 +510,8 @@ def warm_filter_kernel(order: int):
 
 
 @wp.func
-def warm_weight(frames: float, warm_frames: float, variance: float, filtered_variance: float):
+def warm_weight(frames: float, warm_frames: float, variance: float, filtered_variance: float, distance2: float,
+                limit: int):
     """The blend weight of the filtered history (see :func:`warm_blend_kernel`)."""
     w = float(0.0)
     if frames > 0.0 and frames < warm_frames and variance > 0.0:
@@ -514,6 +519,10 @@ def warm_weight(frames: float, warm_frames: float, variance: float, filtered_var
         if ratio < 1.0:
             u = wp.clamp((frames / warm_frames - ratio) / (1.0 - ratio), 0.0, 1.0)
             w = 1.0 - wp.sqrt(u)
+            if limit != 0:  # no further than the least mean squared error for the filter's estimated bias
+                removed = variance - filtered_variance
+                bias2 = wp.max(distance2 - removed, 0.0)
+                w = wp.min(w, removed / (removed + bias2))
     return w
 
 
@@ -526,6 +535,7 @@ def warm_blend_kernel(order: int):
     def kernel(
         frames: wp.array(dtype=wp.float32),
         warm_frames: float,
+        limit: int,
         history: wp.array2d(dtype=wp.float32),
         variance: wp.array(dtype=wp.float32),
         filtered: wp.array2d(dtype=wp.float32),
@@ -535,13 +545,15 @@ def warm_blend_kernel(order: int):
         weight: wp.array(dtype=wp.float32),
     ):
         v = wp.tid()
-        w = warm_weight(frames[v], warm_frames, variance[v], filtered_variance[v])
-        ok = wp.isfinite(w)
+        d2 = float(0.0)
         for i in range(C):
             d = filtered[v, i] - history[v, i]
-            if not wp.isfinite(d):
-                ok = False
-        if not ok:
+            d2 += d * d
+        ok = wp.isfinite(d2)
+        w = float(0.0)
+        if ok:
+            w = warm_weight(frames[v], warm_frames, variance[v], filtered_variance[v], d2, limit)
+        if not wp.isfinite(w):
             w = 0.0
         for i in range(C):
             x = current[v, i]

@@ -45,8 +45,15 @@ SHEXP_TRACE = {"alpha": 0.3, "filter_iterations": 3}
 #: its residual is the change of the self-shadowing since the bake, smooth over the surface, so 4
 #: filter passes and a history blended by its estimated bias (soft reset over 4 frames) with a new
 #: frame weighing at least 0.2 (bend, 64 rays: error 0.0259 against 0.0287 for the last estimate as
-#: control with REPROJECT_SOFT, at about the 1024-ray tracer's noise).
-LDPRT_TRACE = {"alpha": 0.2, "filter_iterations": 4, "reset": "soft", "threshold": 8.0, "bias_frames": 4}
+#: control with REPROJECT_SOFT, at about the 1024-ray tracer's noise). The history-aware filter
+#: tops up vertices whose history holds fewer than 12 effective frames (the clip's first frames,
+#: cuts, the soft reset's blends; the moving average alone settles at (2 - alpha) / alpha = 9): on
+#: the bend, 64 rays, against 1024-ray prt.trace, error 1.14x (1.140x without it), noise 0.98x / 0.68x
+#: at frames 8 / 24 (1.10x / 0.73x without it), benchmarks/results/hybrid-2026-12-03-cpu-warm-bend-mse.json:
+#: python benchmarks/bench_hybrid.py --scenes bend --samples 64 --controls ldprt --noise-frame 8,24
+#: --suffix warm-bend-mse --variants 'ldprt4={...};warm12={..., "warmup_frames": 12}'.
+LDPRT_TRACE = {"alpha": 0.2, "filter_iterations": 4, "reset": "soft", "threshold": 8.0, "bias_frames": 4,
+               "warmup_frames": 12.0}
 #: The trace settings each control's harness rows use (others: the stage's defaults).
 CONTROL_TRACE = {"shexp": SHEXP_TRACE, "ldprt": LDPRT_TRACE}
 

@@ -115,6 +115,9 @@ class HybridTraceStage(FrameStage):
                                "the missing frames' variance needs (0: off)", minimum=0.0, maximum=1000.0),
         "warmup_passes": Param(2, int, "history-aware filter: passes of the edge-aware filter over the history at "
                                "full strength", minimum=1, maximum=8),
+        "warmup_limit": Param("mse", str, "history-aware filter: no further than the weight of least mean squared "
+                              "error for the filter's estimated bias (mse), or as far as the missing frames need "
+                              "(none)", choices=("mse", "none")),
     }
 
     def dims(self):
@@ -263,7 +266,7 @@ class HybridTraceStage(FrameStage):
                               float(p["sigma_normal"]), float(p["sigma_distance"]), src, src_var, dst, dst_var])
             src, src_var = dst, dst_var
         wp.launch(self._warm_blend_kernel, dim=v, device=dev,
-                  inputs=[st.frames, float(p["warmup_frames"]), history, st.variance, src, src_var, self._transfer,
+                  inputs=[st.frames, float(p["warmup_frames"]), 1 if p["warmup_limit"] == "mse" else 0, history, st.variance, src, src_var, self._transfer,
                           self._output, self._warm_weight])
 
     def model_bytes(self) -> int:
