@@ -90,7 +90,7 @@ class _Warm:
                               self.buf[i % 2], self.bvar[i % 2]])
             src, svar = self.buf[i % 2], self.bvar[i % 2]
         wp.launch(kernels.warm_blend_kernel(ORDER), dim=v, device=dev,
-                  inputs=[self.st.frames, float(self.warm_frames), self.limit, self.st.history, self.st.variance, src, svar,
+                  inputs=[self.st.frames, float(self.warm_frames), self.limit, 1.0, self.st.history, self.st.variance, src, svar,
                           self.transfer, self.out, self.weight])
         return self.out.numpy().copy(), self.weight.numpy().copy(), self.transfer.numpy().copy()
 
@@ -135,13 +135,14 @@ def test_warm_filter_kernel_matches_mirror_and_carries_variance(device, rng):
     assert_close(uniform, 1.0 / gain, atol=ATOL_FLOAT64, what="variance of independent inputs")
 
 
-@pytest.mark.parametrize("limit", [0, 1])
-def test_warm_blend_kernel_matches_mirror_and_meets_its_variance_target(device, rng, limit):
+@pytest.mark.parametrize("limit,noise_scale", [(0, 1.0), (1, 1.0), (1, 0.25)])
+def test_warm_blend_kernel_matches_mirror_and_meets_its_variance_target(device, rng, limit, noise_scale):
     """Per vertex: w = 0 once n >= N; w = 1 where even the filtered history is above the target;
     in between the blend's modelled variance var_B + (1 - w)^2 (var_h - var_B) is exactly var_h n / N.
     With ``limit`` the weight is capped by the least-squares weight for the estimated bias of the
-    filtered history, (var_h - var_B) / (var_h - var_B + b^2). A non-finite filtered value or a
-    zero variance gives w = 0 (the history as it is)."""
+    filtered history, r / (r + b^2) with r = noise_scale (var_h - var_B) and b^2 = max(0, |B - h|^2 - r)
+    (the limit binds more as the noise it would remove is scaled down). A non-finite filtered value
+    or a zero variance gives w = 0 (the history as it is)."""
     v, c, warm_frames = 96, ORDER * ORDER, 8.0
     frames = np.concatenate([[0.0, 1.0, 2.0, 8.0, 8.5, 20.0, 3.0, 3.0], rng.uniform(0.5, 12.0, v - 8)])
     var_h = rng.uniform(0.5, 2.0, v)
@@ -163,9 +164,10 @@ def test_warm_blend_kernel_matches_mirror_and_meets_its_variance_target(device, 
         return wp.array(np.asarray(x, np.float32), **f32)
 
     wp.launch(kernels.warm_blend_kernel(ORDER), dim=v, device=dev,
-              inputs=[arr(frames), warm_frames, limit, arr(history), arr(var_h), arr(filtered), arr(var_b),
+              inputs=[arr(frames), warm_frames, limit, noise_scale, arr(history), arr(var_h), arr(filtered), arr(var_b),
                       arr(current), out, weight])
-    o64, w64 = warm_blend_f64(frames, warm_frames, history, var_h, filtered, var_b, current, limit=bool(limit))
+    o64, w64 = warm_blend_f64(frames, warm_frames, history, var_h, filtered, var_b, current, limit=bool(limit),
+                              noise_scale=noise_scale)
     assert_close(weight.numpy(), w64, atol=ATOL_WEIGHT, what="blend weight")
     assert_close(out.numpy(), o64, atol=10 * ATOL_WEIGHT, what="blended output")
     assert np.all(np.isfinite(out.numpy()))
@@ -180,12 +182,15 @@ def test_warm_blend_kernel_matches_mirror_and_meets_its_variance_target(device, 
     assert np.all(target[var_b >= var_h] == 0)
     with np.errstate(invalid="ignore"):
         d2 = np.sum((filtered - history) ** 2, axis=1)
-    removed = var_h - var_b
+    removed = noise_scale * (var_h - var_b)
     finite = np.isfinite(d2) & (var_h > 0)
     if limit:
         mse = np.where(removed > 0, removed / (removed + np.maximum(d2 - removed, 0.0)), 0.0)
         assert_close(w64[finite], np.minimum(target, mse)[finite], atol=ATOL_FLOAT64, what="capped weight")
         assert np.count_nonzero(w64[finite] < target[finite] - 1e-6) > 10  # the cap binds somewhere
+        if noise_scale < 1.0:  # less noise to remove: never a larger weight, somewhere a smaller one
+            unscaled = warm_blend_f64(frames, warm_frames, history, var_h, filtered, var_b, current, limit=True)[1]
+            assert np.all(w64 <= unscaled + ATOL_FLOAT64) and np.any(w64 < unscaled - 1e-6)
     else:
         assert_close(np.delete(target, 7), np.delete(w64, 7), atol=0.0, what="weight")
 
@@ -341,7 +346,7 @@ def test_recorded_frames_with_warmup_equal_launches_from_python(device, monkeypa
     scene = _plane_box(6, teleport_at=4)
     runs = {}
     for capture in (False, True):
-        rt = _graph(control, warmup_frames=6.0, warmup_passes=3, filter_iterations=2).compile(
+        rt = _graph(control, warmup_frames=6.0, warmup_passes=3, filter_iterations=2, warmup_noise=0.5).compile(
             scene, device=device, cache_dir=None, progress=False, capture=capture)
         rt.step(0.0)
         rt.step(0.0)

@@ -68,7 +68,11 @@ fixed point set under a uniform random rotation, so every frame's estimate is un
   ``limit`` (``warmup_limit = "mse"``) no further than the weight of least mean squared error for
   the bias it adds: in the same model the blend's error is ``var_B + (1 - w)^2 (var_h - var_B) +
   w^2 b^2``, ``b^2 = max(0, |B(h) - h|^2 - (var_h - var_B))`` the estimated squared bias of
-  ``B(h)``, least at ``w = (var_h - var_B) / (var_h - var_B + b^2)``.
+  ``B(h)``, least at ``w = (var_h - var_B) / (var_h - var_B + b^2)``. Here the variances are the
+  tracked ones times ``noise_scale`` (``warmup_noise``): the tracked variance is the formula for
+  independent rays, above the actual spread of stratified ray sets averaged over filter passes
+  (``benchmarks/bench_hybrid_variance.py``), which would let the limit pass bias for noise that
+  is not there.
 * :func:`reproject_kernel` -- with ``reproject`` on, before the rays: the per-vertex history (the
   averaged residual, or the last estimate when it is the control) is carried by the rotation of
   the vertex's tangent frame since the last frame, ``R = F_now^T F_prev`` (``F`` rows t, b, n:
@@ -511,7 +515,7 @@ def warm_filter_kernel(order: int):
 
 @wp.func
 def warm_weight(frames: float, warm_frames: float, variance: float, filtered_variance: float, distance2: float,
-                limit: int):
+                limit: int, noise_scale: float):
     """The blend weight of the filtered history (see :func:`warm_blend_kernel`)."""
     w = float(0.0)
     if frames > 0.0 and frames < warm_frames and variance > 0.0:
@@ -520,7 +524,7 @@ def warm_weight(frames: float, warm_frames: float, variance: float, filtered_var
             u = wp.clamp((frames / warm_frames - ratio) / (1.0 - ratio), 0.0, 1.0)
             w = 1.0 - wp.sqrt(u)
             if limit != 0:  # no further than the least mean squared error for the filter's estimated bias
-                removed = variance - filtered_variance
+                removed = noise_scale * (variance - filtered_variance)
                 bias2 = wp.max(distance2 - removed, 0.0)
                 w = wp.min(w, removed / (removed + bias2))
     return w
@@ -536,6 +540,7 @@ def warm_blend_kernel(order: int):
         frames: wp.array(dtype=wp.float32),
         warm_frames: float,
         limit: int,
+        noise_scale: float,
         history: wp.array2d(dtype=wp.float32),
         variance: wp.array(dtype=wp.float32),
         filtered: wp.array2d(dtype=wp.float32),
@@ -552,7 +557,7 @@ def warm_blend_kernel(order: int):
         ok = wp.isfinite(d2)
         w = float(0.0)
         if ok:
-            w = warm_weight(frames[v], warm_frames, variance[v], filtered_variance[v], d2, limit)
+            w = warm_weight(frames[v], warm_frames, variance[v], filtered_variance[v], d2, limit, noise_scale)
         if not wp.isfinite(w):
             w = 0.0
         for i in range(C):

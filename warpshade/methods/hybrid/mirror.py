@@ -139,11 +139,12 @@ def warm_filter_f64(offsets, neighbours, points, normals, scale, sigma_normal: f
     return out, out_var
 
 
-def warm_weight_f64(frames, warm_frames: float, variance, filtered_variance, distance2=None) -> np.ndarray:
+def warm_weight_f64(frames, warm_frames: float, variance, filtered_variance, distance2=None,
+                    noise_scale: float = 1.0) -> np.ndarray:
     """The per-vertex weight of the filtered history (:func:`.kernels.warm_weight`):
     ``1 - sqrt(clamp((n / N - rho) / (1 - rho), 0, 1))`` with ``rho = var_B / var_h``, for
     ``0 < n < N``, ``var_h > 0`` and ``rho < 1``; else 0. With ``distance2`` (``|B(h) - h|^2`` per
-    vertex) at most ``(var_h - var_B) / (var_h - var_B + b^2)``, ``b^2 = max(0, distance2 - (var_h - var_B))``."""
+    vertex) at most ``r / (r + b^2)``, ``r = noise_scale (var_h - var_B)``, ``b^2 = max(0, distance2 - r)``."""
     n = np.asarray(frames, np.float64)
     vh = np.asarray(variance, np.float64)
     vb = np.asarray(filtered_variance, np.float64)
@@ -154,13 +155,13 @@ def warm_weight_f64(frames, warm_frames: float, variance, filtered_variance, dis
             if rho < 1:
                 w[v] = 1.0 - np.sqrt(min(max((n[v] / warm_frames - rho) / (1.0 - rho), 0.0), 1.0))
                 if distance2 is not None:
-                    removed = vh[v] - vb[v]
+                    removed = noise_scale * (vh[v] - vb[v])
                     w[v] = min(w[v], removed / (removed + max(float(distance2[v]) - removed, 0.0)))
     return w
 
 
 def warm_blend_f64(frames, warm_frames: float, history, variance, filtered, filtered_variance, current,
-                   limit: bool = False):
+                   limit: bool = False, noise_scale: float = 1.0):
     """The output of the history-aware filter (:func:`.kernels.warm_blend_kernel`):
     ``current + w (filtered - history)`` per vertex, ``w`` from :func:`warm_weight_f64` (with
     ``limit``: capped by the least-squares weight for the estimated bias; 0 where the difference is
@@ -174,7 +175,8 @@ def warm_blend_f64(frames, warm_frames: float, history, variance, filtered, filt
     with np.errstate(invalid="ignore"):
         d = b - h
         d2 = np.sum(d * d, axis=1)
-    w = warm_weight_f64(frames, warm_frames, variance, filtered_variance, np.where(np.isfinite(d2), d2, 0.0) if limit else None)
+    w = warm_weight_f64(frames, warm_frames, variance, filtered_variance, np.where(np.isfinite(d2), d2, 0.0) if limit else None,
+                        noise_scale)
     w = np.where(np.isfinite(d2), w, 0.0)
     out = np.array(current, np.float64) + w[:, None] * np.where(w[:, None] > 0, d, 0.0)
     return out, w

@@ -118,6 +118,10 @@ class HybridTraceStage(FrameStage):
         "warmup_limit": Param("mse", str, "history-aware filter: no further than the weight of least mean squared "
                               "error for the filter's estimated bias (mse), or as far as the missing frames need "
                               "(none)", choices=("mse", "none")),
+        "warmup_noise": Param(1.0, float, "history-aware filter's limit: the history's actual variance as a fraction "
+                              "of the tracked one (the tracked one is the formula for independent rays; stratified ray "
+                              "sets and filter passes make the actual one smaller, see benchmarks/"
+                              "bench_hybrid_variance.py)", minimum=1e-3, maximum=10.0),
     }
 
     def dims(self):
@@ -266,7 +270,8 @@ class HybridTraceStage(FrameStage):
                               float(p["sigma_normal"]), float(p["sigma_distance"]), src, src_var, dst, dst_var])
             src, src_var = dst, dst_var
         wp.launch(self._warm_blend_kernel, dim=v, device=dev,
-                  inputs=[st.frames, float(p["warmup_frames"]), 1 if p["warmup_limit"] == "mse" else 0, history, st.variance, src, src_var, self._transfer,
+                  inputs=[st.frames, float(p["warmup_frames"]), 1 if p["warmup_limit"] == "mse" else 0,
+                          float(p["warmup_noise"]), history, st.variance, src, src_var, self._transfer,
                           self._output, self._warm_weight])
 
     def model_bytes(self) -> int:
