@@ -29,6 +29,18 @@ VISIBILITY_FIT = {"model": "auto", "variance": 0.99, "k_max": 64}
 #: reset, cut at z > 8).
 REPROJECT_SOFT = {"reproject": True, "normal_turn": 180.0, "motion": 4.0, "reset": "soft", "threshold": 8.0,
                   "bias_frames": 4}
+#: REPROJECT_SOFT for the visibility control on the figure, with the history-aware filter: vertices
+#: whose history holds fewer than 24 effective frames are filtered further (2 passes), no further
+#: than the least-squares weight for the bias the passes add, the noise they remove taken as 0.1 of
+#: the tracked variance (the tracked one is 3x the actual spread on the figure,
+#: benchmarks/results/hybrid-variance-2026-12-03-cpu.json, and the limit weighs all coefficients
+#: alike while the shading weighs the low bands; 0.33 gives error 1.21x, noise 0.87x / 0.79x).
+#: Figure, 64 rays, against 1024-ray prt.trace in the same run: error 1.198x (1.190x without it),
+#: noise 0.98x / 0.86x at frames 8 / 24 (1.09x / 0.93x without it),
+#: benchmarks/results/hybrid-2026-12-03-cpu-warm-figure-noise.json: python benchmarks/bench_hybrid.py
+#: --scenes figure --samples 64 --controls visibility --noise-frame 8,24 --suffix warm-figure-noise
+#: --variants 'rpsb4={...};warm24n01={..., "warmup_frames": 24, "warmup_noise": 0.1};warm24n033={...}'.
+VISIBILITY_TRACE = {**REPROJECT_SOFT, "warmup_frames": 24.0, "warmup_noise": 0.1}
 
 
 #: SHEXP as control: its world-frame visibility of the blocker spheres (HYB, the sphere budget of
@@ -169,10 +181,11 @@ def harness_rows(quick: bool = False) -> list:
     rows.append(HarnessRow(
         "hybrid", "n6 K64 visibility rps",
         stages_for("visibility", 64, training="bundled:figure_train", frames="0:600:3", training_samples=128,
-                   trace=REPROJECT_SOFT),
+                   trace=VISIBILITY_TRACE),
         "shade.radiance", scenes=("figure",), quick=False,
         notes="64 rays per vertex per frame, control: the data-driven visibility model (as "
-              "stages/figure_visibility_diffuse.toml) as transfer; history reprojected by the frames' turn, soft reset",
+              "stages/figure_visibility_diffuse.toml) as transfer; history reprojected by the frames' turn, soft reset, "
+              "filtered further where it is short",
     ))
     for samples in (16, 32):
         rows.append(HarnessRow(
