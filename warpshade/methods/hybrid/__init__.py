@@ -10,7 +10,8 @@ frames, the history cut where the surface moves fast or fresh rays disagree with
 * :mod:`.stages` -- ``hybrid.trace`` (per frame): ports, parameters, buffers; and
   ``hybrid.visibility_transfer``: a data-driven visibility model's prediction as world-frame
   transfer, the control of ``hybrid.trace``;
-* :mod:`.kernels` -- the residual (rays), the edge-aware filter, the moving average;
+* :mod:`.kernels` -- the residual (rays), the edge-aware filter, the moving average, the
+  history-aware filter (more filtering where a vertex's history is short);
 * :mod:`.mirror` -- their float64 mirror, the tests' oracle;
 * :mod:`.model` -- the surface neighbourhood built at set-up (any topology, reported);
 * :mod:`.rows` -- the harness rows (K in {8, 16, 32, 64} x each control);
@@ -18,7 +19,8 @@ frames, the history cut where the surface moves fast or fresh rays disagree with
 """
 
 from .mirror import (cycle_directions_f64, estimate_f64, filter_f64, reproject_f64, residual_f64, temporal_f64,
-                     visibility_transfer_f64, world_visibility_transfer_f64)
+                     visibility_transfer_f64, warm_blend_f64, warm_filter_f64, warm_weight_f64,
+                     world_visibility_transfer_f64)
 from .model import SurfaceNeighbours, surface_neighbours
 from .rows import glossy_stages_for, harness_rows, stages_for
 from .stages import HybridTraceStage, HybridVisibilityTransferStage
@@ -38,5 +40,8 @@ __all__ = [
     "surface_neighbours",
     "temporal_f64",
     "visibility_transfer_f64",
+    "warm_blend_f64",
+    "warm_filter_f64",
+    "warm_weight_f64",
     "world_visibility_transfer_f64",
 ]

@@ -48,6 +48,31 @@ fixed point set under a uniform random rotation, so every frame's estimate is un
   from one frame's noise would put that noise back into the history. With ``test_raw`` the test compares the unfiltered one-frame estimate (``raw``) instead, against
   the one-frame variance before the filter (``var_mean`` times the filter's gain): less sensitive
   by that gain, so it keeps more history (less noise) and follows a slowly drifting transfer later.
+* :func:`warm_filter_kernel`, :func:`warm_blend_kernel` -- with ``warmup_frames`` ``N > 0``, after
+  the moving average: the output is filtered more where the history is short (as real-time
+  denoisers filter more where a pixel's history is short). ``P`` (``warmup_passes``) further
+  passes of the edge-aware filter over the history ``h`` (the averaged residual, or the last
+  estimate when it is the control) give ``B(h)``, each pass carrying the history's variance
+  ``var_h`` as for independent inputs (``var' = (var_v + sum_u w_uv^2 var_u) / (1 + sum_u w_uv)^2``),
+  and the output is ``h + w (B(h) - h)`` (plus the control), never fed back into the history. The
+  history's variance falls as ``1 / n`` (``n`` its effective frames), so a history of ``n < N``
+  frames lacks the factor ``n / N`` of the variance at ``N`` frames; modelling ``h`` as ``B(h)`` plus
+  an independent rest, the blend's variance is ``var_B + (1 - w)^2 (var_h - var_B)``, and ``w`` is the
+  least weight that brings it to ``var_h n / N``::
+
+      w = 1 - sqrt(clamp((n / N - rho) / (1 - rho), 0, 1)),   rho = var_B / var_h
+
+  (``w = 0`` for ``n >= N``, or where the passes do not reduce the variance, ``rho >= 1``; ``w = 1``
+  where even the full ``B(h)`` does not reach the target). The filter adds bias where the residual
+  varies over the surface, so it is applied only as far as the missing frames need, and with
+  ``limit`` (``warmup_limit = "mse"``) no further than the weight of least mean squared error for
+  the bias it adds: in the same model the blend's error is ``var_B + (1 - w)^2 (var_h - var_B) +
+  w^2 b^2``, ``b^2 = max(0, |B(h) - h|^2 - (var_h - var_B))`` the estimated squared bias of
+  ``B(h)``, least at ``w = (var_h - var_B) / (var_h - var_B + b^2)``. Here the variances are the
+  tracked ones times ``noise_scale`` (``warmup_noise``): the tracked variance is the formula for
+  independent rays, above the actual spread of stratified ray sets averaged over filter passes
+  (``benchmarks/bench_hybrid_variance.py``), which would let the limit pass bias for noise that
+  is not there.
 * :func:`reproject_kernel` -- with ``reproject`` on, before the rays: the per-vertex history (the
   averaged residual, or the last estimate when it is the control) is carried by the rotation of
   the vertex's tangent frame since the last frame, ``R = F_now^T F_prev`` (``F`` rows t, b, n:
@@ -204,6 +229,22 @@ def residual_kernel(order: int):
     return kernel
 
 
+@wp.func
+def edge_weight(nv: wp.vec3, lv: float, pv: wp.vec3, nu: wp.vec3, pu: wp.vec3, sigma_normal: float, sd: float):
+    """The edge-aware weight of neighbour ``u`` for vertex ``v`` (0 where it does not count):
+    ``exp(-(1 - n_u.n_v) / sigma_n^2 - |p_u - p_v|^2 / (2 sd^2))`` for ``n_u.n_v > 0``."""
+    w = float(0.0)
+    lu = wp.length(nu)
+    if lu > 0.0:
+        cosang = wp.dot(nv, nu) / (lv * lu)
+        if cosang > 0.0:
+            dp = pu - pv
+            w = wp.exp(-(1.0 - cosang) / (sigma_normal * sigma_normal) - wp.dot(dp, dp) / (2.0 * sd * sd))
+            if not (wp.isfinite(w) and w > 0.0):
+                w = 0.0
+    return w
+
+
 @functools.lru_cache(maxsize=None)
 def filter_kernel(order: int):
     """One pass of the edge-aware filter over mesh neighbours at an SH order (cached)."""
@@ -234,18 +275,12 @@ def filter_kernel(order: int):
         if lv > 0.0 and sd > 0.0:
             for e in range(offsets[v], offsets[v + 1]):
                 u = neighbours[e]
-                nu = normals[u]
-                lu = wp.length(nu)
-                if lu > 0.0:
-                    cosang = wp.dot(nv, nu) / (lv * lu)
-                    if cosang > 0.0:
-                        dp = points[u] - pv
-                        w = wp.exp(-(1.0 - cosang) / (sigma_normal * sigma_normal) - wp.dot(dp, dp) / (2.0 * sd * sd))
-                        if wp.isfinite(w) and w > 0.0:
-                            for i in range(C):
-                                dst[v, i] = dst[v, i] + w * src[u, i]
-                            wsum += w
-                            w2 += w * w
+                w = edge_weight(nv, lv, pv, normals[u], points[u], sigma_normal, sd)
+                if w > 0.0:
+                    for i in range(C):
+                        dst[v, i] = dst[v, i] + w * src[u, i]
+                    wsum += w
+                    w2 += w * w
         inv = 1.0 / wsum
         for i in range(C):
             dst[v, i] = dst[v, i] * inv
@@ -428,6 +463,109 @@ def temporal_kernel(order: int):
         state.reset[v] = code
         state.prev_points[v] = p
         state.prev_normals[v] = n
+
+    return kernel
+
+
+@functools.lru_cache(maxsize=None)
+def warm_filter_kernel(order: int):
+    """One pass of the edge-aware filter (the weights of :func:`filter_kernel`) over the history,
+    carrying its per-vertex variance as for independent inputs (cached)."""
+    C = order * order
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def kernel(
+        offsets: wp.array(dtype=wp.int32),
+        neighbours: wp.array(dtype=wp.int32),
+        points: wp.array(dtype=wp.vec3),
+        normals: wp.array(dtype=wp.vec3),
+        scale: wp.array(dtype=wp.float32),
+        sigma_normal: float,
+        sigma_distance: float,
+        src: wp.array2d(dtype=wp.float32),
+        src_variance: wp.array(dtype=wp.float32),
+        dst: wp.array2d(dtype=wp.float32),
+        dst_variance: wp.array(dtype=wp.float32),
+    ):
+        v = wp.tid()
+        nv = normals[v]
+        lv = wp.length(nv)
+        pv = points[v]
+        sd = sigma_distance * scale[v]
+        for i in range(C):
+            dst[v, i] = src[v, i]
+        wsum = float(1.0)
+        var = src_variance[v]
+        if lv > 0.0 and sd > 0.0:
+            for e in range(offsets[v], offsets[v + 1]):
+                u = neighbours[e]
+                w = edge_weight(nv, lv, pv, normals[u], points[u], sigma_normal, sd)
+                if w > 0.0:
+                    for i in range(C):
+                        dst[v, i] = dst[v, i] + w * src[u, i]
+                    wsum += w
+                    var += w * w * src_variance[u]
+        inv = 1.0 / wsum
+        for i in range(C):
+            dst[v, i] = dst[v, i] * inv
+        dst_variance[v] = var * inv * inv
+
+    return kernel
+
+
+@wp.func
+def warm_weight(frames: float, warm_frames: float, variance: float, filtered_variance: float, distance2: float,
+                limit: int, noise_scale: float):
+    """The blend weight of the filtered history (see :func:`warm_blend_kernel`)."""
+    w = float(0.0)
+    if frames > 0.0 and frames < warm_frames and variance > 0.0:
+        ratio = filtered_variance / variance
+        if ratio < 1.0:
+            u = wp.clamp((frames / warm_frames - ratio) / (1.0 - ratio), 0.0, 1.0)
+            w = 1.0 - wp.sqrt(u)
+            if limit != 0:  # no further than the least mean squared error for the filter's estimated bias
+                removed = noise_scale * (variance - filtered_variance)
+                bias2 = wp.max(distance2 - removed, 0.0)
+                w = wp.min(w, removed / (removed + bias2))
+    return w
+
+
+@functools.lru_cache(maxsize=None)
+def warm_blend_kernel(order: int):
+    """The output where the history is short: ``out = cur + w (B(h) - h)`` (cached)."""
+    C = order * order
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def kernel(
+        frames: wp.array(dtype=wp.float32),
+        warm_frames: float,
+        limit: int,
+        noise_scale: float,
+        history: wp.array2d(dtype=wp.float32),
+        variance: wp.array(dtype=wp.float32),
+        filtered: wp.array2d(dtype=wp.float32),
+        filtered_variance: wp.array(dtype=wp.float32),
+        current: wp.array2d(dtype=wp.float32),
+        out: wp.array2d(dtype=wp.float32),
+        weight: wp.array(dtype=wp.float32),
+    ):
+        v = wp.tid()
+        d2 = float(0.0)
+        for i in range(C):
+            d = filtered[v, i] - history[v, i]
+            d2 += d * d
+        ok = wp.isfinite(d2)
+        w = float(0.0)
+        if ok:
+            w = warm_weight(frames[v], warm_frames, variance[v], filtered_variance[v], d2, limit, noise_scale)
+        if not wp.isfinite(w):
+            w = 0.0
+        for i in range(C):
+            x = current[v, i]
+            if w > 0.0:
+                x = x + w * (filtered[v, i] - history[v, i])
+            out[v, i] = x
+        weight[v] = w
 
     return kernel
 

@@ -69,6 +69,28 @@ def residual_f64(normals, rotations, samples, occluded, order: int, control=None
     return r, var
 
 
+def _edge_weights(offsets, neighbours, points, normals, scale, sigma_normal: float, sigma_distance: float, v: int):
+    """The neighbours of ``v`` that count and their edge-aware weights (:func:`.kernels.edge_weight`)."""
+    p, nrm = points, normals
+    lv = np.linalg.norm(nrm[v])
+    sd = sigma_distance * float(scale[v])
+    out = []
+    if lv <= 0 or sd <= 0:
+        return out
+    for u in neighbours[offsets[v]:offsets[v + 1]]:
+        lu = np.linalg.norm(nrm[u])
+        if lu <= 0:
+            continue
+        cosang = nrm[v] @ nrm[u] / (lv * lu)
+        if cosang <= 0:
+            continue
+        dp = p[u] - p[v]
+        w = np.exp(-(1.0 - cosang) / sigma_normal**2 - dp @ dp / (2.0 * sd * sd))
+        if np.isfinite(w) and w > 0:
+            out.append((int(u), float(w)))
+    return out
+
+
 def filter_f64(offsets, neighbours, points, normals, scale, sigma_normal: float, sigma_distance: float, values):
     """One pass of the edge-aware filter over mesh neighbours (:func:`.kernels.filter_kernel`).
 
@@ -81,27 +103,83 @@ def filter_f64(offsets, neighbours, points, normals, scale, sigma_normal: float,
     out = src.copy()
     gain = np.ones(p.shape[0])
     for v in range(p.shape[0]):
-        lv = np.linalg.norm(nrm[v])
-        sd = sigma_distance * float(scale[v])
-        if lv <= 0 or sd <= 0:
-            continue
         acc, wsum, w2 = src[v].copy(), 1.0, 1.0
-        for u in neighbours[offsets[v]:offsets[v + 1]]:
-            lu = np.linalg.norm(nrm[u])
-            if lu <= 0:
-                continue
-            cosang = nrm[v] @ nrm[u] / (lv * lu)
-            if cosang <= 0:
-                continue
-            dp = p[u] - p[v]
-            w = np.exp(-(1.0 - cosang) / sigma_normal**2 - dp @ dp / (2.0 * sd * sd))
-            if np.isfinite(w) and w > 0:
-                acc += w * src[u]
-                wsum += w
-                w2 += w * w
+        for u, w in _edge_weights(offsets, neighbours, p, nrm, scale, sigma_normal, sigma_distance, v):
+            acc += w * src[u]
+            wsum += w
+            w2 += w * w
         out[v] = acc / wsum
         gain[v] = wsum * wsum / w2
     return out, gain
+
+
+def warm_filter_f64(offsets, neighbours, points, normals, scale, sigma_normal: float, sigma_distance: float, values,
+                    variance):
+    """One pass of the history-aware filter (:func:`.kernels.warm_filter_kernel`): the edge-aware
+    filter's weights, and the per-vertex variance carried as for independent inputs,
+    ``(var_v + sum_u w^2 var_u) / (1 + sum_u w)^2``.
+
+    Returns:
+        ``(filtered (V, C), variance (V,))``.
+    """
+    p = np.asarray(points, np.float64)
+    nrm = np.asarray(normals, np.float64)
+    src = np.asarray(values, np.float64)
+    var = np.asarray(variance, np.float64)
+    out = src.copy()
+    out_var = var.copy()
+    for v in range(p.shape[0]):
+        acc, wsum, vsum = src[v].copy(), 1.0, var[v]
+        for u, w in _edge_weights(offsets, neighbours, p, nrm, scale, sigma_normal, sigma_distance, v):
+            acc += w * src[u]
+            wsum += w
+            vsum += w * w * var[u]
+        out[v] = acc / wsum
+        out_var[v] = vsum / (wsum * wsum)
+    return out, out_var
+
+
+def warm_weight_f64(frames, warm_frames: float, variance, filtered_variance, distance2=None,
+                    noise_scale: float = 1.0) -> np.ndarray:
+    """The per-vertex weight of the filtered history (:func:`.kernels.warm_weight`):
+    ``1 - sqrt(clamp((n / N - rho) / (1 - rho), 0, 1))`` with ``rho = var_B / var_h``, for
+    ``0 < n < N``, ``var_h > 0`` and ``rho < 1``; else 0. With ``distance2`` (``|B(h) - h|^2`` per
+    vertex) at most ``r / (r + b^2)``, ``r = noise_scale (var_h - var_B)``, ``b^2 = max(0, distance2 - r)``."""
+    n = np.asarray(frames, np.float64)
+    vh = np.asarray(variance, np.float64)
+    vb = np.asarray(filtered_variance, np.float64)
+    w = np.zeros(n.shape)
+    for v in range(n.size):
+        if 0 < n[v] < warm_frames and vh[v] > 0:
+            rho = vb[v] / vh[v]
+            if rho < 1:
+                w[v] = 1.0 - np.sqrt(min(max((n[v] / warm_frames - rho) / (1.0 - rho), 0.0), 1.0))
+                if distance2 is not None:
+                    removed = noise_scale * (vh[v] - vb[v])
+                    w[v] = min(w[v], removed / (removed + max(float(distance2[v]) - removed, 0.0)))
+    return w
+
+
+def warm_blend_f64(frames, warm_frames: float, history, variance, filtered, filtered_variance, current,
+                   limit: bool = False, noise_scale: float = 1.0):
+    """The output of the history-aware filter (:func:`.kernels.warm_blend_kernel`):
+    ``current + w (filtered - history)`` per vertex, ``w`` from :func:`warm_weight_f64` (with
+    ``limit``: capped by the least-squares weight for the estimated bias; 0 where the difference is
+    not finite).
+
+    Returns:
+        ``(output (V, C), weight (V,))``.
+    """
+    h = np.asarray(history, np.float64)
+    b = np.asarray(filtered, np.float64)
+    with np.errstate(invalid="ignore"):
+        d = b - h
+        d2 = np.sum(d * d, axis=1)
+    w = warm_weight_f64(frames, warm_frames, variance, filtered_variance, np.where(np.isfinite(d2), d2, 0.0) if limit else None,
+                        noise_scale)
+    w = np.where(np.isfinite(d2), w, 0.0)
+    out = np.array(current, np.float64) + w[:, None] * np.where(w[:, None] > 0, d, 0.0)
+    return out, w
 
 
 def temporal_f64(state: dict, points, normals, scale, fresh, fresh_variance, gain, control, params: dict, raw=None):

@@ -29,6 +29,18 @@ VISIBILITY_FIT = {"model": "auto", "variance": 0.99, "k_max": 64}
 #: reset, cut at z > 8).
 REPROJECT_SOFT = {"reproject": True, "normal_turn": 180.0, "motion": 4.0, "reset": "soft", "threshold": 8.0,
                   "bias_frames": 4}
+#: REPROJECT_SOFT for the visibility control on the figure, with the history-aware filter: vertices
+#: whose history holds fewer than 24 effective frames are filtered further (2 passes), no further
+#: than the least-squares weight for the bias the passes add, the noise they remove taken as 0.1 of
+#: the tracked variance (the tracked one is 3x the actual spread on the figure,
+#: benchmarks/results/hybrid-variance-2026-12-03-cpu.json, and the limit weighs all coefficients
+#: alike while the shading weighs the low bands; 0.33 gives error 1.21x, noise 0.87x / 0.79x).
+#: Figure, 64 rays, against 1024-ray prt.trace in the same run: error 1.198x (1.190x without it),
+#: noise 0.98x / 0.86x at frames 8 / 24 (1.09x / 0.93x without it),
+#: benchmarks/results/hybrid-2026-12-03-cpu-warm-figure-noise.json: python benchmarks/bench_hybrid.py
+#: --scenes figure --samples 64 --controls visibility --noise-frame 8,24 --suffix warm-figure-noise
+#: --variants 'rpsb4={...};warm24n01={..., "warmup_frames": 24, "warmup_noise": 0.1};warm24n033={...}'.
+VISIBILITY_TRACE = {**REPROJECT_SOFT, "warmup_frames": 24.0, "warmup_noise": 0.1}
 
 
 #: SHEXP as control: its world-frame visibility of the blocker spheres (HYB, the sphere budget of
@@ -45,8 +57,15 @@ SHEXP_TRACE = {"alpha": 0.3, "filter_iterations": 3}
 #: its residual is the change of the self-shadowing since the bake, smooth over the surface, so 4
 #: filter passes and a history blended by its estimated bias (soft reset over 4 frames) with a new
 #: frame weighing at least 0.2 (bend, 64 rays: error 0.0259 against 0.0287 for the last estimate as
-#: control with REPROJECT_SOFT, at about the 1024-ray tracer's noise).
-LDPRT_TRACE = {"alpha": 0.2, "filter_iterations": 4, "reset": "soft", "threshold": 8.0, "bias_frames": 4}
+#: control with REPROJECT_SOFT, at about the 1024-ray tracer's noise). The history-aware filter
+#: tops up vertices whose history holds fewer than 12 effective frames (the clip's first frames,
+#: cuts, the soft reset's blends; the moving average alone settles at (2 - alpha) / alpha = 9): on
+#: the bend, 64 rays, against 1024-ray prt.trace, error 1.14x (1.140x without it), noise 0.98x / 0.68x
+#: at frames 8 / 24 (1.10x / 0.73x without it), benchmarks/results/hybrid-2026-12-03-cpu-warm-bend-mse.json:
+#: python benchmarks/bench_hybrid.py --scenes bend --samples 64 --controls ldprt --noise-frame 8,24
+#: --suffix warm-bend-mse --variants 'ldprt4={...};warm12={..., "warmup_frames": 12}'.
+LDPRT_TRACE = {"alpha": 0.2, "filter_iterations": 4, "reset": "soft", "threshold": 8.0, "bias_frames": 4,
+               "warmup_frames": 12.0}
 #: The trace settings each control's harness rows use (others: the stage's defaults).
 CONTROL_TRACE = {"shexp": SHEXP_TRACE, "ldprt": LDPRT_TRACE}
 
@@ -162,10 +181,11 @@ def harness_rows(quick: bool = False) -> list:
     rows.append(HarnessRow(
         "hybrid", "n6 K64 visibility rps",
         stages_for("visibility", 64, training="bundled:figure_train", frames="0:600:3", training_samples=128,
-                   trace=REPROJECT_SOFT),
+                   trace=VISIBILITY_TRACE),
         "shade.radiance", scenes=("figure",), quick=False,
         notes="64 rays per vertex per frame, control: the data-driven visibility model (as "
-              "stages/figure_visibility_diffuse.toml) as transfer; history reprojected by the frames' turn, soft reset",
+              "stages/figure_visibility_diffuse.toml) as transfer; history reprojected by the frames' turn, soft reset, "
+              "filtered further where it is short",
     ))
     for samples in (16, 32):
         rows.append(HarnessRow(

@@ -22,7 +22,11 @@
   cut where it moved more than ``motion`` mean edge lengths or its normal turned more than
   ``normal_turn`` degrees since the last frame, or where the fresh residual disagrees with the
   history by more than ``threshold`` times their combined variance, and fades as the
-  disagreement grows towards that (:mod:`.kernels`).
+  disagreement grows towards that (:mod:`.kernels`). With ``warmup_frames`` ``N > 0`` the output is
+  filtered further (``warmup_passes`` passes over the history, blended in per vertex) where a
+  vertex's history holds fewer than ``N`` effective frames -- the clip's first frames and after
+  cuts -- as far as needed to bring its variance to that of ``N`` frames; the history itself is
+  left as it is (:func:`.kernels.warm_blend_kernel`).
 
   Controls (``control``): ``model`` -- a transfer on the input port ``control`` (the data-driven
   transfer, LDPRT's local transfer with ``space = "local"`` and the tangent frames on ``frames``,
@@ -106,6 +110,18 @@ class HybridTraceStage(FrameStage):
                                    minimum=0, maximum=4),
         "sigma_normal": Param(0.3, float, "normal weight exp(-(1 - n.n') / sigma^2)", minimum=1e-3),
         "sigma_distance": Param(1.0, float, "distance weight width in mean edge lengths", minimum=1e-3),
+        "warmup_frames": Param(0.0, float, "history-aware filter: where a vertex's history holds fewer than this many "
+                               "effective frames (warm-up, after a cut) the output is filtered further, as far as "
+                               "the missing frames' variance needs (0: off)", minimum=0.0, maximum=1000.0),
+        "warmup_passes": Param(2, int, "history-aware filter: passes of the edge-aware filter over the history at "
+                               "full strength", minimum=1, maximum=8),
+        "warmup_limit": Param("mse", str, "history-aware filter: no further than the weight of least mean squared "
+                              "error for the filter's estimated bias (mse), or as far as the missing frames need "
+                              "(none)", choices=("mse", "none")),
+        "warmup_noise": Param(1.0, float, "history-aware filter's limit: the history's actual variance as a fraction "
+                              "of the tracked one (the tracked one is the formula for independent rays; stratified ray "
+                              "sets and filter passes make the actual one smaller, see benchmarks/"
+                              "bench_hybrid_variance.py)", minimum=1e-3, maximum=10.0),
     }
 
     def dims(self):
@@ -197,7 +213,17 @@ class HybridTraceStage(FrameStage):
         self._filter_kernel = kernels.filter_kernel(p["order"])
         self._temporal_kernel = kernels.temporal_kernel(p["order"])
         self._workers = cpu_workers() if dev.is_cpu else 1
-        return {"visibility" if p["quantity"] == "visibility" else "transfer": self._transfer}
+        self._output = self._transfer
+        if p["warmup_frames"] > 0.0:
+            # the filtered output is never fed back: with the last estimate as control it goes to its own array
+            if tp.in_control:
+                self._output = wp.zeros((v, c), dtype=wp.float32, device=dev)
+            self._warm_buffers = [wp.zeros((v, c), dtype=wp.float32, device=dev) for _ in range(2)]
+            self._warm_variance = [wp.zeros(v, dtype=wp.float32, device=dev) for _ in range(2)]
+            self._warm_weight = wp.zeros(v, dtype=wp.float32, device=dev)
+            self._warm_filter_kernel = kernels.warm_filter_kernel(p["order"])
+            self._warm_blend_kernel = kernels.warm_blend_kernel(p["order"])
+        return {"visibility" if p["quantity"] == "visibility" else "transfer": self._output}
 
     def launch(self, state):
         p, dev = self.params, self._dev
@@ -225,11 +251,35 @@ class HybridTraceStage(FrameStage):
         wp.launch(self._temporal_kernel, dim=v, device=dev,
                   inputs=[self._points, self._normals, self._scale, self._control, self._use_control, self._fresh,
                           self._raw, self._variance, self._gain, self._state, self._params, self._transfer])
+        if p["warmup_frames"] > 0.0:
+            self._launch_warmup()
         wp.launch(kernels.advance_kernel, dim=1, device=dev, inputs=[self._step])
+
+    def _launch_warmup(self):
+        """The history-aware filter: ``warmup_passes`` passes over the history (with its variance)
+        and the blend by each vertex's effective frames (:func:`.kernels.warm_blend_kernel`)."""
+        p, dev = self.params, self._dev
+        v = self._transfer.shape[0]
+        st = self._state
+        history = self._transfer if self._params.in_control else st.history
+        src, src_var = history, st.variance
+        for i in range(p["warmup_passes"]):
+            dst, dst_var = self._warm_buffers[i % 2], self._warm_variance[i % 2]
+            wp.launch(self._warm_filter_kernel, dim=v, device=dev,
+                      inputs=[self._offsets, self._neighbours, self._points, self._normals, self._scale,
+                              float(p["sigma_normal"]), float(p["sigma_distance"]), src, src_var, dst, dst_var])
+            src, src_var = dst, dst_var
+        wp.launch(self._warm_blend_kernel, dim=v, device=dev,
+                  inputs=[st.frames, float(p["warmup_frames"]), 1 if p["warmup_limit"] == "mse" else 0,
+                          float(p["warmup_noise"]), history, st.variance, src, src_var, self._transfer,
+                          self._output, self._warm_weight])
 
     def model_bytes(self) -> int:
         v, c = self._transfer.shape
-        return int(4 * (v * c * (3 + min(self.params["filter_iterations"], 2)) + 12 * v))
+        warm = 0
+        if self.params["warmup_frames"] > 0.0:
+            warm = v * c * (2 + (1 if self._output is not self._transfer else 0)) + 3 * v
+        return int(4 * (v * c * (3 + min(self.params["filter_iterations"], 2)) + 12 * v + warm))
 
     def diagnostics(self) -> dict:
         """The last frame: effective samples per vertex (rays x effective frames x the filter's
@@ -244,7 +294,12 @@ class HybridTraceStage(FrameStage):
         var = self._state.variance.numpy().astype(np.float64)
         t = self._transfer.numpy().astype(np.float64)
         norm = float(np.sqrt(np.mean(np.sum(t * t, axis=1)))) or 1.0
+        warm = {}
+        if self.params["warmup_frames"] > 0.0:
+            w = self._warm_weight.numpy().astype(np.float64)
+            warm = {"warmup_weight_mean": float(w.mean()), "warmup_vertices": int(np.count_nonzero(w > 0.0))}
         return {
+            **warm,
             "effective_samples_mean": float(eff.mean()), "effective_samples_min": float(eff.min()),
             "effective_samples_p05": float(np.percentile(eff, 5)),
             "resets_variance": int(np.count_nonzero(reset == 1)), "resets_motion": int(np.count_nonzero(reset == 2)),
