@@ -17,11 +17,12 @@ DATADRIVEN_SCENES = {"figure": ("bundled:figure_train", None), "figure_walk": ("
 
 
 #: The data-driven visibility model used as control: stages/figure_visibility_diffuse.toml's fit
-#: (per cluster the ridge model chosen by blocked cross-validation on the training clip, PCA to
-#: 99 %), so the two share the cached fit. As control it does better than the quadratic model on 12
-#: input components of an earlier version (figure, 64 rays, REPROJECT_SOFT: 0.0409 against 0.0422;
-#: figure_walk 0.0369 against 0.0372), whose settings had been chosen on the figure clip.
-VISIBILITY_FIT = {"model": "auto", "variance": 0.99, "k_max": 64}
+#: (per cluster the ridge model chosen by blocked cross-validation on the training clip, from the
+#: joint rotations or the nearest clusters' centroids in the cluster's frame, PCA to 99 %), so the
+#: two share the cached fit. Figure, 64 rays, REPROJECT_SOFT: 0.0406 (0.0409 from the joint
+#: rotations alone; 0.0422 with the quadratic model on 12 input components of an earlier version,
+#: whose settings had been chosen on the figure clip).
+VISIBILITY_FIT = {"model": "auto", "variance": 0.99, "k_max": 64, "relative": 8}
 
 
 #: hybrid.trace settings that keep the history through a turn (reprojected; no cut by the normal's
@@ -35,11 +36,14 @@ REPROJECT_SOFT = {"reproject": True, "normal_turn": 180.0, "motion": 4.0, "reset
 #: the tracked variance (the tracked one is 3x the actual spread on the figure,
 #: benchmarks/results/hybrid-variance-2026-12-03-cpu.json, and the limit weighs all coefficients
 #: alike while the shading weighs the low bands; 0.33 gives error 1.21x, noise 0.87x / 0.79x).
-#: Figure, 64 rays, against 1024-ray prt.trace in the same run: error 1.198x (1.190x without it),
-#: noise 0.98x / 0.86x at frames 8 / 24 (1.09x / 0.93x without it),
-#: benchmarks/results/hybrid-2026-12-03-cpu-warm-figure-noise.json: python benchmarks/bench_hybrid.py
-#: --scenes figure --samples 64 --controls visibility --noise-frame 8,24 --suffix warm-figure-noise
-#: --variants 'rpsb4={...};warm24n01={..., "warmup_frames": 24, "warmup_noise": 0.1};warm24n033={...}'.
+#: Figure, 64 rays, against 1024-ray prt.trace in the same run, with VISIBILITY_FIT: error 1.185x
+#: (1.179x without it), noise 0.98x / 0.93x at frames 8 / 24 (1.09x / 1.02x without it); 0.33 gives
+#: 1.197x, 0.88x / 0.83x; 12.7x less time per frame (70 ms against 888 ms, load 0.7-2.2),
+#: benchmarks/results/hybrid-2026-12-03-cpu-relative-control-warm.json: python
+#: benchmarks/bench_hybrid.py --scenes figure --samples 64 --controls visibility --noise-frame 8,24
+#: --suffix relative-control-warm --variants 'rpsb4={...};warm24n01={..., "warmup_frames": 24,
+#: "warmup_noise": 0.1};warm24n033={...}'. With the control fitted on the joint rotations alone
+#: (hybrid-2026-12-03-cpu-warm-figure-noise.json): 1.198x, 0.98x / 0.86x.
 VISIBILITY_TRACE = {**REPROJECT_SOFT, "warmup_frames": 24.0, "warmup_noise": 0.1}
 
 
