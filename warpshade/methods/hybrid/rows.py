@@ -45,6 +45,20 @@ REPROJECT_SOFT = {"reproject": True, "normal_turn": 180.0, "motion": 4.0, "reset
 #: "warmup_noise": 0.1};warm24n033={...}'. With the control fitted on the joint rotations alone
 #: (hybrid-2026-12-03-cpu-warm-figure-noise.json): 1.198x, 0.98x / 0.86x.
 VISIBILITY_TRACE = {**REPROJECT_SOFT, "warmup_frames": 24.0, "warmup_noise": 0.1}
+#: The visibility control's training clip, frames and rays per held-out scene (those of the
+#: visibility graphs and harness rows, so that the traced training data is shared with them).
+VISIBILITY_TRAINING = {"figure": ("bundled:figure_train", "0:600:3", 128),
+                       "figure_walk": ("bundled:figure_train", "0:600:3", 128),
+                       "wanderer": ("bundled:wanderer_train", "0:1000:8", 64)}
+#: The trace settings of the visibility control per scene. figure_walk and the wanderer: REPROJECT_SOFT
+#: with 2 filter passes; 64 rays, against 1024-ray prt.trace (its rows in
+#: benchmarks/results/hybrid-2026-12-03-cpu-walk-wanderer.json): figure_walk error 1.11x, noise
+#: 0.66x / 0.56x at frames 8 / 24 (one pass: 1.08x, 1.16x / 1.00x); wanderer 1.16x, 0.90x / 0.84x
+#: (one pass: 1.12x, 1.32x / 1.24x), benchmarks/results/hybrid-2026-12-03-cpu-relative-control-walk-wanderer.json:
+#: python benchmarks/bench_hybrid.py --scenes figure_walk,wanderer --samples 64 --controls visibility
+#: --no-baseline --noise-frame 8,24 --suffix relative-control-walk-wanderer --variants 'rpsb4={...};rpsb4f2={...}'.
+VISIBILITY_TRACES = {"figure": VISIBILITY_TRACE, "figure_walk": {**REPROJECT_SOFT, "filter_iterations": 2},
+                     "wanderer": {**REPROJECT_SOFT, "filter_iterations": 2}}
 
 
 #: SHEXP as control: its world-frame visibility of the blocker spheres (HYB, the sphere budget of
@@ -182,15 +196,17 @@ def harness_rows(quick: bool = False) -> list:
             notes=f"{samples} rays per vertex per frame, control: SHEXP's blocker-sphere visibility (order 6, budget 8); "
                   "short history, 3 filter passes",
         ))
-    rows.append(HarnessRow(
-        "hybrid", "n6 K64 visibility rps",
-        stages_for("visibility", 64, training="bundled:figure_train", frames="0:600:3", training_samples=128,
-                   trace=VISIBILITY_TRACE),
-        "shade.radiance", scenes=("figure",), quick=False,
-        notes="64 rays per vertex per frame, control: the data-driven visibility model (as "
-              "stages/figure_visibility_diffuse.toml) as transfer; history reprojected by the frames' turn, soft reset, "
-              "filtered further where it is short",
-    ))
+    for scene, (training, frames, rays) in VISIBILITY_TRAINING.items():
+        rows.append(HarnessRow(
+            "hybrid", "n6 K64 visibility rps",
+            stages_for("visibility", 64, training=training, frames=frames, training_samples=rays,
+                       trace=VISIBILITY_TRACES[scene]),
+            "shade.radiance", scenes=(scene,), quick=False,
+            notes=f"64 rays per vertex per frame, control: the data-driven visibility model (as "
+                  f"stages/figure_visibility_diffuse.toml, trained on {training.split(':')[-1]}) as transfer; history "
+                  "reprojected by the frames' turn, soft reset; "
+                  + ("filtered further where it is short" if scene == "figure" else "2 filter passes"),
+        ))
     for samples in (16, 32):
         rows.append(HarnessRow(
             "hybrid-glossy", f"n4 K{samples} static", glossy_stages_for(samples, bake_samples=1024), "shade.radiance",
