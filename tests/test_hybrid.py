@@ -465,10 +465,13 @@ def test_visibility_for_rpo_is_bounded_and_close_to_traced(device):
     assert np.all(np.isfinite(out))
 
 
+@pytest.mark.parametrize("trace", [{}, {"warmup_frames": 6.0, "warmup_passes": 3, "warmup_noise": 0.5}],
+                         ids=["plain", "warmup"])
 @pytest.mark.parametrize("control", ["none", "previous"])
-def test_recorded_frames_equal_launches_from_python(device, monkeypatch, control):
-    """The frame counter, the rays, the filter and the history all live in the recorded frame:
-    replaying it gives what launching every kernel from Python gives, with no launch from Python."""
+def test_recorded_frames_equal_launches_from_python(device, monkeypatch, control, trace):
+    """The frame counter, the rays, the filter, the history and the history-aware filter all live in
+    the recorded frame: replaying it gives what launching every kernel from Python gives, with no
+    launch from Python."""
     import warp
 
     from warpshade.scene.state import CPU_REFIT_NOTE
@@ -479,8 +482,8 @@ def test_recorded_frames_equal_launches_from_python(device, monkeypatch, control
     scene = _plane_box(frames=6, teleport_at=4)
     runs = {}
     for capture in (False, True):
-        rt = _graph(samples=4, control=control, filter_iterations=2).compile(scene, device=device, cache_dir=None,
-                                                                             progress=False, capture=capture)
+        rt = _graph(samples=4, control=control, filter_iterations=2, **trace).compile(
+            scene, device=device, cache_dir=None, progress=False, capture=capture)
         rt.step(0.0)
         rt.step(0.0)
         if capture:

@@ -1,6 +1,6 @@
 """hybrid.trace's history-aware filter (``warmup_frames``, ``warmup_passes``): its kernels against
-the float64 mirror, the blend's variance target, a pure-noise stream with a step, and the stage in
-a recorded frame."""
+the float64 mirror, the blend's variance target, a pure-noise stream with a step, and the stage
+(its recorded frame: tests/test_hybrid.py::test_recorded_frames_equal_launches_from_python)."""
 
 import numpy as np
 import pytest
@@ -12,7 +12,7 @@ from warpshade.methods.hybrid import (filter_f64, kernels, surface_neighbours, t
                                       warm_filter_f64, warm_weight_f64)
 from warpshade.scene import Environment, Mesh, Scene
 
-from tolerances import ATOL_FLOAT64, REPLAY_RTOL, assert_close
+from tolerances import ATOL_FLOAT64, assert_close
 
 ORDER = 3
 #: One pass over O(1) values and variances: a sum of <= ~8 float32 products and one division.
@@ -334,31 +334,3 @@ def test_warmup_frames_out_of_range_is_reported(device, value):
     scene = _plane_box(2)
     with pytest.raises(StageError, match="warmup_frames"):
         _graph("none", warmup_frames=value).compile(scene, device=device, cache_dir=None, progress=False)
-
-
-@pytest.mark.parametrize("control", ["none", "previous"])
-def test_recorded_frames_with_warmup_equal_launches_from_python(device, monkeypatch, control):
-    import warp
-
-    from warpshade.scene.state import CPU_REFIT_NOTE
-
-    monkeypatch.setenv("WARPSHADE_THREADS", "1")  # no chunked CPU launches: the frame is one replay
-    scene = _plane_box(6, teleport_at=4)
-    runs = {}
-    for capture in (False, True):
-        rt = _graph(control, warmup_frames=6.0, warmup_passes=3, filter_iterations=2, warmup_noise=0.5).compile(
-            scene, device=device, cache_dir=None, progress=False, capture=capture)
-        rt.step(0.0)
-        rt.step(0.0)
-        if capture:
-            assert rt.program is not None
-            assert rt.program.uncaptured == ([CPU_REFIT_NOTE] if wp.get_device(device).is_cpu else [])
-            launches = []
-            original = warp.launch
-            monkeypatch.setattr(warp, "launch", lambda *a, **k: launches.append(1) or original(*a, **k))
-        runs[capture] = [rt.step(f).numpy().copy() for f in (1.0, 2.0, 5.0, 3.0)]
-        if capture:
-            assert not launches, "a replayed frame makes no kernel launches from Python"
-    size = max(np.abs(a).max() for a in runs[False])
-    for a, b in zip(runs[True], runs[False]):
-        np.testing.assert_allclose(a, b, rtol=0, atol=REPLAY_RTOL * size)

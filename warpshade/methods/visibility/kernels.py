@@ -23,6 +23,8 @@ cluster) and :func:`relative_features_kernel` (thread per cluster and neighbour)
 
 import functools
 
+import numpy as np
+
 from ..._wp import wp
 from ...basis.sh_warp import SHTables, sh_kernels
 from ...geometry.frames import onb_tangent
@@ -39,8 +41,6 @@ def input_rows(weights) -> tuple:
     """Per input component ``k`` the rows ``[lo, hi)`` of ``weights`` (a, k_in) outside which its column
     is zero (a local block reads one cluster's relative inputs or some joints'), int32 arrays; an
     all-zero column gets an empty range."""
-    import numpy as np
-
     nz = np.asarray(weights) != 0.0
     any_ = nz.any(0)
     lo = np.where(any_, nz.argmax(0), 0)
