@@ -38,7 +38,13 @@ GOLDEN_MAX_REL = 5e-3
 #: sunlit_sg_lights difference stayed the same. A fit that tiny rounding differences send to a
 #: slightly different optimum is the likely mechanism. Their limits are twice that spread; a
 #: change of maths moves them more.
-GOLDEN_FIT_SPREAD = {"sunlit_sg_lights": (2e-3, 5e-3), "sunlit_ldprt_glossy": (5e-3, 1e-1), "bend_ldprt_glossy": (5e-4, 5e-3)}
+#: bend_ldprt_wrinkles joins them (issue 37): its wrinkle table is a joint conjugate-gradient fit
+#: of three ZH lobes stopped after 300 iterations, and on one host with numpy's and OpenBLAS's
+#: AVX-512 code paths against their AVX2 ones (the golden's) it moves by 1.1e-4 / 3.4e-4, with
+#: OpenBLAS's Sandybridge kernels by 1.7e-4 / 4.3e-4 (its limit twice the larger; the graph's
+#: other stages agree to 1e-7).
+GOLDEN_FIT_SPREAD = {"sunlit_sg_lights": (2e-3, 5e-3), "sunlit_ldprt_glossy": (5e-3, 1e-1), "bend_ldprt_glossy": (5e-4, 5e-3),
+                     "bend_ldprt_wrinkles": (4e-4, 5e-3)}
 
 
 def golden_path(name: str) -> Path:

@@ -16,6 +16,8 @@ from pathlib import Path
 
 import pytest
 
+from hang import HANG_S
+
 ROOT = Path(__file__).resolve().parents[1]
 BENCHMARKS = ROOT / "benchmarks"
 RESULTS = BENCHMARKS / "results"
@@ -45,8 +47,8 @@ SLOW.add("bench_visibility_frame")
 SLOW.add("bench_visibility_clusters")
 #: bench_visibility_stack (the same training trace and references, the auto and stacked fits).
 SLOW.add("bench_visibility_stack")
-#: Seconds one smoke run may take before it counts as hung.
-TIMEOUT_S = 300
+#: Seconds one smoke run may take before it counts as hung (a hang guard: :mod:`hang`).
+TIMEOUT_S = HANG_S
 
 
 def test_every_benchmark_script_has_a_quick_profile():

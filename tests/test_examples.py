@@ -14,6 +14,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from hang import HANG_S
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -27,7 +29,7 @@ def test_newton_cloth_runs_headless(tmp_path):
     done = subprocess.run(
         [sys.executable, str(ROOT / "examples" / "newton_cloth.py"), "--frames", str(frames), "--cells", str(cells),
          "--samples", "16", "--out", str(out), "--device", "cpu"],
-        cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600,
+        cwd=tmp_path, env=env, capture_output=True, text=True, timeout=HANG_S,
     )
     assert done.returncode == 0, f"examples/newton_cloth.py failed:\n{done.stdout[-2000:]}\n{done.stderr[-3000:]}"
     assert "per frame after it: simulation" in done.stdout, done.stdout

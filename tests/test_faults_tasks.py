@@ -22,6 +22,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from hang import START_S
+
 from warpshade import tasks as task_module
 from warpshade.tasks import CONNECT_TIMEOUT_ENV, DaskExecutor, SerialExecutor, TaskError, executor
 from warpshade.graph import ArtifactCache, GraphSpec, StageSpec
@@ -32,12 +34,12 @@ from warpshade.methods.datadriven.rows import stages_for
 from warpshade.scene import LightingSource
 
 ROOT = Path(__file__).resolve().parents[1]
-#: seconds a connection attempt may run past its timeout (thread hand-offs, closing the client)
-CONNECT_SLACK_S = 2.0
-#: seconds within which orphaned workers must be gone (they poll their parent every 0.5 s)
-ORPHAN_EXIT_S = 5.0
-#: seconds a spawned run may take to start its workers on a loaded 2-core machine
-START_S = 90.0
+#: seconds a connection attempt may run past its timeout (thread hand-offs, closing the client;
+#: generous for a loaded machine: without the timeout the attempt would never return)
+CONNECT_SLACK_S = 10.0
+#: seconds within which orphaned workers must be gone (they poll their parent every 0.5 s; a
+#: hang guard, generous for a loaded machine)
+ORPHAN_EXIT_S = 60.0
 
 
 # ---- family 2: a scheduler that never answers ------------------------------------------------
@@ -196,7 +198,7 @@ def test_workers_and_the_resource_tracker_exit_when_the_run_is_killed(tmp_path):
 def test_an_interrupt_stops_the_pool_without_leaks(tmp_path):
     proc, children, stderr = _start_run(tmp_path, "long")
     os.killpg(proc.pid, signal.SIGINT)  # Ctrl-C in a terminal reaches the whole process group
-    proc.wait(timeout=30)
+    proc.wait(timeout=START_S)
     text = stderr.read_text()
     assert proc.returncode != 0 and "KeyboardInterrupt" in text
     assert "leaked" not in text, text

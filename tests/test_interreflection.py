@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from grids import ground_grid
+from hang import HANG_S
 
 from warpshade.basis import quadrature
 from warpshade.geometry.bvh import Visibility
@@ -455,7 +456,7 @@ def test_quick_mitsuba_cross_check_with_one_bounce(tmp_path):
     pytest.importorskip("mitsuba", reason="Mitsuba 3 not installed (pip install -e '.[validate]')")
     run = subprocess.run(
         [sys.executable, str(ROOT / "benchmarks" / "validate_mitsuba.py"), "--quick", "--bounces", "1", "--out", str(tmp_path)],
-        capture_output=True, text=True, timeout=600, cwd=ROOT,
+        capture_output=True, text=True, timeout=HANG_S, cwd=ROOT,
     )
     assert run.returncode == 0, run.stdout + run.stderr
     report = json.loads(next(tmp_path.glob("mitsuba-*-bounces1-quick.json")).read_text())

@@ -1,15 +1,23 @@
-"""The README matches the code (issue 26, item 5): every ```python block runs as is and every
-command of its ```bash blocks is run, or checked for shape where running it is not possible here.
+"""The README matches the code (issue 26, item 5; issue 37, item 6): its Python blocks run as they
+are, and each command of its ```bash blocks is tested in one of five ways (:func:`how_tested`):
 
-Python blocks run as they are, each in a fresh interpreter in a temporary folder that holds the
-checkout's ``stages/`` (the README's commands run from the checkout's root), with a private
-``$WARPSHADE_CACHE``. Commands run in-process (``warpshade.cli.main``) from such a folder, with
-quick settings given only through documented flags (:data:`QUICK`): ``--frames`` narrowed to one
-validated frame and ``--validate-samples`` lowered. What cannot run here is checked for shape,
-each with its reason (:func:`plan`): installing packages, the test suite itself, starting or
-reaching a Dask cluster, the examples (run by ``tests/test_examples.py``; here their flags are
-parsed), and graphs whose precompute takes minutes (those run up to the start of
-their work: graph, scene, frames, outputs and cache checked, then stopped).
+* **in full**: ``warpshade`` commands other than ``run`` (``demo``, ``list-stages``, ``info``), run
+  in-process (``warpshade.cli.main``) exactly as written;
+* **shortened**: ``warpshade run`` of a graph whose work takes seconds, run in-process with quick
+  settings given only through documented flags (:func:`quick`): ``--frames`` narrowed to the first
+  validated frame, ``--validate-samples`` lowered to :data:`QUICK_SAMPLES`;
+* **started**: ``warpshade run`` of a graph whose precompute takes minutes (:data:`LONG_PRECOMPUTE`),
+  run up to the start of its work (graph, scene, frames, outputs and cache checked), then stopped;
+* **parsed**: commands that need a Dask cluster at ``tcp://HOST:8786``: their flags are parsed by
+  the CLI's own parser and the graph file checked;
+* **checked**: commands that cannot run inside the suite: ``pip install`` (the extras must exist),
+  the test suite itself, starting a Dask scheduler or worker, and the examples (run headless by
+  ``tests/test_examples.py``; here their flags are parsed by the example's own parser).
+
+Each Python block and each command runs in a fresh temporary folder that holds the checkout's
+``stages/`` (the README's commands run from the checkout's root), with a private
+``$WARPSHADE_CACHE``. The README's sentence about this test gives the count of each kind, and
+:func:`test_the_readme_says_how_its_commands_are_tested` keeps it true.
 """
 
 import os
@@ -22,6 +30,8 @@ import tomllib
 from pathlib import Path
 
 import pytest
+
+from hang import HANG_S
 
 from warpshade import cli
 from warpshade.graph import GraphSpec
@@ -107,6 +117,31 @@ def quick(argv: list[str]) -> list[str]:
     return out
 
 
+#: How each kind of :func:`plan` is named in the README's sentence about this test.
+KINDS = ("in full", "shortened", "started", "parsed", "checked")
+
+
+def how_tested(command: str) -> str:
+    """Which of :data:`KINDS` the README command is tested by (module docstring)."""
+    how, argv, _ = plan(command)
+    if how == "run":
+        words = shlex.split(command)
+        return "in full" if argv == words[words.index("warpshade") + 1:] else "shortened"
+    return {"shape": "started", "parse": "parsed", "check": "checked"}[how]
+
+
+def test_the_readme_says_how_its_commands_are_tested():
+    """The README's sentence about this test gives the number of commands of each kind."""
+    text = " ".join(README.read_text().split())
+    counts = {kind: sum(how_tested(c) == kind for c in commands()) for kind in KINDS}
+    sentence = re.search(r"`tests/test_readme\.py` runs (.*?)\.(?: |$)", text)
+    assert sentence, "the README has no sentence on what tests/test_readme.py runs"
+    said = sentence.group(1)
+    for kind, n in counts.items():
+        assert re.search(rf"\b{n} {kind}\b", said), (f"README: the sentence on tests/test_readme.py should say "
+                                                     f"'{n} {kind}' (counts now: {counts}):\n{said}")
+
+
 @pytest.fixture
 def readme_dir(tmp_path, monkeypatch):
     """A temporary working folder holding the checkout's stages/, with a private artifact cache."""
@@ -129,7 +164,7 @@ def test_python_block_runs_as_is(index, readme_dir):
     script.write_text(block)
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
     done = subprocess.run([sys.executable, script.name], cwd=readme_dir, env=env, capture_output=True, text=True,
-                          timeout=300)
+                          timeout=HANG_S)
     assert done.returncode == 0, f"README python block {index}:\n{block}\n{done.stderr[-3000:]}"
 
 

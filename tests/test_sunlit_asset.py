@@ -14,6 +14,8 @@ from warpshade.scene import Texture
 from warpshade.usd_assets import generator
 from warpshade.usd_assets.generator import sunlit
 
+from asset_compare import asset_differences
+
 ASSETS = bundled_asset_directory()
 SUNLIT_FILES = ["sunlit.usda", "sunlit_sky.hdr", "sunlit_knot_roughness.png", "sunlit_ground_diffuse.png",
                 "sunlit_ground_roughness.png"]
@@ -40,8 +42,9 @@ def test_generator_reproduces_the_bundled_files(tmp_path):
     total = 0
     for name in SUNLIT_FILES:
         total += os.path.getsize(os.path.join(ASSETS, name))
-        with open(os.path.join(ASSETS, name), "rb") as a, open(tmp_path / name, "rb") as b:
-            assert a.read() == b.read(), f"{name} differs: rerun python -m warpshade.usd_assets.generator --scenes sunlit"
+        differences = asset_differences(os.path.join(ASSETS, name), tmp_path / name)  # values, not bytes
+        assert not differences, (f"{name} differs: rerun python -m warpshade.usd_assets.generator --scenes sunlit\n"
+                                 + "\n".join(differences))
     assert total < MAX_TOTAL_BYTES, f"sunlit files total {total} bytes"
     assert "sunlit" not in generator.SCENES  # regenerated explicitly, like ripples
 

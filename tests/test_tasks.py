@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import task_helpers as th
+from hang import START_S
 
 from warpshade import tasks as task_module
 from warpshade.tasks import DaskExecutor, ProcessExecutor, SerialExecutor, TaskError, executor
@@ -36,7 +37,7 @@ def cluster():
 @pytest.fixture
 def dask_executor(cluster):
     with DaskExecutor(cluster.scheduler_address) as ex:
-        ex.client.wait_for_workers(2, timeout=60)
+        ex.client.wait_for_workers(2, timeout=START_S)
         yield ex
 
 
@@ -85,7 +86,7 @@ def test_dask_matches_serial(dask_executor, cluster):
 # ---- a worker killed mid-run -------------------------------------------------------------------
 def _kill_a_running_worker(marker_dir: Path, killed: list, stop: threading.Event, after_done: int = 2) -> None:
     """Once ``after_done`` tasks finished, SIGKILL the process of one task still running."""
-    deadline = time.monotonic() + 30.0
+    deadline = time.monotonic() + START_S
     while not stop.is_set() and time.monotonic() < deadline:
         done = {int(p.name.split("-")[1]) for p in marker_dir.glob("done-*")}
         if len(done) >= after_done:
@@ -131,7 +132,7 @@ def test_local_pool_survives_a_killed_worker(tmp_path):
 def test_dask_survives_a_killed_worker(dask_executor, tmp_path):
     before = set(dask_executor.client.run(os.getpid).values())
     assert _map_while_killing(dask_executor, tmp_path) in before
-    dask_executor.client.wait_for_workers(2, timeout=60)  # the nanny starts it again
+    dask_executor.client.wait_for_workers(2, timeout=START_S)  # the nanny starts it again
 
 
 def test_a_task_that_keeps_killing_its_worker_is_named():

@@ -1,19 +1,25 @@
-"""The bundled scenes: the generator reproduces them byte for byte, their structure, `warpshade info`,
-and the training / held-out clips of the two characters (figure, wanderer) for data-driven PRT."""
+"""The bundled scenes: the generator reproduces their values within stated tolerances
+(``tests/asset_compare.py``: exact structure, topology and metadata, floating values to ~1e-6, as
+bytes differ by ulps between machines), their structure, `warpshade info`, and the training /
+held-out clips of the two characters (figure, wanderer) for data-driven PRT."""
 
 import dataclasses
 import os
 
 import numpy as np
 import pytest
+from pxr import Sdf
 
 from warpshade.cli import main
 from warpshade.io import bundled_asset_directory, load_usd
+from warpshade.io.images import read_hdr, write_hdr
 from warpshade.scene import Scene
 from warpshade.usd_assets import generator
 from warpshade.usd_assets.generator import figure, motions, wanderer
 from warpshade.usd_assets.generator.bend import bend_joint_rotations
 from warpshade.usd_assets.generator.cloth import cloth_points
+
+from asset_compare import MERL_RTOL, RTOL, asset_differences, hdr_step
 
 ASSETS = bundled_asset_directory()
 FILES = ["sky.hdr", "blockers.usda", "figure.usda", "figure_orbit.usda", "cloth.usda", "bend.usda", "dish.usda",
@@ -60,15 +66,231 @@ def clips():
     return out
 
 
-def test_generator_reproduces_the_bundled_files(tmp_path):
-    written = generator.generate(str(tmp_path))
+@pytest.fixture(scope="module")
+def generated(tmp_path_factory):
+    """The generator's output, written once for the module: (directory, written paths)."""
+    out = tmp_path_factory.mktemp("generated")
+    return out, generator.generate(str(out))
+
+
+def test_generator_reproduces_the_bundled_files(generated):
+    out, written = generated
     assert sorted(os.path.basename(p) for p in written) == sorted(FILES + CLIP_FILES)
+    differences = []
     for name in FILES + CLIP_FILES:
         bundled = os.path.join(ASSETS, name)
         size = os.path.getsize(bundled)
         assert size < (MAX_CLIP_BYTES if name in CLIP_FILES else MAX_BYTES), f"{name} is {size} bytes"
-        with open(bundled, "rb") as a, open(tmp_path / name, "rb") as b:
-            assert a.read() == b.read(), f"{name} differs from the generator's output: rerun python -m warpshade.usd_assets.generator"
+        differences += asset_differences(bundled, out / name)
+    assert not differences, ("the generator's output differs from the bundled files: rerun python -m "
+                             "warpshade.usd_assets.generator\n" + "\n".join(differences))
+
+
+# ---- the comparison catches real changes, and only those ----------------------------------------
+#: A real change of a scene in the checks below: 1e-4 of its size (100 x RTOL).
+CHANGE = 1e-4
+#: The cloth sheet's size (m), for a change of one of its points.
+CLOTH_SIZE = 2.0
+SMALL_SPHERE = "/World/Blockers/SmallSphere.xformOp:translate"
+BOX_MESH = "/World/Blockers/Box/Mesh"
+
+
+def _edited_usd(src, dst, edit):
+    """``src`` with ``edit(layer)`` applied, written to ``dst`` (its extension picks usda or usdc)."""
+    layer = Sdf.Layer.OpenAsAnonymous(str(src))
+    edit(layer)
+    assert layer.Export(str(dst)), dst
+    return dst
+
+
+def _nudged(value, type_name: str):
+    """``value`` moved by an ulp-level amount: float32 and half values by one ulp (towards +inf),
+    float64 ones by 1e-12 of themselves; anything else unchanged."""
+    if isinstance(value, float):
+        if type_name in ("float", "half"):
+            x = (np.float32 if type_name == "float" else np.float16)(value)
+            return float(np.nextafter(x, type(x)(np.inf)))
+        return value * (1.0 + 1e-12)
+    if type(value).__module__ not in ("pxr.Vt", "pxr.Gf"):
+        return value
+    try:
+        array = np.asarray(value)
+    except Exception:
+        return value
+    if array.dtype.kind != "f":
+        return value
+    if array.dtype == np.float64:
+        moved = array * (1.0 + 1e-12)
+    else:
+        moved = np.nextafter(array, np.array(np.inf, array.dtype))
+    if type(value).__module__ == "pxr.Vt":
+        return type(value).FromNumpy(moved)
+    return type(value)(*moved.ravel().tolist())
+
+
+def _nudge_every_float(layer):
+    paths = []
+    layer.Traverse(layer.pseudoRoot.path, paths.append)
+    for path in paths:
+        attr = layer.GetAttributeAtPath(path) if path.IsPropertyPath() else None
+        if attr is None:
+            continue
+        type_name = str(attr.typeName)
+        if attr.HasDefaultValue():
+            attr.default = _nudged(attr.default, type_name)
+        for t in layer.ListTimeSamplesForPath(path):
+            layer.SetTimeSample(path, t, _nudged(layer.QueryTimeSample(path, t), type_name))
+    layer.pseudoRoot.SetInfo("metersPerUnit", _nudged(layer.pseudoRoot.GetInfo("metersPerUnit"), "double"))
+
+
+@pytest.mark.parametrize("name", FILES + CLIP_FILES)
+def test_comparison_accepts_the_same_file(generated, name):
+    assert asset_differences(generated[0] / name, generated[0] / name) == []
+
+
+@pytest.mark.parametrize("name", ["blockers.usda", "figure_orbit.usda", "cloth.usda", "figure_train.usda", "wanderer_test.usdc"])
+def test_comparison_accepts_ulp_level_differences_of_a_scene(generated, tmp_path, name):
+    """Every floating value one float32 ulp (float64: 1e-12) away: what another machine may write."""
+    src = generated[0] / name
+    assert asset_differences(src, _edited_usd(src, tmp_path / f"same_{name}", lambda layer: None)) == []
+    nudged = _edited_usd(src, tmp_path / name, _nudge_every_float)
+    assert nudged.read_bytes() != src.read_bytes()
+    assert asset_differences(src, nudged) == []
+
+
+def test_comparison_accepts_one_rgbe_step_in_every_pixel(generated, tmp_path):
+    """Every value a quantisation step lower (renormalised where the mantissa was 128), as when each
+    float radiance lay just at a quantisation boundary and another machine computed it an ulp lower."""
+    src = generated[0] / "sky.hdr"
+    image = read_hdr(src)
+    lower = image.astype(np.float64) - 0.5 * hdr_step(image)[..., None]  # the lower boundary of each value's step
+    write_hdr(tmp_path / "sky.hdr", np.nextafter(lower.astype(np.float32), np.float32(0.0)))
+    changed = read_hdr(tmp_path / "sky.hdr")
+    assert np.mean(changed < image) > 0.9
+    assert asset_differences(src, tmp_path / "sky.hdr") == []
+
+
+def _merl_copy(src, dst, change):
+    """``src`` with its float64 values passed through ``change(values)``."""
+    raw = src.read_bytes()
+    values = np.frombuffer(raw, "<f8", offset=12).copy()
+    dst.write_bytes(raw[:12] + np.ascontiguousarray(change(values), "<f8").tobytes())
+    return dst
+
+
+def test_comparison_of_measured_tables(generated, tmp_path):
+    src = generated[0] / "measured_coating.binary"
+    close = _merl_copy(src, tmp_path / "close.binary", lambda v: np.where(v > 0.0, v * (1.0 + 1e-12), v))
+    assert close.read_bytes() != src.read_bytes() and asset_differences(src, close) == []
+
+    def one_value(v):
+        k = int(np.flatnonzero(v > 0.0)[len(np.flatnonzero(v > 0.0)) // 2])  # a mid-table value, ~1e-4 of the peak
+        v[k] *= 1.0 + 1e-6
+        return v
+
+    changed = asset_differences(src, _merl_copy(src, tmp_path / "changed.binary", one_value))
+    assert len(changed) == 1 and "relative difference 1e-06" in changed[0] and "1 of 20736 values" in changed[0], changed
+    assert 1e-6 > 100 * MERL_RTOL
+
+    def invalid(v):
+        v[int(np.flatnonzero(v < 0.0)[0])] = 0.0
+        return v
+
+    changed = asset_differences(src, _merl_copy(src, tmp_path / "invalid.binary", invalid))
+    assert len(changed) == 1 and "invalid cells differ" in changed[0], changed
+
+
+def test_comparison_catches_a_changed_pixel(generated, tmp_path):
+    src = generated[0] / "sky.hdr"
+    image = read_hdr(src)
+    image[20, 40] *= 1.03
+    write_hdr(tmp_path / "sky.hdr", image)
+    changed = asset_differences(src, tmp_path / "sky.hdr")
+    assert len(changed) == 1 and "pixel (row 20, column 40)" in changed[0] and "1 of 8192 pixels" in changed[0], changed
+
+
+def _scene_size(layer) -> float:
+    extent = np.asarray(layer.GetAttributeAtPath("/World/Ground.extent").default)
+    return float(np.ptp(extent, axis=0).max())  # the ground plane, 6 m
+
+
+def _move_sample(path, time, offset):
+    def edit(layer):
+        value = layer.QueryTimeSample(path, time)
+        layer.SetTimeSample(path, time, value + type(value)(*(offset * _scene_size(layer))))
+    return edit
+
+
+def _set_element(path, index, change, time=None):
+    """Change one element of an array attribute's default (or time sample) by ``change(element, layer)``."""
+    def edit(layer):
+        attr = layer.GetAttributeAtPath(path)
+        value = attr.default if time is None else layer.QueryTimeSample(path, time)
+        array = np.array(value)
+        array[index] = change(array[index], layer)
+        new = type(value).FromNumpy(array)
+        if time is None:
+            attr.default = new
+        else:
+            layer.SetTimeSample(path, time, new)
+    return edit
+
+
+def _drop_box(layer):
+    del layer.GetPrimAtPath("/World/Blockers").nameChildren["Box"]
+
+
+def _retime_sample(layer):
+    value = layer.QueryTimeSample(SMALL_SPHERE, 12.0)
+    layer.EraseTimeSample(SMALL_SPHERE, 12.0)
+    layer.SetTimeSample(SMALL_SPHERE, 12.5, value)
+
+
+def _set_end_time(layer):
+    layer.endTimeCode = 60
+
+
+def _set_up_axis(layer):
+    layer.pseudoRoot.SetInfo("upAxis", "Y")
+
+
+def _rename_texture(layer):
+    layer.GetAttributeAtPath("/World/Sky.inputs:texture:file").default = Sdf.AssetPath("./sky2.hdr")
+
+
+#: Name -> (file, edit, text in every reported difference, text in one of them).
+REAL_CHANGES = {
+    "translate sample": ("blockers.usda", _move_sample(SMALL_SPHERE, 30.0, np.array([CHANGE, 0, 0])),
+                         f"{SMALL_SPHERE} timeSamples[30.0]", "of the largest magnitude"),
+    "static point": ("blockers.usda", _set_element(f"{BOX_MESH}.points", (7, 2), lambda x, layer: x + CHANGE * _scene_size(layer)),
+                     f"{BOX_MESH}.points default", "at element (7, 2)"),
+    "topology index": ("blockers.usda", _set_element(f"{BOX_MESH}.faceVertexIndices", 5, lambda x, layer: (x + 1) % 150),
+                       f"{BOX_MESH}.faceVertexIndices default", "1 of 384 values differ (element (5,)"),
+    "prim dropped": ("blockers.usda", _drop_box, "/World/Blockers", "spec /World/Blockers/Box is missing"),
+    "sample time": ("blockers.usda", _retime_sample, f"{SMALL_SPHERE} timeSamples",
+                    "keys differ (bundled only: [12.0], generated only: [12.5])"),
+    "end time code": ("blockers.usda", _set_end_time, "<layer> endTimeCode", "bundled 59"),
+    "up axis": ("blockers.usda", _set_up_axis, "<layer> upAxis", "bundled 'Z', generated 'Y'"),
+    "asset path": ("blockers.usda", _rename_texture, "/World/Sky.inputs:texture:file default", "sky2.hdr"),
+    "cloth point in one sample": ("cloth.usda", _set_element("/World/Cloth.points", (123, 1),
+                                                             lambda x, layer: x + CHANGE * CLOTH_SIZE, time=17.0),
+                                  "/World/Cloth.points timeSamples[17.0]", "1 of 2700 values differ"),
+    "joint rotation": ("figure_train.usda", _set_element("/World/Figure/Anim.rotations", (3, 0), lambda x, layer: x + CHANGE, time=100.0),
+                       "/World/Figure/Anim.rotations timeSamples[100.0]", "at element (3, 0)"),
+    "joint weight (crate)": ("wanderer_test.usdc", _set_element("/World/Wanderer/Body.primvars:skel:jointWeights", 10,
+                                                                lambda x, layer: x + CHANGE),
+                             "/World/Wanderer/Body.primvars:skel:jointWeights default", "at element (10,)"),
+}
+
+
+@pytest.mark.parametrize("change", sorted(REAL_CHANGES))
+def test_comparison_catches_a_real_change_of_a_scene(generated, tmp_path, change):
+    name, edit, everywhere, somewhere = REAL_CHANGES[change]
+    src = generated[0] / name
+    changed = asset_differences(src, _edited_usd(src, tmp_path / name, edit))
+    assert changed and all(name in m and everywhere in m for m in changed), changed
+    assert any(somewhere in m for m in changed), changed
+    assert CHANGE >= 100 * RTOL
 
 
 def test_blockers_structure():

@@ -7,6 +7,8 @@ from pathlib import Path
 
 import pytest
 
+from hang import HANG_S
+
 from warpshade.io import bundled_asset_directory
 
 pytest.importorskip("mitsuba", reason="Mitsuba 3 not installed (pip install -e '.[validate]')")
@@ -29,7 +31,7 @@ MAX_ENVMAP_MAPPING_ERROR = 1e-4
 def test_quick_validation_agrees_with_mitsuba(tmp_path):
     run = subprocess.run(
         [sys.executable, str(ROOT / "benchmarks" / "validate_mitsuba.py"), "--quick", "--out", str(tmp_path)],
-        capture_output=True, text=True, timeout=600, cwd=ROOT,
+        capture_output=True, text=True, timeout=HANG_S, cwd=ROOT,
     )
     assert run.returncode == 0, run.stdout + run.stderr
     reports = list(tmp_path.glob("mitsuba-*-quick.json"))
@@ -66,7 +68,7 @@ def test_quick_glossy_validation_agrees_with_mitsuba(tmp_path):
     run = subprocess.run(
         [sys.executable, str(ROOT / "benchmarks" / "validate_mitsuba.py"), "--quick", "--glossy", "beckmann", "ggx",
          "--point-light", "--scene", str(Path(bundled_asset_directory()) / "blockers.usda"), "--out", str(tmp_path)],
-        capture_output=True, text=True, timeout=600, cwd=ROOT,
+        capture_output=True, text=True, timeout=HANG_S, cwd=ROOT,
     )
     assert run.returncode == 0, run.stdout + run.stderr
     reports = list(tmp_path.glob("mitsuba-glossy-*-quick.json"))
@@ -105,7 +107,7 @@ def test_quick_anisotropic_validation_agrees_with_mitsuba(tmp_path):
     run = subprocess.run(
         [sys.executable, str(ROOT / "benchmarks" / "validate_mitsuba_aniso.py"), "--quick", "--point-light",
          "--out", str(tmp_path)],
-        capture_output=True, text=True, timeout=600, cwd=ROOT,
+        capture_output=True, text=True, timeout=HANG_S, cwd=ROOT,
     )
     assert run.returncode == 0, run.stdout + run.stderr
     report = json.loads(next(tmp_path.glob("mitsuba-aniso-*-quick.json")).read_text())

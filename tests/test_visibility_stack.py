@@ -14,7 +14,7 @@ from tolerances import ATOL_FLOAT32
 
 from warpshade.methods.visibility import fit_visibility, predict_f64
 from warpshade.methods.visibility.mirror import inputs_f64
-from warpshade.methods.visibility.select import blocked_folds, candidates, fit_selected, prefix_features
+from warpshade.methods.visibility.select import blocked_folds, candidates, fit_selected, penalty_scale, prefix_features
 from warpshade.methods.visibility.stack import fit_stack, stack_weights, union_features, union_map
 
 from test_visibility import _run_predict, _serial
@@ -92,8 +92,8 @@ def test_out_of_fold_predictions_are_the_folds_own_maps(rng):
     cands = candidates({"global": (x, ("linear", "quadratic"))}, y, splits, oof=True)
     for c in cands[::3]:
         f = prefix_features(x, c["kind"], c["inputs"])
-        for tr, va in splits:
-            w, b = fit_selected(f[tr], y[tr], "linear", f.shape[1], c["penalty"])
+        for tr, va in splits:  # every fold's penalty in the unit of every training frame's features
+            w, b = fit_selected(f[tr], y[tr], "linear", f.shape[1], c["penalty"], scale=penalty_scale(f))
             np.testing.assert_allclose(c["oof"][va], f[va] @ w.T + b, atol=1e-9)
         assert abs(float(((c["oof"] - y) ** 2).sum()) - c["sse"]) < 1e-9 * max(c["sse"], 1.0)
 

@@ -51,7 +51,7 @@ import time
 import numpy as np
 from scipy.optimize import minimize
 
-from .select import RIDGE_GRID
+from .select import RIDGE_GRID, margin_penalty
 
 __all__ = ["FOLDS", "expand_features", "fit_network", "folds", "metric_apply", "metric_inverse", "network_forward", "pca_size",
            "warm_start"]
@@ -112,10 +112,13 @@ def _ridge_path(x, y, penalties):
 
 
 def _ridge_cv(x, y, splits):
-    """Mean validation SSE per entry of :data:`RIDGE_GRID` (relative to each fold's s_max^2)."""
+    """Summed validation SSE per entry of :data:`RIDGE_GRID`, in units of the largest squared
+    singular value of the centred inputs over every training frame, in every fold as in the final
+    fit (:func:`.select.penalty_scale`: a fold's own would be of rounding size where its training
+    frames share one pose)."""
     sse = np.zeros(RIDGE_GRID.size)
+    _, smax = _ridge_path(x, y, [0.0])
     for tr, va in splits:
-        _, smax = _ridge_path(x[tr], y[tr], [0.0])
         fits, _ = _ridge_path(x[tr], y[tr], RIDGE_GRID * max(smax, 1e-30))
         for g, (w, b) in enumerate(fits):
             r = x[va] @ w.T + b - y[va]
@@ -125,7 +128,9 @@ def _ridge_cv(x, y, splits):
 
 def _ridge_fit(x, y, splits):
     sse = _ridge_cv(x, y, splits)
-    g = int(np.argmin(sse))
+    g = margin_penalty(sse)
+    if g < 0:
+        raise ValueError("visibility fit: no ridge penalty has a finite validation error (inputs or visibility not finite)")
     _, smax = _ridge_path(x, y, [0.0])
     (w, b), = _ridge_path(x, y, [RIDGE_GRID[g] * max(smax, 1e-30)])[0]
     return w, b, float(sse[g]), float(RIDGE_GRID[g])

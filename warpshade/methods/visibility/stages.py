@@ -28,6 +28,7 @@ from ..stage import FrameStage, Param, Port, PrecomputeStage, StageError, regist
 from . import cloth, kernels
 from .model import FRAME_KINDS, METRICS, MODELS, fit_visibility, model_from_arrays
 from .relative import relative_features_f64
+from .select import FOLD_TRAIN_MIN, fewest_frames
 from .stack import TOTALS
 from .training import FEATURE_SOURCES, dense_skin_weights, mesh_ids, rest_points
 
@@ -68,8 +69,11 @@ class VisibilityDataStage(TrainingClipStage):
             idx = parse_frame_selection(p["frames"], train, where + ": parameter 'frames'")
         except ValueError as exc:
             raise StageError(str(exc) if str(exc).startswith("stage") else f"{where}: {exc}") from None
-        if idx.size < 4:
-            raise StageError(f"{where}: parameter 'frames' selects {idx.size} frame(s); the model needs at least 4")
+        fewest = fewest_frames()
+        if idx.size < fewest:
+            raise StageError(f"{where}: parameter 'frames' selects {idx.size} frame(s); the model needs at least "
+                             f"{fewest} (its blocked cross-validation trains every fold on at least "
+                             f"{FOLD_TRAIN_MIN} frames)")
         out = {}
         if p["features"] == "joints":
             try:
