@@ -228,6 +228,11 @@ class GraphSpec:
                 self._check_types(where, stages, name, port, want, wire, dims)
                 wiring[name][port] = wire
 
+        for name, st in stages.items():  # each stage's own checks of what feeds it, before any work
+            try:
+                st.check_wiring({port: (stages.get(w.provider), w.port) for port, w in wiring[name].items()})
+            except StageError as exc:
+                raise GraphError(f"{where}: {exc}") from None
         order = self._topological_order(where, stages, wiring)
         if "." not in self.output:
             raise GraphError(f"{where}: output {self.output!r} is not 'stage.port'")
@@ -410,4 +415,6 @@ class GraphSpec:
         if lighting is None:
             lighting = self.lighting_source(scene)
         stages, wiring = self._stages_for_run({"V": scene.vertex_count, "T": len(scene.frames), "F": scene.triangle_count})
+        for st in stages:  # parameter, file-header and scene checks of every stage before any precompute
+            st.check_scene(scene)
         return Runtime(self, scene, stages, wiring, device=device, lighting=lighting, **kwargs)

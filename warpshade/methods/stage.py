@@ -211,6 +211,21 @@ class Stage:
     def describe(self) -> dict:
         return {"name": self.name, "type": self.type_name, "kind": self.kind, "params": dict(self.params)}
 
+    # ---- checks before any work -----------------------------------------------------------
+    def check_wiring(self, upstream: dict) -> None:
+        """Raise StageError when this stage cannot run with what feeds it: ``upstream`` maps each
+        input port to ``(provider, port)``, the provider a :class:`Stage` (its ``params`` and
+        ``type_name`` readable) or None for the scene. Called when the graph is checked, before any
+        scene is loaded or any work done (e.g. a model fitted in a frame this stage cannot take,
+        an order above the provider's). Only parameters and wiring: nothing is computed."""
+
+    def check_scene(self, scene) -> None:
+        """Raise StageError when this stage cannot run on ``scene`` (e.g. a glossy stage with no
+        viewer, a file parameter whose header is wrong): called by ``GraphSpec.compile`` after
+        the scene is loaded and before any precompute, so that a parameter-only problem is not
+        found after minutes of baking. Only parameters, file headers and the scene's
+        description: nothing is computed."""
+
 
 class PrecomputeStage(Stage):
     """A stage that runs once per scene and parameters; its artifacts are cached on disk.
