@@ -15,6 +15,12 @@ Outputs in ``--out``:
   each with per-vertex ``primvars:displayColor`` (linear RGB radiance) per frame;
 * ``newton_cloth_<frame>.png`` -- previews of the first, middle and last frames.
 
+They are planned like the outputs of ``warpshade run`` (:func:`warpshade.measure.outputs.plan_outputs`):
+a file of one of those names that this example did not write there itself (the folder's manifest,
+``.warpshade-outputs.json``, says which it did) is never replaced. The arguments and the output
+folder are checked before the simulation starts: a problem is a usage error (exit status 2) that
+names the flag.
+
 It prints the time per frame split into simulation and shading, and exits non-zero when a
 point or colour is not finite (the NaN check). Run it headless::
 
@@ -28,6 +34,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -131,22 +138,61 @@ def shading_scene(rest_points: np.ndarray, faces: np.ndarray, point_samples: np.
                              lights=[Environment.sky()], camera=camera, up_axis="Z")
 
 
-def main(argv=None) -> int:
-    args = build_parser().parse_args(argv)
-    if args.frames < 1 or args.cells < 1:
-        raise SystemExit("newton_cloth: --frames and --cells must be >= 1")  # the graph checks --samples
+def check_arguments(parser: argparse.ArgumentParser, args):
+    """Everything about the arguments that can go wrong, found before any simulation: the counts,
+    the device, the shading graph's parameters (``--samples``) and the files ``--out`` would get.
+    A problem ends the program as a usage error (exit status 2) naming the flag.
+
+    Returns:
+        ``(device, graph, plan)``: the Warp device, the shading graph and the checked output plan
+        (:func:`warpshade.measure.outputs.plan_outputs`).
+    """
+    for flag, value in (("--frames", args.frames), ("--cells", args.cells)):
+        if value < 1:
+            parser.error(f"argument {flag}: must be >= 1, got {value}")
     import warp as wp
 
-    from warpshade.graph import GraphSpec, StageSpec
+    from warpshade.graph import GraphError, GraphSpec, StageError, StageSpec
+    from warpshade.measure.outputs import plan_outputs
+
+    try:
+        device = wp.get_device(args.device)
+    except (ValueError, RuntimeError) as exc:
+        parser.error(f"argument --device: {exc} (this machine has {', '.join(str(d) for d in wp.get_devices())})")
+    graph = GraphSpec([StageSpec("shade", "prt.trace", {"order": 3, "samples": args.samples})], "shade.radiance",
+                      name="newton_cloth")
+    try:
+        graph.check()
+    except (GraphError, StageError) as exc:
+        parser.error(f"argument --samples: {exc}")
+    if args.out.exists() and not args.out.is_dir():
+        parser.error(f"argument --out: {args.out} is an existing file, not a directory")
+    try:
+        args.out.mkdir(parents=True, exist_ok=True)
+        tempfile.TemporaryFile(dir=args.out).close()
+    except OSError as exc:
+        parser.error(f"argument --out: cannot write into {args.out} ({exc.strerror or exc})")
+    # the outputs, planned like those of `warpshade run`: never over a file this example did not write there
+    plan = plan_outputs(args.out, "newton_cloth", "newton_cloth.usda", range(args.frames), report=False)
+    try:
+        plan.check()
+    except (OSError, ValueError) as exc:
+        parser.error(f"argument --out: {exc.strerror if isinstance(exc, OSError) and exc.strerror else exc}")
+    return device, graph, plan
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    device, graph, plan = check_arguments(parser, args)
+    import warp as wp
+
     from warpshade.io.usd_write import write_vertex_colors
     from warpshade.render import render
 
-    device = wp.get_device(args.device)
     with wp.ScopedDevice(device):
         sim = ClothSim(args.cells, device)
         rest = sim.particle_q.numpy().astype(np.float64)
-        graph = GraphSpec([StageSpec("shade", "prt.trace", {"order": 3, "samples": args.samples})], "shade.radiance",
-                          name="newton_cloth")
         rt = graph.compile(shading_scene(rest, sim.faces), device=device, cache_dir=None, progress=False)
 
         points, colors, sim_s, shade_s = [], [], [], []
@@ -175,17 +221,15 @@ def main(argv=None) -> int:
         return 1
 
     scene = shading_scene(rest, sim.faces, point_samples=points)
-    args.out.mkdir(parents=True, exist_ok=True)
-    usd = write_vertex_colors(args.out / "newton_cloth.usda", scene, scene.frames, colors)
+    usd = write_vertex_colors(plan.usd, scene, scene.frames, colors)
+    plan.record([usd])
     p99 = float(np.percentile(colors @ np.array([0.2126, 0.7152, 0.0722]), 99))
     exposure = float(np.log2(0.9 / p99)) if p99 > 0 else 0.0  # one exposure for every preview
-    pngs = []
-    for f in sorted({0, args.frames // 2, args.frames - 1}):
-        path = args.out / f"newton_cloth_{f:04d}.png"
-        render(scene, float(f), colors=colors[f], width=480, height=360, environment=scene.lights[0],
+    for f, path in sorted(plan.previews.items()):
+        render(scene, f, colors=colors[int(f)], width=480, height=360, environment=scene.lights[0],
                exposure=exposure, supersample=2, path=path, device=device)
-        pngs.append(path.name)
-    print(f"wrote {usd} and {', '.join(pngs)}")
+        plan.record([path])
+    print(f"wrote {usd} and {', '.join(p.name for _, p in sorted(plan.previews.items()))}")
     return 0
 
 

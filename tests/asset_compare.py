@@ -282,7 +282,7 @@ def hdr_step(image: np.ndarray) -> np.ndarray:
 
 
 def _hdr_differences(name: str, bundled_path: str, generated_path: str) -> list[str]:
-    from warpshade.io.images import read_hdr
+    from warpshade.io import read_hdr
 
     with open(bundled_path, "rb") as fa, open(generated_path, "rb") as fb:
         head_a, head_b = _hdr_header(fa.read()), _hdr_header(fb.read())
@@ -362,7 +362,7 @@ def _anisobrdf_differences(name: str, bundled_path: str, generated_path: str) ->
 
 
 def _png_differences(name: str, bundled_path: str, generated_path: str) -> list[str]:
-    from warpshade.io.textures import read_texture_file
+    from warpshade.io import read_texture_file
 
     try:
         (a, eight_a), (b, eight_b) = read_texture_file(bundled_path), read_texture_file(generated_path)

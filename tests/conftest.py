@@ -28,3 +28,22 @@ def pytest_addoption(parser):
 def update_goldens(request):
     """True when the run was asked to rewrite the golden outputs (``--update-goldens``)."""
     return request.config.getoption("--update-goldens")
+
+
+class BakeReached(Exception):
+    """Raised by the SG bakes under :func:`sg_bake_refused`: the run got past every check."""
+
+
+@pytest.fixture
+def sg_bake_refused(monkeypatch):
+    """The SSDF bake and the environment's preparation of ``sg.shade`` raise :class:`BakeReached`:
+    a test of a check that must come before any precompute asserts a refusal, or this exception
+    when there is nothing to refuse."""
+    import warpshade.methods.sg.stages as sg_stages
+
+    def bake(*args, **kwargs):
+        raise BakeReached
+
+    monkeypatch.setattr(sg_stages, "bake_ssdf_model", bake)
+    monkeypatch.setattr(sg_stages, "environment_lighting", bake)
+    return BakeReached

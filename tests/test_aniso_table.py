@@ -339,3 +339,43 @@ def test_bundled_graph_loads():
     spec = graph.load(Path(__file__).resolve().parents[1] / "stages" / "dish_sg_aniso_measured.toml")
     shade = next(st for st in spec.stages if st.type == "sg.shade")
     assert shade.params["brdf"] == "tabulated-aniso" and shade.params["table"] == f"bundled:{ANISO_FILE}"
+
+
+@pytest.mark.parametrize("damage, message", [
+    (lambda b: b"XXXXXXXX" + b[8:], "bad magic"),
+    (lambda b: b[:8] + np.uint32(2).tobytes() + b[12:], "version 2"),
+    (lambda b: b[:16] + np.uint32(0).tobytes() + b[20:], "header dims"),
+    (lambda b: b[:-4], "expected"),
+    (lambda b: b[:40] + np.float32(np.nan).tobytes() + b[44:], "non-finite"),
+])
+def test_bad_table_is_refused_before_the_ssdf_bake_and_the_environment(tmp_path, small_table, sg_bake_refused, damage,
+                                                                       message):
+    """Issue 39: sg.shade reads its .anisobrdf (the reader's checks) when the graph is compiled,
+    before the SSDF bake and the environment's preparation (both raise here if reached), and names
+    the stage and the file."""
+    from warpshade.graph import GraphSpec, StageError, StageSpec
+    from warpshade.scene import LightingSource
+
+    Baked = sg_bake_refused
+    good = write_anisotropic_table(tmp_path / "good.anisobrdf", small_table.table)
+    bad = tmp_path / "bad.anisobrdf"
+    bad.write_bytes(damage(good.read_bytes()))
+
+    def compile_with(table):
+        spec = GraphSpec(stages=[
+            StageSpec("ssdf", "sg.ssdf", {"resolution": 8, "supersample": 2}),
+            StageSpec("environment", "sg.environment", {"lobes": 3}),
+            StageSpec("frames", "ldprt.frames"),
+            StageSpec("shade", "sg.shade", {"eye": tuple(EYE), "brdf": "tabulated-aniso", "table": str(table),
+                                            "tangent": "uv"}),
+        ], output="shade.radiance", name="aniso-table-refusal")
+        spec.compile(_polar_floor(), device="cpu", cache_dir=None, progress=False,
+                     lighting=LightingSource.fixed([Environment.sky(height=16, width=32)], "Z"))
+
+    with pytest.raises(StageError, match=message) as info:
+        compile_with(bad)
+    assert str(info.value).startswith("stage 'shade': table ") and str(bad) in str(info.value)
+    with pytest.raises(StageError, match="no such file"):
+        compile_with(tmp_path / "missing.anisobrdf")
+    with pytest.raises(Baked):  # a sound table passes the check and the bake is reached
+        compile_with(good)

@@ -276,10 +276,13 @@ def test_temporary_files_of_dead_writers_are_removed(device, tmp_path, capsys):
     try:
         dead_pid = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
                                   text=True).stdout.strip()
-        stale = out / f".g-{dead_pid}-abc123.usda"
+        stale = out / f".g-{dead_pid}-abc12345.usda"
         stale.write_bytes(b"x" * 1000)
-        live = out / f".g-{child.pid}-def456.usda"
+        live = out / f".g-{child.pid}-def45678.usda"
         live.write_bytes(b"x")
+        # both writers are warpshade runs the folder's manifest lists (a temporary file of a
+        # process it does not list is a user's file and refused: test_faults_outputs.py)
+        (out / ".warpshade-outputs.json").write_text(json.dumps({"written": {}, "writers": [int(dead_pid), child.pid]}))
         rc, printed, err = _run(capsys, "run", str(g), "--out", str(out), "--device", device, "--no-previews")
         assert rc == 0, err
         assert not stale.exists(), "a dead writer's temporary file is removed"

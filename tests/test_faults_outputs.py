@@ -8,6 +8,11 @@
 * ``specular = ["a", ...]`` names ``specular``; an HDR ``+Y`` orientation is read (flipped) and a
   rotated one is quoted as it is; ``component = "both"`` with ``--validate`` is refused before any
   work; a read-only cache names the directory and ``$WARPSHADE_CACHE``.
+* Issue 39, the output layer under bad input: a forged or stale manifest entry never makes a file
+  the run reads an output (a training clip, a BRDF table, a layer the scene pulls in); a link named
+  like an output, a user's file named like a temporary of an interrupted write and a manifest that
+  cannot be read are refused before any work; two runs recording into one folder at once keep
+  each other's entries (the manifest's update is locked).
 
 "Before any work" is asserted without timing: compiling the graph (which runs the precompute) is
 replaced by a function that fails the test when called, and the output folder is left as it was.
@@ -15,6 +20,11 @@ replaced by a function that fails the test when called, and the output folder is
 
 import errno
 import json
+import os
+import re
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -28,6 +38,7 @@ from warpshade.io import read_hdr, read_image, write_hdr
 from warpshade.measure.outputs import MANIFEST_NAME, plan_outputs
 
 from grids import CUBE_USDA as CUBE
+from hang import START_S
 
 ROOT = Path(__file__).resolve().parents[1]
 ASSETS = ROOT / "warpshade" / "usd_assets"
@@ -142,6 +153,214 @@ def test_the_plan_names_every_file_of_a_measured_pixel_run(tmp_path):
         plan.check()
     with pytest.raises(ValueError, match="was not planned"):
         plan.record([tmp_path / "other.png"])
+
+
+# ---- issue 39: forged manifests, links, temporaries, two runs at once, a bad manifest ---------------
+def _forge(out: Path, *names: str) -> None:
+    """A manifest that claims ``names`` as warpshade's (their size and time as they are now)."""
+    entries = {}
+    for name in names:
+        st_ = os.lstat(out / name)
+        entries[name] = {"size": st_.st_size, "mtime_ns": st_.st_mtime_ns}
+    (out / MANIFEST_NAME).write_text(json.dumps({"written": entries}))
+
+
+def _dead_pid() -> int:
+    """The id of a process that has ended."""
+    done = subprocess.Popen([sys.executable, "-c", "pass"])
+    done.wait()
+    return done.pid
+
+
+_TRAINED = ('type = "prt.unshadowed"\norder = 2\n\n[[stage]]\nname = "data"\ntype = "datadriven.data"\n'
+            'training = "o/g.usda"\norder = 2\nsamples = 16')
+_TABLE = 'type = "rpo.shade"\norder = 3\nrank = 4\neye = [0.0, -3.0, 1.0]\nbrdf = "tabulated"\nfile = "o/g.json"'
+
+
+@pytest.mark.parametrize("case", ["training clip", "BRDF table", "sublayer of the scene"])
+def test_a_forged_manifest_never_lets_a_run_replace_a_file_it_reads(tmp_path, capsys, monkeypatch, case):
+    """A manifest entry that claims an input (forged, or stale: copied with the folder) does not
+    make it an output: every file the graph reads is protected, not only the scene."""
+    from warpshade.scene.materials import Microfacet
+    from warpshade.scene.tabulated import write_merl
+
+    out = tmp_path / "o"
+    out.mkdir()
+    scene = tmp_path / "cube.usda"
+    scene.write_text(CUBE)
+    if case == "training clip":      # datadriven.data's training clip, named like the USD layer
+        (out / "g.usda").write_text(CUBE)
+        g, held, reader = _graph(tmp_path / "g.toml", "g", str(scene), _TRAINED), "g.usda", "stage 'data' (parameter 'training')"
+    elif case == "BRDF table":       # rpo.shade's MERL table, named like the report
+        write_merl(out / "g.json", Microfacet(roughness=0.4), dims=(8, 8, 8))
+        g = _graph(tmp_path / "g.toml", "g", str(scene), _TABLE)
+        g.write_text(g.read_text().replace("[[stage]]", '[[stage]]\nname = "vis"\ntype = "rpo.visibility_traced"\n'
+                                                        'order = 3\nsamples = 16\n\n[[stage]]', 1))
+        held, reader = "g.json", "stage 'shade' (parameter 'file')"
+    else:                            # the scene is a shot that sublayers a layer named like the USD layer
+        (out / "g.usda").write_text(CUBE)
+        scene.write_text('#usda 1.0\n(\n    subLayers = [@./o/g.usda@]\n    upAxis = "Z"\n)\n')
+        g, held, reader = _graph(tmp_path / "g.toml", "g", str(scene)), "g.usda", "the run's scene"
+    _forge(out, held)
+    before = _snapshot(out)
+    _no_work(monkeypatch)
+    rc, err = _run(capsys, "run", str(g), "--out", str(out), "--device", "cpu")
+    assert rc == 2 and f"already holds {held} (read by {reader})" in err and "--out" in err, err
+    assert _snapshot(out) == before
+
+
+def test_a_link_named_like_an_output_is_refused_whatever_the_manifest_says(tmp_path, capsys, monkeypatch):
+    """``--out`` holding links named like outputs (the USD layer's write follows its link out of
+    ``--out``): refused, the files they point to untouched."""
+    (tmp_path / "cube.usda").write_text(CUBE)
+    out = tmp_path / "o"
+    out.mkdir()
+    victims = {"g.usda": tmp_path / "victim.usda", "g_0000.png": tmp_path / "victim.png"}
+    for name, victim in victims.items():
+        victim.write_text(f"the user's {victim.name}")
+        os.symlink(victim, out / name)
+    _forge(out, *victims)
+    g = _graph(tmp_path / "g.toml", "g", str(tmp_path / "cube.usda"))
+    _no_work(monkeypatch)
+    rc, err = _run(capsys, "run", str(g), "--out", str(out), "--device", "cpu")
+    assert rc == 2 and f"g.usda (a symbolic link to {victims['g.usda']}" in err and "g_0000.png (a symbolic link" in err, err
+    assert all(victim.read_text() == f"the user's {victim.name}" for victim in victims.values())
+    assert all((out / name).is_symlink() for name in victims)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cube.usda", "g.toml", "o", "victim.png", "victim.usda"]
+
+
+def test_a_users_file_named_like_a_temporary_is_kept(tmp_path, capsys, monkeypatch):
+    """The clean-up after interrupted writes removes ``.<output>-<pid>-*`` files of ended
+    processes: one the manifest does not list as warpshade's is the user's, and refused."""
+    (tmp_path / "cube.usda").write_text(CUBE)
+    out = tmp_path / "o"
+    out.mkdir()
+    notes = out / f".g-{_dead_pid()}-abcd1234.usda"  # exactly the shape of a temporary file
+    notes.write_text("my notes")
+    g = _graph(tmp_path / "g.toml", "g", str(tmp_path / "cube.usda"))
+    _no_work(monkeypatch)
+    rc, err = _run(capsys, "run", str(g), "--out", str(out), "--device", "cpu")
+    assert rc == 2 and f"already holds {notes.name} (named like the temporary file" in err, err
+    assert notes.read_text() == "my notes"
+
+
+def test_a_users_file_of_another_shape_is_no_temporary(tmp_path):
+    """Only mkstemp's exact name shape counts as a temporary file of an interrupted write: a
+    user's ``.g-<pid>-notes.usda`` is neither refused nor removed by the clean-up."""
+    from warpshade._fileio import remove_stale_temporaries, temporary_pattern
+
+    pid = _dead_pid()
+    mine = tmp_path / f".g-{pid}-notes.usda"
+    mine.write_text("my notes")
+    stale = tmp_path / f".g-{pid}-x_9abc12.usda"
+    stale.write_text("left by a killed write")
+    assert not temporary_pattern(tmp_path / "g.usda").match(mine.name)
+    assert remove_stale_temporaries(tmp_path / "g.usda") == [stale]
+    assert mine.read_text() == "my notes" and not stale.exists()
+
+
+def test_the_temporaries_of_a_killed_run_are_still_removed(tmp_path):
+    """A temporary file of a writer the manifest lists (a run killed while it wrote) is warpshade's:
+    the plan passes and the next write of that file removes it; the checking process is entered
+    as a writer."""
+    from warpshade._fileio import write_json_atomic
+
+    pid = _dead_pid()
+    left = tmp_path / f".g-{pid}-x1y2z3w4.json"
+    left.write_text("{")
+    (tmp_path / MANIFEST_NAME).write_text(json.dumps({"written": {}, "writers": [pid]}))
+    plan = plan_outputs(tmp_path, "g", "g.usda", [0.0], previews=False)
+    plan.check()
+    assert json.loads(plan.manifest.read_text())["writers"] == sorted([pid, os.getpid()])
+    write_json_atomic(plan.report, {})
+    plan.record([plan.report])
+    assert not left.exists()
+    assert json.loads(plan.manifest.read_text())["writers"] == [os.getpid()]  # the killed run's entry goes with it
+
+
+@pytest.mark.parametrize("lock", ["flock", "lock directory"])
+def test_two_runs_writing_into_one_folder_keep_each_others_entries(tmp_path, monkeypatch, lock):
+    """The manifest's read-modify-write is locked (``flock`` on the folder, or the lock directory
+    where there is none): two plans recording at once lose no entry."""
+    import threading
+
+    import warpshade.measure.outputs as outputs
+
+    if lock == "lock directory":
+        monkeypatch.setattr(outputs, "_flock_directory", lambda directory: None)
+    write = outputs.write_json_atomic
+
+    def slow_write(*args, **kwargs):  # widen the window between reading and writing the manifest
+        time.sleep(0.004)
+        return write(*args, **kwargs)
+
+    monkeypatch.setattr(outputs, "write_json_atomic", slow_write)
+    frames = list(range(24))
+    plans = [plan_outputs(tmp_path, name, f"{name}.usda", frames, frames, validate=True) for name in ("a", "b")]
+    failed = []
+
+    def run(plan):
+        try:
+            for path in plan.comparisons.values():
+                path.write_bytes(b"png")
+                plan.record([path])
+        except Exception as exc:  # shown by the assertion below
+            failed.append(exc)
+
+    threads = [threading.Thread(target=run, args=(plan,)) for plan in plans]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(timeout=START_S)
+    assert not failed and not any(t.is_alive() for t in threads), failed
+    written = json.loads((tmp_path / MANIFEST_NAME).read_text())["written"]
+    assert sorted(written) == sorted(p.name for plan in plans for p in plan.comparisons.values())
+    assert not (tmp_path / outputs.LOCK_NAME).exists()
+
+
+def test_a_lock_directory_held_too_long_is_named(tmp_path, monkeypatch):
+    import warpshade.measure.outputs as outputs
+
+    monkeypatch.setattr(outputs, "_flock_directory", lambda directory: None)
+    monkeypatch.setattr(outputs, "LOCK_TIMEOUT_S", 0.2)
+    (tmp_path / outputs.LOCK_NAME).mkdir()
+    plan = plan_outputs(tmp_path, "g", "g.usda", [0.0], previews=False)
+    (tmp_path / "g.json").write_text("{}")
+    with pytest.raises(TimeoutError, match=rf"{tmp_path}: {outputs.LOCK_NAME} has been held .* remove it"):
+        plan.record([plan.report])
+    assert not plan.manifest.exists()
+
+
+@pytest.mark.parametrize("manifest, problem", [
+    ("{", "is not valid JSON"),
+    ("[1, 2]", "is not a manifest of warpshade"),
+    ('{"written": ["g.usda"]}', "is not a manifest of warpshade"),
+    ('{"written": {}, "writers": ["me"]}', "is not a manifest of warpshade"),
+    (None, r"cannot be read \(Is a directory\)"),
+    ("link", "is a symbolic link"),
+])
+def test_a_bad_manifest_is_named_before_any_work(tmp_path, capsys, monkeypatch, manifest, problem):
+    """A manifest that cannot be read or is not one is named when the outputs are planned, not
+    after the USD layer is written."""
+    (tmp_path / "cube.usda").write_text(CUBE)
+    out = tmp_path / "o"
+    out.mkdir()
+    if manifest is None:
+        (out / MANIFEST_NAME).mkdir()
+    elif manifest == "link":
+        (tmp_path / "elsewhere.json").write_text('{"written": {}}')
+        os.symlink(tmp_path / "elsewhere.json", out / MANIFEST_NAME)
+    else:
+        (out / MANIFEST_NAME).write_text(manifest)
+    before = sorted(p.name for p in out.iterdir())
+    g = _graph(tmp_path / "g.toml", "g", str(tmp_path / "cube.usda"))
+    _no_work(monkeypatch)
+    rc, err = _run(capsys, "run", str(g), "--out", str(out), "--device", "cpu")
+    assert rc == 2 and f"{out}: its manifest {MANIFEST_NAME}" in err and "--out" in err, err
+    assert re.search(problem, err), err
+    assert sorted(p.name for p in out.iterdir()) == before
+    if manifest not in (None, "link"):
+        assert (out / MANIFEST_NAME).read_text() == manifest
 
 
 # ---- 5. sizes that would not fit, named before allocating -------------------------------------------

@@ -149,5 +149,5 @@ def test_reproject_in_the_tangent_frames_is_refused(device):
                                                           "reproject": True}, {"frames": "frames.frames"}),
                       StageSpec("shade", "ldprt.shade_rotated", {"order": ORDER},
                                 {"transfer": "trace.transfer", "frames": "frames.frames"})], "shade.radiance")
-    with pytest.raises(Exception, match="reproject applies to the world frame"):
+    with pytest.raises(Exception, match="parameter .reproject. applies to the world frame"):
         spec.compile(scene, device=device, cache_dir=None, progress=False)

@@ -117,15 +117,15 @@ def test_glossy_stages_run(device, sheet):
     assert out.shape == (sheet.vertex_count, 3) and np.all(np.isfinite(out)) and out.max() > 0.0
 
 
-def test_glossy_stage_without_camera_or_eye_is_an_error(device, sheet):
+def test_glossy_stage_without_camera_or_eye_shades_toward_the_framing_camera(device, sheet):
     spec = GraphSpec(stages=[
         StageSpec("fit", "ldprt.glossy_fit", {"order": 2, "lobes": 1, "rank": 2, "samples": 16, "view_resolution": 4}),
         StageSpec("frames", "ldprt.frames"),
         StageSpec("shade", "ldprt.glossy_shade", {"order": 2, "lobes": 1, "rank": 2, "view_resolution": 4}),
     ], output="shade.radiance")
-    with pytest.raises(ValueError, match="camera"):
-        spec.compile(sheet, device=device, cache_dir=None, progress=False,
-                     lighting=LightingSource([Environment.sky()], sheet.up_axis))
+    rt = spec.compile(sheet, device=device, cache_dir=None, progress=False,
+                      lighting=LightingSource([Environment.sky()], sheet.up_axis))
+    assert rt.stages[-1].diagnostics()["viewer"]["source"] == "framing"
 
 
 def _glossy_validation_runtime(device, sheet, eye, below_horizon="visible"):

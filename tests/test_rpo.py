@@ -401,3 +401,39 @@ def test_zh_lighting_turns_with_the_environment(device, two_sheets):
         a = zh.step(float(f)).numpy().copy()
         b = full.step(float(f)).numpy()
         assert np.sqrt(np.mean((a - b) ** 2) / np.mean(b**2)) < 3 * ZH_SKY_ERROR
+
+
+@pytest.mark.parametrize("shade, message", [
+    ({"brdf": "tabulated", "file": "{tmp}/short.binary"}, r"short\.binary: 2 bytes, shorter than"),
+    ({"brdf": "tabulated", "file": "{tmp}/missing.binary"}, r"missing\.binary: no such file"),
+    ({"brdf": "ggx", "file": "{tmp}/short.binary"}, r"brdf = 'ggx' does not use \['file'\]"),
+    ({"rank": 10}, r"rank 10 exceeds the 9 SH coefficients"),
+])
+def test_brdf_and_parameter_problems_are_refused_before_the_visibility_bake(two_sheets, tmp_path, monkeypatch, shade,
+                                                                            message):
+    """The BRDF file (a path known before the run) and the parameters are checked by compile, before
+    any precompute: a static visibility bake that would run first raises here instead."""
+    import warpshade.transfer as transfer
+
+    class Baked(Exception):
+        pass
+
+    def bake(*args, **kwargs):
+        raise Baked
+
+    monkeypatch.setattr(transfer, "compute", bake)
+    (tmp_path / "short.binary").write_bytes(b"\x01\x00")
+    shade = {k: v.format(tmp=tmp_path) if isinstance(v, str) else v for k, v in shade.items()}
+    static = {"order": 3, "samples": 64}
+    spec = GraphSpec(stages=[
+        StageSpec("vis", "rpo.visibility_static", static),
+        StageSpec("frames", "ldprt.frames"),
+        StageSpec("shade", "rpo.shade", {"order": 3, "rank": 4, "view_order": 4, "eye": [0.4, -0.6, 3.0], **shade}),
+    ], output="shade.radiance")
+    with pytest.raises(StageError, match=rf"stage 'shade': .*{message}"):
+        _compile("cpu", spec, two_sheets)
+    good = GraphSpec(stages=[StageSpec("vis", "rpo.visibility_static", static), StageSpec("frames", "ldprt.frames"),
+                             StageSpec("shade", "rpo.shade", {"order": 3, "rank": 4, "view_order": 4})],
+                     output="shade.radiance")
+    with pytest.raises(Baked):  # with nothing to refuse, the bake is reached
+        _compile("cpu", good, two_sheets)

@@ -8,6 +8,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
+from warpshade.render import frame_camera
 from scipy.spatial.transform import Rotation
 
 from warpshade._wp import wp
@@ -267,8 +269,10 @@ def test_grid_checks_and_bad_parameters_are_clear_errors(device):
         _run(_grid_scene(flat), {"resolution": 9, "azimuths": 2}, device=device)
     with pytest.raises(StageError, match="below"):
         _run(_grid_scene(flat), {"resolution": 9, "below": "maybe"}, device=device)
-    with pytest.raises(StageError, match="camera"):
-        _run(_grid_scene(flat, camera=False), {"resolution": 9}, {}, device=device)
+    # no camera and no eye: the framing camera of the scene's bounds is the viewer (methods/viewer.py)
+    rt = _run(_grid_scene(flat, camera=False), {"resolution": 9}, {}, device=device)
+    np.testing.assert_allclose(rt.state.eye.numpy()[0], frame_camera(*rt.scene.bounds_over_frames(), rt.scene.up_axis).position,
+                               rtol=1e-6)
     with pytest.raises(ValueError, match="resolution must be >= 2"):
         hfio.mesh_from_spec(hfio.HeightFieldSpec(1), [0.0])
     with pytest.raises(ValueError, match="MAX_SAMPLE_BYTES"):

@@ -588,3 +588,33 @@ def test_textured_materials_are_validated_per_vertex_and_per_pixel(device, tmp_p
     assert np.isfinite(err["rel_rms"]) and err["rel_rms"] < 1.0
     px = measure_pixels(rt, tmp_path, [0.0], width=24, height=18, samples=16)["frames"][0.0]
     assert np.isfinite(px["rel_rms"]) and px["rel_rms"] < 1.0 and px["pixels"] > 50
+
+
+@pytest.mark.parametrize("shade, message", [
+    ({"brdf": "beckmann", "table": "bundled:brushed_aniso.anisobrdf"},
+     r"parameter 'table' is for brdf = 'tabulated-ndf' or 'tabulated-aniso', not 'beckmann'"),
+    ({"brdf": "ward", "roughness_y": 0.2, "tangent": "direction", "tangent_direction": (1.0, 0.0, 0.0),
+      "table": "bundled:measured_coating.binary"}, r"parameter 'table' is for brdf = .*, not 'ward'"),
+    ({"brdf": "beckmann", "texture": "bundled:svbrdf_rings.svbrdf"}, r"parameter 'texture' is for brdf = 'svbrdf', not 'beckmann'"),
+    ({"brdf": "tabulated-aniso"}, r"brdf = 'tabulated-aniso' needs 'table'"),
+    ({"brdf": "svbrdf"}, r"brdf = 'svbrdf' needs 'texture'"),
+    ({"brdf": "tabulated-aniso", "table": "bundled:measured_coating.binary"}, r"measured_coating\.binary.*bad magic"),
+    ({"brdf": "tabulated-ndf", "table": "bundled:brushed_aniso.anisobrdf"}, r"brushed_aniso\.anisobrdf.*header dims"),
+    ({"brdf": "svbrdf", "texture": "bundled:svbrdf_rings.svbrdf"}, r"brdf = 'svbrdf': .* /ground has none"),
+    ({"brdf": "ward", "roughness": 0.3, "roughness_y": 0.2, "tangent": "uv"}, r"tangent = 'uv' needs UVs .* /ground has none"),
+    ({"brdf": "ward", "roughness": 0.3, "roughness_y": 0.2, "tangent": "direction"}, r"needs tangent_direction"),
+    ({"brdf": "blinn-phong", "roughness": 0.5}, r"'roughness' carries the exponent"),
+    ({"roughness": 3.0}, r"parameter 'roughness' must be <= 2"),
+    ({"specular": (1.0, -1.0, 0.0)}, r"parameter 'specular' needs three non-negative numbers"),
+    ({"eye": (1.0, 2.0)}, r"parameter 'eye' needs three finite numbers"),
+])
+def test_parameter_file_and_scene_problems_are_refused_before_the_ssdf_bake(blocked, sg_bake_refused, shade, message):
+    """Issue 38: every check of sg.shade that needs only its parameters, file headers and the scene
+    runs when the graph is compiled, before the SSDF bake and the environment's preparation (here
+    both raise if reached)."""
+
+    Baked = sg_bake_refused
+    with pytest.raises(StageError, match=rf"stage 'shade': .*{message}"):
+        _compile("cpu", blocked, [SKY], shade)
+    with pytest.raises(Baked):  # with nothing to refuse, the bake is reached
+        _compile("cpu", blocked, [SKY])

@@ -12,7 +12,7 @@ from pxr import Sdf
 
 from warpshade.cli import main
 from warpshade.io import bundled_asset_directory, load_usd
-from warpshade.io.images import read_hdr, write_hdr
+from warpshade.io import read_hdr, write_hdr
 from warpshade.scene import Scene
 from warpshade.usd_assets import generator
 from warpshade.usd_assets.generator import figure, motions, wanderer

@@ -202,13 +202,18 @@ def test_animation_kinds_frames_and_fps(tmp_path):
     assert not scene.is_static
 
 
-def test_unranged_stage_is_one_frame_with_a_warning(tmp_path):
-    with pytest.warns(UserWarning, match="no startTimeCode"):
+def test_unranged_stage_is_sampled_at_its_time_samples(tmp_path):
+    # no startTimeCode/endTimeCode: the union of the translate's and the points' samples, 1 and 3
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
         scene = load_usd(_write(tmp_path, ANIMATED))
-    assert scene.frames.tolist() == [0.0]
+    assert scene.frames.tolist() == [1.0, 3.0]
+    assert {m.path: m.animation for m in scene.meshes} == {"/Mover/Box": "rigid", "/Wave": "deforming", "/Still": "static"}
+    np.testing.assert_allclose(scene.meshes[0].transforms[:, 3, :3], [[0, 0, 0], [2, 0, 0]])
+    np.testing.assert_allclose(scene.points_at(3.0)[3], [0, 0, 2])
 
 
-def test_purpose_visibility_and_implicit_prims_are_skipped(tmp_path):
+def test_purpose_and_visibility_are_skipped_and_implicit_prims_tessellated(tmp_path):
     tri = 'int[] faceVertexCounts = [3]\nint[] faceVertexIndices = [0, 1, 2]\npoint3f[] points = [(0,0,0), (1,0,0), (0,1,0)]'
     text = f"""
 def Mesh "Shown" {{
@@ -228,9 +233,8 @@ def Sphere "Ball" {{
 }}
 """
     scene = load_usd(_write(tmp_path, text))
-    assert [m.path for m in scene.meshes] == ["/Shown"]
-    reasons = dict(scene.skipped)
-    assert reasons["/Guide"] == "purpose guide" and reasons["/Hidden"] == "invisible" and "implicit" in reasons["/Ball"]
+    assert [m.path for m in scene.meshes] == ["/Shown", "/Ball"] and scene.meshes[1].implicit == ("Sphere", {"radius": 1.0})
+    assert dict(scene.skipped) == {"/Guide": "purpose guide", "/Hidden": "invisible"}
 
 
 def test_instancing_is_flattened(tmp_path):

@@ -18,8 +18,8 @@ import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 
-__all__ = ["atomic_path", "write_text_atomic", "write_json_atomic", "remove_stale_temporaries", "check_writable_dir",
-           "captured_stderr"]
+__all__ = ["atomic_path", "write_text_atomic", "write_json_atomic", "remove_stale_temporaries", "temporary_pattern",
+           "check_writable_dir", "captured_stderr"]
 
 
 def _pid_alive(pid: int) -> bool:
@@ -34,6 +34,19 @@ def _pid_alive(pid: int) -> bool:
     return True
 
 
+#: The random part of :func:`tempfile.mkstemp`'s names (eight characters of this alphabet): a
+#: temporary file of :func:`atomic_path` is ``.<stem>-<pid>-<8 of them><suffix>``, and nothing else
+#: counts as one (a user's ``.notes-123-draft.usda`` is left alone).
+_MKSTEMP_RANDOM = "[a-z0-9_]{8}"
+
+
+def temporary_pattern(path) -> re.Pattern:
+    """The names of :func:`atomic_path`'s temporary files for ``path`` (group 1: the writer's
+    process id): exactly mkstemp's shape, so that a user's file of a similar name is never one."""
+    path = Path(path)
+    return re.compile(rf"^\.{re.escape(path.stem)}-(\d+)-{_MKSTEMP_RANDOM}{re.escape(path.suffix)}$")
+
+
 def remove_stale_temporaries(path) -> list[Path]:
     """Remove the temporary files of :func:`atomic_path` for ``path`` left by dead processes.
 
@@ -41,7 +54,7 @@ def remove_stale_temporaries(path) -> list[Path]:
         The removed paths.
     """
     path = Path(path)
-    pattern = re.compile(rf"^\.{re.escape(path.stem)}-(\d+)-.+{re.escape(path.suffix)}$")
+    pattern = temporary_pattern(path)
     removed = []
     try:
         entries = list(path.parent.iterdir())

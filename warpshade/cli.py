@@ -6,7 +6,9 @@ Warp SH kernels against float64).
 
 A known problem (a bad file, flag, parameter or environment) ends in one or two lines,
 "warpshade <command>: error: <what>, <where>", with exit code 2; an unexpected failure prints a
-short message (add --debug for the traceback) and exits with 1.
+short message (add --debug for the traceback) and exits with 1. When the reader of standard output
+goes away ("warpshade info FILE | head") the command ends quietly with 141, as a Unix tool that
+SIGPIPE ends.
 """
 
 from __future__ import annotations
@@ -71,7 +73,9 @@ def _cmd_info(args) -> int:
             extra.append(f"skeleton {scene.skeletons[m.skin.skeleton].path}, {m.skin.joint_indices.shape[1]} influences")
         if m.animation == "rigid":
             extra.append(f"{m.transforms.shape[0]} transforms")
-        if m.normals is not None:
+        if m.implicit is not None:
+            extra.append(f"tessellated {m.implicit[0]}")
+        elif m.normals is not None:
             extra.append("authored normals")
         if m.uvs is not None:
             extra.append("uvs")
@@ -110,8 +114,9 @@ def _cmd_info(args) -> int:
         print("camera  none (a camera framing the scene is used)")
     else:
         print(f"camera  {cam.path}  at {_fmt_vec(cam.position)} looking at {_fmt_vec(cam.target)}  vertical fov {cam.vertical_fov:.1f} deg")
+    print(f"skipped {len(scene.skipped)} prim(s)")
     for prim, reason in scene.skipped:
-        print(f"skipped {prim}: {reason}")
+        print(f"  {prim}: {reason}")
     for w in caught:
         print(f"warning {w.message}")
     return 0
@@ -180,13 +185,15 @@ class CliError(Exception):
 
 
 def _run_graph(graph_file, frames=None, device=None, out_dir=None, validate=False, previews=True, progress=True,
-               usd_format="auto", scheduler=None, movie=False, validate_samples=None):
+               usd_format="auto", scheduler=None, movie=False, validate_samples=None, scene_spec=None):
     """Run one stage graph end to end; returns (runtime, outputs dict).
 
     With ``movie``, a movie of every frame run is written too (MP4, or GIF without ffmpeg), and
     with ``validate`` one of the measured frames' method | reference | error strips.
     ``validate_samples`` replaces the graph's ``[validate] samples`` (ground-truth rays per vertex
-    and per pixel).
+    and per pixel). ``scene_spec`` (``--scene``) replaces the graph's ``scene``
+    (:meth:`~warpshade.graph.GraphSpec.load_scene`: its ``frame_count`` applies only when nothing
+    in that scene moves, said before any work).
 
     Everything is checked before any work: the graph file, the output directory (writable, not
     a file), the scene, ``--frames``, the ``[validate]`` frames measured (those the run steps),
@@ -214,18 +221,26 @@ def _run_graph(graph_file, frames=None, device=None, out_dir=None, validate=Fals
     out = Path(out_dir if out_dir is not None else Path("warpshade-out") / spec.name)
     check_writable_dir(out, "--out directory")
     t0 = time.perf_counter()
-    scene = spec.load_scene()
+    scene = spec.load_scene(scene_spec)
+    if scene_spec is not None:
+        moving = spec.frame_count_skipped(scene)
+        if moving is not None:
+            print(f"warpshade run: --scene {scene_spec} is animated ({moving}): the graph's frame_count = "
+                  f"{spec.scene_options['frame_count']} is for static scenes and is not applied; the run steps the "
+                  f"scene's {len(scene.frames)} time codes {scene.frames[0]:g}..{scene.frames[-1]:g}", file=sys.stderr)
     try:
         run_frames = spec.run_frames(scene, frames)
     except GraphError as exc:
-        raise CliError(f"--frames {frames!r}: {str(exc).split(': ', 1)[-1]}" if frames is not None else str(exc)) from None
+        if frames is not None:
+            raise CliError(f"--frames {frames!r}: {str(exc).split(': ', 1)[-1]}") from None
+        raise CliError(f"{exc}; choose the time codes to run with --frames") from None
     measured = left_out = []
+    validation = None
     if validate:
-        measured, left_out = spec.validation_frames(scene, run_frames)
-        if left_out:  # said before any work, and again in the summary and the report
-            print(f"warpshade run: --validate measures frame(s) {', '.join(f'{f:g}' for f in measured)}; [validate] "
-                  f"frame(s) {', '.join(f'{f:g}' for f in left_out)} are outside the frames run "
-                  f"({run_frames[0]:g}..{run_frames[-1]:g}) and are left out", file=sys.stderr)
+        validation = spec.validation_plan(scene, run_frames)
+        measured, left_out = validation.measured, validation.left_out
+        if validation.note():  # said before any work, and again in the summary and the report
+            print(f"warpshade run: {validation.note()}", file=sys.stderr)
     plan = _plan_run(spec, scene, out, run_frames, measured, validate, previews, usd_format, movie_format)
     _check_cache()
     # ground-truth frames go to the executor only when one is asked for (flag or environment)
@@ -237,6 +252,7 @@ def _run_graph(graph_file, frames=None, device=None, out_dir=None, validate=Fals
         rt = spec.compile(scene, device=device, progress=progress, scheduler=scheduler)
         rt.run(run_frames)
         outputs = _finish_run(spec, rt, plan, measured, left_out, validate, previews, tasks, validate_samples)
+        outputs["validation"] = validation
     finally:
         if tasks is not None:
             tasks.close()
@@ -260,13 +276,11 @@ def _plan_run(spec, scene, out, run_frames, measured, validate, previews, usd_fo
     asked whether their parameters allow a ground truth at all.
 
     Raises:
-        FileExistsError: a planned file warpshade did not write there (an input, say), naming it.
+        FileExistsError: a planned file warpshade did not write there or one the run reads, naming it.
         StageError: a stage that cannot be measured, naming it and its parameter.
     """
-    from pathlib import Path
-
     from .io.usd_write import usd_output_name
-    from .measure.outputs import plan_outputs
+    from .measure.outputs import plan_outputs, run_inputs
     from .measure.pixels import pixel_stage_of
     from .measure.protocols import check_measurable
 
@@ -286,10 +300,9 @@ def _plan_run(spec, scene, out, run_frames, measured, validate, previews, usd_fo
                                "run without --validate") from None
         if shader is not None and measured:
             check_measurable(shader, per_pixel=True)
-    source = Path(scene.source) if scene.source and Path(scene.source).exists() else None
     plan = plan_outputs(out, spec.name, usd_output_name(spec.name, scene, len(run_frames), usd_format), run_frames,
                         measured, previews=previews, validate=validate, pixels=shader is not None,
-                        movie=movie_format, protected=() if source is None else (source,))
+                        movie=movie_format, protected=run_inputs(spec, scene))
     plan.check()
     return plan
 
@@ -366,13 +379,24 @@ def _print_run(rt, outputs) -> None:
     err = outputs.get("error")
     if err:
         m = err["mean"]
-        print(f"  error vs ray-traced ground truth ({err['samples']} spp): relative RMS {m['rel_rms']:.4f}, "
-              f"p99 {m['rel_p99']:.4f} (ground-truth noise {m.get('noise_rel_rms', float('nan')):.4f})")
+        debiased = m.get("rel_rms_debiased")
+        print(f"  error vs ray-traced ground truth ({err['samples']} spp): relative RMS "
+              + (f"{debiased:.4f} with the reference's noise removed ({m['rel_rms']:.4f} with it), " if debiased is not None
+                 else f"{m['rel_rms']:.4f}, ")
+              + f"p99 {m['rel_p99']:.4f} (ground-truth noise {m.get('noise_rel_rms', float('nan')):.4f})")
         for f, v in (err.get("pixels") or {}).get("frames", {}).items():
             px = err["pixels"]
             print(f"  per pixel, frame {f:g} ({px['width']}x{px['height']}, {px['samples']} spp): relative RMS "
                   f"{v['rel_rms']:.4f} (ground-truth noise {v['noise']:.4f})")
-    if outputs.get("left_out"):
+    validation = outputs.get("validation")
+    if validation is not None:
+        if validation.outside_run:
+            print(f"  [validate] frame(s) {validation.outside_run} are outside the frames run and were not measured")
+        if validation.not_in_scene:
+            print(f"  [validate] frame(s) {validation.not_in_scene} are not time codes of the scene "
+                  f"({validation.scene_times}) and were not measured"
+                  + (f"; measured the first frame run, {validation.measured[0]:g}" if validation.fallback else ""))
+    elif outputs.get("left_out"):
         print(f"  [validate] frame(s) {outputs['left_out']} are outside the frames run and were not measured")
     print(f"  USD     {outputs['usd']}")
     for p in outputs.get("png", []):
@@ -382,12 +406,58 @@ def _print_run(rt, outputs) -> None:
     print(f"  report  {outputs['report']}  ({outputs['seconds']:.1f} s in all)")
 
 
+def _refuse_scene_as_graph(name: str) -> None:
+    """A USD scene (a file, ``warp-example:NAME``, ``bundled:NAME``) given where a stage graph is
+    expected: say what it is and how to run a graph on it."""
+    from pathlib import Path
+
+    from .graph.loader import usd_scene_kind
+    from .io.scene_specs import SCENE_SPEC_PREFIXES, USD_SUFFIXES
+
+    kind = None
+    if name.startswith(SCENE_SPEC_PREFIXES):
+        kind = "a scene spec"
+    elif Path(name).is_file():
+        kind = usd_scene_kind(name)
+    elif Path(name).suffix.lower() in USD_SUFFIXES:
+        kind = "a USD file name"
+    if kind is not None:
+        raise CliError(f"{name} is a USD scene ({kind}), not a stage graph: run a graph on it with --scene, e.g. "
+                       f"warpshade run stages/bunny_prt.toml --scene {name} (warpshade list-stages lists the graphs)")
+
+
 def _cmd_run(args) -> int:
     """Run a stage graph: precompute (cached), frame loop, USD + PNG + JSON outputs."""
+    _refuse_scene_as_graph(args.graph)
     graph_file = _find_graph(args.graph)
     rt, outputs = _run_graph(graph_file, args.frames, args.device, args.out, args.validate, not args.no_previews,
                              usd_format=args.usd_format, scheduler=args.scheduler, movie=args.movie,
-                             validate_samples=args.validate_samples)
+                             validate_samples=args.validate_samples, scene_spec=args.scene)
+    _print_run(rt, outputs)
+    return 0
+
+
+def _cmd_shade(args) -> int:
+    """Choose, size and validate a method for a scene; write the chosen graph; run it."""
+    from pathlib import Path
+
+    from .measure.auto import VALIDATE_SAMPLES, run_frames, shade_scene
+
+    name = Path(str(args.scene).split(":", 1)[-1]).stem or "scene"
+    out = args.out or f"warpshade-out/{name}_auto"
+    samples = args.validate_samples or VALIDATE_SAMPLES
+    report = shade_scene(args.scene, out, target_error=args.target_error, budget_ms=args.budget_ms, glossy=args.glossy,
+                         device=args.device or "cpu", validate_samples=samples, quick=args.quick)
+    if report["chosen"] is None:
+        raise CliError(f"{args.scene}: {report['why']} (see {report['chart']} and the report next to it)")
+    if not report["met"]:
+        print(f"note    the request was not met: {report['why']}")
+    if args.no_run:
+        return 0
+    graph = report["chosen"]["graph"]
+    frames = run_frames(report["scene_frames"], report["held_out_frames"])
+    print(f"run     warpshade run {graph} --frames {frames} --validate --out {out}")
+    rt, outputs = _run_graph(Path(graph), frames, args.device, out, True, True, validate_samples=samples)
     _print_run(rt, outputs)
     return 0
 
@@ -460,9 +530,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--ground-plane", action="store_true", help="add a ground plane under the scene first")
     p.set_defaults(func=_cmd_info)
     p = sub.add_parser("run", parents=[common, device], help="run a stage graph (TOML) end to end: USD + PNG + JSON report",
-                       description="Run a stage graph: precompute (cached), every frame, then write the USD layer, "
-                                   "PNG previews and a JSON report into --out.")
+                       description="Run a stage graph on its scene (or on another one given with --scene): "
+                                   "precompute (cached), every frame, then write the USD layer, PNG previews and a JSON "
+                                   "report into --out.")
     p.add_argument("graph", help="path to a stage graph, or the name of one in stages/")
+    p.add_argument("--scene", default=None, metavar="SCENE",
+                   help="run the graph on this scene instead of its own: a USD file, warp-example:NAME or bundled:NAME "
+                        "(the graph's scene options apply; frame_count only to a scene in which nothing moves)")
     p.add_argument("--frames", type=_frames, default=None,
                    help="time codes to run: A:B (A <= t < B; either end may be left out) or one time code "
                         "(default: the graph's [graph] frames, else every frame of the scene)")
@@ -483,6 +557,26 @@ def build_parser() -> argparse.ArgumentParser:
                         "scheduler address (tcp://host:8786), 'local[:N]' worker processes or 'serial' "
                         "(default: $WARPSHADE_SCHEDULER, else local worker processes)")
     p.set_defaults(func=_cmd_run)
+    p = sub.add_parser("shade", parents=[common, device],
+                       help="choose, size and validate a method for your own scene, write its graph and run it",
+                       description="Inspect SCENE (a USD file, warp-example:NAME or bundled:NAME), measure every method "
+                                   "that applies to it at a few sizes on training frames against ray-traced ground "
+                                   "truth (the per-frame ray tracer among them, the baseline), choose (the cheapest "
+                                   "meeting --target-error, the most accurate within --budget-ms), write the chosen "
+                                   "graph (<name>_auto.toml), a report and a time-vs-error chart into --out, then run "
+                                   "the graph validated on held-out frames the choice did not use.")
+    p.add_argument("scene", help="USD file or scene spec")
+    p.add_argument("--target-error", type=float, default=None, metavar="E",
+                   help="relative RMS error against ray-traced ground truth to meet (default 0.1 when no budget is given)")
+    p.add_argument("--budget-ms", type=float, default=None, metavar="X", help="time per frame the method may take (ms)")
+    p.add_argument("--glossy", choices=("auto", "on", "off"), default="auto",
+                   help="shade glossy (RPO) or diffuse; auto: glossy when a mesh's material roughness is below 0.4")
+    p.add_argument("--out", default=None, help="output directory (default: warpshade-out/<scene name>_auto)")
+    p.add_argument("--validate-samples", type=_positive_int, default=None, metavar="N",
+                   help="ground-truth rays per vertex of the held-out validation (default 512)")
+    p.add_argument("--quick", action="store_true", help="one size per method (a first look)")
+    p.add_argument("--no-run", action="store_true", help="choose and write the graph, its report and chart; do not run it")
+    p.set_defaults(func=_cmd_shade)
     p = sub.add_parser("demo", parents=[common, device], help="run the default bundled scene end to end and print where its outputs are",
                        description="Run stages/demo.toml (Warp's bunny under a rotating sky, static PRT) with validation.")
     p.add_argument("--out", default=None, help="output directory (default: warpshade-out/demo)")
@@ -507,6 +601,23 @@ def _message(exc: BaseException) -> str:
     return text
 
 
+#: Exit status when the reader of standard output goes away (``warpshade info FILE | head``):
+#: 128 + SIGPIPE, what a shell reports for a tool that SIGPIPE ended.
+EXIT_BROKEN_PIPE = 128 + 13
+
+
+def _stdout_closed() -> int:
+    """Standard output's reader went away: end quietly, like a Unix tool ended by SIGPIPE. What is
+    still buffered for it goes to the null device, so the interpreter's last flush cannot fail
+    (Python's documentation, "Note on SIGPIPE")."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, AttributeError, ValueError):  # no file descriptor (a captured stream)
+        pass
+    return EXIT_BROKEN_PIPE
+
+
 def main(argv=None) -> int:
     import traceback
 
@@ -516,7 +627,11 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     debug = getattr(args, "debug", False)
     try:
-        return int(args.func(args) or 0)
+        code = int(args.func(args) or 0)
+        sys.stdout.flush()  # a reader that went away (| head) shows here, not at interpreter exit
+        return code
+    except BrokenPipeError:
+        return _stdout_closed()
     except KeyboardInterrupt:
         print(f"warpshade {args.command}: interrupted", file=sys.stderr)
         return 130

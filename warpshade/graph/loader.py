@@ -24,6 +24,7 @@ __all__ = [
     "SCENE_OPTIONS",
     "check_frames_spec",
     "check_name",
+    "usd_scene_kind",
 ]
 
 
@@ -172,10 +173,34 @@ def _check_scene_options(options: dict, where: str) -> dict:
     return options
 
 
+#: How USD files begin: text (usda), binary (usdc) and zipped (usdz) layers.
+_USD_MAGIC = ((b"#usda", "a text USD layer"), (b"PXR-USDC", "a binary USD layer"), (b"PK\x03\x04", "a USDZ package"))
+
+
+def usd_scene_kind(path, head: bytes | None = None) -> str | None:
+    """What USD scene ``path`` is (``"a text USD layer"``, ...), or None when it is none: told by
+    its first bytes (``head``, else read), or by its suffix when it cannot be read (a ``.usdz``
+    is only a USD package by its suffix, a zip otherwise)."""
+    from ..io.scene_specs import USD_SUFFIXES
+
+    suffix = Path(path).suffix.lower()
+    if head is None:
+        try:
+            with open(path, "rb") as f:
+                head = f.read(8)
+        except OSError:
+            return "a USD file" if suffix in USD_SUFFIXES else None
+    for magic, kind in _USD_MAGIC:
+        if head.startswith(magic) and (magic != b"PK\x03\x04" or suffix == ".usdz"):
+            return kind
+    return None
+
+
 def load(path) -> GraphSpec:
     """Load a stage graph from a TOML file (see module docstring for the layout).
 
-    Everything that can be checked without the scene is checked here: the file, TOML syntax,
+    Everything that can be checked without the scene is checked here: the file (a USD scene given
+    as a graph is named as such), TOML syntax,
     the tables and their keys, the types and ranges of values, graph and stage names, frame
     selections, stage types, parameters and wiring (:meth:`GraphSpec.check`).
 
@@ -191,6 +216,10 @@ def load(path) -> GraphSpec:
         data = path.read_bytes()
     except OSError as exc:
         raise GraphError(f"stage graph file {path}: cannot be read ({exc.strerror or exc})") from None
+    usd = usd_scene_kind(path, data[:8])
+    if usd is not None:
+        raise GraphError(f"stage graph file {path}: is a USD scene ({usd}), not a stage graph (TOML); a graph names "
+                         f"it as its scene (scene = \"{path}\" in [graph], or warpshade run GRAPH --scene {path})")
     try:
         text = data.decode("utf-8")
     except UnicodeDecodeError:

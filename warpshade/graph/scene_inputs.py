@@ -3,7 +3,8 @@
 * :func:`parse_frames` -- time codes of the scene selected by ``"A:B"``, one time code or a list;
 * :func:`lighting_from_spec` -- a graph's ``[lighting]`` table as a
   :class:`~warpshade.scene.LightingSource`;
-* :func:`extend_static_frames` -- a static scene given a number of frames (to rotate lighting).
+* :func:`extend_static_frames` -- a static scene given a number of frames (to rotate lighting);
+  :func:`scene_animation` -- what moves in a scene, if anything.
 """
 
 from __future__ import annotations
@@ -99,20 +100,41 @@ def lighting_from_spec(spec: dict, scene, base_dir: Path | None = None) -> Light
     return LightingSource(lights, scene.up_axis, speed, float(scene.frames[0]))
 
 
+def scene_animation(scene) -> str | None:
+    """What moves in ``scene`` over its time codes (``"mesh /Arm is skinned"``, ``"light /Sun
+    moves"``, ``"camera /Cam moves"``), or None when nothing does (a static asset, whatever its
+    time range)."""
+    for mesh in scene.meshes:
+        if not (mesh.animation == "static" or (mesh.animation == "rigid" and mesh.transforms.shape[0] == 1)):
+            return f"mesh {mesh.path} is {mesh.animation}"
+    for light in scene.lights:
+        if getattr(light, "track", None) is not None:
+            return f"light {getattr(light, 'path', None) or type(light).__name__} moves"
+    if scene.camera is not None and scene.camera.moving:
+        return f"camera {scene.camera.path} moves"
+    return None
+
+
 def extend_static_frames(scene, frame_count: int):
     """A static scene with ``frame_count`` time codes 0..frame_count-1 (e.g. to rotate lighting).
 
+    A static asset needs no ``frame_count``: it is one frame (time code 0), and its animated
+    lights or camera give it their time codes. ``frame_count`` gives a scene in which nothing
+    moves (:func:`scene_animation`) that many frames, for lighting that turns per frame.
+
     Raises:
-        GraphError: when the scene is animated (its own time range must be used).
+        GraphError: when something in the scene moves (its own time codes must be used), naming it.
     """
     if frame_count < 1:
         raise GraphError(f"frame_count must be >= 1, got {frame_count}")
-    if not scene.is_static:
-        raise GraphError(f"scene {scene.source}: frame_count only applies to static scenes (this one is animated)")
+    moving = scene_animation(scene)
+    if moving is not None:
+        raise GraphError(f"scene {scene.source}: frame_count only applies to static scenes (in this one {moving}; it "
+                         f"runs its own {len(scene.frames)} time codes {scene.frames[0]:g}..{scene.frames[-1]:g}): "
+                         "remove frame_count from [graph]")
     from ..scene import Scene
 
     return Scene(
         scene.meshes, frames=range(frame_count), fps=scene.fps, skeletons=scene.skeletons, lights=scene.lights,
         camera=scene.camera, up_axis=scene.up_axis, source=scene.source, skipped=scene.skipped,
     )
-

@@ -36,7 +36,8 @@ TOML layout (paths are relative to the TOML file)::
     intensity = 1.0
 
     [validate]                                # optional: error against ground truth
-    frames = [0, 30]
+    frames = [0, 30]                          # those the run steps; others are left out, said
+                                              # before the run (none in the scene: its first frame)
     samples = 1024
 
     [[material]]                              # optional material track (stages that shade BRDFs)
@@ -62,11 +63,13 @@ import copy
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..methods.stage import Port, Stage, StageError, get_stage_type
+import numpy as np
+
+from ..methods.stage import Port, Stage, StageContext, StageError, get_stage_type
 from ..scene.lighting import LightingSource
 from .errors import GraphError
 from .runtime import Runtime
-from .scene_inputs import extend_static_frames, lighting_from_spec, parse_frames
+from .scene_inputs import extend_static_frames, lighting_from_spec, parse_frames, scene_animation
 
 __all__ = [
     "Wire",
@@ -101,6 +104,54 @@ class Wire:
 
     def __str__(self) -> str:
         return f"{self.provider}.{self.port}"
+
+
+def _time_codes(scene) -> str:
+    """The scene's time codes in words, for messages."""
+    t = scene.frames
+    if len(t) == 1:
+        return f"one frame, time code {t[0]:g}"
+    return f"{len(t)} frames, time codes {t[0]:g}..{t[-1]:g}"
+
+
+@dataclass
+class ValidationFrames:
+    """What a ``--validate`` run measures (:meth:`GraphSpec.validation_plan`).
+
+    Attributes:
+        measured: time codes measured.
+        outside_run: ``[validate]`` frames of the scene that the run does not step.
+        not_in_scene: ``[validate]`` frames that are no time code of the scene.
+        fallback: no ``[validate]`` frame is a time code of the scene, so the run's first frame
+            is measured.
+        run: the time codes the run steps; scene_times: the scene's time codes in words.
+    """
+
+    measured: list
+    outside_run: list
+    not_in_scene: list
+    fallback: bool
+    run: list
+    scene_times: str
+
+    @property
+    def left_out(self) -> list:
+        """Every ``[validate]`` frame not measured."""
+        return self.outside_run + self.not_in_scene
+
+    def note(self) -> str | None:
+        """One line on what is measured instead of what ``[validate]`` asks, or None."""
+        if not self.left_out:
+            return None
+        frames = ", ".join(f"{f:g}" for f in self.measured)
+        parts = [f"--validate measures frame(s) {frames}" + (" (the first frame run)" if self.fallback else "")]
+        if self.outside_run:
+            parts.append(f"[validate] frame(s) {', '.join(f'{f:g}' for f in self.outside_run)} are outside the frames run "
+                         f"({self.run[0]:g}..{self.run[-1]:g}) and are left out")
+        if self.not_in_scene:
+            parts.append(f"[validate] frame(s) {', '.join(f'{f:g}' for f in self.not_in_scene)} are not time codes of the "
+                         f"scene ({self.scene_times}) and are left out")
+        return "; ".join(parts)
 
 
 @dataclass
@@ -326,14 +377,21 @@ class GraphSpec:
         except ValueError as exc:
             raise GraphError(f"graph {self.name!r}: {exc}") from None
 
-    def load_scene(self):
+    def load_scene(self, scene: str | None = None):
         """The graph's scene (its ``scene`` spec and ``[graph]`` scene options).
+
+        Args:
+            scene: a scene spec that replaces the graph's ``scene`` (``warpshade run --scene``): a
+                USD file (relative to the current directory), ``warp-example:NAME`` or
+                ``bundled:NAME``. The graph's scene options apply to it, ``frame_count`` only when
+                nothing in it moves (:func:`~warpshade.graph.scene_inputs.scene_animation`): an
+                animated scene runs its own time codes (:meth:`frame_count_skipped` says so).
 
         Raises:
             GraphError: the graph names no scene, or a bad option; FileNotFoundError /
                 ValueError from the loader (naming the file and prim).
         """
-        spec = self.resolve_scene_spec()
+        spec = scene if scene is not None else self.resolve_scene_spec()
         if spec is None:
             raise GraphError(f"graph {self.name!r}: no scene given and the graph names none")
         from ..io import load_scene
@@ -341,12 +399,19 @@ class GraphSpec:
         options = dict(self.scene_options)
         frame_count = options.pop("frame_count", None)
         try:
-            scene = load_scene(spec, **options)
+            loaded = load_scene(spec, **options)
         except TypeError as exc:
             raise GraphError(f"graph {self.name!r}: bad scene option in [graph]: {exc}") from None
-        if frame_count is not None:
-            scene = extend_static_frames(scene, int(frame_count))
-        return scene
+        if frame_count is not None and not (scene is not None and self.frame_count_skipped(loaded)):
+            loaded = extend_static_frames(loaded, int(frame_count))
+        return loaded
+
+    def frame_count_skipped(self, scene) -> str | None:
+        """Why the graph's ``frame_count`` does not apply to ``scene`` (what moves in it), or None
+        when it applies or the graph has none."""
+        if self.scene_options.get("frame_count") is None:
+            return None
+        return scene_animation(scene)
 
     def run_frames(self, scene, frames=None):
         """The time codes a run steps: ``frames`` (e.g. ``--frames``), else ``[graph] frames``,
@@ -362,37 +427,53 @@ class GraphSpec:
             raise GraphError(f"{where}: {exc}") from None
 
     def _check_validate_frames(self, scene) -> None:
+        """Each ``[validate]`` frame is a finite number (whether the scene has it is decided by
+        :meth:`validation_plan`, when a run measures)."""
         for f in self.validate_spec.get("frames") or ():
-            try:
-                scene.frame_index(f)
-            except (TypeError, ValueError) as exc:
-                raise GraphError(f"graph {self.name!r}: [validate] frames: {exc}") from None
+            if isinstance(f, (bool, np.bool_)) or not isinstance(f, (int, float, np.integer, np.floating)):
+                raise GraphError(f"graph {self.name!r}: [validate] frames: frame must be a number (a time code), got {f!r}")
+            if not np.isfinite(f):
+                raise GraphError(f"graph {self.name!r}: [validate] frames: frame must be a finite time code, got {f!r}")
 
-    def validation_frames(self, scene, run_frames=None) -> tuple[list, list]:
-        """The ``[validate]`` frames a run measures, and those it leaves out.
+    def validation_plan(self, scene, run_frames=None) -> "ValidationFrames":
+        """The ``[validate]`` frames a run measures, and those it leaves out and why.
 
-        A run measures the ``[validate]`` frames (default: its first frame) that it steps;
-        the others are left out (reported). Checked before any work.
-
-        Returns:
-            ``(measured, left_out)`` lists of time codes.
+        A run measures the ``[validate]`` frames (default: its first frame) that it steps. Of the
+        others, those the scene has are left out as outside the frames run, and those it does not
+        have (a graph copied onto another scene: a static asset is one frame, time code 0) as not
+        time codes of the scene. When every ``[validate]`` frame is missing from the scene, the
+        run's first frame is measured instead (a static scene validates its one frame). Checked
+        before any work; :meth:`ValidationFrames.note` says what was decided.
 
         Raises:
-            GraphError: a ``[validate]`` frame that is no time code of the scene, or none of
-                them in the run's frames.
+            GraphError: every ``[validate]`` frame the scene has lies outside the frames run (and
+                none is run): naming them and the fix.
         """
         run = [float(f) for f in (self.run_frames(scene) if run_frames is None else run_frames)]
         wanted = self.validate_spec.get("frames")
         if wanted is None:
-            return [run[0]], []
+            return ValidationFrames([run[0]], [], [], False, run, _time_codes(scene))
         self._check_validate_frames(scene)
-        where = f"graph {self.name!r}: [validate] frames"
-        measured = [float(f) for f in wanted if any(abs(float(f) - r) <= 1e-6 for r in run)]
-        left_out = [float(f) for f in wanted if float(f) not in measured]
-        if not measured:
+        times = np.asarray(scene.frames, np.float64)
+        in_scene = [float(f) for f in wanted if np.min(np.abs(times - float(f))) <= 1e-6]
+        missing = [float(f) for f in wanted if float(f) not in in_scene]
+        measured = [f for f in in_scene if any(abs(f - r) <= 1e-6 for r in run)]
+        outside = [f for f in in_scene if f not in measured]
+        if not measured and outside:
+            where = f"graph {self.name!r}: [validate] frames"
             raise GraphError(f"{where} {list(wanted)} are all outside the frames run ({run[0]:g}..{run[-1]:g}); "
                              "run frames that include one of them, or change [validate] frames")
-        return measured, left_out
+        fallback = not measured
+        return ValidationFrames([run[0]] if fallback else measured, outside, missing, fallback, run, _time_codes(scene))
+
+    def validation_frames(self, scene, run_frames=None) -> tuple[list, list]:
+        """The ``[validate]`` frames a run measures, and those it leaves out (:meth:`validation_plan`).
+
+        Returns:
+            ``(measured, left_out)`` lists of time codes.
+        """
+        plan = self.validation_plan(scene, run_frames)
+        return plan.measured, plan.left_out
 
     def compile(self, scene=None, device=None, lighting=None, **kwargs) -> Runtime:
         """Validate against a scene and return a :class:`~warpshade.graph.runtime.Runtime`.
@@ -415,6 +496,9 @@ class GraphSpec:
         if lighting is None:
             lighting = self.lighting_source(scene)
         stages, wiring = self._stages_for_run({"V": scene.vertex_count, "T": len(scene.frames), "F": scene.triangle_count})
+        source = getattr(self, "source_path", None)
+        ctx = StageContext(scene, device, {"V": scene.vertex_count, "T": len(scene.frames), "F": scene.triangle_count},
+                           base_dir=Path(source).parent if source is not None else None)
         for st in stages:  # parameter, file-header and scene checks of every stage before any precompute
-            st.check_scene(scene)
+            st.check_scene(scene, ctx)
         return Runtime(self, scene, stages, wiring, device=device, lighting=lighting, **kwargs)

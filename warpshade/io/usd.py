@@ -1,8 +1,9 @@
 """USD stages in: meshes, animation, skinning, lights and camera as a :class:`~warpshade.scene.Scene`.
 
 The stage reader: this module walks the stage; :mod:`warpshade.io.usd_mesh` (meshes),
-:mod:`warpshade.io.usd_skel` (UsdSkel), :mod:`warpshade.io.usd_lights` (lights, camera),
-:mod:`warpshade.io.textures` (materials) and :mod:`warpshade.io.heightfield` read the prims.
+:mod:`warpshade.io.usd_implicit` (implicit prims), :mod:`warpshade.io.usd_skel` (UsdSkel),
+:mod:`warpshade.io.usd_lights` (lights, camera), :mod:`warpshade.io.textures` (materials) and
+:mod:`warpshade.io.heightfield` read the prims.
 Scene specs are resolved by :mod:`warpshade.io.scene_specs`. What :func:`load_usd` reads:
 
 Meshes
@@ -12,9 +13,22 @@ Meshes
     ``UsdGeom.PointInstancer`` prims (one mesh per instance and prototype mesh, named
     ``<instancer>/instance_<i>/<path below the prototype>``; the prototype root's own transform
     is applied before the instance transform; instances hidden by ``invisibleIds`` or inactive
-    are left out). Skipped (and listed in ``Scene.skipped``): prims whose computed purpose is
-    ``guide`` or ``proxy``, prims that are invisible at the first frame, implicit gprims (Sphere,
-    Cube, Capsule, ...), and unsupported lights.
+    at any frame are left out).
+
+    Implicit gprims -- ``Sphere``, ``Cube``, ``Cylinder``, ``Cone``, ``Capsule``, ``Plane`` and
+    the USD 24 ``Capsule_1`` / ``Cylinder_1`` -- are tessellated into meshes
+    (:mod:`warpshade.io.usd_implicit` states the shapes and the density: 32 segments around every
+    circle, analytic normals), with their transform over time, animated shape attributes, bound
+    material and ``displayColor`` read as for meshes; ``Mesh.implicit`` records the shape and its
+    parameters.
+
+    Skipped, each listed with its reason in ``Scene.skipped`` (and by ``warpshade info``): prims
+    whose computed purpose is ``guide`` or ``proxy``, prims that are invisible at the first frame
+    (with everything under them, also inside point instancer prototypes), empty meshes, other
+    gprims (``Points``, ``BasisCurves``, ...), point instances hidden at some frame (one entry per
+    instancer), unsupported lights and every camera after the first. A stage with nothing to
+    render is refused with the skipped prims and their reasons (or the prims it has, and how many
+    prims are inactive, ``over`` or ``class`` and so not read) in the message.
 
     Convex polygons are triangulated as fans from their first vertex; concave ones (a reflex
     corner in the rest pose) are re-triangulated by ear clipping (mapbox-earcut) in their
@@ -51,8 +65,17 @@ Albedo
     warning says so).
 
 Animation
-    Frames are every integer time code from the stage's start to end time code (a stage
-    without an authored range is one frame at time code 0). Per mesh: time-sampled points ->
+    Frames are every integer time code from the stage's startTimeCode to its endTimeCode when it
+    authors both. A stage without that range is sampled at its own animation's time samples: the
+    sorted union of the authored time samples of every attribute the reader follows over time
+    (xform ops of any prim -- meshes, their parents, lights, cameras --, mesh ``points``,
+    implicit shape attributes, point instancer positions / orientations / scales / protoIndices /
+    invisibleIds, UsdSkel animation translations / rotations / scales), counting attributes with
+    two or more samples, on the prims a load traverses except guide and proxy prims. Fractional
+    time codes stay fractional (samples closer than 1e-6 merge); more than
+    :data:`~warpshade._limits.MAX_TIME_CODES` is refused naming the attribute. A stage with no
+    animated attribute is one frame at time code 0 (a static asset needs no frame range; its
+    animated lights or camera alone give it frames). Per mesh: time-sampled points ->
     ``"deforming"``; a world transform that differs between frames -> ``"rigid"``; bound to a
     UsdSkel skeleton through a SkelRoot -> ``"skinned"``; else ``"static"``. Skinned meshes:
     joint-local transforms sampled per frame with ``UsdSkel.SkeletonQuery``, bind transforms
@@ -74,7 +97,9 @@ Lights
 Camera
     The first ``UsdGeom.Camera`` in traversal order, at the first frame.
 
-Errors name the file or prim: missing file (FileNotFoundError), unreadable stage, no meshes,
+Errors name the file or prim: missing file (FileNotFoundError), unreadable stage, nothing to
+render (naming the skipped prims), an implicit prim's radius, height or size that makes no
+surface,
 NaN/inf points, face indices out of range, inconsistent face counts, a skin that does not match
 its skeleton, a missing or unreadable dome texture, a missing, unreadable or unusable material
 texture or the UVs it needs (ValueError; see :mod:`warpshade.io.textures`). Zero-area triangles are
@@ -97,6 +122,7 @@ from ..scene import lighting
 from ..scene.scene import Mesh, Scene
 from .scene_specs import resolve_scene_path
 from .textures import SurfaceReader
+from .usd_implicit import IMPLICIT_TYPES, is_implicit, read_implicit, shape_attributes
 from .usd_lights import read_camera, read_light, with_track
 from .usd_mesh import read_mesh, read_point_instancer
 from .usd_skel import read_skinning
@@ -170,19 +196,23 @@ class _StageReader:
         self.stage = stage
         self.path = path
         self.up_axis = str(UsdGeom.GetStageUpAxis(stage)).upper()
+        self.predicate = Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate)
         self.frames, self.range_authored = self._frames()
         self.times = [Usd.TimeCode(float(f)) for f in self.frames]
         self.xform_caches = [UsdGeom.XformCache(t) for t in self.times]
-        self.predicate = Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate)
         self.skipped: list[tuple[str, str]] = []
-        self._warned_unranged = False
+        self._prototype_cache: dict = {}  # point instancer prototype path -> its Mesh / implicit prims
         self._surfaces = SurfaceReader()
 
     # -- time ------------------------------------------------------------------------------
     def _frames(self):
+        """``(frames, range_authored)``: the stage's integer time codes start..end when it authors
+        both startTimeCode and endTimeCode; else the time samples of its animation
+        (:meth:`_animated_time_codes`), or time code 0 when nothing is animated."""
         st = self.stage
         if not st.HasAuthoredTimeCodeRange():
-            return np.array([0.0]), False
+            codes = self._animated_time_codes()
+            return (codes if codes.size else np.array([0.0])), False
         start, end = float(st.GetStartTimeCode()), float(st.GetEndTimeCode())
         if not (math.isfinite(start) and math.isfinite(end)) or end < start:
             raise ValueError(f"USD file {self.path}: invalid time code range {start}..{end}")
@@ -194,6 +224,66 @@ class _StageReader:
         if frames.size == 0:
             frames = np.array([start])
         return frames, True
+
+    def _animated_attributes(self, prim) -> list:
+        """The attributes of ``prim`` whose time samples the reader follows: xform ops, mesh
+        points, implicit shape attributes, point instancer positions / orientations / scales /
+        protoIndices / invisibleIds, UsdSkel animation translations / rotations / scales."""
+        from pxr import UsdGeom, UsdSkel
+
+        attrs = []
+        if prim.IsA(UsdGeom.Xformable):
+            attrs += [op.GetAttr() for op in UsdGeom.Xformable(prim).GetOrderedXformOps()]
+        if prim.IsA(UsdGeom.Mesh):
+            attrs.append(UsdGeom.Mesh(prim).GetPointsAttr())
+        elif is_implicit(prim):
+            attrs += shape_attributes(prim)
+        elif prim.IsA(UsdGeom.PointInstancer):
+            pi = UsdGeom.PointInstancer(prim)
+            attrs += [pi.GetPositionsAttr(), pi.GetOrientationsAttr(), pi.GetScalesAttr(), pi.GetProtoIndicesAttr(),
+                      pi.GetInvisibleIdsAttr()]
+        elif prim.IsA(UsdSkel.Animation):
+            anim = UsdSkel.Animation(prim)
+            attrs += [anim.GetTranslationsAttr(), anim.GetRotationsAttr(), anim.GetScalesAttr()]
+        return attrs
+
+    def _animated_time_codes(self) -> np.ndarray:
+        """Frames of a stage without startTimeCode/endTimeCode: the union of the time samples of
+        every animated attribute (:meth:`_animated_attributes`, on attributes with two or more
+        samples) of the prims a load traverses (guide and proxy prims left out), sorted, as they
+        are (fractional time codes stay fractional; codes closer than 1e-6 merge).
+
+        Raises:
+            ValueError: more than :data:`~warpshade._limits.MAX_TIME_CODES` time codes, naming the
+                file and the attribute that crossed the limit.
+        """
+        from pxr import Usd, UsdGeom
+
+        codes: set = set()
+        it = iter(Usd.PrimRange(self.stage.GetPseudoRoot(), self.predicate))
+        for prim in it:
+            if prim.IsA(UsdGeom.Imageable) and UsdGeom.Imageable(prim).ComputePurpose() in (UsdGeom.Tokens.guide,
+                                                                                          UsdGeom.Tokens.proxy):
+                it.PruneChildren()
+                continue
+            with self._reading(prim):
+                for attr in self._animated_attributes(prim):
+                    n = attr.GetNumTimeSamples() if attr else 0
+                    if n < 2:
+                        continue
+                    if n <= MAX_TIME_CODES:  # a single attribute over the limit is refused before reading its samples
+                        codes.update(attr.GetTimeSamples())
+                    if n > MAX_TIME_CODES or len(codes) > MAX_TIME_CODES:
+                        raise ValueError(
+                            f"USD file {self.path}: the stage has no startTimeCode/endTimeCode and its animation has "
+                            f"more than {MAX_TIME_CODES:,} time samples (reached at {attr.GetPath()}); at most "
+                            f"{MAX_TIME_CODES:,} are sampled (warpshade._limits.MAX_TIME_CODES): author startTimeCode "
+                            "and endTimeCode to sample the integer time codes between them")
+        frames = np.array(sorted(float(c) for c in codes if math.isfinite(c)), np.float64)
+        if frames.size > 1:
+            keep = np.concatenate([[True], np.diff(frames) > 1e-6])
+            frames = frames[keep]
+        return frames
 
     def _world_transforms(self, prim) -> np.ndarray:
         """Local-to-world per frame, (T, 4, 4), or (1, 4, 4) when constant; row-vector."""
@@ -230,13 +320,9 @@ class _StageReader:
             if prim.IsPseudoRoot():
                 continue
             if prim.IsA(UsdGeom.Imageable):
-                purpose = UsdGeom.Imageable(prim).ComputePurpose()
-                if purpose in (UsdGeom.Tokens.guide, UsdGeom.Tokens.proxy):
-                    self.skipped.append((str(prim.GetPath()), f"purpose {purpose}"))
-                    it.PruneChildren()
-                    continue
-                if UsdGeom.Imageable(prim).ComputeVisibility(self.times[0]) == UsdGeom.Tokens.invisible:
-                    self.skipped.append((str(prim.GetPath()), "invisible"))
+                why = self._hidden_reason(prim)
+                if why is not None:
+                    self.skipped.append((str(prim.GetPath()), why))
                     it.PruneChildren()
                     continue
             with self._reading(prim):
@@ -248,16 +334,22 @@ class _StageReader:
                     mesh = read_mesh(self, prim, skins.get(str(prim.GetPath())))
                     if mesh is not None:
                         meshes.append(mesh)
+                elif is_implicit(prim):
+                    meshes.append(read_implicit(self, prim))
                 elif prim.IsA(UsdGeom.Gprim):
-                    self.skipped.append((str(prim.GetPath()), f"implicit {prim.GetTypeName()} (only Mesh prims are read)"))
+                    self.skipped.append((str(prim.GetPath()), self._unsupported_gprim(prim)))
                 elif prim.HasAPI(UsdLux.LightAPI):
                     light = read_light(self, prim)
                     if light is not None:
                         lights.append(with_track(self, prim, light))
-                elif prim.IsA(UsdGeom.Camera) and camera is None:
-                    camera = read_camera(self, prim)
+                elif prim.IsA(UsdGeom.Camera):
+                    if camera is None:
+                        camera = read_camera(self, prim)
+                    else:
+                        self.skipped.append((str(prim.GetPath()), f"camera (only the first camera, {camera.path}, is read)"))
         if not meshes:
-            raise ValueError(f"USD file {self.path}: contains no (visible, renderable) UsdGeom.Mesh prims")
+            raise ValueError(f"USD file {self.path}: contains no (visible, renderable) UsdGeom.Mesh or implicit "
+                             f"({', '.join(IMPLICIT_TYPES)}) prims; {self._nothing_renderable()}")
         return Scene(
             meshes,
             frames=self.frames,
@@ -269,6 +361,52 @@ class _StageReader:
             source=self.path,
             skipped=self.skipped,
         )
+
+    # -- what is left out --------------------------------------------------------------------
+    def _hidden_reason(self, prim, prototype: bool = False) -> str | None:
+        """Why an imageable prim (and everything under it) is not read, or None: guide or proxy
+        purpose, or invisible at the first frame."""
+        from pxr import UsdGeom
+
+        img = UsdGeom.Imageable(prim)
+        purpose = img.ComputePurpose()
+        if purpose in (UsdGeom.Tokens.guide, UsdGeom.Tokens.proxy):
+            return f"purpose {purpose}" + (" (in a point instancer's prototype)" if prototype else "")
+        if img.ComputeVisibility(self.times[0]) == UsdGeom.Tokens.invisible:
+            return "invisible" + (" (in a point instancer's prototype)" if prototype else "")
+        return None
+
+    @staticmethod
+    def _unsupported_gprim(prim) -> str:
+        return (f"unsupported gprim type {prim.GetTypeName() or 'untyped'} (Mesh and the implicit "
+                f"{', '.join(IMPLICIT_TYPES)} are read)")
+
+    def _nothing_renderable(self) -> str:
+        """What a stage without renderable prims holds: the skipped prims with their reasons, or
+        the prims it has, and those a traversal does not reach (inactive, ``over``, ``class``)."""
+        from collections import Counter
+
+        from pxr import Usd
+
+        parts = []
+        if self.skipped:
+            shown = "; ".join(f"{p} ({why})" for p, why in self.skipped[:6])
+            more = f"; and {len(self.skipped) - 6} more" if len(self.skipped) > 6 else ""
+            parts.append(f"skipped {len(self.skipped)} prim(s): {shown}{more}")
+        reached = [p for p in Usd.PrimRange(self.stage.GetPseudoRoot(), self.predicate) if not p.IsPseudoRoot()]
+        everything = [p for p in Usd.PrimRange(self.stage.GetPseudoRoot(), Usd.TraverseInstanceProxies(Usd.PrimAllPrimsPredicate))
+                      if not p.IsPseudoRoot()]
+        if not self.skipped:
+            kinds = Counter(str(p.GetTypeName()) or "untyped" for p in reached)
+            listed = ", ".join(f"{n} {k}" for k, n in kinds.most_common(6))
+            parts.append(f"its {len(reached)} prim(s) are {listed}" if reached else "the stage defines no prims")
+        reached_paths = {p.GetPath() for p in reached}
+        unreached = [p for p in everything if p.GetPath() not in reached_paths]
+        if unreached:
+            first = unreached[0]
+            parts.append(f"{len(unreached)} prim(s) are inactive, undefined ('over') or abstract ('class') and are not "
+                         f"read (first: {first.GetPath()})")
+        return "; ".join(parts)
 
     # -- per-mesh helpers (used by warpshade.io.usd_mesh and .textures) --------------------
     def _points_at(self, attr, time, vertex_count, path) -> np.ndarray:
@@ -289,15 +427,6 @@ class _StageReader:
                 f"mesh {path} in {self.path}: {int(bad.sum())} point(s) with NaN or infinite coordinates at "
                 f"time {time:g} (first: point {int(np.flatnonzero(bad)[0])})"
             )
-
-    def _warn_unranged(self, path) -> None:
-        if not self._warned_unranged:
-            warnings.warn(
-                f"USD file {self.path}: mesh {path} has time-sampled points but the stage has no "
-                "startTimeCode/endTimeCode; loading time code 0 only",
-                stacklevel=4,
-            )
-            self._warned_unranged = True
 
     def _primvar(self, prim, name):
         from pxr import UsdGeom

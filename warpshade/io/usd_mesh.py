@@ -1,5 +1,6 @@
 """Mesh prims of a USD stage as :class:`~warpshade.scene.Mesh`: polygons to triangles, normals,
-UVs, albedo, point instancers.
+UVs, albedo, point instancers (whose prototypes may hold implicit prims, tessellated by
+:mod:`warpshade.io.usd_implicit`).
 
 Part of the stage reader of :mod:`warpshade.io.usd` (whose docstring states what is read and
 the errors): each function takes the ``_StageReader`` doing the load as ``reader``.
@@ -12,7 +13,8 @@ import warnings
 import numpy as np
 
 from ..scene.scene import Mesh
-from ..scene.textures import Texture
+from .usd_appearance import read_appearance
+from .usd_implicit import is_implicit, read_implicit
 from .usd_skel import read_skin_binding
 
 __all__ = ["ZERO_AREA_RELATIVE", "read_mesh", "read_point_instancer"]
@@ -23,8 +25,6 @@ __all__ = ["ZERO_AREA_RELATIVE", "read_mesh", "read_point_instancer"]
 #: vertices are collinear to the last bit), and exactly 0 for repeated vertices.
 ZERO_AREA_RELATIVE = 1e-12
 
-_PREVIEW_SURFACE_DEFAULT_DIFFUSE = (0.18, 0.18, 0.18)  # UsdPreviewSurface spec fallback
-_DEFAULT_ALBEDO = (0.8, 0.8, 0.8)
 
 
 def read_mesh(reader, prim, skin_info=None, transforms=None, name=None) -> Mesh | None:
@@ -60,12 +60,9 @@ def read_mesh(reader, prim, skin_info=None, transforms=None, name=None) -> Mesh 
     # Time-sampled points (deforming) -- skinned meshes use the first frame as rest pose.
     samples = None
     if points_attr.GetNumTimeSamples() > 1 and skin_info is None:
-        if not reader.range_authored:
-            reader._warn_unranged(path)
-        else:
-            samples = np.stack([reader._points_at(points_attr, t, vertex_count, path) for t in reader.times])
-            if np.all(samples == samples[:1]):
-                samples = None
+        samples = np.stack([reader._points_at(points_attr, t, vertex_count, path) for t in reader.times])
+        if np.all(samples == samples[:1]):
+            samples = None
     reader._check_finite(rest, path, float(reader.frames[0]))
 
     # Topology checks and fan triangulation.
@@ -127,12 +124,7 @@ def read_mesh(reader, prim, skin_info=None, transforms=None, name=None) -> Mesh 
     if animation in ("static", "rigid"):
         normals = _read_normals(reader, mesh, path, vertex_count, indices, counts, poly_area)
     uvs = _read_uvs(reader, mesh, path, vertex_count, indices, counts)
-    surface, uvs = reader._surfaces.read(reader, prim, path, vertex_count, indices, counts, uvs)
-    albedo = _read_albedo(reader, prim, mesh, path, vertex_count, indices, counts, poly_area)
-    if surface is not None and (isinstance(surface.diffuse, Texture) or isinstance(surface.metallic, Texture)
-                                or (not surface.use_specular_workflow and surface.metallic > 0.0)):
-        # textured (or metallic-darkened) diffuse: the effective albedo at the vertices' UVs
-        albedo = surface.at_vertices(uvs, vertex_count)["diffuse"].astype(np.float32)
+    surface, uvs, albedo = read_appearance(reader, prim, path, vertex_count, indices, counts, poly_area, uvs)
     skin = None
     if skin_info is not None:
         skin = read_skin_binding(reader, skin_info, path, vertex_count)
@@ -199,55 +191,10 @@ def _read_uvs(reader, mesh, path, vertex_count, indices, counts):
     return None if uv is None or uv.shape[1] != 2 else uv
 
 
-def _read_albedo(reader, prim, mesh, path, vertex_count, indices, counts, poly_area):
-    rgb = _material_diffuse(reader, prim, path)
-    if rgb is not None:
-        return np.asarray(rgb, np.float32)
-    pv = reader._primvar(mesh.GetPrim(), "displayColor")
-    if pv is not None:
-        values = pv.ComputeFlattened(reader.times[0])
-        if values is not None and not hasattr(values, "__len__"):
-            raise ValueError(f"mesh {path} in {reader.path}: primvars:displayColor has a value of unknown type "
-                             f"({pv.GetTypeName()})")
-        if values is not None and len(values):
-            corner_w = np.repeat(poly_area, counts)
-            col = reader._to_vertex(values, str(pv.GetInterpolation()), path, "displayColor", vertex_count, indices, counts, corner_w)
-            if col is not None and col.shape[1] == 3 and np.all(np.isfinite(col)):
-                return col.astype(np.float32)
-    return np.asarray(_DEFAULT_ALBEDO, np.float32)
-
-
-def _material_diffuse(reader, prim, path):
-    from pxr import UsdShade
-
-    material, _ = UsdShade.MaterialBindingAPI(prim).ComputeBoundMaterial()
-    if not material:
-        return None
-    shader = material.ComputeSurfaceSource()[0]
-    if not shader or shader.GetIdAttr().Get() != "UsdPreviewSurface":
-        return None
-    inp = shader.GetInput("diffuseColor")
-    if not inp:
-        return _PREVIEW_SURFACE_DEFAULT_DIFFUSE
-    for attr in inp.GetValueProducingAttributes():
-        if UsdShade.Utils.GetBaseNameAndType(attr.GetName())[1] == UsdShade.AttributeType.Output:
-            source = UsdShade.Shader(attr.GetPrim())
-            if source and source.GetIdAttr().Get() == "UsdUVTexture":
-                return None  # sampled at the vertices from Mesh.surface (warpshade.io.textures)
-            warnings.warn(
-                f"mesh {path} in {reader.path}: material {material.GetPath()} has a connected (textured) "
-                "diffuseColor, which is not sampled; using displayColor or the default albedo",
-                stacklevel=4,
-            )
-            return None
-        value = attr.Get(reader.times[0])
-        if value is not None:
-            return tuple(float(c) for c in value)
-    return _PREVIEW_SURFACE_DEFAULT_DIFFUSE
-
-
 def read_point_instancer(reader, prim) -> list[Mesh]:
-    from pxr import Usd, UsdGeom
+    """One mesh per visible instance and prototype Mesh or implicit prim (module docstring of
+    :mod:`warpshade.io.usd`); instances hidden at any frame are counted in ``skipped``."""
+    from pxr import UsdGeom
 
     inst = UsdGeom.PointInstancer(prim)
     base = str(prim.GetPath())
@@ -265,6 +212,10 @@ def read_point_instancer(reader, prim) -> list[Mesh]:
     proto_indices = np.asarray(inst.GetProtoIndicesAttr().Get(reader.times[0]) or [], dtype=np.int64)
     inst_xf = np.stack(per_frame, axis=1)  # (N, T, 4, 4)
     visible = np.all(np.stack(masks), axis=0)
+    hidden = int(np.count_nonzero(~visible))
+    if hidden:
+        reader.skipped.append((base, f"{hidden} of {visible.size} instance(s) hidden by invisibleIds or inactiveIds "
+                                     "at some frame"))
     instancer_world = reader._world_transforms(prim)
     meshes = []
     for i, p in enumerate(proto_indices):
@@ -275,9 +226,7 @@ def read_point_instancer(reader, prim) -> list[Mesh]:
         proto = reader.stage.GetPrimAtPath(protos[p])
         if not proto:
             raise ValueError(f"point instancer {base} in {reader.path}: prototype {protos[p]} does not exist")
-        for sub in Usd.PrimRange(proto, reader.predicate):
-            if not sub.IsA(UsdGeom.Mesh):
-                continue
+        for sub in _prototype_prims(reader, proto):
             # mesh -> prototype-root space, per frame; the instance transforms computed by
             # USD already include the prototype root's own ops (IncludeProtoXform).
             to_proto = reader._world_transforms(sub) @ np.linalg.inv(reader._world_transforms(proto))
@@ -293,10 +242,39 @@ def read_point_instancer(reader, prim) -> list[Mesh]:
             if np.all(xf == xf[:1]):
                 xf = xf[:1]
             rel = str(sub.GetPath())[len(str(proto.GetPath())) :]
-            m = read_mesh(reader, sub, transforms=xf, name=f"{base}/instance_{i}{rel}")
+            if sub.IsA(UsdGeom.Mesh):
+                m = read_mesh(reader, sub, transforms=xf, name=f"{base}/instance_{i}{rel}")
+            else:
+                m = read_implicit(reader, sub, transforms=xf, name=f"{base}/instance_{i}{rel}")
             if m is not None:
                 meshes.append(m)
     return meshes
+
+
+def _prototype_prims(reader, proto) -> list:
+    """The Mesh and implicit prims of a point instancer's prototype, in traversal order; guide /
+    proxy / invisible prims and unsupported gprims are left out and recorded once in ``skipped``."""
+    from pxr import Usd, UsdGeom
+
+    cache = reader._prototype_cache
+    key = str(proto.GetPath())
+    if key in cache:
+        return cache[key]
+    found = []
+    it = iter(Usd.PrimRange(proto, reader.predicate))
+    for sub in it:
+        if sub.IsA(UsdGeom.Imageable):
+            why = reader._hidden_reason(sub, prototype=True)
+            if why is not None:
+                reader.skipped.append((str(sub.GetPath()), why))
+                it.PruneChildren()
+                continue
+        if sub.IsA(UsdGeom.Mesh) or is_implicit(sub):
+            found.append(sub)
+        elif sub.IsA(UsdGeom.Gprim):
+            reader.skipped.append((str(sub.GetPath()), reader._unsupported_gprim(sub)))
+    cache[key] = found
+    return found
 
 
 def _retriangulate_concave(corners: np.ndarray, counts: np.ndarray, indices: np.ndarray, points: np.ndarray):

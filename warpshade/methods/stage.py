@@ -162,9 +162,17 @@ class StageContext:
         from pathlib import Path
 
         if str(path).startswith("bundled:"):
+            import os
+
             from ..io import bundled_asset_directory
 
-            return Path(bundled_asset_directory()) / str(path)[len("bundled:"):]
+            name = str(path)[len("bundled:"):]
+            root = os.path.realpath(bundled_asset_directory())
+            target = Path(bundled_asset_directory()) / name
+            if os.path.commonpath([root, os.path.realpath(target)]) != root:
+                raise ValueError(f"file {path!r}: {name!r} leads out of the directory of the bundled assets ({root}); "
+                                 "bundled:NAME names a file in it: give another file by its path")
+            return target
         p = Path(path).expanduser()
         if not p.is_absolute() and self.base_dir is not None:
             p = Path(self.base_dir) / p
@@ -219,12 +227,13 @@ class Stage:
         scene is loaded or any work done (e.g. a model fitted in a frame this stage cannot take,
         an order above the provider's). Only parameters and wiring: nothing is computed."""
 
-    def check_scene(self, scene) -> None:
+    def check_scene(self, scene, ctx) -> None:
         """Raise StageError when this stage cannot run on ``scene`` (e.g. a glossy stage with no
         viewer, a file parameter whose header is wrong): called by ``GraphSpec.compile`` after
         the scene is loaded and before any precompute, so that a parameter-only problem is not
-        found after minutes of baking. Only parameters, file headers and the scene's
-        description: nothing is computed."""
+        found after minutes of baking. ``ctx``: a :class:`StageContext` of the run to come
+        (``resolve_path`` against the graph file's folder, ``dims``, ``device``; no frame state).
+        Only parameters, file headers and the scene's description: nothing is computed."""
 
 
 class PrecomputeStage(Stage):

@@ -130,6 +130,12 @@ class Mesh:
             (:class:`~warpshade.scene.textures.SurfaceMaps`: diffuse colour, roughness, specular
             colour or metallic, textures looked up with ``uvs``) from a bound UsdPreviewSurface,
             or None (no such material; ``albedo`` alone describes the surface).
+        implicit: the implicit USD prim the mesh was tessellated from, as ``(type, parameters)``:
+            the prim type (``"Sphere"``, ``"Cube"``, ``"Cylinder"``, ``"Cone"``, ``"Capsule"``,
+            ``"Plane"``, ``"Capsule_1"``, ``"Cylinder_1"``) and its shape attributes in the prim's
+            local space (``{"radius": 0.5, "height": 1.0, "axis": "Z"}``; a float, or a (T,)
+            float64 array when animated); ``transforms`` place it in the world. None for meshes
+            (see :mod:`warpshade.io.usd_implicit`).
     """
 
     path: str
@@ -145,6 +151,7 @@ class Mesh:
     vertex_offset: int = 0
     dropped_face_count: int = 0
     surface: Any = None
+    implicit: tuple | None = None
 
     def __post_init__(self):
         self.points = np.asarray(self.points, dtype=np.float64).reshape(-1, 3)

@@ -124,6 +124,27 @@ class HybridTraceStage(FrameStage):
                               "bench_hybrid_variance.py)", minimum=1e-3, maximum=10.0),
     }
 
+    #: Parameters of the history-aware filter, which is off with ``warmup_frames = 0``.
+    WARMUP_PARAMETERS = ("warmup_passes", "warmup_limit", "warmup_noise")
+
+    def __init__(self, name, params=None):
+        super().__init__(name, params)
+        # parameter-only problems: refused when the graph is checked, not after its precompute stages ran
+        self._check_parameters()
+        ignored = [k for k in self.WARMUP_PARAMETERS if k in (params or {})]
+        if ignored and self.params["warmup_frames"] == 0.0:
+            raise StageError(f"stage {self.name!r} ({self.type_name}): parameter(s) {', '.join(map(repr, ignored))} "
+                             "only apply to the history-aware filter, which is off with warmup_frames = 0; give "
+                             "warmup_frames > 0 or leave them out")
+
+    def _check_parameters(self):
+        """Refuse parameter combinations that do not apply (at graph check and again at set-up,
+        where a parameter changed between frames arrives)."""
+        if self.params["reproject"] and self.params["space"] == "local":
+            raise StageError(f"stage {self.name!r} ({self.type_name}): parameter 'reproject' applies to the world "
+                             "frame (space = 'world'); in the tangent frames (space = 'local') the history turns "
+                             "with the surface already")
+
     def dims(self):
         return {"C": self.params["order"] ** 2}
 
@@ -150,9 +171,7 @@ class HybridTraceStage(FrameStage):
         where = f"stage {self.name!r} ({self.type_name})"
         if ctx.state is None or ctx.state.bvh is None:
             raise StageError(f"{where}: needs the frame's BVH (state.bvh)")
-        if p["reproject"] and p["space"] == "local":
-            raise StageError(f"{where}: reproject applies to the world frame (in the tangent frames the history "
-                             "turns with the surface already)")
+        self._check_parameters()
         v, c = ctx.dims["V"], p["order"] ** 2
         try:
             self.neighbours = surface_neighbours(ctx.scene.faces, ctx.scene.points_at(float(ctx.scene.frames[0])))
@@ -324,6 +343,19 @@ class HybridVisibilityTransferStage(FrameStage):
                                   "zero-padded", minimum=1, maximum=8),
     }
 
+    def __init__(self, name, params=None):
+        super().__init__(name, params)
+        self._check_parameters()  # refused when the graph is checked, not after the control's precompute
+
+    def _check_parameters(self):
+        n, nv = self.params["order"], self.params["visibility_order"]
+        where = f"stage {self.name!r} ({self.type_name})"
+        if nv is not None and nv > n:
+            raise StageError(f"{where}: parameter 'visibility_order' = {nv} is above 'order' = {n} (the transfer "
+                             "cannot hold it)")
+        if nv is not None and nv != n and self.params["space"] != "world":
+            raise StageError(f"{where}: parameter 'visibility_order' applies to space = 'world' only")
+
     def dims(self):
         nv = self.params["visibility_order"] or self.params["order"]
         return {"C": self.params["order"] ** 2, "Cv": nv * nv}
@@ -343,10 +375,7 @@ class HybridVisibilityTransferStage(FrameStage):
     def setup(self, ctx, inputs):
         dev = ctx.device
         n = self.params["order"]
-        nv = self.params["visibility_order"] or n
-        if nv > n:
-            raise StageError(f"stage {self.name!r} ({self.type_name}): parameter 'visibility_order' = {nv} is above "
-                             f"'order' = {n} (the transfer cannot hold it)")
+        nv = self.params["visibility_order"] or n  # checked against order and space in __init__
         self._vis = inputs["visibility"]
         self._tables = sh_kernels(n).tables(dev)
         if self.params["space"] == "world":  # the cosine's axis per vertex: its normal
@@ -354,9 +383,6 @@ class HybridVisibilityTransferStage(FrameStage):
             self._cos = wp.array(sh.clamped_cosine_zh(n, "zh").astype(np.float32), dtype=wp.float32, device=dev)
             self._kernel = kernels.world_visibility_transfer_kernel(n, nv)
         else:
-            if nv != n:
-                raise StageError(f"stage {self.name!r} ({self.type_name}): 'visibility_order' applies to "
-                                 "space = 'world' only")
             self._axes = inputs["frames"]  # the visibility's tangent frames (the cosine about their n row)
             self._cos = wp.array(cosine_sh(n).astype(np.float32), dtype=wp.float32, device=dev)
             self._kernel = kernels.visibility_transfer_kernel(n)

@@ -37,6 +37,7 @@ from ...basis.zh import DEFAULT_RIDGE as _RIDGE
 from ...basis.sh_warp import sh_kernels
 from ..common import ShLighting, order_param, rays_param
 from ..stage import FrameStage, Param, Port, PrecomputeStage, StageError, register_stage
+from ..viewer import EYE_PARAM, bind_viewer, check_eye, check_viewer
 from . import kernels
 from .glossy import BRDF_KINDS
 from . import patch_warp
@@ -334,8 +335,25 @@ class LdprtGlossyShadeStage(FrameStage):
         "view_resolution": Param(32, int, "view-factor texture size", minimum=2, maximum=MAX_VIEW_RESOLUTION),
         "table_width": Param(128, int, "longitudes of the e^ table", minimum=8, maximum=MAX_LOOKUP_TABLE_WIDTH),
         "specular": Param((1.0, 1.0, 1.0), tuple, "RGB specular colour multiplying r(v)"),
-        "eye": Param(None, tuple, "viewer position, world (default: the scene camera)"),
+        "eye": EYE_PARAM,
     }
+
+    def __init__(self, name: str, params: dict | None = None):
+        super().__init__(name, params)
+        self._check_parameters()
+
+    def _check_parameters(self) -> None:
+        """What the parameters alone rule out (at construction and at every set-up)."""
+        p = self.params
+        if len(p["specular"]) != 3:
+            raise StageError(f"stage {self.name!r}: parameter 'specular' needs three numbers, got {p['specular']!r}")
+        check_eye(self.name, p["eye"])
+
+    def check_scene(self, scene, ctx) -> None:
+        """Before any precompute: the parameters and the viewer on this scene (a warning when an
+        explicit 'eye' lies below it; :mod:`warpshade.methods.viewer`)."""
+        self._check_parameters()
+        check_viewer(self.name, self.params["eye"], scene)
 
     def dims(self):
         p = self.params
@@ -358,17 +376,10 @@ class LdprtGlossyShadeStage(FrameStage):
 
     def setup(self, ctx, inputs):
         p = self.params
-        if p["eye"] is not None:
-            if len(p["eye"]) != 3 or not np.all(np.isfinite(np.asarray(p["eye"], np.float64))):
-                raise StageError(f"stage {self.name!r}: parameter 'eye' needs three finite numbers, got {p['eye']!r}")
-            self._eye = wp.array([wp.vec3(*[float(x) for x in p["eye"]])], dtype=wp.vec3, device=ctx.device)
-        elif ctx.state.has_eye:
-            self._eye = ctx.state.eye  # the scene camera, or the run's set_eye()
-        else:
-            raise StageError(f"stage {self.name!r}: the scene has no camera; set the 'eye' parameter")
-        self.follows_state_eye = p["eye"] is None
-        if len(p["specular"]) != 3:
-            raise StageError(f"stage {self.name!r}: parameter 'specular' needs three numbers, got {p['specular']!r}")
+        self._check_parameters()
+        self._viewer = bind_viewer(self.name, p["eye"], ctx)
+        self._eye = self._viewer.eye
+        self.follows_state_eye = self._viewer.follows_state_eye
         self._specular = wp.vec3(*[float(x) for x in p["specular"]])
         self._brdf = inputs["brdf"]
         v = ctx.dims["V"]
@@ -398,6 +409,17 @@ class LdprtGlossyShadeStage(FrameStage):
             "eye": self._eye.numpy()[0].astype(np.float64),
             "color": np.array([self._specular[0], self._specular[1], self._specular[2]], np.float64),
         }
+
+    def notify_changed(self, flags, keys=frozenset()) -> bool:
+        from ...scene.state import Change
+
+        if flags & Change.VIEW:
+            self._viewer.moved()
+        return super().notify_changed(flags, keys)
+
+    def diagnostics(self) -> dict:
+        """The viewer (:mod:`warpshade.methods.viewer`: which one, where)."""
+        return {"viewer": self._viewer.describe()}
 
     def launch(self, state):
         light = self._lighting

@@ -29,6 +29,7 @@ from ...basis.sh_warp import sh_kernels
 from ...scene import brdfs, materials
 from ..common import ShLighting, order_param, rays_param
 from ..stage import FrameStage, Param, Port, PrecomputeStage, StageError, register_stage
+from ..viewer import EYE_PARAM, bind_viewer, check_eye, check_viewer
 from . import kernels
 from .model import COSINE_MODES, VIEW_ORDER, OperatorCache, cosine_sh
 
@@ -58,8 +59,11 @@ OPERATORS = OperatorCache()
 def _stage_brdf(stage, ctx) -> materials.BRDF:
     p = stage.params
     file = p["file"]
-    if file is not None:
-        file = str(ctx.resolve_path(file)) if hasattr(ctx, "resolve_path") else file
+    if file is not None and hasattr(ctx, "resolve_path"):
+        try:
+            file = str(ctx.resolve_path(file))
+        except ValueError as exc:
+            raise StageError(f"stage {stage.name!r}: parameter 'file': {exc}") from None
     try:
         values = {k: p[k] for k in brdfs.BRDF_USES.get(p["brdf"], ()) if k in BRDF_PARAMS and k != "file"}
         return brdfs.make_brdf(p["brdf"], file=file, where=f"stage {stage.name!r}", **values)
@@ -75,7 +79,7 @@ SHADE_PARAMS = {
     "view_resolution": Param(32, int, "view grid of the BRDF table (res x res)", minimum=4, maximum=128),
     **BRDF_PARAMS,
     "specular": Param((1.0, 1.0, 1.0), tuple, "RGB colour multiplying the BRDF's radiance"),
-    "eye": Param(None, tuple, "viewer position, world (default: the scene camera, or Runtime.set_eye)"),
+    "eye": EYE_PARAM,
 }
 
 
@@ -85,17 +89,40 @@ class GlossyStage(FrameStage):
 
     reads_materials = True
 
+    def __init__(self, name: str, params: dict | None = None):
+        super().__init__(name, params)
+        self._check_parameters()
+
     def dims(self):
         return {"C": self.params["order"] ** 2}
 
     def output_ports(self):
         return {"radiance": Port("float32", ("V", 3), "radiance toward the eye, linear RGB")}
 
-    def _setup_common(self, ctx, inputs) -> None:
+    # ---- checks before any work ---------------------------------------------------------
+    def _check_parameters(self) -> None:
+        """What the parameters alone rule out (at construction, and again at every set-up: a
+        parameter may have been changed at run time)."""
         p = self.params
         if p["rank"] > p["order"] ** 2:
             raise StageError(f"stage {self.name!r}: rank {p['rank']} exceeds the {p['order'] ** 2} SH coefficients "
                              f"of order {p['order']}")
+        if len(p["specular"]) != 3 or not all(np.isfinite(float(x)) and float(x) >= 0 for x in p["specular"]):
+            raise StageError(f"stage {self.name!r}: parameter 'specular' needs three non-negative numbers, got {p['specular']!r}")
+        check_eye(self.name, p["eye"])
+
+    def check_scene(self, scene, ctx) -> None:
+        """Before any precompute: the parameters, the viewer on this scene (a warning when an
+        explicit 'eye' lies below it) and the BRDF, its 'file' read (a relative path against the
+        graph file's folder)."""
+        self._check_parameters()
+        check_viewer(self.name, self.params["eye"], scene)
+        _stage_brdf(self, ctx)
+
+    # ---- set-up -------------------------------------------------------------------------
+    def _setup_common(self, ctx, inputs) -> None:
+        p = self.params
+        self._check_parameters()
         lighting = inputs["lighting"]
         if lighting is None:
             raise StageError(f"stage {self.name!r}: RPO shading needs the frame's lighting")
@@ -104,18 +131,10 @@ class GlossyStage(FrameStage):
                              f"SH); this run has {lighting.sphere_light_count} sphere light(s)")
         dev = ctx.device
         self._ctx, self._scene, self._state = ctx, ctx.scene, ctx.state
-        if p["eye"] is not None:
-            if len(p["eye"]) != 3 or not np.all(np.isfinite(np.asarray(p["eye"], np.float64))):
-                raise StageError(f"stage {self.name!r}: parameter 'eye' needs three finite numbers, got {p['eye']!r}")
-            self._eye = wp.array([wp.vec3(*[float(x) for x in p["eye"]])], dtype=wp.vec3, device=dev)
-        elif ctx.state.has_eye:
-            self._eye = ctx.state.eye
-        else:
-            raise StageError(f"stage {self.name!r}: the scene has no camera; set the 'eye' parameter")
-        if len(p["specular"]) != 3 or not all(np.isfinite(float(x)) and float(x) >= 0 for x in p["specular"]):
-            raise StageError(f"stage {self.name!r}: parameter 'specular' needs three non-negative numbers, got {p['specular']!r}")
+        self._viewer = bind_viewer(self.name, p["eye"], ctx)
+        self._eye = self._viewer.eye
+        self.follows_state_eye = self._viewer.follows_state_eye
         self._specular = wp.vec3(*[float(x) for x in p["specular"]])
-        self.follows_state_eye = p["eye"] is None
         self._brdf = _stage_brdf(self, ctx)
 
     def reference_model(self, materials=None):
@@ -295,6 +314,8 @@ class RpoShadeStage(GlossyStage):
 
         if flags & Change.PARAMETERS:
             return False
+        if flags & Change.VIEW:
+            self._viewer.moved()
         if flags & Change.MATERIAL:
             self._upload_materials()
         if flags & Change.LIGHTING and self.params["lighting"] == "zh":
@@ -317,10 +338,12 @@ class RpoShadeStage(GlossyStage):
     # ---- reports ----------------------------------------------------------------------
     def diagnostics(self) -> dict:
         """Receivers of the last frame clamped for negative radiance, and seen at or below their
-        horizon (shaded 0); the BRDFs of the slots and what building them took."""
+        horizon (shaded 0); the viewer (:mod:`warpshade.methods.viewer`: which one, where); the
+        BRDFs of the slots and what building them took."""
         f = self._flags.numpy()
         out = {"negative_clamped": int(np.count_nonzero(f & kernels.FLAG_NEGATIVE)),
                "below_horizon": int(np.count_nonzero(f & kernels.FLAG_BELOW_HORIZON)),
+               "viewer": self._viewer.describe(),
                "materials": [b.describe() for b in self.slot_brdfs],
                "operator_build_s": [round(op.build_s, 4) for op in self.operators]}
         if self.zh is not None:

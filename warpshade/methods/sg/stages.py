@@ -26,7 +26,9 @@ from ..._wp import launch_parallel, wp
 from ...basis import sg
 from ...scene import materials, materials_warp
 from ..stage import FrameStage, Param, Port, PrecomputeStage, StageError, register_stage
+from ..viewer import EYE_PARAM, bind_viewer, check_eye, check_viewer
 from . import kernels
+from .checks import TABLE_MODELS, TEXTURE_MODELS, check_files, check_meshes, check_parameters, multi_lobe, rgb_param
 from .brdf_warp import MODEL_IDS
 from .lights import directional_light_lobe
 from .lobes_warp import LOBE_MODELS
@@ -143,13 +145,6 @@ def _exact_brdf(model: str, params: dict):
     return microfacet_brdf(model, **params)
 
 
-def _rgb(value, name: str, stage: str) -> np.ndarray:
-    a = np.asarray(value, np.float64).reshape(-1)
-    if a.shape != (3,) or not np.all(np.isfinite(a)) or np.any(a < 0):
-        raise StageError(f"stage {stage!r}: parameter {name!r} needs three non-negative numbers, got {value!r}")
-    return a
-
-
 #: Parameters of the multi-lobe (anisotropic) materials of ``sg.shade``.
 MULTI_LOBE_PARAMS = {
     "roughness_y": Param(None, float, "Ward: alpha along the bitangent (anisotropic when it differs from 'roughness', "
@@ -199,9 +194,13 @@ class SgShadeStage(FrameStage):
                                choices=NARROW_LIGHT_MODES),
         "ssdf": Param("maps", str, "visibility look-up: decoded maps (bilinear) or PCA per look-up (the paper)",
                       choices=("maps", "pca")),
-        "eye": Param(None, tuple, "viewer position, world (default: the scene camera, or Runtime.set_eye)"),
+        "eye": EYE_PARAM,
         **MULTI_LOBE_PARAMS,
     }
+
+    def __init__(self, name: str, params: dict | None = None):
+        super().__init__(name, params)
+        self._check_parameters()
 
     def input_ports(self):
         return {"ssdf": Port("arrays"), "environment": Port("arrays"), "frames": Port("mat33", ("V",)),
@@ -218,23 +217,12 @@ class SgShadeStage(FrameStage):
         p = self.params
         dev = ctx.device
         self._ctx, self._scene, self._state, self._device = ctx, ctx.scene, ctx.state, dev
-        self._specular_rgb = _rgb(p["specular"], "specular", self.name)
-        if p["eye"] is not None:
-            eye = np.asarray(p["eye"], np.float64).reshape(-1)
-            if eye.shape != (3,) or not np.all(np.isfinite(eye)):
-                raise StageError(f"stage {self.name!r}: parameter 'eye' needs three finite numbers, got {p['eye']!r}")
-            self._eye = wp.array([wp.vec3(*eye.astype(np.float32))], dtype=wp.vec3, device=dev)
-        elif ctx.state.has_eye:
-            self._eye = ctx.state.eye
-        else:
-            raise StageError(f"stage {self.name!r}: the scene has no camera; set the 'eye' parameter")
-        self.follows_state_eye = p["eye"] is None
-        if p["brdf"] == "blinn-phong" and p["roughness"] < 1.0:
-            raise StageError(f"stage {self.name!r}: for brdf = 'blinn-phong', 'roughness' carries the exponent (>= 1), "
-                             f"got {p['roughness']}")
-        if p["roughness"] > ROUGHNESS_MAX[p["brdf"]]:
-            raise StageError(f"stage {self.name!r}: parameter 'roughness' must be <= {ROUGHNESS_MAX[p['brdf']]:g} for "
-                             f"brdf = {p['brdf']!r}, got {p['roughness']!r}")
+        self._check_parameters()
+        check_meshes(self, ctx.scene)
+        self._specular_rgb = rgb_param(p["specular"], "specular", self.name)
+        self._viewer = bind_viewer(self.name, p["eye"], ctx)
+        self._eye = self._viewer.eye
+        self.follows_state_eye = self._viewer.follows_state_eye
         self.model = SSDFModel.from_arrays(inputs["ssdf"])
         if self.model.coeffs.shape[0] != ctx.dims["V"]:
             raise StageError(f"stage {self.name!r}: SSDFs of {self.model.coeffs.shape[0]} vertices for a scene of "
@@ -290,6 +278,26 @@ class SgShadeStage(FrameStage):
         self._setup_lights()
         return {"radiance": self._radiance}
 
+    # ---- checks before any work ---------------------------------------------------------
+    def _multi_lobe(self) -> bool:
+        """Whether the parameters choose a material shaded as fitted NDF lobes in a tangent frame."""
+        return multi_lobe(self.params)
+
+    def _check_parameters(self) -> None:
+        check_parameters(self, ROUGHNESS_MAX)
+
+    def check_scene(self, scene, ctx) -> None:
+        """Everything the parameters, the files' headers and the scene decide, before any
+        precompute (the SSDF bake, the environment's preparation): the parameters, the viewer on
+        this scene (a warning when an explicit 'eye' lies below it), the 'table' / 'texture' file
+        (a relative path against the graph file's folder), and the meshes' UVs."""
+        self._check_parameters()
+        check_viewer(self.name, self.params["eye"], scene)
+        file = self.params["table"] if self.params["brdf"] in TABLE_MODELS else self.params["texture"]
+        if file is not None:
+            check_files(self, ctx.resolve_path)
+        check_meshes(self, scene)
+
     # ---- multi-lobe materials ---------------------------------------------------------
     def multi_lobe_model(self):
         """``(model, parameters)`` of the material when it is shaded as fitted NDF lobes in a tangent
@@ -314,10 +322,8 @@ class SgShadeStage(FrameStage):
         p = self.params
         self.measured = None
         self.measured_path = None
-        if p["brdf"] not in ("tabulated-ndf", "tabulated-aniso"):
+        if p["brdf"] not in TABLE_MODELS:
             return
-        if p["table"] is None:
-            raise StageError(f"stage {self.name!r}: brdf = {p['brdf']!r} needs 'table' (a MERL-layout or .anisobrdf file)")
         path = ctx.resolve_path(p["table"])
         try:
             self.measured = stage_material(p["brdf"], path, p["eta"])
@@ -331,12 +337,8 @@ class SgShadeStage(FrameStage):
 
         p = self.params
         self.svbrdf = None
-        if p["brdf"] != "svbrdf":
-            if p["texture"] is not None:
-                raise StageError(f"stage {self.name!r}: parameter 'texture' is for brdf = 'svbrdf', not {p['brdf']!r}")
+        if p["brdf"] not in TEXTURE_MODELS:
             return
-        if p["texture"] is None:
-            raise StageError(f"stage {self.name!r}: brdf = 'svbrdf' needs 'texture' (a .svbrdf file)")
         path = ctx.resolve_path(p["texture"])
         try:
             self.svbrdf = read_and_fit(path, p["lobes"], p["ndf_error_budget"], p["max_lobes"], p["shadow_error_budget"],
@@ -420,20 +422,12 @@ class SgShadeStage(FrameStage):
             raise StageError(f"stage {self.name!r}: {exc}") from None
         st.lobes = upload_lobes(mixture, model, params, dev, exact)
         st.exact_model = LOBE_MODELS[model] if (p["narrow_lights"] == "brdf" and exact is not None) else -1
-        if p["tangent"] == "uv":
+        if p["tangent"] == "uv":  # UVs on every mesh: checked by checks.check_meshes
             from ...geometry.uv_tangents import UVTangents
 
-            missing = [m.path for m in self._scene.meshes if m.uvs is None]
-            if missing:
-                raise StageError(f"stage {self.name!r}: tangent = 'uv' needs UVs on every mesh; {missing[0]} has none "
-                                 "(set tangent = 'direction' and tangent_direction)")
             self._uv_tangents = UVTangents.from_scene(self._scene, dev)
-        else:
-            d = p["tangent_direction"]
-            arr = None if d is None else np.asarray(d, np.float64).reshape(-1)
-            if arr is None or arr.shape != (3,) or not np.all(np.isfinite(arr)) or not np.linalg.norm(arr) > 0:
-                raise StageError(f"stage {self.name!r}: tangent = 'direction' needs tangent_direction, three finite "
-                                 f"numbers not all 0; got {d!r}")
+        else:  # a finite, non-zero tangent_direction: checked by _check_parameters
+            arr = np.asarray(p["tangent_direction"], np.float64).reshape(3)
             self._tangents.assign(np.tile((arr / np.linalg.norm(arr)).astype(np.float32), (count, 1)))
 
     def _update_tangents(self) -> None:
@@ -618,6 +612,8 @@ class SgShadeStage(FrameStage):
 
         if flags & Change.PARAMETERS:
             return False
+        if flags & Change.VIEW:
+            self._viewer.moved()
         if flags & Change.MATERIAL:
             self._upload_materials()
         if flags & Change.LIGHTING:
@@ -784,7 +780,7 @@ class SgShadeStage(FrameStage):
 
     def diagnostics(self) -> dict:
         out = {"ssdf_terms": int(self.model.coeffs.shape[1]), "ssdf_resolution": int(self.model.resolution),
-               "lights_inside_hull": self.lights_inside_hull}
+               "lights_inside_hull": self.lights_inside_hull, "viewer": self._viewer.describe()}
         if self.lobe_report is not None:
             out["ndf_lobes"] = self.lobe_report
         if getattr(self, "svbrdf", None) is not None:

@@ -51,7 +51,7 @@ import time
 import numpy as np
 from scipy.optimize import minimize
 
-from .select import RIDGE_GRID, margin_penalty
+from .select import RIDGE_GRID, check_folds, margin_penalty
 
 __all__ = ["FOLDS", "expand_features", "fit_network", "folds", "metric_apply", "metric_inverse", "network_forward", "pca_size",
            "warm_start"]
@@ -323,6 +323,7 @@ def fit_cluster(task: dict) -> dict:
         return out
     scale = float(np.sqrt((target ** 2).mean())) or 1.0
     splits = folds(x.shape[0])
+    check_folds(splits, x.shape[0], "cross-validation")
     feats = expand_features(x, model)
     w, b, sse, g = _ridge_fit(feats, target, splits)
     report.update(ridge=g, cv_error=float(np.sqrt((sse + truncation) / norm)))

@@ -40,7 +40,7 @@ from ..datadriven.model import PoseSpace, pose_space
 from .clusters import cluster_frame_rule, cluster_frames_f64, cluster_vertices
 from .fit import expand_features, fit_cluster
 from .relative import cluster_neighbours, relative_features_f64
-from .select import prefix_pairs
+from .select import FOLD_TRAIN_MIN, fewest_frames, prefix_pairs
 from .training import to_local
 
 __all__ = ["FRAME_KINDS", "cosine_product_matrix", "input_space", "local_frames_f64"]
@@ -166,6 +166,11 @@ def fit_visibility(data: dict, *, model: str = "network", frames: str = "cluster
     source = int(settings[3])
     vis = np.asarray(data["visibility"], np.float32)
     pcount, vcount, c = vis.shape
+    fewest = fewest_frames()
+    if pcount < fewest:
+        raise ValueError(f"the training data holds {pcount} frame(s); the fit needs at least {fewest} (its "
+                         f"cross-validation trains every fold on at least {FOLD_TRAIN_MIN} frames): select more "
+                         "training frames (visibility.data parameter 'frames')")
     if source == 0:
         from ..datadriven.stages import _select_columns
 

@@ -106,11 +106,12 @@ def fewest_frames(blocks: int = BLOCKS, gap: int = GAP, per_fold: int = FOLD_TRA
         count += 1
 
 
-def check_folds(splits, count: int) -> None:
-    """ValueError naming the shortfall when a fold trains on fewer than :data:`FOLD_TRAIN_MIN` frames."""
+def check_folds(splits, count: int, what: str = "blocked cross-validation") -> None:
+    """ValueError naming the shortfall when a fold of ``what`` trains on fewer than
+    :data:`FOLD_TRAIN_MIN` frames."""
     short = [int(tr.size) for tr, _ in splits if tr.size < FOLD_TRAIN_MIN]
     if short:
-        raise ValueError(f"blocked cross-validation of {count} training frame(s): a fold trains on {min(short)} "
+        raise ValueError(f"{what} of {count} training frame(s): a fold trains on {min(short)} "
                          f"frame(s) (at least {FOLD_TRAIN_MIN} each); give at least {fewest_frames()} training frames")
 
 

@@ -28,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import nnls
 
-from .select import blocked_folds, candidates, fit_selected, prefix_pairs
+from .select import blocked_folds, candidates, check_folds, fit_selected, prefix_pairs
 
 __all__ = ["TOP", "TOTALS", "stack_weights", "fit_stack", "union_features", "union_map"]
 
@@ -158,6 +158,7 @@ def fit_stack(sets: dict, y: np.ndarray, top: int = TOP, total: str = "one", spl
     y = np.asarray(y, np.float64)
     if splits is None:
         splits = blocked_folds(y.shape[0])
+        check_folds(splits, y.shape[0])
     cands = candidates(sets, y, splits, oof=True)
     if not cands:
         raise ValueError("stack: no candidate inputs")

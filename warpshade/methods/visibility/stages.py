@@ -56,6 +56,26 @@ class VisibilityDataStage(TrainingClipStage):
     def output_ports(self):
         return {"data": Port("arrays", (), "training visibility (p, V, C) world frame, points, normals, inputs")}
 
+    def _training_frames(self, train) -> np.ndarray:
+        """The indices of the training frames ``frames`` selects in ``train``; StageError naming the
+        parameter when the selection is malformed or too short for the fit's cross-validation."""
+        where = f"stage {self.name!r} ({self.type_name})"
+        try:
+            idx = parse_frame_selection(self.params["frames"], train, where + ": parameter 'frames'")
+        except ValueError as exc:
+            raise StageError(str(exc) if str(exc).startswith("stage") else f"{where}: {exc}") from None
+        fewest = fewest_frames()
+        if idx.size < fewest:
+            raise StageError(f"{where}: parameter 'frames' selects {idx.size} frame(s); the model needs at least "
+                             f"{fewest} (its blocked cross-validation trains every fold on at least "
+                             f"{FOLD_TRAIN_MIN} frames)")
+        return idx
+
+    def check_scene(self, scene, ctx):
+        # trained on the graph's own scene: the frame selection is known before anything is traced
+        if not self.params["training"]:
+            self._training_frames(scene)
+
     def precompute(self, ctx, inputs):
         p = self.params
         where = f"stage {self.name!r} ({self.type_name})"
@@ -66,14 +86,9 @@ class VisibilityDataStage(TrainingClipStage):
             elif train.vertex_count != ctx.scene.vertex_count or not np.array_equal(train.faces, ctx.scene.faces):
                 raise ValueError(f"training clip {train.source} and scene {ctx.scene.source} differ in vertices or "
                                  "faces: a model applies to the same mesh only")
-            idx = parse_frame_selection(p["frames"], train, where + ": parameter 'frames'")
         except ValueError as exc:
             raise StageError(str(exc) if str(exc).startswith("stage") else f"{where}: {exc}") from None
-        fewest = fewest_frames()
-        if idx.size < fewest:
-            raise StageError(f"{where}: parameter 'frames' selects {idx.size} frame(s); the model needs at least "
-                             f"{fewest} (its blocked cross-validation trains every fold on at least "
-                             f"{FOLD_TRAIN_MIN} frames)")
+        idx = self._training_frames(train)
         out = {}
         if p["features"] == "joints":
             try:
@@ -118,6 +133,9 @@ class VisibilityDataStage(TrainingClipStage):
         v = d.get("visibility")
         if v is None or v.ndim != 3 or v.dtype != np.float32 or not np.all(np.isfinite(v)):
             raise ValueError("visibility.data: visibility must be a finite float32 (p, V, C) array")
+        if v.shape[0] < fewest_frames():  # left by a version that did not check the selection: traced again
+            raise ValueError(f"visibility.data: {v.shape[0]} training frame(s), fewer than the fit needs "
+                             f"({fewest_frames()})")
         for key in ("points", "normals"):
             if d.get(key) is None or d[key].shape != v.shape[:2] + (3,):
                 raise ValueError(f"visibility.data: {key} missing or not (p, V, 3)")
@@ -177,18 +195,43 @@ class VisibilityFitStage(PrecomputeStage):
                              "('equal', a plain average of the stack_top best)", choices=TOTALS),
     }
 
+    def __init__(self, name, params=None):
+        super().__init__(name, params)
+        # parameter-only problems: refused when the graph is checked, not after the training data is traced
+        p = self.params
+        where = f"stage {self.name!r} ({self.type_name})"
+        if not p["hidden"] or any(h < 1 or h != int(h) for h in p["hidden"]):
+            raise StageError(f"{where}: parameter 'hidden' needs positive whole neuron counts, got {p['hidden']!r}")
+        if p["relative"] > 0 and p["model"] not in ("auto", "stack"):
+            raise StageError(f"{where}: parameter 'relative' = {p['relative']} applies to model = 'auto' or 'stack' "
+                             f"only (the models that choose among candidate inputs), not model = {p['model']!r}")
+        if p["metric"] == "diffuse" and p["frames"] == "world":
+            raise StageError(f"{where}: parameter 'metric' = 'diffuse' applies to local frames only (the cosine is "
+                             "about the local normal), not frames = 'world'")
+        #: The SH order of the training data on port 'data' when its provider is known (check_wiring).
+        self.data_order: int | None = None
+        self._predictors: dict = {}  # visibility.predict stages wired to 'model', checked once data_order is known
+
     def input_ports(self):
         return {"data": Port("arrays", (), "training data of visibility.data")}
 
     def output_ports(self):
         return {"model": Port("arrays", (), "fitted data-driven visibility model (visibility.model)")}
 
+    def check_wiring(self, upstream):
+        provider, port = upstream["data"]
+        if not isinstance(provider, VisibilityDataStage):
+            what = "the scene" if provider is None else f"stage {provider.name!r} ({provider.type_name})"
+            raise StageError(f"stage {self.name!r} ({self.type_name}): input 'data' is fed by {what}'s {port!r}, "
+                             "which is not visibility training data; wire a visibility.data stage's 'data'")
+        self.data_order = int(provider.params["order"])
+        for predictor in self._predictors.values():  # those whose wiring was checked before this stage's
+            predictor._check_fit()
+
     def precompute(self, ctx, inputs):
         p = self.params
         where = f"stage {self.name!r} ({self.type_name})"
         hidden = [int(h) for h in p["hidden"]]
-        if not hidden or min(hidden) < 1 or any(h != float(x) for h, x in zip(hidden, p["hidden"])):
-            raise StageError(f"{where}: parameter 'hidden' needs positive whole neuron counts, got {p['hidden']!r}")
         data = inputs["data"]
         labels = None
         if int(np.asarray(data["settings"]).reshape(-1)[3]) == FEATURE_SOURCES.index("dihedral"):
@@ -253,6 +296,29 @@ class VisibilityPredictStage(FrameStage):
         return {"visibility": Port("float32", ("V", "C"), "SH visibility (no cosine, open below the horizon), "
                                    "tangent frames", space="local"),
                 "frames": Port("mat33", ("V",), "the tangent frames of the visibility, rows (t, b, n)")}
+
+    def check_wiring(self, upstream):
+        self._fit = upstream["model"][0] if isinstance(upstream["model"][0], VisibilityFitStage) else None
+        if self._fit is not None:
+            self._fit._predictors[self.name] = self  # the fit checks this stage again once its own data is known
+        self._check_fit()
+
+    def _check_fit(self):
+        """What the parameters of the ``visibility.fit`` on port 'model' (and of the data feeding it)
+        say about the model, checked with the graph's wiring, before anything is traced or fitted
+        (``setup`` checks the model's arrays again, whatever made them)."""
+        fit = getattr(self, "_fit", None)
+        if fit is None:
+            return
+        where = f"stage {self.name!r} ({self.type_name})"
+        if fit.params["frames"] == "world":
+            raise StageError(f"{where}: input 'model' is fed by stage {fit.name!r} ({fit.type_name}) with parameter "
+                             "'frames' = 'world' (a model in the world frame is for measurements; this stage predicts "
+                             "in local frames): fit it with frames = 'cluster' or 'one_ring'")
+        if fit.data_order is not None and fit.data_order != self.params["order"]:
+            raise StageError(f"{where}: parameter 'order' = {self.params['order']}, but the model of stage "
+                             f"{fit.name!r} is trained on visibility of order {fit.data_order} (its training data's "
+                             "parameter 'order'); give both the same order")
 
     def setup(self, ctx, inputs):
         from ..._wp import cpu_workers, wp
