@@ -216,8 +216,10 @@ def test_open_mesh_as_shell():
 
 def test_scene_without_closed_mesh_is_refused():
     plane = Mesh(path="/plane", points=[[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], faces=[[0, 1, 2], [0, 2, 3]])
-    with pytest.raises(ValueError, match="no closed mesh"):
+    with pytest.raises(ValueError, match="no closed mesh") as info:
         ss.spheres_for_scene(Scene.from_meshes([plane]), budget=4)
+    # the skipped meshes are named with their reason, and the way to bound them as a shell
+    assert "/plane: " in str(info.value) and "open_meshes = 'shell'" in str(info.value)
 
 
 # ---- attachment ---------------------------------------------------------------------------------

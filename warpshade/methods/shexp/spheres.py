@@ -396,7 +396,13 @@ def spheres_for_scene(
             continue
         solids.append((i, solid))
     if not solids:
-        raise ValueError(f"scene {scene.source or '<arrays>'}: no closed mesh to bound with spheres ({len(skipped)} skipped)")
+        named = "; ".join(f"{path}: {why.splitlines()[0]}" for path, why in skipped[:3])
+        more = f" (and {len(skipped) - 3} more)" if len(skipped) > 3 else ""
+        hint = ("" if open_meshes == "shell" else
+                "; open or thin meshes can be bounded as a thickened shell (shexp.blockers open_meshes = 'shell', "
+                "with shell_thickness)")
+        raise ValueError(f"scene {scene.source or '<arrays>'}: no closed mesh to bound with spheres; skipped "
+                         f"{len(skipped)}: {named}{more}{hint}")
     volumes = np.array([solid_volume(solid=s, samples=4096)[0] for _, s in solids])
     counts = _split_budget(volumes, int(budget))
     opts = dict(fit_options)
