@@ -3,7 +3,7 @@
 Model no more than the scene needs, chosen on the scene itself:
 
 1. **Inspect** the stage: static / rigid / skinned / deforming meshes, frames, lights, camera,
-   up axis, what was skipped (:func:`inspect`).
+   up axis, what was skipped (:func:`inspect_scene`).
 2. **Split its frames** (:func:`split_frames`): ``2 n`` frames spread inside the scene's range,
    alternately *training* frames (the choice is made on them) and *held-out* frames (the chosen
    graph is validated on them and on nothing else). A static scene has one frame: it is both,
@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["WARM_FRAMES", "candidates_for", "choose", "inspect", "measure", "split_frames", "graph_toml", "plot_candidates",
+__all__ = ["WARM_FRAMES", "candidates_for", "choose", "inspect_scene", "measure", "split_frames", "graph_toml", "plot_candidates",
            "run_frames", "shade_outputs", "shade_scene"]
 
 #: Frames a candidate is stepped through before each measured frame (a method with a history
@@ -53,7 +53,7 @@ GLOSSY_ROUGHNESS = 0.4
 
 
 # ---- the scene ---------------------------------------------------------------------------------
-def inspect(scene) -> dict:
+def inspect_scene(scene) -> dict:
     """What the scene is, as the chooser sees it."""
     kinds = sorted({m.animation for m in scene.meshes})
     if scene.is_static:
@@ -64,7 +64,7 @@ def inspect(scene) -> dict:
         kind = "skinned"
     else:
         kind = "rigid"
-    lo, hi = scene.bounds() if hasattr(scene, "bounds") else (None, None)
+    lo, hi = scene.bounds_over_frames()
     return {
         "source": str(scene.source),
         "kind": kind,
@@ -81,7 +81,7 @@ def inspect(scene) -> dict:
         "lights": [type(light).__name__ for light in scene.lights],
         "skipped": [list(s) for s in getattr(scene, "skipped", [])],
         "glossy_meshes": sum(1 for m in scene.meshes if _glossy(m)),
-        "bounds": None if lo is None else [np.asarray(lo).tolist(), np.asarray(hi).tolist()],
+        "bounds": [np.asarray(lo).tolist(), np.asarray(hi).tolist()],
     }
 
 
@@ -121,7 +121,7 @@ def candidates_for(scene, glossy: bool = False, quick: bool = False) -> list[dic
     from ..methods.prt.budget import candidates as prt_candidates
     from ..methods.shexp.rows import graph_stages
 
-    kind = inspect(scene)["kind"]
+    kind = inspect_scene(scene)["kind"]
     out = []
 
     def add(method, label, stages, facts, baseline=False):
@@ -347,7 +347,7 @@ def shade_scene(scene_spec: str, out_dir, *, target_error: float | None = None, 
         raise ValueError(f"--glossy must be auto, on or off, got {glossy!r}")
     t_start = time.perf_counter()
     scene = load_scene(scene_spec)
-    info = inspect(scene)
+    info = inspect_scene(scene)
     name = Path(str(scene_spec).split(":", 1)[-1]).stem or "scene"
     out_dir = Path(out_dir)
     log(f"scene   {info['source']}: {info['kind']}, {info['meshes']} mesh(es), {info['vertices']:,} vertices, "
