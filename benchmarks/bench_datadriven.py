@@ -42,6 +42,10 @@ from pathlib import Path
 
 import numpy as np
 
+#: Smoke profile (tests/test_benchmarks.py): slow, kept out of the default suite (``-m "not slow"``):
+#: 70 s: training trace, fit and coefficient PCA.
+PROFILE = {"slow": True}
+
 ROOT = Path(__file__).resolve().parent.parent
 
 from warpshade._fileio import atomic_path, write_json_atomic  # noqa: E402
@@ -354,7 +358,7 @@ def _local_frame(train_scene, world_data, tests, test_frames, truth, A_world, re
     world-frame data), rotate predictions back to world per vertex."""
     from warpshade.basis import sh
     from warpshade.geometry.frames import TangentFrames, tangent_frames_f64
-    from warpshade.methods.datadriven.training import trace_training
+    from warpshade.methods._shared.training import trace_training
 
     seed = int(np.asarray(world_data["settings"]).reshape(-1)[4])
     B = trace_training(train_scene, np.asarray(world_data["frame_indices"]), ORDER, TRAIN_RAYS, seed=seed, space="local",

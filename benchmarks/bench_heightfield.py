@@ -51,6 +51,10 @@ from pathlib import Path
 
 import numpy as np
 
+#: Smoke profile (tests/test_benchmarks.py): slow, kept out of the default suite (``-m "not slow"``):
+#: 21 s, kept out so that the default suite stays within ten minutes on 2 CPU cores.
+PROFILE = {"slow": True}
+
 ROOT = Path(__file__).resolve().parent.parent
 
 DATE = "2026-12-01"

@@ -41,6 +41,10 @@ from pathlib import Path
 
 import numpy as np
 
+#: Smoke profile (tests/test_benchmarks.py): slow, kept out of the default suite (``-m "not slow"``):
+#: 42 s: operator builds and reference shading.
+PROFILE = {"slow": True}
+
 ROOT = Path(__file__).resolve().parent.parent
 
 RESULTS = ROOT / "benchmarks" / "results"
@@ -196,9 +200,9 @@ def kernel_costs(vertices: int = 65536, repeats: int = 7, orders=(3, 4, 6)):
     """Part 3: the shading kernel alone on synthetic receivers, settings measured side by side
     (interleaved repeats, medians): ns per vertex and the ratio to the default setting."""
     from warpshade._wp import launch_parallel, wp
+    from warpshade.basis import sh
     from warpshade.basis.sh_warp import sh_kernels
     from warpshade.methods.rpo import build_operator, kernels
-    from warpshade.methods.rpo.model import cosine_sh
     from warpshade.scene import materials as M
 
     rng = np.random.default_rng(0)
@@ -228,7 +232,7 @@ def kernel_costs(vertices: int = 65536, repeats: int = 7, orders=(3, 4, 6)):
         ops.rank = wp.array(np.array([8], np.int32), device=dev)
         ops.channels = wp.array(np.array([1], np.int32), device=dev)
         ops.matrices = wp.array(mats.astype(np.float32), device=dev)
-        ops.cos_sh = wp.array(cosine_sh(n).astype(np.float32), device=dev)
+        ops.cos_sh = wp.array(sh.clamped_cosine_sh(n).astype(np.float32), device=dev)
         ops.specular = wp.vec3(1.0, 1.0, 1.0)
         lit = kernels.ViewLighting()
         lit.eye = eye

@@ -33,11 +33,17 @@ import warpshade.graph as graph
 from warpshade._fileio import write_json_atomic
 from warpshade.measure.pictures import ERROR_COLORMAP, ERROR_LIMIT, write_panels
 from warpshade.measure.pixels import exposure_for, pixel_bvh
-from warpshade.methods.sg.svbrdf import eq13_quadrature_f64, scene_uvs
+from warpshade.methods.sg.svbrdf import eq13_quadrature_f64
 from warpshade.render import render_gbuffer, tonemap_f64
+from warpshade.scene.svbrdf import scene_uvs
 from warpshade.usd_assets.generator.svbrdf import SVBRDF_ETA, texel_material
 
 from _dish import dated_stem, dish_mask, quick_overrides, rel_rms, render_first_frame, sole_environment
+
+#: Smoke profile (tests/test_benchmarks.py): slow, kept out of the default suite (``-m "not slow"``):
+#: minutes on a loaded machine: the dish's SSDF bake and the sky's prefiltered table,
+#: as bench_sg, then the quadrature with ray-traced visibility at 40 pixels.
+PROFILE = {"slow": True}
 
 ROOT = Path(__file__).resolve().parents[1]
 GRAPH = ROOT / "stages" / "dish_sg_svbrdf.toml"

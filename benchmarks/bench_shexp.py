@@ -60,6 +60,10 @@ from pathlib import Path
 
 import numpy as np
 
+#: Smoke profile (tests/test_benchmarks.py): slow, kept out of the default suite (``-m "not slow"``):
+#: 59 s: SHEXP tables and sphere blockers per order.
+PROFILE = {"slow": True}
+
 ROOT = Path(__file__).resolve().parent.parent
 
 from warpshade._fileio import atomic_path, write_json_atomic  # noqa: E402

@@ -47,6 +47,11 @@ from pathlib import Path
 
 import numpy as np
 
+#: Smoke profile (tests/test_benchmarks.py): slow, kept out of the default suite (``-m "not slow"``):
+#: ~120 s on a loaded machine: two training traces -- visibility and the 2007 model's
+#: transfer --, three graphs, glossy and diffuse truths and the three frame-kind fits.
+PROFILE = {"slow": True}
+
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "benchmarks" / "results"
 STAGES = ROOT / "stages"
@@ -209,7 +214,6 @@ def diffuse_floors(rt, quick):
     from warpshade.graph import GraphSpec, StageSpec
     from warpshade.measure import combine_metrics, error_metrics, measure_error
     from warpshade.methods.datadriven import pose_features, pose_layout
-    from warpshade.methods.rpo.model import cosine_sh
     from warpshade.methods.visibility import predict_f64, to_local
     from warpshade.methods.visibility.mirror import inputs_f64
     from warpshade.methods.visibility.model import local_frames_f64
@@ -240,8 +244,8 @@ def diffuse_floors(rt, quick):
     x = inputs_f64(a, poses, np.stack([scene.points_at(f) for f in frames]))
     albedo = rt.evaluator.albedo.numpy().astype(np.float64)
     lw = light.numpy().astype(np.float64)
-    cos_trunc = sh.product_matrix(cosine_sh(order))
-    cos_exact = sh.product_matrix(cosine_sh(2 * order - 1))[:order * order, :order * order]
+    cos_trunc = sh.product_matrix(sh.clamped_cosine_sh(order))
+    cos_exact = sh.product_matrix(sh.clamped_cosine_sh(2 * order - 1))[:order * order, :order * order]
     mean, basis = np.asarray(a["mean"], np.float64), np.asarray(a["basis"], np.float64)
 
     def shade(local, fr, cos):

@@ -44,6 +44,11 @@ from pathlib import Path
 
 import numpy as np
 
+#: Smoke profile (tests/test_benchmarks.py): slow, kept out of the default suite (``-m "not slow"``):
+#: 25 s on a loaded machine: a 30-frame training trace, the auto fit with its
+#: cross-validation, references and one cluster's refitted candidates.
+PROFILE = {"slow": True}
+
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "benchmarks" / "results"
 GRAPH = ROOT / "stages" / "figure_visibility_diffuse.toml"

@@ -38,6 +38,11 @@ from pathlib import Path
 
 import numpy as np
 
+#: Smoke profile (tests/test_benchmarks.py): slow, kept out of the default suite (``-m "not slow"``):
+#: a visibility training trace and fit in a fresh cache, then the figure's frame and
+#: its traced baseline.
+PROFILE = {"slow": True}
+
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "benchmarks" / "results"
 GRAPHS = ("figure_visibility", "figure_rpo_traced", "wanderer_visibility", "wanderer_rpo_traced")

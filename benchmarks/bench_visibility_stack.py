@@ -25,6 +25,11 @@ import os
 import time
 from pathlib import Path
 
+#: Smoke profile (tests/test_benchmarks.py): slow, kept out of the default suite (``-m "not slow"``):
+#: a training trace and references as bench_visibility_clusters, the auto and
+#: stacked fits.
+PROFILE = {"slow": True}
+
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "benchmarks" / "results"
 GRAPH = ROOT / "stages" / "figure_visibility_diffuse.toml"

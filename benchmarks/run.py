@@ -33,6 +33,10 @@ from pathlib import Path
 
 import numpy as np
 
+#: Smoke profile (tests/test_benchmarks.py): slow, kept out of the default suite (``-m "not slow"``):
+#: 41 s: one row of every method, SG's environment included.
+PROFILE = {"slow": True}
+
 ROOT = Path(__file__).resolve().parent.parent
 
 from warpshade._fileio import atomic_path, write_json_atomic, write_text_atomic  # noqa: E402

@@ -84,6 +84,10 @@ from pathlib import Path
 
 import numpy as np
 
+#: Smoke profile (tests/test_benchmarks.py): skipped where Mitsuba 3 is not installed
+#: (pip install -e '.[validate]').
+PROFILE = {"requires": ["mitsuba"]}
+
 ROOT = Path(__file__).resolve().parents[1]
 
 from warpshade._fileio import write_json_atomic  # noqa: E402

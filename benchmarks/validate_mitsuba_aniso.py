@@ -48,6 +48,10 @@ from warpshade.reference import reference_image
 from warpshade.render import tonemap_f64, write_png
 from warpshade.scene import Camera, Environment, Mesh, Scene, SphereLight, materials
 
+#: Smoke profile (tests/test_benchmarks.py): skipped where Mitsuba 3 is not installed
+#: (pip install -e '.[validate]').
+PROFILE = {"requires": ["mitsuba"]}
+
 ROOT = Path(__file__).resolve().parents[1]
 #: Slope parameters along the tangent and the bitangent.
 ALPHA_U, ALPHA_V = 0.08, 0.35

@@ -338,7 +338,7 @@ def _merl_differences(name: str, bundled_path: str, generated_path: str) -> list
 
 # ---- other tables and textures -----------------------------------------------------------------
 def _svbrdf_differences(name: str, bundled_path: str, generated_path: str) -> list[str]:
-    from warpshade.methods.sg.svbrdf import read_svbrdf
+    from warpshade.scene.svbrdf import read_svbrdf
 
     try:
         a, b = read_svbrdf(bundled_path), read_svbrdf(generated_path)

@@ -8,6 +8,7 @@ checked here: the point is that the scripts keep up with the library's names and
 
 from __future__ import annotations
 
+import ast
 import importlib.util
 import os
 import subprocess
@@ -26,27 +27,22 @@ RESULTS = BENCHMARKS / "results"
 #: the smallest orders and grids, no optional sweeps; about 15 s or less on one core). Names starting
 #: with ``_`` are modules the scripts share (``_dish.py``), not scripts.
 SMOKE = sorted(p.stem for p in BENCHMARKS.glob("*.py") if not p.name.startswith("_"))
-#: Smoke runs still over ~40 s on 2 shared CPU cores (measured alone), kept out of the default
-#: suite (``-m "not slow"``). Their cost is precompute their parameters cannot shrink further:
-#: bench_datadriven (70 s: training trace, fit and coefficient PCA), bench_shexp
-#: (59 s: SHEXP tables and sphere blockers per order), bench_rpo (42 s: operator builds and
-#: reference shading), run.py (41 s: one row of every method, SG's environment included),
-#: bench_visibility (~120 s on a loaded machine: two training traces -- visibility and the 2007
-#: model's transfer --, three graphs, glossy and diffuse truths and the three frame-kind fits),
-#: bench_sg (52 s: SSDF bakes and the sky's prefiltered table) and bench_heightfield (21 s, kept
-#: out so that the default suite stays within ten minutes on this CPU).
-SLOW = {"bench_datadriven", "bench_rpo", "bench_shexp", "bench_visibility", "bench_sg", "bench_heightfield", "run"}
-#: bench_sg_svbrdf (minutes on a loaded machine: the dish's SSDF bake and the sky's prefiltered table,
-#: as bench_sg, then the quadrature with ray-traced visibility at 40 pixels).
-SLOW.add("bench_sg_svbrdf")
-#: bench_visibility_frame (a visibility training trace and fit in a fresh cache, then the figure's
-#: frame and its traced baseline).
-SLOW.add("bench_visibility_frame")
-#: bench_visibility_clusters (25 s on a loaded machine: a 30-frame training trace, the auto fit with
-#: its cross-validation, references and one cluster's refitted candidates).
-SLOW.add("bench_visibility_clusters")
-#: bench_visibility_stack (the same training trace and references, the auto and stacked fits).
-SLOW.add("bench_visibility_stack")
+#: What a script's module-level ``PROFILE`` dict may say about its smoke run: ``"slow": True`` --
+#: over ~40 s on 2 shared CPU cores (the script says why), kept out of the default suite (``-m "not
+#: slow"``); ``"requires": [module, ...]`` -- optional packages without which it is skipped. A script
+#: without ``PROFILE`` is quick and needs only the core install.
+PROFILE_KEYS = {"slow": bool, "requires": list}
+
+
+def profile(script: str) -> dict:
+    """The ``PROFILE`` a benchmark script declares (read from its source, not imported), or ``{}``."""
+    tree = ast.parse((BENCHMARKS / f"{script}.py").read_text())
+    for node in tree.body:
+        if isinstance(node, ast.Assign) and any(isinstance(t, ast.Name) and t.id == "PROFILE" for t in node.targets):
+            return ast.literal_eval(node.value)
+    return {}
+
+
 #: Seconds one smoke run may take before it counts as hung (a hang guard: :mod:`hang`).
 TIMEOUT_S = HANG_S
 
@@ -58,6 +54,10 @@ def test_every_benchmark_script_has_a_quick_profile():
         text = (BENCHMARKS / f"{name}.py").read_text()
         assert '"--quick"' in text, f"{name}: add a --quick smoke profile"
         assert "--quick writes only into --out DIR" in text, f"{name}: refuse --quick without --out"
+        declared = profile(name)
+        assert isinstance(declared, dict) and all(isinstance(declared[k], t) for k, t in PROFILE_KEYS.items()
+                                                  if k in declared), f"{name}: PROFILE must be a dict of {PROFILE_KEYS}"
+        assert set(declared) <= set(PROFILE_KEYS), f"{name}: PROFILE has unknown keys {sorted(set(declared) - set(PROFILE_KEYS))}"
 
 
 def test_no_script_or_test_edits_sys_path():
@@ -67,10 +67,12 @@ def test_no_script_or_test_edits_sys_path():
             assert "sys.path." not in path.read_text(), f"{path.name}: import the installed package instead"
 
 
-@pytest.mark.parametrize("script", [pytest.param(n, marks=(pytest.mark.slow,) if n in SLOW else ()) for n in SMOKE])
+@pytest.mark.parametrize("script", [pytest.param(n, marks=(pytest.mark.slow,) if profile(n).get("slow") else ())
+                                    for n in SMOKE])
 def test_quick_profile_writes_its_json(script, tmp_path):
-    if script.startswith("validate_mitsuba") and importlib.util.find_spec("mitsuba") is None:
-        pytest.skip("Mitsuba 3 not installed (pip install -e '.[validate]')")
+    missing = [m for m in profile(script).get("requires", []) if importlib.util.find_spec(m) is None]
+    if missing:
+        pytest.skip(f"{script} needs {missing}, not installed (pip install -e '.[validate]')")
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]).rstrip(os.pathsep))
     before = {p: p.stat().st_mtime_ns for p in RESULTS.rglob("*")}
     proc = subprocess.run([sys.executable, str(BENCHMARKS / f"{script}.py"), "--quick", "--out", str(tmp_path)],

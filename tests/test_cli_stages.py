@@ -7,21 +7,15 @@ import numpy as np
 import pytest
 
 from warpshade import cli
-from warpshade.graph import load
+from warpshade.graph import load, stage_types
 from warpshade.measure import write_usd
+from warpshade.scene import Environment, LightingSource, SphereLight, up_rotation
 
 from goldens import golden_mismatch, golden_path, write_golden
 
 STAGES = sorted((Path(__file__).resolve().parent.parent / "stages").glob("*.toml"))
-#: Training frames of the data-driven graphs in this test (their own selection takes minutes).
-TRAINING_SUBSET = "0:600:50"
-#: Training frames of the data-driven visibility graphs here: 10 poses, two blocks of the blocked
-#: cross-validation (at least visibility.select.fewest_frames() = 8). Three of them are the rest
-#: pose the range-of-motion part returns to between sweeps, so one fold trains on a single pose:
-#: the case in which the selection once changed from host to host (issue 37).
-VISIBILITY_SUBSET = "0:600:60"
-#: The same for the cloth's 120-frame training clip.
-CLOTH_SUBSET = "0:120:12"
+#: Environments of more texels than the bundled scenes' 64 x 128 sky are replaced by a small sky.
+QUICK_SKY_TEXELS = 64 * 128
 
 
 @pytest.fixture(autouse=True)
@@ -37,44 +31,23 @@ def test_stage_folder_is_not_empty():
 @pytest.mark.parametrize("graph_file", STAGES, ids=[p.stem for p in STAGES])
 def test_stage_graph_runs(device, graph_file, tmp_path, update_goldens):
     spec = load(graph_file)
+    types = stage_types()
     for st in spec.stages:
-        if st.type == "datadriven.data":
-            # the graph as written traces hundreds of training poses (minutes): a few poses with
-            # few rays run the same stages here
-            st.params.update(samples=16, frames=TRAINING_SUBSET)
-        if st.type == "ldprt.patch":
-            # a 32^2 patch traced at 256 rays and fitted per texel takes ~20 s: an 8^2 patch with
-            # few rays runs the same stages here
-            st.params.update(resolution=8, samples=32)
-        if st.type == "visibility.data":
-            # the same for the visibility graphs (every 60th training frame, 16 rays), and one
-            # network size with a short fit
-            st.params.update(samples=16, frames=CLOTH_SUBSET if "cloth" in st.params["training"] else VISIBILITY_SUBSET)
-        if st.type == "visibility.fit":
-            st.params.update(hidden=(4,), max_iterations=10)
+        # each stage type's quick settings (Stage.quick_params): the same stages, seconds instead of minutes
+        st.params.update(types[st.type].quick_params(st.params))
+    scene = spec.load_scene()
     lighting = None
-    if any(st.type.startswith("sg.") for st in spec.stages) or "sunlit" in spec.name:
-        # the sunlit graphs as written bake 512^2 visibility per vertex and prefilter a 256 x 512
-        # sky (minutes each): small SSDFs and a small procedural sky (plus the scene's lamp) run
-        # the same stages here
-        from warpshade.scene import Environment, LightingSource, SphereLight
-        from warpshade.scene import up_rotation
-
-        for st in spec.stages:
-            if st.type == "sg.ssdf":
-                st.params.update(resolution=16, supersample=2)
-            if st.type == "sg.shade" and (st.params.get("roughness_y") is not None or st.params.get("table") is not None):
-                # fitted NDF lobes: the graph's error budget fits up to 8 lobes in turn (seconds
-                # each); two lobes run the same stages
-                st.params.update(lobes=2)
-        scene = spec.load_scene()
+    if any(types[st.type].quick_sky for st in spec.stages) or any(
+            isinstance(light, Environment) and light.image.shape[0] * light.image.shape[1] > QUICK_SKY_TEXELS
+            for light in scene.lights):
+        # a prefiltered table over the scene's sky, or a large sky, takes minutes: a small procedural sky (plus
+        # the scene's lamps, unless the graph takes distant lights only) runs the same stages
         lamps = [light for light in scene.lights if isinstance(light, SphereLight)]
         if (spec.lighting or {}).get("source") == "distant":
             lamps = []
         lighting = LightingSource.fixed([Environment.sky(height=16, width=32, to_world=up_rotation(scene.up_axis)), *lamps],
                                         scene.up_axis)
-    rt = spec.compile(scene, device=device, progress=False, scheduler="serial", lighting=lighting) if lighting else \
-        spec.compile(device=device, progress=False, scheduler="serial")
+    rt = spec.compile(scene, device=device, progress=False, scheduler="serial", lighting=lighting)
     frames = rt.scene.frames[:2]
     rt.run(list(frames), warmup=False)
     for f in frames:

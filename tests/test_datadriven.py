@@ -11,8 +11,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from warpshade.methods.datadriven import model as dd
-from warpshade.methods.datadriven import PARAMETERISATIONS, pose_features, pose_layout
+from warpshade.methods.datadriven import PARAMETERISATIONS, novelty, pose_features, pose_layout
 from warpshade.methods.datadriven import hemisphere_transfer_error
+from warpshade.methods._shared.pose_space import pose_space
 from warpshade.methods.datadriven.stages import model_from_arrays, model_to_arrays
 from warpshade.scene import Mesh, Scene, Skeleton, SkinBinding
 
@@ -47,7 +48,7 @@ def _loo_by_refits(Z, y, alpha):
 
 def test_closed_form_loo_equals_refits(rng):
     A, B = _regression_case(rng)
-    space = dd.pose_space(A, pca=False)
+    space = pose_space(A, pca=False)
     Z = space.project(A)
     solver = dd.RidgeSolver(Z)
     y = B[:, :, 1]
@@ -91,14 +92,14 @@ def test_loo_chooses_regularisation_that_generalises(rng):
 
 def test_constant_features_are_dropped_and_reported(rng):
     A, B = _regression_case(rng, constant=(2, 5))
-    space = dd.pose_space(A, pca=True)
+    space = pose_space(A, pca=True)
     assert list(np.flatnonzero(~space.active)) == [2, 5]
     assert np.all(space.components[[2, 5]] == 0.0)
     moved = A[:3].copy()
     moved[:, 5] += 0.4
-    nov = dd.novelty(space, moved, A)
+    nov = novelty(space, moved, A)
     np.testing.assert_allclose(nov["constant"], 0.4, rtol=1e-12)
-    np.testing.assert_allclose(dd.novelty(space, A[:3], A)["nearest"], 0.0, atol=1e-12)
+    np.testing.assert_allclose(novelty(space, A[:3], A)["nearest"], 0.0, atol=1e-12)
 
 
 def test_fewer_poses_than_dimensions_and_alpha_zero_stay_bounded(rng):
@@ -122,7 +123,7 @@ def test_fewer_poses_than_dimensions_and_alpha_zero_stay_bounded(rng):
 def test_loo_undefined_when_every_alpha_interpolates(rng):
     """Two poses: the fit through both interpolates them, LOO is undefined for alpha = 0 (not NaN)."""
     A, B = _regression_case(rng, p=2, a=3, constant=())
-    Z = dd.pose_space(A, pca=False).project(A)
+    Z = pose_space(A, pca=False).project(A)
     solver = dd.RidgeSolver(Z)
     yc = B[:, :, 0] - B[:, :, 0].mean(0)
     assert np.isinf(solver.loo_from_gram(yc @ yc.T, [0.0])[0])
@@ -242,8 +243,8 @@ def test_pose_features_host_match_scipy(rng, kind):
 def test_pose_features_kernel_matches_host(rng, device, kind):
     """Device: skeleton-space transforms of the frame state; host: the joint-local samples."""
     from warpshade._wp import wp
-    from warpshade.methods.datadriven import kernels
-    from warpshade.methods.datadriven.pose import root_references
+    from warpshade.methods._shared.pose import root_references
+    from warpshade.methods._shared.pose_kernels import KIND_CODES, pose_features_kernel
 
     scene = _random_skinned_scene(rng, frames=4)
     layout = pose_layout(scene, kind, "include")
@@ -255,12 +256,12 @@ def test_pose_features_kernel_matches_host(rng, device, kind):
     for t in range(4):
         state = scene.evaluate(float(t), device=device)
         out = wp.zeros(layout.size, dtype=wp.float32, device=device)
-        wp.launch(kernels.pose_features_kernel, dim=4, device=device, inputs=[
+        wp.launch(pose_features_kernel, dim=4, device=device, inputs=[
             state.joint_transforms, state.skin_matrices, wp.array(layout.parents.astype(np.int32), dtype=wp.int32, device=device),
             wp.array(layout.offsets.astype(np.int32), dtype=wp.int32, device=device),
             wp.array(rest_t.astype(np.float32), dtype=wp.mat33, device=device),
             wp.array(np.transpose(skel.bind_transforms, (0, 2, 1)).astype(np.float32), dtype=wp.mat44, device=device),
-            wp.array(np.asarray(ref_t, np.float32), dtype=wp.mat33, device=device), kernels.KIND_CODES[kind], out])
+            wp.array(np.asarray(ref_t, np.float32), dtype=wp.mat33, device=device), KIND_CODES[kind], out])
         np.testing.assert_allclose(out.numpy(), pose_features(scene, [t], layout, root_reference=ref)[0], atol=ATOL_FEATURES)
 
 

@@ -29,7 +29,7 @@ from warpshade.tasks import CONNECT_TIMEOUT_ENV, DaskExecutor, SerialExecutor, T
 from warpshade.graph import ArtifactCache, GraphSpec, StageSpec
 from warpshade.io import load_scene
 from warpshade.measure import ground_truth
-from warpshade.methods.datadriven import training
+from warpshade.methods._shared import training
 from warpshade.methods.datadriven.rows import stages_for
 from warpshade.scene import LightingSource
 

@@ -12,7 +12,6 @@ from warpshade.basis.sh_warp import sh_kernels
 from warpshade.graph import GraphSpec, StageError, StageSpec
 from warpshade.methods.hybrid import stages_for, visibility_transfer_f64, world_visibility_transfer_f64
 from warpshade.methods.hybrid.kernels import visibility_transfer_kernel, world_visibility_transfer_kernel
-from warpshade.methods.rpo.model import cosine_sh
 from warpshade.scene import Environment, Mesh, Scene
 
 from tolerances import assert_close
@@ -38,7 +37,7 @@ def _run(device, vis, frames):
     wp.launch(visibility_transfer_kernel(ORDER), dim=v, device=dev,
               inputs=[wp.array(vis.astype(np.float32), dtype=wp.float32, device=dev),
                       wp.array(frames.astype(np.float32), dtype=wp.mat33, device=dev),
-                      wp.array(cosine_sh(ORDER).astype(np.float32), dtype=wp.float32, device=dev),
+                      wp.array(sh.clamped_cosine_sh(ORDER).astype(np.float32), dtype=wp.float32, device=dev),
                       sh_kernels(ORDER).tables(dev), 0, out])
     return out.numpy()
 

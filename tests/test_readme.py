@@ -6,8 +6,8 @@ are, and each command of its ```bash blocks is tested in one of five ways (:func
 * **shortened**: ``warpshade run`` of a graph whose work takes seconds, run in-process with quick
   settings given only through documented flags (:func:`quick`): ``--frames`` narrowed to the first
   validated frame, ``--validate-samples`` lowered to :data:`QUICK_SAMPLES`;
-* **started**: ``warpshade run`` of a graph whose precompute takes minutes (:data:`LONG_PRECOMPUTE`),
-  run up to the start of its work (graph, scene, frames, outputs and cache checked), then stopped;
+* **started**: ``warpshade run`` of a graph whose precompute takes minutes (its ``[graph]
+  long_precompute`` says why: :func:`long_precompute`), run up to the start of its work (graph, scene, frames, outputs and cache checked), then stopped;
 * **parsed**: commands that need a Dask cluster at ``tcp://HOST:8786``: their flags are parsed by
   the CLI's own parser and the graph file checked;
 * **checked**: commands that cannot run inside the suite: ``pip install`` (the extras must exist),
@@ -41,16 +41,14 @@ README = ROOT / "README.md"
 
 #: Ground-truth rays of a quick --validate (noisy, but every step of measuring runs).
 QUICK_SAMPLES = "16"
-#: Graphs whose precompute takes minutes on a CPU (SSDF bakes, a sky's prefiltered table, glossy
-#: ZH fits, training data over hundreds of poses): run up to the start of their work only.
-LONG_PRECOMPUTE = {
-    "sunlit_sg": "SSDF bake ~10 min and the sky's prefiltered table 4-6 min",
-    "sunlit_sg_lights": "SSDF bake ~10 min and the sky's prefiltered table 4-6 min",
-    "sunlit_ldprt_glossy": "glossy ZH fits of 4,294 vertices, ~40 s",
-    "figure_datadriven": "training data over 600 poses, ~100 s",
-    "wanderer_datadriven": "training data over 500 poses, ~8 min",
-    "figure_visibility": "training visibility over 200 poses and per-cluster network fits, minutes",
-}
+
+
+def long_precompute(graph: str) -> str:
+    """Why the graph file ``graph`` (relative to the checkout) takes minutes to precompute on a CPU (SSDF
+    bakes, a sky's prefiltered table, glossy ZH fits, training data over hundreds of poses): its
+    ``[graph] long_precompute``, or "" when it takes seconds. Such a graph runs up to the start of its
+    work only."""
+    return str(tomllib.loads((ROOT / graph).read_text()).get("graph", {}).get("long_precompute", ""))
 
 
 def fenced_blocks(language: str) -> list[str]:
@@ -96,9 +94,9 @@ def plan(command: str) -> tuple[str, list[str], str]:
         return "parse", argv, "needs a Dask cluster at tcp://HOST:8786"
     if argv[0] != "run":
         return "run", argv, ""
-    graph = Path(argv[1]).stem
-    if graph in LONG_PRECOMPUTE:
-        return "shape", argv, LONG_PRECOMPUTE[graph]
+    why = long_precompute(argv[1])
+    if why:
+        return "shape", argv, why
     return "run", quick(argv), ""
 
 

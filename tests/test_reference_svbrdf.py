@@ -12,18 +12,20 @@ import pytest
 from warpshade._wp import wp
 from warpshade.io import bundled_asset_directory
 from warpshade.methods.sg.brdf import TabulatedMicrofacet
-from warpshade.methods.sg.svbrdf import eq13_quadrature_f64, scene_uvs
-from warpshade.methods.sg.svbrdf_material import SVBRDFMaterial, svbrdf_material
+from warpshade.methods.sg import brdf as sg_brdf
+from warpshade.methods.sg.brdf_warp import fresnel_cook_torrance as shading_fresnel
+from warpshade.methods.sg.svbrdf import eq13_quadrature_f64
 from warpshade.reference import shade_glossy
-from warpshade.reference.svbrdf_warp import (brdf_with_texel, surface_brdf_eval, surface_brdf_pdf, surface_brdf_sample,
-                                             upload_svbrdf_material, vertex_texels)
+from warpshade.reference.svbrdf_warp import (brdf_with_texel, fresnel_dielectric as reference_fresnel, surface_brdf_eval,
+                                             surface_brdf_pdf, surface_brdf_sample, upload_svbrdf_material, vertex_texels)
 from warpshade.scene import Environment, Mesh, Scene
 from warpshade.scene.materials_warp import BRDFParams
+from warpshade.scene.svbrdf import SVBRDFMaterial, fresnel_dielectric, nearest_texel_f64, scene_uvs, svbrdf_material
 from warpshade.scene.tabulated import TabulatedBRDF
 from warpshade.usd_assets.generator.svbrdf import SVBRDF_FILE, smith_shadowing, texel_material
 
 from grids import ground_grid
-from tolerances import assert_within_stderr
+from tolerances import ATOL_FLOAT32, RTOL_FLOAT32, assert_within_stderr
 
 BUNDLED = f"{bundled_asset_directory()}/{SVBRDF_FILE}"
 #: float32 texel BRDF against the float64 one, relative to the largest value (float32 acos of the
@@ -117,6 +119,60 @@ def test_texel_curves_between_samples(material):
     np.testing.assert_allclose(s, 0.5 * (material.shadow[3, 4, 10] + material.shadow[3, 4, 11]), rtol=1e-12)
     with pytest.raises(ValueError, match="per texel"):
         material.evaluate([0.0, 0.0, 1.0], [0.0, 0.0, 1.0])
+
+
+@wp.kernel
+def _fresnel_kernel(c: wp.array(dtype=float), eta: wp.array(dtype=float), reference: wp.array(dtype=float),
+                    shading: wp.array(dtype=float)):
+    i = wp.tid()
+    reference[i] = reference_fresnel(c[i], eta[i])
+    shading[i] = shading_fresnel(c[i], eta[i])
+
+
+def _fresnel_cases():
+    c, eta = np.meshgrid(np.linspace(0.0, 1.0, 257), [1.01, 1.33, 1.5, 2.4, 4.0, 10.0], indexing="ij")
+    return c.ravel(), eta.ravel()
+
+
+def test_fresnel_is_the_dielectric_reflectance():
+    """The texture's Fresnel (s- and p-polarised amplitudes) at analytic points: normal incidence
+    ``((eta - 1) / (eta + 1))^2``, grazing 1, and Brewster's angle (``tan theta = eta``: no
+    p-polarised reflection) ``((eta^2 - 1) / (eta^2 + 1))^2 / 2``."""
+    eta = np.array([1.01, 1.33, 1.5, 2.4, 4.0, 10.0])
+    np.testing.assert_allclose(fresnel_dielectric(1.0, eta), ((eta - 1) / (eta + 1)) ** 2, rtol=1e-12)
+    np.testing.assert_allclose(fresnel_dielectric(0.0, eta), 1.0, rtol=1e-12)
+    brewster = np.cos(np.arctan(eta))
+    np.testing.assert_allclose(fresnel_dielectric(brewster, eta), 0.5 * ((eta**2 - 1) / (eta**2 + 1)) ** 2, rtol=1e-12)
+    with pytest.raises(ValueError, match="eta"):
+        fresnel_dielectric(0.5, 1.0)
+
+
+def test_the_reference_and_the_sg_shading_agree_on_fresnel(device):
+    """Two independent implementations (the reference's s/p amplitudes, the SG shading's eq. 14 of
+    Cook and Torrance) agree: float64 to rounding, float32 on the device to its precision."""
+    c, eta = _fresnel_cases()
+    f64 = fresnel_dielectric(c, eta)
+    np.testing.assert_allclose(f64, sg_brdf.fresnel_cook_torrance(c, eta), rtol=1e-12, atol=1e-15)
+    arrays = [wp.array(x.astype(np.float32), dtype=float, device=device) for x in (c, eta)]
+    reference, shading = (wp.zeros(c.size, dtype=float, device=device) for _ in range(2))
+    wp.launch(_fresnel_kernel, dim=c.size, inputs=arrays, outputs=[reference, shading], device=device)
+    c32, eta32 = (x.astype(np.float32).astype(np.float64) for x in (c, eta))
+    want = fresnel_dielectric(c32, eta32)
+    np.testing.assert_allclose(reference.numpy(), want, rtol=RTOL_FLOAT32, atol=ATOL_FLOAT32)
+    np.testing.assert_allclose(shading.numpy(), want, rtol=RTOL_FLOAT32, atol=ATOL_FLOAT32)
+
+
+def test_texel_brdf_at_normal_incidence_is_analytic():
+    """View and light along the normal (h = n): eq. 13 is ``F(1) S(0)^2 D(0) / pi`` with the
+    file's own first samples and ``F(1) = ((eta - 1) / (eta + 1))^2``; a light past the horizon gives 0."""
+    theta = np.linspace(0.0, 0.5 * np.pi, 91)
+    ndf = 3.0 * np.exp(20.0 * (np.cos(theta) - 1.0))
+    shadow = 1.0 - 0.3 * np.sin(theta)
+    texture = SVBRDFMaterial(np.broadcast_to(ndf, (1, 1, 91)), np.broadcast_to(shadow, (1, 1, 91)), 1.5)
+    z = np.array([0.0, 0.0, 1.0])
+    got = texture.evaluate_texels([[0, 0]], z, z)
+    np.testing.assert_allclose(got, ((1.5 - 1.0) / 2.5) ** 2 * shadow[0] ** 2 * ndf[0] / np.pi, rtol=1e-12)
+    assert texture.evaluate_texels([[0, 0]], z, [0.0, 0.6, -0.8]) == 0.0
 
 
 @pytest.mark.parametrize("texel,theta_deg", [((0, 2), 0.0), ((0, 2), 60.0), ((13, 8), 30.0), ((0, 10), 45.0)])
@@ -225,12 +281,8 @@ def test_pixel_texels_are_the_nearest_texel_of_the_interpolated_uv(device, mater
     w = np.stack([b[:, 0], b[:, 1], 1.0 - b[:, 0] - b[:, 1]], 1)
     uv = np.einsum("pk,pkc->pc", w, scene_uvs(scene)[gb.faces.numpy()[gb.face.numpy()[hit]]])
     rc = np.stack(np.divmod(got, material.shape[1]), -1)
-    from warpshade.methods.sg.svbrdf import SVBRDFTexture
-
-    lookup = SVBRDFTexture(np.zeros((*material.shape, 1)), np.zeros((*material.shape, 1)), np.zeros(2), np.zeros((0, 2)),
-                           np.zeros((*material.shape, 0)), material.eta)
     assert hit.sum() > 1000 and len(np.unique(got)) > 100
-    assert np.mean(np.any(rc != lookup.texel_of(uv), axis=1)) < 2e-3  # float32 against float64 at texel edges
+    assert np.mean(np.any(rc != nearest_texel_f64(uv, material.shape), axis=1)) < 2e-3  # float32 against float64 at texel edges
     ref = reference_image(scene, 0.0, material, camera=camera, width=16, height=12, samples=16, include=("specular",),
                           device=device, eye=EYE)
     assert ref.mask.any() and np.all(np.isfinite(ref.radiance)) and ref.radiance[ref.mask].max() > 0.0

@@ -14,7 +14,6 @@ from warpshade.measure import reference_model
 from warpshade.methods.rpo import kernels
 from warpshade.methods.rpo import fit_zh_lighting
 from warpshade.methods.rpo import OperatorCache, build_operator
-from warpshade.methods.rpo.model import cosine_sh
 from warpshade.methods.rpo import shade_exact_brdf, shade_f64
 from warpshade.graph import StageError
 from warpshade.scene import Environment, LightingSource, Mesh, Scene
@@ -163,7 +162,7 @@ def test_kernel_matches_the_float64_reference(device, rng, lighting, cosine, spa
     table.rank = wp.array(np.full(len(ops), k, np.int32), device=dev)
     table.channels = wp.array(channels, device=dev)
     table.matrices = wp.array(mats, device=dev)
-    table.cos_sh = wp.array(cosine_sh(N).astype(f32), device=dev)
+    table.cos_sh = wp.array(sh.clamped_cosine_sh(N).astype(f32), device=dev)
     table.specular = wp.vec3(1.0, 0.8, 0.6)
     lit = kernels.ViewLighting()
     lit.eye = wp.array(eye[None].astype(f32), dtype=wp.vec3, device=dev)

@@ -94,6 +94,18 @@ def test_clamped_cosine_values_and_quadrature():
         sh.clamped_cosine_zh(3, normalization="other")
 
 
+def test_clamped_cosine_sh_is_the_projection_of_the_clamped_cosine():
+    # every coefficient integral max(z, 0) y_i ds by exact hemisphere quadrature: the m = 0
+    # slots hold g_l, the others vanish (the function is zonal about +z)
+    order = 7
+    dirs, w = hemisphere_rule(np.array([0.0, 0.0, 1.0]), nodes=order + 1)
+    want = (w * dirs[:, 2]) @ sh.basis(dirs, order)
+    got = sh.clamped_cosine_sh(order)
+    assert got.shape == (order * order,) and got.dtype == np.float64
+    np.testing.assert_allclose(got, want, atol=ATOL_FLOAT64)
+    np.testing.assert_array_equal(got[[l * l + l for l in range(order)]], sh.clamped_cosine_zh(order, normalization="zh"))
+
+
 def test_irradiance_by_convolution_matches_quadrature(rng):
     # E(n) = integral L(s) max(n.s, 0) ds = sum_lm A_l L_lm y_lm(n) for band-limited L.
     order = 6

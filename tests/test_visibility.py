@@ -46,7 +46,7 @@ def test_world_visibility_turned_into_tangent_frames_is_the_local_trace(bend):
 
 
 def test_trace_task_traces_visibility_without_cosine(bend):
-    from warpshade.methods.datadriven.training import trace_task
+    from warpshade.methods._shared.training import trace_task
 
     task = {"scene": bend, "frame_indices": [3], "seeds": [11], "order": 2, "samples": 32, "space": "world",
             "bounces": 0, "quantity": "visibility"}
@@ -289,8 +289,8 @@ def test_diffuse_kernel_matches_mirror(device, rng):
     light = rng.normal(size=(3, order * order))
     light[:, 0] += 4.0
     albedo = rng.uniform(0.2, 0.9, (v, 3))
+    from warpshade.basis import sh
     from warpshade.basis.sh_warp import sh_kernels
-    from warpshade.methods.rpo.model import cosine_sh
 
     out = wp.zeros((v, 3), dtype=wp.float32, device=device)
     wp.launch(kernels.diffuse_kernel(order), dim=v, device=device,
@@ -298,7 +298,7 @@ def test_diffuse_kernel_matches_mirror(device, rng):
                       wp.array(frames.astype(np.float32), dtype=wp.mat33, device=device),
                       wp.array(albedo.astype(np.float32), dtype=wp.float32, device=device),
                       wp.array(light.astype(np.float32), dtype=wp.float32, device=device),
-                      wp.array(cosine_sh(order).astype(np.float32), dtype=wp.float32, device=device),
+                      wp.array(sh.clamped_cosine_sh(order).astype(np.float32), dtype=wp.float32, device=device),
                       sh_kernels(order).tables(device), 0, out])
     want = diffuse_f64(vis, frames, light, albedo)
     np.testing.assert_allclose(out.numpy(), want, rtol=50 * RTOL_FLOAT32, atol=50 * ATOL_FLOAT32)

@@ -14,7 +14,7 @@ Contents: evaluation (:func:`basis`) and projection (:func:`project`); products 
 exact Gaunt tensor (:func:`triple_product_tensor`, :func:`product`, :func:`product_matrix`,
 :func:`square`; :func:`complex_gaunt` for the complex SH integrals); rotation (:func:`rotate`,
 :func:`rotation_matrix`); zonal harmonics (:func:`zh_to_sh`, :func:`zh_from_sh_about_axis`,
-:func:`clamped_cosine_zh`, :func:`cap_zh`); frequency-space windows (:func:`window`,
+:func:`clamped_cosine_zh`, :func:`clamped_cosine_sh`, :func:`cap_zh`); frequency-space windows (:func:`window`,
 :func:`window_weights`); converters to and from other public conventions (:func:`to_convention`,
 :func:`from_convention`); the SH exponential and logarithm of the SHEXP paper (:func:`exp`,
 :func:`log`, with the oracles :func:`exp_series_limit` and :func:`exp_volterra`, the squaring
@@ -82,6 +82,7 @@ __all__ = [
     "zh_to_sh",
     "zh_from_sh_about_axis",
     "clamped_cosine_zh",
+    "clamped_cosine_sh",
     "cap_zh",
     # windowing
     "WINDOWS",
@@ -514,6 +515,25 @@ def clamped_cosine_zh(order: int, normalization: str = "convolution") -> np.ndar
     if normalization == "zh":
         return conv / band_scale(order)
     return conv
+
+
+def clamped_cosine_sh(order: int) -> np.ndarray:
+    """SH coefficients of the clamped cosine ``max(s_z, 0)`` about +z (the local normal).
+
+    The zonal coefficients ``g_l`` of :func:`clamped_cosine_zh` (``normalization="zh"``) at the
+    ``m = 0`` slots ``i = l*l + l``, zero elsewhere; its product matrix (:func:`product_matrix`) is
+    the ``C`` that turns local visibility into local diffuse transfer.
+
+    Args:
+        order: SH order n.
+
+    Returns:
+        Shape (n*n,), float64.
+    """
+    zh = clamped_cosine_zh(order, normalization="zh")
+    out = np.zeros(zh.size * zh.size)
+    out[[l * l + l for l in range(zh.size)]] = zh
+    return out
 
 
 # ----------------------------------------------------------------------------------------------

@@ -1,17 +1,22 @@
 """Changes of a run that do not come from the frame: lighting, albedo, BRDFs, the eye, parameters.
 
 :class:`RunChanges` is the part of :class:`~warpshade.graph.runtime.Runtime` that takes them. A
-setter writes the change where the frame reads it (through the
-:class:`~warpshade.scene.state.FrameEvaluator`, the only writer of the frame's host inputs) and
-tells the frame stages with :meth:`RunChanges.notify_changed`: each stage's
-:meth:`~warpshade.methods.stage.FrameStage.notify_changed` gets the
-:class:`~warpshade.scene.state.Change` flags and, for a changed parameter, its name, and says
-whether it absorbs the change; the first that does not is set up again with every stage after it.
+setter checks its value (refusing a bad one at once), writes the change where the frame reads
+it (through the :class:`~warpshade.scene.state.FrameEvaluator`, the only writer of the frame's
+host inputs) and marks it dirty; :meth:`RunChanges.update` passes every dirty change to the frame
+stages at once (after Mitsuba's ``SceneParameters.update`` and Newton's
+``notify_model_changed``). Each stage's :meth:`~warpshade.methods.stage.FrameStage.notify_changed`
+gets the :class:`~warpshade.scene.state.Change` flags and the names of its changed parameters,
+once per update, and says whether it absorbs them; those that do not are set up again with the
+stages reading their outputs, each once. Outside :meth:`RunChanges.batch` a setter updates at
+once; inside, the changes of the block make one update.
 
 :class:`MaterialTrack` is the graph's ``[[material]]`` track: the BRDFs of each time code.
 """
 
 from __future__ import annotations
+
+from contextlib import contextmanager
 
 import numpy as np
 
@@ -72,55 +77,206 @@ def _identity(assignment: MaterialAssignment) -> tuple:
     return default, tuple(sorted((p, id(b)) for p, b in assignment.prims.items()))
 
 
+class _Pending:
+    """Changes marked since the last :meth:`RunChanges.update`, not yet passed to the stages.
+
+    Attributes:
+        keys: the dirty keys, in the order marked (``"lighting"``, ``"albedo"``, ``"material"``,
+            ``"eye"``, ``(stage, parameter)``, or a :class:`Change` flag name from
+            :meth:`RunChanges.notify_changed`), as a dict used as an ordered set.
+        what: the setter calls, for error messages.
+        told: frame stage name -> [Change flags, parameter names] to tell it (merged).
+        setup_all: every frame stage is set up again (a new lighting: new light arrays).
+        undo: callables putting back what each setter wrote, in the order written.
+    """
+
+    def __init__(self):
+        self.keys: dict = {}
+        self.what: list = []
+        self.told: dict = {}
+        self.setup_all = False
+        self.undo: list = []
+
+    def __bool__(self) -> bool:
+        return bool(self.told) or self.setup_all
+
+
 class RunChanges:
     """Run-time changes of a :class:`~warpshade.graph.runtime.Runtime` (mixed into it).
 
     Uses the runtime's ``scene``, ``stages``, ``evaluator``, ``frame`` (the
     :class:`~warpshade.graph.frame.FrameGraph`), ``ctx``, ``lighting`` and ``track``.
 
-    Every change is all or nothing: it is checked, written and passed to the stages; when any of
-    that fails (a bad value, a stage that refuses it while rebuilding its operators or setting up
-    again), what was written is put back, the stages are brought back to it, and the error is
-    raised. A rejected change leaves the run exactly as it was, and later frames step as before.
+    A setter checks its value (a bad one is refused there, with nothing marked), writes it where
+    the frame reads it and marks what changed dirty; :meth:`update` passes every dirty change to
+    the stages at once. Outside a :meth:`batch` a setter updates at once, so each change applies
+    by itself; inside one, changes wait for the end of the block (or an explicit :meth:`update`,
+    or the next :meth:`~warpshade.graph.runtime.Runtime.step`), and each frame stage is told
+    once, with every flag and parameter name of the batch, set up again at most once, and the
+    frame is recorded anew at most once.
+
+    Every update is all or nothing: when a stage refuses it (while rebuilding its operators or
+    setting up again), what the setters wrote is put back, the stages are brought back to it, and
+    the error is raised. A rejected change leaves the run exactly as it was, and later frames step
+    as before.
     """
 
+    def _start_changes(self) -> None:
+        """Nothing dirty, no batch open (called by the runtime's constructor)."""
+        self._pending = _Pending()
+        self._batching = 0
+
+    @property
+    def dirty(self) -> frozenset:
+        """The keys marked and not yet passed to the stages (see :meth:`update`); empty outside a
+        :meth:`batch`."""
+        return frozenset(self._pending.keys)
+
+    @contextmanager
+    def batch(self):
+        """Gather the changes made in a ``with`` block into one :meth:`update` at its end::
+
+            with rt.batch():
+                rt.set_lighting(sky)
+                rt.set_parameter("shade", "window", "hanning")
+                rt.set_eye((0.0, 2.0, 3.0))
+            rt.step(frame)  # each stage set up at most once, the frame recorded once
+
+        A setter still refuses a bad value at once (nothing is marked then). Blocks may nest: an
+        inner one joins the outermost. An exception leaving a block puts back every change not
+        yet applied, then is raised again.
+
+        Raises:
+            StageError, GraphError: at the end of the block, a change a stage refuses (every
+                change of the batch is put back then, as by :meth:`update`).
+        """
+        self._batching += 1
+        try:
+            yield self
+        except BaseException as exc:
+            self._batching -= 1
+            pending, self._pending = self._pending, _Pending()
+            self._put_back(pending, exc)
+            raise
+        self._batching -= 1
+        if not self._batching:
+            self.update()
+
+    def update(self) -> frozenset:
+        """Pass every change marked since the last update to the frame stages, at once.
+
+        Each frame stage concerned is told once
+        (:meth:`~warpshade.methods.stage.FrameStage.notify_changed`, with the union of the
+        :class:`~warpshade.scene.state.Change` flags and parameter names of the changes); the
+        stages that do not absorb them are set up again with every stage reading their outputs,
+        each once (a new lighting sets every frame stage up again), and the frame is recorded
+        anew at the next step. With nothing dirty it does nothing. A step updates first.
+
+        Returns:
+            the dirty keys applied (empty when nothing was dirty).
+
+        Raises:
+            StageError, GraphError: a stage refuses the changes; every one of them is put back.
+        """
+        pending, self._pending = self._pending, _Pending()
+        if not pending:
+            return frozenset()
+        try:
+            self._tell(pending)
+        except BaseException as exc:
+            self._put_back(pending, exc)
+            raise
+        return frozenset(pending.keys)
+
     def notify_changed(self, flags: Change, stages=None, keys=()) -> None:
-        """Tell the frame stages that something outside the frame changed.
+        """Tell the frame stages that something outside the frame changed (marked dirty, then
+        passed on by :meth:`update`: at once outside a :meth:`batch`).
 
         Each stage's :meth:`~warpshade.methods.stage.FrameStage.notify_changed` says whether it
-        keeps working; the first that does not is set up again with every stage after it, and
-        the frame is recorded anew at the next step.
+        keeps working; those that do not are set up again with every stage reading their
+        outputs, and the frame is recorded anew at the next step.
 
         Args:
             flags: :class:`~warpshade.scene.state.Change` flags.
             stages: names of the stages concerned (default: every frame stage).
             keys: with :data:`Change.PARAMETERS`, the names of the parameters that changed.
         """
-        names = None if stages is None else set(stages)
-        keys = frozenset(keys)
-        first = None
-        for i, st in enumerate(self.frame.stages):
-            if names is not None and st.name not in names:
-                continue
-            if not st.notify_changed(Change(flags), keys) and first is None:
-                first = i
-        if first is not None:
-            self.frame.setup(first)
+        name = "|".join(f.name.lower() for f in Change if f & flags and f.name not in ("NONE", "ALL"))
+        self._mark("notify_changed", name or "none", lambda: None, flags, stages, keys)
 
-    def _all_or_nothing(self, what: str, apply, undo, bring_back) -> None:
-        """Run ``apply()`` (write a change and pass it to the stages); when it raises, ``undo()``
-        puts the old values back and ``bring_back()`` returns the stages to them, then the error
-        is raised again. A failure to come back (the stages refuse the state they ran with) is a
-        GraphError naming ``what``: the run cannot go on."""
+    def _mark(self, what: str, key, undo, flags: Change = Change.NONE, stages=None, keys=(),
+              setup_all: bool = False) -> None:
+        """Mark ``key`` dirty: the stages ``stages`` (default: every frame stage) are to be told
+        ``flags`` and ``keys``; ``undo()`` puts back what the setter wrote. Outside a batch the
+        change is applied now."""
+        p = self._pending
+        p.keys[key] = None
+        p.what.append(what)
+        p.undo.append(undo)
+        p.setup_all = p.setup_all or setup_all
+        if flags:
+            names = None if stages is None else set(stages)
+            for st in self.frame.stages:
+                if names is None or st.name in names:
+                    told = p.told.setdefault(st.name, [Change.NONE, set()])
+                    told[0] |= flags
+                    told[1].update(keys)
+        if not self._batching:
+            self.update()
+
+    def _tell(self, pending: _Pending) -> None:
+        """Tell each stage of ``pending`` its changes once, then set up those that do not absorb
+        them (every stage with a new lighting), each once."""
+        again = set()
+        for st in self.frame.stages:
+            told = pending.told.get(st.name)
+            if told is not None and not st.notify_changed(Change(told[0]), frozenset(told[1])):
+                again.add(st.name)
+        if pending.setup_all:
+            self.frame.setup(0)
+        elif again:
+            self.frame.setup_stages(again)
+
+    def _put_back(self, pending: _Pending, exc: BaseException) -> None:
+        """Undo what the setters of ``pending`` wrote (last first) and bring the stages back to it.
+        A failure to come back (the stages refuse the state they ran with) is a GraphError naming
+        the changes: the run cannot go on."""
+        for undo in reversed(pending.undo):
+            undo()
+        if not pending:
+            return
+        try:
+            self._tell(pending)
+        except Exception as again:
+            raise GraphError(f"{', '.join(pending.what)}: rejected ({exc}), and the stages could not return to the "
+                             f"run's state before it ({again}); compile the graph again") from again
+
+    def _everyone(self, flags: Change) -> _Pending:
+        """A change telling every frame stage ``flags`` (for changes a step makes itself)."""
+        pending = _Pending()
+        pending.told = {st.name: [flags, set()] for st in self.frame.stages}
+        return pending
+
+    def _tell_now(self, what: str, apply, undo, flags: Change) -> None:
+        """Inside a step: ``apply()`` writes a change and every frame stage is told ``flags`` at
+        once (not batched); all or nothing, as :meth:`update`."""
+        pending = self._everyone(flags)
+        pending.what.append(what)
+        pending.undo.append(undo)
         try:
             apply()
+            self._tell(pending)
         except BaseException as exc:
+            self._put_back(pending, exc)
+            raise
+
+    def _write(self, write, undo) -> None:
+        """Run a setter's ``write()``; when it raises (a bad value), ``undo()`` and raise: nothing
+        is marked."""
+        try:
+            write()
+        except BaseException:
             undo()
-            try:
-                bring_back()
-            except Exception as again:
-                raise GraphError(f"{what}: rejected ({exc}), and the stages could not return to the run's state "
-                                 f"before it ({again}); compile the graph again") from again
             raise
 
     def _material_stages(self, what: str) -> None:
@@ -135,7 +291,8 @@ class RunChanges:
         lights (fixed). Every frame stage is set up again (lights may differ in number).
 
         Raises:
-            ValueError, StageError: lights a stage cannot shade (nothing changes then).
+            ValueError, StageError: lights a stage cannot shade (nothing changes then; in a
+                :meth:`batch`, at its end).
         """
         if not isinstance(lighting, LightingSource):
             items = [lighting] if isinstance(lighting, (Environment, DistantLight, SphereLight)) else list(lighting)
@@ -143,11 +300,10 @@ class RunChanges:
         ev = self.evaluator
         old = (ev.lighting_source, self.state.lighting, ev.input["sh_override"], self.lighting, self._override_on)
 
-        def apply():
+        def write():
             ev.set_lighting(lighting)
             self.lighting = self.ctx.lighting = lighting
             self._override_on = False
-            self.frame.setup(0)  # the lights may differ in number: every stage binds the new arrays
 
         def undo():
             ev.lighting_source, self.state.lighting = old[0], old[1]
@@ -155,7 +311,9 @@ class RunChanges:
             self.lighting = self.ctx.lighting = old[3]
             self._override_on = old[4]
 
-        self._all_or_nothing("set_lighting", apply, undo, lambda: self.frame.setup(0))
+        self._write(write, undo)
+        # the lights may differ in number: every stage binds the new arrays
+        self._mark("set_lighting", "lighting", undo, setup_all=True)
 
     def set_albedo(self, albedo, prims=None) -> None:
         """New diffuse albedo for every vertex or for the meshes ``prims`` (see
@@ -165,10 +323,9 @@ class RunChanges:
             ValueError: a bad albedo or prim (nothing changes then).
         """
         before = self.evaluator.albedo.numpy().copy()
-        self._all_or_nothing("set_albedo",
-                             lambda: (self.evaluator.set_albedo(albedo, prims), self.notify_changed(Change.MATERIAL)),
-                             lambda: self.evaluator.albedo.assign(before),
-                             lambda: self.notify_changed(Change.MATERIAL))
+        undo = lambda: self.evaluator.albedo.assign(before)  # noqa: E731
+        self._write(lambda: self.evaluator.set_albedo(albedo, prims), undo)
+        self._mark("set_albedo", "albedo", undo, Change.MATERIAL)
 
     def set_material(self, brdf, prims=None) -> None:
         """Change the BRDF of every mesh, or of the meshes ``prims`` (prim paths), at run time:
@@ -180,14 +337,14 @@ class RunChanges:
         Raises:
             GraphError: no frame stage shades run-time BRDFs.
             ValueError, StageError: a BRDF or prim refused by the scene or by a stage (too many
-                distinct BRDFs, a model the stage does not shade); nothing changes then.
+                distinct BRDFs, a model the stage does not shade); nothing changes then. A
+                stage's refusal comes, in a :meth:`batch`, at its end.
         """
         self._material_stages("set_material")
         saved = self.state.materials.saved()
-        self._all_or_nothing("set_material",
-                             lambda: (self.evaluator.set_material(brdf, prims), self.notify_changed(Change.MATERIAL)),
-                             lambda: self.evaluator.assign_materials(*saved),
-                             lambda: self.notify_changed(Change.MATERIAL))
+        undo = lambda: self.evaluator.assign_materials(*saved)  # noqa: E731
+        self._write(lambda: self.evaluator.set_material(brdf, prims), undo)
+        self._mark("set_material", "material", undo, Change.MATERIAL)
 
     def materials_at(self, frame) -> MaterialAssignment:
         """The :class:`~warpshade.scene.state.MaterialAssignment` of time code ``frame``: the
@@ -214,13 +371,9 @@ class RunChanges:
             return
         saved = self.state.materials.saved()
 
-        def apply():
-            self.evaluator.assign_materials(want.default, want.prims)
-            self.notify_changed(Change.MATERIAL)
-
         try:
-            self._all_or_nothing("material track", apply, lambda: self.evaluator.assign_materials(*saved),
-                                 lambda: self.notify_changed(Change.MATERIAL))
+            self._tell_now("material track", lambda: self.evaluator.assign_materials(want.default, want.prims),
+                           lambda: self.evaluator.assign_materials(*saved), Change.MATERIAL)
         except (ValueError, GraphError) as exc:
             where = [e["where"] for e in self.track.entries if float(frame) in e["times"]]
             raise GraphError(f"{', '.join(where)} at frame {float(frame):g}: {exc}") from exc
@@ -241,18 +394,19 @@ class RunChanges:
             ev.input.write(eye_from_host=old[2])
             ev._eye_set = old[3]
 
-        self._all_or_nothing("set_eye", lambda: (ev.set_eye(position), self.notify_changed(Change.VIEW)), undo,
-                             lambda: self.notify_changed(Change.VIEW))
+        self._write(lambda: ev.set_eye(position), undo)
+        self._mark("set_eye", "eye", undo, Change.VIEW)
 
     def set_parameter(self, stage: str, name: str, value) -> None:
-        """Change a frame stage's parameter between frames (validated like the TOML value); the
-        stage is told which parameter changed and is set up again unless it absorbs it.
+        """Change a frame stage's parameter between frames (validated like the TOML value, here);
+        the stage is told which parameter changed and is set up again unless it absorbs it.
 
         Raises:
             GraphError: an unknown stage or parameter, a precompute stage (its artifact would
                 change: compile again), or a value that would change the stage's ports.
-            StageError: a value the parameter or the stage's set-up refuses. Nothing changes then:
-                the old value stays and the stage is set up with it again.
+            StageError: a value the parameter refuses (here, with nothing marked) or the stage's
+                set-up refuses (in a :meth:`batch`, at its end). Nothing changes then: the old
+                value stays and the stage is set up with it again.
         """
         st = next((s for s in self.stages if s.name == stage), None)
         if st is None:
@@ -271,9 +425,7 @@ class RunChanges:
         def undo():
             st.params[name] = old
 
-        self._all_or_nothing(f"set_parameter {stage}.{name}",
-                             lambda: self.notify_changed(Change.PARAMETERS, [stage], keys=[name]), undo,
-                             lambda: self.notify_changed(Change.PARAMETERS, [stage], keys=[name]))
+        self._mark(f"set_parameter {stage}.{name}", (stage, name), undo, Change.PARAMETERS, [stage], keys=[name])
 
     def _step_lighting(self, lighting) -> None:
         """This step's lighting override (None: the run's lights), and the stages told when it
@@ -281,11 +433,11 @@ class RunChanges:
         if lighting is not None:
             self.evaluator.set_lighting_override(self._override_coeffs(lighting))
             self._override_on = True
-            self.notify_changed(Change.LIGHTING)
+            self._tell(self._everyone(Change.LIGHTING))
         elif self._override_on:
             self.evaluator.set_lighting_override(None)
             self._override_on = False
-            self.notify_changed(Change.LIGHTING)
+            self._tell(self._everyone(Change.LIGHTING))
 
     def _override_coeffs(self, lighting) -> np.ndarray:
         """A step's lighting as SH coefficients (3, n*n): given, or distant lights projected to SH."""

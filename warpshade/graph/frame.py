@@ -102,8 +102,24 @@ class FrameGraph:
         """Set up frame stages ``start..`` (in order), binding upstream outputs; the recording is
         dropped first (the next frame records anew), so a set-up that fails part way never leaves a
         recording of buffers some stages no longer use."""
+        self._setup(self.stages[start:])
+
+    def setup_stages(self, names) -> list:
+        """Set up the frame stages ``names`` and every frame stage that reads an output of one set
+        up (directly or through others), each once, in order; the others keep their set-up and
+        buffers. Returns the names set up (the recording is dropped as by :meth:`setup`)."""
+        again = set(names)
+        chosen = []
+        for st in self.stages:
+            if st.name in again or any(w.provider in again for w in self.wiring[st.name].values()):
+                again.add(st.name)
+                chosen.append(st)
+        self._setup(chosen)
+        return [st.name for st in chosen]
+
+    def _setup(self, stages) -> None:
         self.program = None
-        for st in self.stages[start:]:
+        for st in stages:
             inputs = {}
             for port, w in self.wiring[st.name].items():
                 if w.provider == "scene":

@@ -28,7 +28,7 @@ __all__ = [
 ]
 
 
-_GRAPH_KEYS = {"name", "description", "scene", "frames", "output"}
+_GRAPH_KEYS = {"name", "description", "scene", "frames", "output", "long_precompute"}
 #: Scene options a ``[graph]`` table may carry (passed to :func:`warpshade.io.load_scene`, except
 #: ``frame_count``) and their types.
 SCENE_OPTIONS = {"ground_plane": bool, "sky": bool, "ground_resolution": int, "frame_count": int}
@@ -169,7 +169,7 @@ def _check_scene_options(options: dict, where: str) -> dict:
             _number(value, f"{where}: [graph] {key}", minimum=1 if key == "frame_count" else 2, integer=True)
     if options.get("frame_count", 1) > MAX_TIME_CODES:
         raise GraphError(f"{where}: [graph] frame_count = {options['frame_count']} exceeds the limit of {MAX_TIME_CODES} "
-                         "time codes (warpshade._limits.MAX_TIME_CODES)")
+                         "time codes a run may step through")
     return options
 
 
@@ -237,7 +237,7 @@ def load(path) -> GraphSpec:
         raise GraphError(f"{where}: missing [graph] table")
     if "output" not in g:
         raise GraphError(f"{where}: [graph] needs an 'output = \"stage.port\"' entry")
-    for key in ("output", "description", "scene"):
+    for key in ("output", "description", "scene", "long_precompute"):
         if key in g and not isinstance(g[key], str):
             raise GraphError(f"{where}: [graph] {key} must be a string, got {g[key]!r}")
     default_name = re.sub(r"[^A-Za-z0-9_.-]", "_", path.stem).strip("._-") or "graph"
@@ -267,6 +267,7 @@ def load(path) -> GraphSpec:
         output=g["output"],
         name=name,
         description=g.get("description", ""),
+        long_precompute=g.get("long_precompute", ""),
         scene=g.get("scene"),
         scene_options=scene_options,
         frames=frames,

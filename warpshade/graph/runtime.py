@@ -13,7 +13,8 @@ A :class:`Runtime` is made of parts a reader can find by name:
   stage) recorded and replayed; :meth:`Runtime.timing_summary` lists what runs unrecorded;
 * :mod:`.changes` -- changes that do not come from the frame (:meth:`~Runtime.set_lighting`,
   :meth:`~Runtime.set_albedo`, :meth:`~Runtime.set_material`, :meth:`~Runtime.set_eye`,
-  :meth:`~Runtime.set_parameter`, the material track) and :meth:`~Runtime.notify_changed`.
+  :meth:`~Runtime.set_parameter`, the material track) and :meth:`~Runtime.notify_changed`,
+  marked dirty and applied together by :meth:`~Runtime.update` (:meth:`~Runtime.batch`).
 
 This module steps, times and describes a run. Measuring against ground truth and writing USD,
 pictures and reports are the measuring layer's (:mod:`warpshade.measure`).
@@ -107,6 +108,7 @@ class Runtime(RunChanges):
         self.results: dict = {}
         self._fingerprint = None
         self._override_on = False
+        self._start_changes()
         self._stepping = threading.Lock()
         self.track = MaterialTrack(getattr(spec, "materials", None), scene)
         self._track_key = None
@@ -170,6 +172,8 @@ class Runtime(RunChanges):
             the output device array (per-vertex radiance, (vertex_count, 3) float32). The same
             array is overwritten by the next step; copy it (``.numpy().copy()``) to keep it.
 
+        Changes still dirty (made in a :meth:`batch`) are applied first (:meth:`update`).
+
         Raises:
             GraphError: with ``record``, a frame whose output is not finite, naming the frame
                 and the first stage that produced non-finite values (nothing is recorded).
@@ -182,6 +186,8 @@ class Runtime(RunChanges):
             raise RuntimeError(f"step({frame!r}): another thread is stepping this runtime (one frame at a time: "
                                "feed and step from one thread, or wait for its step to return)")
         try:
+            if self._pending.keys:
+                self.update()
             t_start = time.perf_counter()
             self.evaluator.set_frame(frame, points=points, joints=joints)
             self._apply_material_track(self.state.frame)
@@ -276,6 +282,7 @@ class Runtime(RunChanges):
         The results are kept in :attr:`timings` (``frame_s``) for :meth:`timing_summary`.
         """
         sel = parse_frames(frames if frames is not None else self.spec.frames, self.scene)
+        self.update()
         scene_s = []
         for t in self.timings.values():
             t.frame_s.clear()

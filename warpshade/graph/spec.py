@@ -25,6 +25,7 @@ TOML layout (paths are relative to the TOML file)::
     [graph]
     name = "blockers-shexp"
     description = "..."
+    long_precompute = "..."                   # optional: why its precompute takes minutes on a CPU
     scene = "bundled:blockers"                # or "warp-example:bunny"
     ground_plane = false                      # optional scene option
     frames = "0:60"                           # time codes A <= t < B (optional)
@@ -171,6 +172,9 @@ class GraphSpec:
     #: the material track: ``[[material]]`` tables, each ``{"frames": spec, "prims": [...] or None,
     #: "brdf": BRDF, "where": str}`` (later entries win where they overlap).
     materials: list = field(default_factory=list)
+    #: ``[graph] long_precompute``: why the precompute takes minutes on a CPU ("" when it takes
+    #: seconds); it says so to readers (and the README's test), the run does not read it.
+    long_precompute: str = ""
     #: The stages :func:`~warpshade.graph.loader.load` built to check the graph, with the stage
     #: table they were built from: the first compile uses them when the table is unchanged.
     _checked: tuple | None = field(default=None, init=False, repr=False, compare=False)

@@ -189,7 +189,7 @@ def _resolution(line: bytes) -> tuple[int, int, bool, bool]:
         raise ValueError(f"bad image size {width}x{height}")
     if height * width > MAX_IMAGE_PIXELS:
         raise ValueError(f"image size {width}x{height} ({height * width:,} pixels) exceeds the limit of "
-                         f"{MAX_IMAGE_PIXELS:,} pixels (warpshade._limits.MAX_IMAGE_PIXELS)")
+                         f"{MAX_IMAGE_PIXELS:,} pixels an image may have")
     return height, width, res[0] == b"+Y", res[2] == b"-X"
 
 

@@ -219,7 +219,7 @@ class _StageReader:
         count = math.floor(end) - math.ceil(start) + 1
         if count > MAX_TIME_CODES:
             raise ValueError(f"USD file {self.path}: startTimeCode {start:g} .. endTimeCode {end:g} spans {count:,} time codes; "
-                             f"at most {MAX_TIME_CODES:,} are sampled (warpshade._limits.MAX_TIME_CODES)")
+                             f"at most {MAX_TIME_CODES:,} are sampled")
         frames = np.arange(math.ceil(start), math.floor(end) + 1, dtype=np.float64)
         if frames.size == 0:
             frames = np.array([start])
@@ -277,7 +277,7 @@ class _StageReader:
                         raise ValueError(
                             f"USD file {self.path}: the stage has no startTimeCode/endTimeCode and its animation has "
                             f"more than {MAX_TIME_CODES:,} time samples (reached at {attr.GetPath()}); at most "
-                            f"{MAX_TIME_CODES:,} are sampled (warpshade._limits.MAX_TIME_CODES): author startTimeCode "
+                            f"{MAX_TIME_CODES:,} are sampled: author startTimeCode "
                             "and endTimeCode to sample the integer time codes between them")
         frames = np.array(sorted(float(c) for c in codes if math.isfinite(c)), np.float64)
         if frames.size > 1:

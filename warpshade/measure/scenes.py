@@ -10,23 +10,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..methods.rows import BENCH_SCENES  # the scenes measured: key -> scene spec, load options, training clip
+
 __all__ = [
     "STATIC_FRAME_COUNT",
     "ROTATE_DEGREES_PER_FRAME",
 ]
 
-#: Bundled scenes: scene spec and load options.
-BENCH_SCENES = {
-    "bunny": {"spec": "warp-example:bunny", "options": {"ground_plane": True}},
-    "bear": {"spec": "warp-example:bear", "options": {"ground_plane": True}},
-    "blockers": {"spec": "bundled:blockers", "options": {}},
-    "figure": {"spec": "bundled:figure", "options": {}},
-    "figure_walk": {"spec": "bundled:figure_walk", "options": {}},
-    "wanderer": {"spec": "bundled:wanderer_test", "options": {}},
-    "cloth": {"spec": "bundled:cloth", "options": {}},
-    "cloth_heldout": {"spec": "bundled:cloth_heldout", "options": {}},
-    "bend": {"spec": "bundled:bend", "options": {}},
-}
 STATIC_FRAME_COUNT = 24
 ROTATE_DEGREES_PER_FRAME = 5.0
 

@@ -16,6 +16,32 @@ __all__ = ["HarnessRow", "SCENE_KINDS", "all_rows"]
 #: Scene selectors a row can name besides explicit scene keys.
 SCENE_KINDS = ("all", "static", "dynamic", "skinned", "deforming")
 
+#: The scenes the harness measures, one entry each, by key (the name rows, charts and results use;
+#: :func:`warpshade.measure.load_bench_scene` loads them): the scene spec, its load options and, for a
+#: held-out clip, the training clip of the same character or cloth (what the data-driven methods train
+#: on) with what varies between its frames (``inputs``: ``"joints"`` of a skinned character, the
+#: default, or ``"dihedral"`` angles of a simulated cloth). The methods' rows take their training
+#: clips from here (:func:`training_clips`), so a new scene is one entry here.
+BENCH_SCENES = {
+    "bunny": {"spec": "warp-example:bunny", "options": {"ground_plane": True}},
+    "bear": {"spec": "warp-example:bear", "options": {"ground_plane": True}},
+    "blockers": {"spec": "bundled:blockers", "options": {}},
+    "figure": {"spec": "bundled:figure", "options": {}, "training": "bundled:figure_train"},
+    "figure_walk": {"spec": "bundled:figure_walk", "options": {}, "training": "bundled:figure_train"},
+    "wanderer": {"spec": "bundled:wanderer_test", "options": {}, "training": "bundled:wanderer_train"},
+    "cloth": {"spec": "bundled:cloth", "options": {}},
+    "cloth_heldout": {"spec": "bundled:cloth_heldout", "options": {}, "training": "bundled:cloth_train",
+                      "inputs": "dihedral"},
+    "bend": {"spec": "bundled:bend", "options": {}},
+}
+
+
+def training_clips(inputs: str | None = "joints") -> dict:
+    """Held-out scene key -> the spec of its training clip, for the :data:`BENCH_SCENES` whose frames
+    vary by ``inputs`` (None: every one with a training clip), in the order of :data:`BENCH_SCENES`."""
+    return {key: cfg["training"] for key, cfg in BENCH_SCENES.items()
+            if "training" in cfg and inputs in (None, cfg.get("inputs", "joints"))}
+
 
 @dataclass(frozen=True)
 class HarnessRow:

@@ -15,7 +15,7 @@ A stage declares typed input and output ports and typed parameters, and is one o
   once and replayed, on CUDA and on the CPU (:func:`warpshade._wp.record_program`).
 
 Changes that do not come from the frame (a new lighting, albedo, eye or a stage parameter)
-reach a frame stage through one call, :meth:`FrameStage.notify_changed` with
+reach a frame stage through one call per update, :meth:`FrameStage.notify_changed` with
 :class:`~warpshade.scene.state.Change` flags and the names of the parameters that changed
 (after Newton's ``notify_model_changed`` and Mitsuba's ``SceneParameters.update``).
 
@@ -191,6 +191,20 @@ class Stage:
     kind: ClassVar[str] = ""  # set by PrecomputeStage ("precompute") and FrameStage ("frame")
     parameters: ClassVar[dict[str, Param]] = {}
     description: ClassVar[str] = ""
+    #: Quick settings: parameter -> value that make a stage of this type run in seconds where the
+    #: ready-made graphs' own settings take minutes, running the same code (tests run every graph of
+    #: ``stages/`` with them, :meth:`quick_params`). Empty: the stage is quick as written.
+    quick: ClassVar[dict] = {}
+    #: True when the stage's precompute scales with the environment's texels (a prefiltered table):
+    #: a quick run lights its graph with a small procedural sky.
+    quick_sky: ClassVar[bool] = False
+
+    @classmethod
+    def quick_params(cls, params: dict) -> dict:
+        """The quick settings of a stage of this type written with ``params`` (the graph's
+        parameters, before defaults): the parameters to override, :attr:`quick` by default; a
+        type whose slow cases depend on its parameters overrides this."""
+        return dict(cls.quick)
 
     def __init__(self, name: str, params: dict | None = None):
         self.name = name
@@ -320,12 +334,15 @@ class FrameStage(Stage):
     def notify_changed(self, flags: Change, keys: frozenset = frozenset()) -> bool:
         """Something outside the frame changed (:class:`~warpshade.scene.state.Change` flags);
         with :data:`~warpshade.scene.state.Change.PARAMETERS`, ``keys`` names the parameters of
-        this stage that changed (``self.params`` already holds their new values).
+        this stage that changed (``self.params`` already holds their new values). Called once per
+        ``Runtime.update``: changes made together (``Runtime.batch``) arrive as one call, their
+        flags and parameter names merged.
 
         Returns True when the stage keeps working with its current set-up (what changed is read
         from device arrays it already binds, or the stage has just written it into them: the
         recorded frame is replayed as it is), False when it must be set up again -- the runtime
-        then re-runs :meth:`setup` for it and every stage downstream and records the frame anew.
+        then re-runs :meth:`setup` for it and every stage reading its outputs, once each, and
+        records the frame anew.
         The default: a changed parameter needs a new set-up, anything else is read per frame. A
         stage absorbs a parameter it can write into its bound arrays by checking ``keys``.
         """

@@ -1,28 +1,31 @@
 """The ray-traced reference's BRDF of a surface point: a model of
 :mod:`warpshade.scene.materials_warp`, or the texel of a texture of eq.-13 materials
-(:class:`~warpshade.methods.sg.svbrdf_material.SVBRDFMaterial`, ``brdf = "svbrdf"``) that the
-point looks up.
+(:class:`~warpshade.scene.svbrdf.SVBRDFMaterial`, ``brdf = "svbrdf"``) that the point looks up.
+Its maths is its own: nothing here comes from the SG shading it measures
+(:mod:`warpshade.methods.sg`); the texture, its texel look-up and the cosine floor of eq. 13 are
+the scene's (:mod:`warpshade.scene.svbrdf`).
 
 An SVBRDF is uploaded as one :class:`~warpshade.scene.materials_warp.BRDFParams` of model
 :data:`SVBRDF_MODEL` (:func:`upload_svbrdf_material`): ``table`` the address of a flat float32
 buffer of every texel's ``D`` curve, then every texel's ``S`` curve (texels row-major, ``samples``
 values each), then every texel's sampling alpha and lobe probability
-(:meth:`~warpshade.methods.sg.svbrdf_material.SVBRDFMaterial.sampling_lobes`); ``table_dims`` =
+(:meth:`~warpshade.scene.svbrdf.SVBRDFMaterial.sampling_lobes`); ``table_dims`` =
 (texels, samples, the texel shaded, 0); ``exponent`` the Fresnel index. Each receiver of the
 estimator takes its texel (:func:`brdf_with_texel`, from a per-point texel index), which also
 sets ``roughness`` and ``f0`` to that texel's sampling alpha and lobe probability.
 
 * :func:`surface_brdf_eval` -- the texel's eq.-13 BRDF (:func:`texel_eval`: ``D`` log-linear in
-  ``cos theta_h``, ``S`` linear in theta, Cook-Torrance Fresnel; the float32 counterpart of
-  :meth:`~warpshade.methods.sg.svbrdf_material.SVBRDFMaterial.evaluate_texels`), any other model
+  ``cos theta_h``, ``S`` linear in theta, the dielectric Fresnel reflectance of its own
+  :func:`fresnel_dielectric`; the float32 counterpart of
+  :meth:`~warpshade.scene.svbrdf.SVBRDFMaterial.evaluate_texels`), any other model
   by :func:`~warpshade.scene.materials_warp.brdf_eval`;
 * :func:`surface_brdf_sample`, :func:`surface_brdf_pdf` -- the texel's GGX + cosine mixture, which
   is the tabulated model's (:func:`~warpshade.scene.materials_warp.brdf_sample` of model 8 with the
   texel's alpha and probability): positive wherever the BRDF can be, so the estimators stay
   unbiased.
 
-Texels are looked up with the SG shading's own function (:func:`warpshade.methods.sg.svbrdf_warp.svbrdf_texel`:
-nearest texel, ``u`` repeats, ``v`` clamped) at the same UVs: per vertex the mesh's float32 UV
+Texels are looked up as the scene defines it (:func:`warpshade.scene.svbrdf.nearest_texel`: nearest
+texel, ``u`` repeats, ``v`` clamped), as the SG shading does, at the same UVs: per vertex the mesh's float32 UV
 (:func:`vertex_texels`), per camera hit ``w0 uv0 + w1 uv1 + w2 uv2`` of the hit triangle's
 corners with the G-buffer's Warp barycentrics ``(u, v, 1 - u - v)`` (:func:`hit_texels`), as
 ``sg.shade``'s pixel kernel does.
@@ -33,28 +36,36 @@ from __future__ import annotations
 import numpy as np
 
 from .._wp import wp
-from ..methods.sg.brdf import COS_FLOOR
-from ..methods.sg.brdf_warp import fresnel_cook_torrance
-from ..methods.sg.svbrdf import scene_uvs
-from ..methods.sg.svbrdf_material import SVBRDFMaterial
-from ..methods.sg.svbrdf_warp import SVBRDFTextureWarp, empty_svbrdf, svbrdf_texel
+from ..scene.svbrdf import SVBRDF_COS_FLOOR, SVBRDFMaterial, nearest_texel, scene_uvs
 from ..scene.materials_warp import (TABULATED_MODEL, BRDFParams, brdf_eval, brdf_pdf, brdf_sample, brdf_with_roughness,
                                     upload_brdf_passes)
 
 wp.set_module_options({"enable_backward": False})
 
-__all__ = ["SVBRDF_MODEL", "brdf_with_texel", "check_texels", "hit_texels", "surface_brdf_eval", "surface_brdf_pdf",
-           "surface_brdf_sample", "surface_texels", "texel_eval", "upload_surface_passes", "upload_svbrdf_material",
-           "vertex_texels"]
+__all__ = ["SVBRDF_MODEL", "brdf_with_texel", "check_texels", "fresnel_dielectric", "hit_texels", "surface_brdf_eval",
+           "surface_brdf_pdf", "surface_brdf_sample", "surface_texels", "texel_eval", "upload_surface_passes",
+           "upload_svbrdf_material", "vertex_texels"]
 
 #: Model code of an SVBRDF texel in :class:`~warpshade.scene.materials_warp.BRDFParams` (past the
 #: codes of :data:`~warpshade.scene.materials_warp.BRDF_MODELS`, which this layer does not extend).
 SVBRDF_MODEL = 10
 _SVBRDF = wp.constant(SVBRDF_MODEL)
 _TABULATED = wp.constant(TABULATED_MODEL)
-#: The cosine floor of eq. 13's denominator, as the SG shading's.
-_COS_FLOOR = wp.constant(float(COS_FLOOR))
+#: The cosine floor of eq. 13's denominator, as the texture defines it.
+_COS_FLOOR = wp.constant(float(SVBRDF_COS_FLOOR))
 _HALF_PI = wp.constant(0.5 * np.pi)
+
+
+@wp.func
+def fresnel_dielectric(c: float, eta: float) -> float:
+    """Unpolarised Fresnel reflectance at incidence cosine ``|c|`` for relative index ``eta > 1``,
+    from the s- and p-polarised amplitude ratios (the float64 form:
+    :func:`warpshade.scene.svbrdf.fresnel_dielectric`)."""
+    cc = wp.clamp(wp.abs(c), 0.0, 1.0)
+    cos_t = wp.sqrt(wp.max(1.0 - (1.0 - cc * cc) / (eta * eta), 0.0))
+    r_s = (cc - eta * cos_t) / (cc + eta * cos_t)
+    r_p = (eta * cc - cos_t) / (eta * cc + cos_t)
+    return 0.5 * (r_s * r_s + r_p * r_p)
 
 
 @wp.func
@@ -123,7 +134,7 @@ def texel_eval(b: BRDFParams, n: wp.vec3, v: wp.vec3, s: wp.vec3) -> float:
     if hl <= 1.0e-12:
         return 0.0
     h = h / hl
-    f = fresnel_cook_torrance(wp.dot(s, h), b.exponent)
+    f = fresnel_dielectric(wp.dot(s, h), b.exponent)
     return (b.scale * f * _texel_shadow(b, nv) * _texel_shadow(b, ns) * _texel_ndf(b, wp.dot(n, h))
             / (wp.pi * wp.max(nv, _COS_FLOOR) * wp.max(ns, _COS_FLOOR)))
 
@@ -194,25 +205,22 @@ def _refuse_overrides(caller, roughness, tangents) -> None:
             raise ValueError(f"{caller}: {name} does not apply to an SVBRDF texture (every texel is its own material)")
 
 
-def _lookup_texture(material: SVBRDFMaterial, uv, device) -> SVBRDFTextureWarp:
-    """An :class:`SVBRDFTextureWarp` that only looks texels up (its lobes' shape is the texture's)."""
-    tex = empty_svbrdf(device)
-    h, w = material.shape
-    tex.sharpness = wp.zeros((h, w, 1), dtype=float, device=device)
-    tex.uv = wp.array(np.asarray(uv, np.float32).reshape(-1, 2), dtype=wp.vec2, device=device)
-    return tex
+def _scene_uv_array(scene, device) -> wp.array:
+    """The scene's per-vertex UVs (:func:`~warpshade.scene.svbrdf.scene_uvs`) as float32 vec2 on ``device``."""
+    return wp.array(np.asarray(scene_uvs(scene), np.float32).reshape(-1, 2), dtype=wp.vec2, device=device)
 
 
 @wp.kernel
-def _vertex_texels_kernel(tex: SVBRDFTextureWarp, out: wp.array(dtype=wp.int32)):
+def _vertex_texels_kernel(uv: wp.array(dtype=wp.vec2), height: int, width: int, out: wp.array(dtype=wp.int32)):
     i = wp.tid()
-    rc = svbrdf_texel(tex, tex.uv[i])
-    out[i] = rc[0] * tex.sharpness.shape[1] + rc[1]
+    rc = nearest_texel(uv[i], height, width)
+    out[i] = rc[0] * width + rc[1]
 
 
 @wp.kernel
-def _hit_texels_kernel(tex: SVBRDFTextureWarp, hit: wp.array(dtype=wp.int32), face: wp.array(dtype=wp.int32),
-                       bary: wp.array(dtype=wp.vec2), faces: wp.array2d(dtype=wp.int32), out: wp.array(dtype=wp.int32)):
+def _hit_texels_kernel(uv: wp.array(dtype=wp.vec2), height: int, width: int, hit: wp.array(dtype=wp.int32),
+                       face: wp.array(dtype=wp.int32), bary: wp.array(dtype=wp.vec2), faces: wp.array2d(dtype=wp.int32),
+                       out: wp.array(dtype=wp.int32)):
     p = wp.tid()
     if hit[p] == 0:
         out[p] = 0
@@ -220,27 +228,28 @@ def _hit_texels_kernel(tex: SVBRDFTextureWarp, hit: wp.array(dtype=wp.int32), fa
     f = face[p]
     b = bary[p]
     w = wp.vec3(b[0], b[1], 1.0 - b[0] - b[1])
-    uv = tex.uv
-    rc = svbrdf_texel(tex, w[0] * uv[faces[f, 0]] + w[1] * uv[faces[f, 1]] + w[2] * uv[faces[f, 2]])
-    out[p] = rc[0] * tex.sharpness.shape[1] + rc[1]
+    rc = nearest_texel(w[0] * uv[faces[f, 0]] + w[1] * uv[faces[f, 1]] + w[2] * uv[faces[f, 2]], height, width)
+    out[p] = rc[0] * width + rc[1]
 
 
 def vertex_texels(material: SVBRDFMaterial, scene, device) -> wp.array:
     """The texel (flat index) of every scene vertex, at its mesh's UV, wp.array(int32) (vertex_count,);
     ValueError naming a mesh without UVs."""
-    tex = _lookup_texture(material, scene_uvs(scene), device)
+    uv = _scene_uv_array(scene, device)
+    h, w = material.shape
     out = wp.zeros(scene.vertex_count, dtype=wp.int32, device=device)
-    wp.launch(_vertex_texels_kernel, dim=scene.vertex_count, inputs=[tex], outputs=[out], device=device)
+    wp.launch(_vertex_texels_kernel, dim=scene.vertex_count, inputs=[uv, h, w], outputs=[out], device=device)
     return out
 
 
 def hit_texels(material: SVBRDFMaterial, scene, gbuffer, device) -> wp.array:
     """The texel (flat index) of every ray of a G-buffer (:func:`warpshade.render.render_gbuffer`),
     wp.array(int32) (ray_count,), 0 for misses."""
-    tex = _lookup_texture(material, scene_uvs(scene), device)
+    uv = _scene_uv_array(scene, device)
+    h, w = material.shape
     out = wp.zeros(gbuffer.pixel_count, dtype=wp.int32, device=device)
     wp.launch(_hit_texels_kernel, dim=gbuffer.pixel_count, device=device,
-              inputs=[tex, gbuffer.hit, gbuffer.face, gbuffer.bary, gbuffer.faces], outputs=[out])
+              inputs=[uv, h, w, gbuffer.hit, gbuffer.face, gbuffer.bary, gbuffer.faces], outputs=[out])
     return out
 
 

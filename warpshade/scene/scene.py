@@ -299,7 +299,7 @@ class Scene:
                     f"found {int(mesh.faces.min())}..{int(mesh.faces.max())}"
                 )
         self._faces = np.concatenate([m.faces + m.vertex_offset for m in self.meshes]).astype(np.int32)
-        self._device_cache: dict = {}  # static device arrays per device (warpshade.scene.state)
+        self._device_cache: dict = {}  # static device arrays per device (warpshade.scene.static_arrays)
         self._evaluators: dict = {}  # FrameEvaluator per device, for evaluate()
 
     def __getstate__(self):

@@ -19,34 +19,31 @@ Because :meth:`~FrameEvaluator.launch` only launches kernels on fixed buffers, a
 lighting, an override, a new eye or albedo -- are host writes followed by a :class:`Change`
 notification.
 
+The pieces live beside this module: the :class:`Change` flags and :class:`MaterialAssignment` in
+:mod:`.state_flags`, :class:`FrameState` in :mod:`.frame_state`, the kernels in :mod:`.state_kernels`
+and the scene's static device arrays in :mod:`.static_arrays`; all are importable from here.
+
 Conventions: matrices on the device are Warp column-vector ``mat44`` (the transposes of USD's
 row-vector matrices); points and normals are world space, float32.
 """
 
 from __future__ import annotations
 
-import enum
-from dataclasses import dataclass, field
-from typing import Any
-
 import numpy as np
 
 from .._wp import HostFields, resolve_device, wp
+from .frame_state import FrameState
+from .state_flags import Change, MaterialAssignment  # noqa: F401  (Change: imported from here by the stages)
+from .state_kernels import count_nonfinite_kernel, eye_kernel, live_points_kernel, mesh_transforms_kernel
+from .static_arrays import DEVICE_SAMPLE_BYTES, column_matrices, static_data
 
 __all__ = [
     "DEVICE_SAMPLE_BYTES",
     "CPU_REFIT_NOTE",
 ]
 
-wp.set_module_options({"enable_backward": False})
-
 #: Why the BVH refit is a Python call of a recorded CPU frame (on CUDA it is captured).
 CPU_REFIT_NOTE = "BVH refit: Warp's CPU graph capture does not record wp.Mesh.refit (measured on Warp 1.19)"
-
-#: Deforming meshes whose point samples (all frames) fit in this many bytes are kept on the
-#: device; larger ones are uploaded one frame at a time (a Python call in the frame program).
-DEVICE_SAMPLE_BYTES = 256 * 1024 * 1024
-
 
 #: The mesh animations whose points a frame loop can feed (:meth:`FrameEvaluator.set_frame`):
 #: their normals are recomputed from the points every frame.
@@ -69,202 +66,6 @@ def _checked_host(where: str, value, shape: tuple) -> np.ndarray:
     if bad:
         raise ValueError(f"{where}: {bad} value(s) are NaN or infinite (in float32)")
     return a
-
-
-class Change(enum.IntFlag):
-    """What changed outside the frame (``notify_changed`` flags).
-
-    LIGHTING: the lights or a lighting override; MATERIAL: albedo, BRDFs; PARAMETERS: a stage
-    parameter; VIEW: the eye / camera.
-    """
-
-    NONE = 0
-    LIGHTING = 1
-    MATERIAL = 2
-    PARAMETERS = 4
-    VIEW = 8
-    ALL = 15
-
-
-@dataclass
-class MaterialAssignment:
-    """BRDFs chosen at run time (``Runtime.set_material``): one for every mesh and per-prim ones.
-
-    Attributes:
-        default: a :class:`~warpshade.scene.materials.BRDF` for every mesh without a prim entry,
-            or None (each stage's own BRDF parameters).
-        prims: mesh prim path -> BRDF.
-        version: incremented by every change (stages compare it to what they built).
-    """
-
-    default: Any = None
-    prims: dict = field(default_factory=dict)
-    version: int = 0
-
-    def brdf_of(self, path: str, fallback=None):
-        """The BRDF of the mesh ``path`` (its own, else the default, else ``fallback``)."""
-        if path in self.prims:
-            return self.prims[path]
-        return self.default if self.default is not None else fallback
-
-    def saved(self) -> tuple:
-        """``(default, prims)`` as they are now (a copy), to put back with
-        :meth:`FrameEvaluator.assign_materials` when a change is rejected."""
-        return self.default, dict(self.prims)
-
-    def describe(self) -> dict:
-        return {"default": None if self.default is None else self.default.describe(),
-                "prims": {k: v.describe() for k, v in sorted(self.prims.items())}}
-
-
-@dataclass
-class FrameState:
-    """What changes per frame, as Warp arrays with fixed addresses on one device.
-
-    Attributes:
-        frame: the time code evaluated last (host float).
-        frame_index: its index in ``scene.frames`` (host int).
-        frame_index_device: the same on the device, wp.array(int32), shape (1,) -- what the
-            per-frame kernels read.
-        points: world-space vertex positions, wp.array(vec3), shape (vertex_count,).
-        normals: world-space unit vertex normals, wp.array(vec3), shape (vertex_count,).
-        mesh_transforms: local-to-world per mesh (skeleton-to-world for skinned meshes),
-            wp.array(mat44), shape (mesh_count,), column-vector convention.
-        mesh_scales: largest singular value of each mesh transform's 3x3 part (a sphere of
-            radius r maps inside radius s * r), wp.array(float32), shape (mesh_count,).
-        joint_transforms: skeleton-space joint transforms of all skeletons concatenated,
-            wp.array(mat44), shape (joint_count,); skeleton ``s`` owns
-            ``joint_offsets[s] : joint_offsets[s + 1]``.
-        skin_matrices: ``skel_to_world @ joint @ inverse(bind)`` per joint (what linear blend
-            skinning applies to bind-space points), wp.array(mat44), shape (joint_count,).
-        joint_offsets: first joint of each skeleton, host list of length skeleton_count + 1.
-        lighting: the frame's lights (:class:`~warpshade.scene.lighting_warp.FrameLighting`),
-            or None when the evaluator has no lighting.
-        eye: viewer position, wp.array(vec3), shape (1,) (the scene camera's position, or set).
-        has_eye: whether ``eye`` is a real viewer (a camera or set explicitly).
-        bvh: :class:`~warpshade.geometry.bvh.Visibility` over ``points``, refit every frame,
-            or None when not asked for.
-        materials: the :class:`MaterialAssignment` (BRDFs set at run time; host data read by
-            stages when notified of :data:`Change.MATERIAL`).
-        device: the Warp device.
-    """
-
-    frame: float
-    frame_index: int
-    frame_index_device: Any
-    points: Any
-    normals: Any
-    mesh_transforms: Any
-    mesh_scales: Any
-    joint_transforms: Any
-    skin_matrices: Any
-    joint_offsets: list = field(default_factory=list)
-    lighting: Any = None
-    eye: Any = None
-    has_eye: bool = False
-    bvh: Any = None
-    device: Any = None
-    materials: MaterialAssignment = field(default_factory=MaterialAssignment)
-
-    @property
-    def vertex_count(self) -> int:
-        return int(self.points.shape[0])
-
-    def snapshot(self) -> "FrameState":
-        """A copy of the geometry arrays (points, normals, transforms) detached from the
-        evaluator's buffers; lighting and BVH are not copied."""
-        return FrameState(
-            frame=self.frame, frame_index=self.frame_index, frame_index_device=wp.clone(self.frame_index_device),
-            points=wp.clone(self.points), normals=wp.clone(self.normals),
-            mesh_transforms=wp.clone(self.mesh_transforms), mesh_scales=wp.clone(self.mesh_scales),
-            joint_transforms=wp.clone(self.joint_transforms), skin_matrices=wp.clone(self.skin_matrices),
-            joint_offsets=list(self.joint_offsets), eye=wp.clone(self.eye), has_eye=self.has_eye, device=self.device,
-        )
-
-
-@wp.kernel
-def _eye_kernel(frame: wp.array(dtype=wp.int32), table: wp.array(dtype=wp.vec3), eye: wp.array(dtype=wp.vec3)):
-    # frame[2] = 1 once the host has set the eye itself (set_eye): the camera path no longer drives it
-    if frame[2] == 0:
-        eye[0] = table[wp.min(frame[0], table.shape[0] - 1)]
-
-
-@wp.kernel
-def _mesh_transforms_kernel(
-    frame: wp.array(dtype=wp.int32),
-    table: wp.array(dtype=wp.mat44),
-    scale_table: wp.array(dtype=wp.float32),
-    start: wp.array(dtype=wp.int32),
-    count: wp.array(dtype=wp.int32),
-    transforms: wp.array(dtype=wp.mat44),
-    scales: wp.array(dtype=wp.float32),
-):
-    m = wp.tid()
-    k = start[m] + wp.min(frame[0], count[m] - 1)
-    transforms[m] = table[k]
-    scales[m] = scale_table[k]
-
-
-@wp.kernel
-def _live_points_kernel(frame: wp.array(dtype=wp.int32), slot: int, staging: wp.array(dtype=wp.vec3),
-                        points: wp.array(dtype=wp.vec3), offset: int):
-    # frame[slot] = 1 when the host fed this mesh's points for the frame (FrameEvaluator.set_frame)
-    if frame[slot] != 0:
-        v = wp.tid()
-        points[offset + v] = staging[v]
-
-
-@wp.kernel
-def _count_nonfinite_kernel(values: wp.array(dtype=wp.float32), count: wp.array(dtype=wp.int32)):
-    if not wp.isfinite(values[wp.tid()]):
-        wp.atomic_add(count, 0, 1)
-
-
-def _column(row_matrices) -> np.ndarray:
-    m = np.asarray(row_matrices, np.float64).reshape(-1, 4, 4)
-    return np.ascontiguousarray(np.transpose(m, (0, 2, 1))).astype(np.float32)
-
-
-def _static_data(scene, dev) -> dict:
-    """Static arrays of ``scene`` on one device, built on first use and cached on the scene."""
-    key = str(dev)
-    cache = scene._device_cache
-    if key in cache:
-        return cache[key]
-    from ..geometry.normals import vertex_normal_sums_f64
-
-    data = {"faces": wp.array(scene.faces, dtype=wp.int32, device=dev), "meshes": []}
-    for mesh in scene.meshes:
-        entry = {}
-        if mesh.animation == "skinned":
-            bind = np.asarray(mesh.skin.geom_bind_transform, np.float64)
-            bound = mesh.points @ bind[:3, :3] + bind[3, :3]
-            entry["points"] = wp.array(bound.astype(np.float32), dtype=wp.vec3, device=dev)
-            entry["joint_indices"] = wp.array(np.asarray(mesh.skin.joint_indices, np.int32), dtype=wp.int32, device=dev)
-            entry["joint_weights"] = wp.array(np.asarray(mesh.skin.joint_weights, np.float32), dtype=wp.float32, device=dev)
-        elif mesh.animation == "deforming":
-            samples = np.asarray(mesh.point_samples, np.float32).reshape(-1, 3)
-            if samples.nbytes <= DEVICE_SAMPLE_BYTES:
-                entry["samples"] = wp.array(samples, dtype=wp.vec3, device=dev)
-        else:
-            entry["points"] = wp.array(mesh.points.astype(np.float32), dtype=wp.vec3, device=dev)
-            if mesh.normals is not None:
-                entry["rest_normals"] = wp.array(np.asarray(mesh.normals, np.float32), dtype=wp.vec3, device=dev)
-                entry["area_sums"] = False
-            else:  # area-weighted sums of the rest pose; transformed by the cofactor they stay exact
-                sums = vertex_normal_sums_f64(mesh.points, mesh.faces)
-                scale = np.maximum(np.linalg.norm(sums, axis=1, keepdims=True), 1e-300)
-                degenerate = np.linalg.norm(sums, axis=1) <= 1e-30
-                unit = np.where(degenerate[:, None], 0.0, sums / scale)  # direction is what the cofactor keeps
-                entry["rest_normals"] = wp.array(unit.astype(np.float32), dtype=wp.vec3, device=dev)
-                entry["area_sums"] = True
-        if mesh.animation in ("deforming", "skinned"):
-            entry["faces"] = wp.array(mesh.faces + mesh.vertex_offset, dtype=wp.int32, device=dev)
-            entry["vertices"] = wp.array(np.arange(mesh.vertex_offset, mesh.vertex_offset + mesh.vertex_count, dtype=np.int32),
-                                         dtype=wp.int32, device=dev)
-        data["meshes"].append(entry)
-    cache[key] = data
-    return data
 
 
 class FrameEvaluator:
@@ -292,7 +93,7 @@ class FrameEvaluator:
         dev = resolve_device(device)
         self.scene = scene
         self.device = dev
-        data = _static_data(scene, dev)
+        data = static_data(scene, dev)
         self._data = data
         #: the frame's host inputs, written only by this evaluator: the frame index, whether the
         #: SH lighting is overridden (``set_lighting_override``), whether the host set the eye
@@ -321,7 +122,7 @@ class FrameEvaluator:
             tables.append(rows)
             scales.append(np.linalg.svd(rows[:, :3, :3], compute_uv=False)[:, 0])
         table = np.concatenate(tables)
-        self._transform_table = wp.array(_column(table), dtype=wp.mat44, device=dev)
+        self._transform_table = wp.array(column_matrices(table), dtype=wp.mat44, device=dev)
         self._scale_table = wp.array(np.concatenate(scales).astype(np.float32), dtype=wp.float32, device=dev)
         self._transform_start = wp.array(np.array(start, np.int32), dtype=wp.int32, device=dev)
         self._transform_count = wp.array(np.array(count, np.int32), dtype=wp.int32, device=dev)
@@ -348,7 +149,7 @@ class FrameEvaluator:
                 world_frames.append(w.shape[0])
                 wsum += w.shape[0]
             ints = lambda x: wp.array(np.asarray(x, np.int32), dtype=wp.int32, device=dev)  # noqa: E731
-            mats = lambda x: wp.array(_column(np.concatenate(x)), dtype=wp.mat44, device=dev)  # noqa: E731
+            mats = lambda x: wp.array(column_matrices(np.concatenate(x)), dtype=wp.mat44, device=dev)  # noqa: E731
             live_slot = [self.input.slot(self._live_fields["joints", s]) for s in range(self._skeletons)]
             #: fed joint-local transforms (USD row-vector matrices), all skeletons concatenated
             self._live_joints = wp.zeros(offsets[-1], dtype=wp.mat44, device=dev)
@@ -490,7 +291,7 @@ class FrameEvaluator:
             raise ValueError(f"{where}: the wp.array is not contiguous (pass a contiguous array or a copy)")
         flat = wp.array(ptr=value.ptr, dtype=wp.float32, shape=(rows * int(np.prod(item)),), device=self.device)
         count = wp.zeros(1, dtype=wp.int32, device=self.device)
-        wp.launch(_count_nonfinite_kernel, dim=flat.shape[0], inputs=[flat, count], device=self.device)
+        wp.launch(count_nonfinite_kernel, dim=flat.shape[0], inputs=[flat, count], device=self.device)
         bad = int(count.numpy()[0])
         if bad:
             raise ValueError(f"{where}: {bad} value(s) are NaN or infinite")
@@ -664,9 +465,9 @@ class FrameEvaluator:
         self.input.launch()
         frame = self.input.array
         if self._eye_table is not None:
-            wp.launch(_eye_kernel, dim=1, inputs=[frame, self._eye_table, st.eye], device=dev)
+            wp.launch(eye_kernel, dim=1, inputs=[frame, self._eye_table, st.eye], device=dev)
         if not moving_only or self.moving:
-            wp.launch(_mesh_transforms_kernel, dim=len(scene.meshes), device=dev, inputs=[
+            wp.launch(mesh_transforms_kernel, dim=len(scene.meshes), device=dev, inputs=[
                 frame, self._transform_table, self._scale_table, self._transform_start, self._transform_count,
                 st.mesh_transforms, st.mesh_scales])
         if self._skeletons:
@@ -692,7 +493,7 @@ class FrameEvaluator:
                 launch_transform_normals(entry["rest_normals"], st.mesh_transforms, st.normals, mesh.vertex_offset,
                                          matrix_index=k, area_sums=entry["area_sums"])
             if k in self._live_points:
-                wp.launch(_live_points_kernel, dim=mesh.vertex_count, device=dev, inputs=[
+                wp.launch(live_points_kernel, dim=mesh.vertex_count, device=dev, inputs=[
                     frame, self.input.slot(self._live_fields["points", k]), self._live_points[k], st.points,
                     mesh.vertex_offset])
             if "vertices" in entry:

@@ -2,17 +2,19 @@
 
 from __future__ import annotations
 
-from ..rows import HarnessRow
+from ..rows import HarnessRow, training_clips
 
 __all__ = [
     "TRAINING_CLIPS",
     "stages_for",
 ]
 
-#: Held-out test scene -> its training clip (the same character in a range-of-motion clip) and
-#: the training frames (as in the graphs in stages/, so that the cached training data is shared).
-TRAINING_CLIPS = {"figure": ("bundled:figure_train", None), "figure_walk": ("bundled:figure_train", None),
-                  "wanderer": ("bundled:wanderer_train", "0:1000:2")}
+#: Training frames where not every frame of the clip (as in the graphs in stages/, so that the cached
+#: training data is shared): every other frame of the wanderer's 1000.
+TRAINING_FRAMES = {"wanderer": "0:1000:2"}
+#: Held-out test scene of a skinned character -> its training clip (the same character in a
+#: range-of-motion clip, :func:`warpshade.methods.rows.training_clips`) and the training frames.
+TRAINING_CLIPS = {scene: (clip, TRAINING_FRAMES.get(scene)) for scene, clip in training_clips("joints").items()}
 
 
 def stages_for(training: str, model: str = "reduced", order: int = 6, samples: int = 256, fit: dict | None = None,

@@ -23,12 +23,14 @@ import numpy as np
 
 from ..._wp import cpu_workers, launch_parallel, wp
 from ..common import order_param, rays_param
+from .._shared.pose import PARAMETERISATIONS, ROOT_MODES, pose_features, pose_layout, root_references
+from .._shared.pose_kernels import PoseInputs
+from .._shared.pose_space import PoseSpace, novelty, pose_space
+from .._shared.training import (TrainingClipStage, check_same_character, parse_frame_selection, pose_columns, topology_key,
+                                trace_training)
 from ..stage import FrameStage, Param, Port, PrecomputeStage, StageError, register_stage
 from . import kernels
-from .model import (DataDrivenModel, PoseSpace, choose_sizes, fit_full, fit_reduced, lighting_weights, novelty,
-                    pose_space, validation_split)
-from .pose import PARAMETERISATIONS, ROOT_MODES, pose_features, pose_layout, root_references
-from .training import check_same_character, parse_frame_selection, topology_key, trace_training
+from .model import DataDrivenModel, choose_sizes, fit_full, fit_reduced, lighting_weights, validation_split
 
 __all__ = [
     "model_to_arrays",
@@ -42,55 +44,13 @@ _MODELS = ("reduced", "full")
 _CHUNK_MIN_VERTICES = 4096
 
 
-class TrainingClipStage(PrecomputeStage):
-    """A precompute stage that traces a training clip: the ``training`` parameter (a USD file
-    relative to the graph, or a scene spec; empty: the graph's own scene), keyed by the clip's
-    content rather than its path, and the artifact independent of the graph's scene when the clip
-    is another one (``datadriven.data``, ``visibility.data``)."""
-
-    TRAINING = Param("", str, "training clip: a USD file relative to the graph, or a scene spec such as "
-                     "'bundled:figure_train' (default: the graph's own scene)")
-
-    def __init__(self, name, params=None):
-        super().__init__(name, params)
-        # trained on another clip: the artifact does not depend on the scene the graph runs on
-        self.uses_scene = not self.params["training"]
-
-    def cache_params(self):
-        return {k: v for k, v in self.params.items() if k != "training"}
-
-    def cache_key(self, ctx):
-        if not self.params["training"]:
-            return {}
-        return {"training": self.training_scene(ctx).fingerprint()}
-
-    def training_scene(self, ctx):
-        """The training scene (the graph's scene when ``training`` is empty); StageError names
-        the parameter and the file."""
-        path = self.params["training"]
-        if not path:
-            return ctx.scene
-        from ...io import SCENE_SPEC_PREFIXES, load_scene
-
-        where = f"stage {self.name!r} ({self.type_name}): parameter 'training'"
-        if path.startswith(SCENE_SPEC_PREFIXES):
-            try:
-                return load_scene(path)
-            except (OSError, ValueError) as exc:
-                raise StageError(f"{where} ({path}): {exc}") from None
-        p = ctx.resolve_path(path)
-        if not p.exists():
-            raise StageError(f"{where}: no such file {p}")
-        try:
-            return load_scene(str(p))
-        except (OSError, ValueError) as exc:
-            raise StageError(f"{where} ({p}): {exc}") from None
-
-
 @register_stage
 class DataDrivenDataStage(TrainingClipStage):
     type_name = "datadriven.data"
     description = "ray-traced transfer and pose vectors at every frame of a training clip (tasks for an executor)"
+    #: The graphs as written trace hundreds of training poses (minutes): every 50th of the first 600
+    #: frames with 16 rays runs the same stages.
+    quick = {"samples": 16, "frames": "0:600:50"}
     parameters = {
         "training": TrainingClipStage.TRAINING,
         "frames": Param(None, str, "training frames as 'start:stop[:step]' over frame indices (default: all)"),
@@ -205,13 +165,6 @@ def model_from_arrays(arrays: dict) -> tuple[DataDrivenModel, dict]:
                    "training_poses": np.asarray(arrays["training_poses"], np.float64)}
 
 
-def _select_columns(data: dict, kind: str, root: str) -> np.ndarray:
-    poses = np.asarray(data[f"poses_{kind}"], np.float64)
-    if root == "exclude":
-        poses = poses[:, np.asarray(data[f"root_{kind}"]) == 0]
-    return poses
-
-
 @register_stage
 class DataDrivenFitStage(PrecomputeStage):
     type_name = "datadriven.fit"
@@ -273,7 +226,7 @@ class DataDrivenFitStage(PrecomputeStage):
                              f"per-frame stages shade world-frame transfer: train with space = 'world' (the local "
                              f"frame is measured by benchmarks/bench_datadriven.py)")
         channels = 3 if bounces else 1
-        poses = _select_columns(data, p["pose"], p["root"])
+        poses = pose_columns(data, p["pose"], p["root"])
         n = poses.shape[0]
         weights = self._weights(ctx, transfer.shape[2], order)
         t0 = time.perf_counter()
@@ -388,22 +341,7 @@ class DataDrivenTransferStage(FrameStage):
         self.model, self.meta, self.layout = model, meta, layout
         self._device = dev
         # pose features: per-joint inputs over every skeleton
-        rest_t, bind, ref_t = [], [], []
-        roots = iter(np.transpose(meta["root_reference"], (0, 2, 1)))
-        for skel in scene.skeletons:
-            r = np.transpose(np.asarray(skel.rest_transforms, np.float64)[:, :3, :3], (0, 2, 1))  # column-vector rest
-            r = r / np.linalg.norm(r, axis=-2, keepdims=True)
-            rest_t.extend(np.transpose(r, (0, 2, 1)))
-            bind.extend(np.transpose(np.asarray(skel.bind_transforms, np.float64), (0, 2, 1)))
-            for j, parent in enumerate(np.asarray(skel.parents)):
-                ref_t.append(next(roots) if parent < 0 else np.eye(3))
-        self._parents = wp.array(layout.parents.astype(np.int32), dtype=wp.int32, device=dev)
-        self._offsets = wp.array(layout.offsets.astype(np.int32), dtype=wp.int32, device=dev)
-        self._rest_t = wp.array(np.asarray(rest_t, np.float32), dtype=wp.mat33, device=dev)
-        self._bind = wp.array(np.asarray(bind, np.float32), dtype=wp.mat44, device=dev)
-        self._ref_t = wp.array(np.asarray(ref_t, np.float32), dtype=wp.mat33, device=dev)
-        self._kind = kernels.KIND_CODES[meta["kind"]]
-        self._features = wp.zeros(max(layout.size, 1), dtype=wp.float32, device=dev)
+        self._pose = PoseInputs(scene, meta["kind"], meta["root"], meta["root_reference"], dev)
         self._mean = wp.array(model.pose.mean.astype(np.float32), dtype=wp.float32, device=dev)
         self._weights = wp.array(model.pose.weights.astype(np.float32), dtype=wp.float32, device=dev)
         k = model.pose.size
@@ -427,10 +365,9 @@ class DataDrivenTransferStage(FrameStage):
 
     def launch(self, state):
         dev = self._device
-        wp.launch(kernels.pose_features_kernel, dim=self.layout.joint_count, device=dev,
-                  inputs=[state.joint_transforms, state.skin_matrices, self._parents, self._offsets, self._rest_t,
-                          self._bind, self._ref_t, self._kind, self._features])
-        wp.launch(kernels.project_pose_kernel, dim=1, device=dev, inputs=[self._features, self._mean, self._weights, self._z])
+        self._pose.launch(state)
+        wp.launch(kernels.project_pose_kernel, dim=1, device=dev, inputs=[self._pose.features, self._mean, self._weights,
+                                                                         self._z])
         count = self._transfer.shape[0]
         if self.model.reduced:
             wp.launch(kernels.coefficients_kernel, dim=self._y.shape[0], device=dev, inputs=[self._coefficients, self._z, self._y])
@@ -441,7 +378,7 @@ class DataDrivenTransferStage(FrameStage):
                             self._workers, min_count=_CHUNK_MIN_VERTICES)
 
     def diagnostics(self) -> dict:
-        """Novelty of the scene's poses against the training poses (:func:`.model.novelty`)."""
+        """Novelty of the scene's poses against the training poses (:func:`~warpshade.methods._shared.pose_space.novelty`)."""
         nov = self._novelty
         return {"novelty_max": float(nov["nearest"].max()), "novelty_mean": float(nov["nearest"].mean()),
                 "subspace_max": float(nov["subspace"].max()), "range_excess_max": float(nov["range"].max()),
@@ -449,7 +386,7 @@ class DataDrivenTransferStage(FrameStage):
                 "novelty_per_frame": {f"{f:g}": float(x) for f, x in zip(self._frames, nov["nearest"])}}
 
     def novelty(self) -> dict:
-        """Per-frame novelty arrays of the scene's frames (:func:`.model.novelty`), with ``frames``."""
+        """Per-frame novelty arrays of the scene's frames (:func:`~warpshade.methods._shared.pose_space.novelty`), with ``frames``."""
         return {"frames": self._frames.copy(), **{k: v.copy() for k, v in self._novelty.items()}}
 
     def model_bytes(self) -> int:

@@ -74,6 +74,13 @@ Modules, as in every method (``docs/adding-a-method.md``):
 * :mod:`.mirror` -- the float64 mirror of the kernels, the tests' oracle;
 * :mod:`.rows` -- the settings the speed-vs-accuracy harness runs;
 * :mod:`.budget` -- the candidate settings an error budget chooses from.
+
+A declared dependency on a sibling method: the only one among the method packages
+(:mod:`warpshade.methods`). This method is RPO on a height field, so it builds on
+:mod:`warpshade.methods.rpo`: the operators (``OPERATORS``), the shading parameters
+(``SHADE_PARAMS``) and the glossy-stage base (``GlossyStage``), and, for ``factors = "exact"``,
+RPO's BRDF-table quadrature (``rpo.model.Z_NODES``, ``PHI_NODES``), so that both methods shade
+one BRDF from one table.
 """
 
 from .model import GridLayout, grid_layout, march_plan, pyramid_levels, view_table, wedge_table

@@ -10,7 +10,6 @@ from __future__ import annotations
 import numpy as np
 
 from ...basis import sh
-from ..rpo.model import cosine_sh
 
 __all__: list[str] = []
 
@@ -298,7 +297,7 @@ def estimate_f64(normals, rotations, samples, occluded, order: int, control=None
 def visibility_transfer_f64(visibility, frames, order: int) -> np.ndarray:
     """Float64 mirror of :func:`visibility_transfer_kernel`: (V, C) world-frame transfer from
     (V, C) local visibility and (V, 3, 3) tangent frames (rows t, b, n)."""
-    local = sh.product(np.asarray(visibility, np.float64), np.broadcast_to(cosine_sh(order), np.shape(visibility)))
+    local = sh.product(np.asarray(visibility, np.float64), np.broadcast_to(sh.clamped_cosine_sh(order), np.shape(visibility)))
     return sh.rotate(local, np.swapaxes(np.asarray(frames, np.float64), 1, 2))
 
 

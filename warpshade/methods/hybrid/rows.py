@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from ..rows import HarnessRow
+from ..rows import HarnessRow, training_clips
 
 __all__: list[str] = []
 
@@ -10,18 +10,16 @@ __all__: list[str] = []
 SAMPLES = (8, 16, 32, 64)
 #: Scenes the rows apply to (the animated bundled scenes).
 SCENES = ("figure", "figure_walk", "wanderer", "cloth", "bend", "blockers")
-#: Data-driven control: training clip and frames per held-out scene (as the data-driven rows, so
-#: that the cached training data is shared).
-DATADRIVEN_SCENES = {"figure": ("bundled:figure_train", None), "figure_walk": ("bundled:figure_train", None),
-                     "wanderer": ("bundled:wanderer_train", "0:1000:2")}
+#: Data-driven control: training clip (:func:`warpshade.methods.rows.training_clips`) and frames per
+#: held-out scene of a skinned character (as the data-driven rows, so that the cached training data
+#: is shared): every frame, every other one of the wanderer's 1000.
+DATADRIVEN_SCENES = {scene: (clip, {"wanderer": "0:1000:2"}.get(scene)) for scene, clip in training_clips("joints").items()}
 
 
 #: The data-driven visibility model used as control: stages/figure_visibility_diffuse.toml's fit
 #: (per cluster the ridge model chosen by blocked cross-validation on the training clip, from the
 #: joint rotations or the nearest clusters' centroids in the cluster's frame, PCA to 99 %), so the
-#: two share the cached fit. Figure, 64 rays, REPROJECT_SOFT: 0.0406 (0.0409 from the joint
-#: rotations alone; 0.0422 with the quadratic model on 12 input components of an earlier version,
-#: whose settings had been chosen on the figure clip).
+#: two share the cached fit (its errors as control: benchmarks/results/HISTORY.md, hybrid rows).
 VISIBILITY_FIT = {"model": "auto", "variance": 0.99, "k_max": 64, "relative": 8}
 
 
@@ -33,55 +31,39 @@ REPROJECT_SOFT = {"reproject": True, "normal_turn": 180.0, "motion": 4.0, "reset
 #: REPROJECT_SOFT for the visibility control on the figure, with the history-aware filter: vertices
 #: whose history holds fewer than 24 effective frames are filtered further (2 passes), no further
 #: than the least-squares weight for the bias the passes add, the noise they remove taken as 0.1 of
-#: the tracked variance (the tracked one is 3x the actual spread on the figure,
-#: benchmarks/results/hybrid-variance-2026-12-03-cpu.json, and the limit weighs all coefficients
-#: alike while the shading weighs the low bands; 0.33 gives error 1.21x, noise 0.87x / 0.79x).
-#: Figure, 64 rays, against 1024-ray prt.trace in the same run, with VISIBILITY_FIT: error 1.185x
-#: (1.179x without it), noise 0.98x / 0.93x at frames 8 / 24 (1.09x / 1.02x without it); 0.33 gives
-#: 1.197x, 0.88x / 0.83x; 12.7x less time per frame (70 ms against 888 ms, load 0.7-2.2),
-#: benchmarks/results/hybrid-2026-12-03-cpu-relative-control-warm.json: python
-#: benchmarks/bench_hybrid.py --scenes figure --samples 64 --controls visibility --noise-frame 8,24
-#: --suffix relative-control-warm --variants 'rpsb4={...};warm24n01={..., "warmup_frames": 24,
-#: "warmup_noise": 0.1};warm24n033={...}'. With the control fitted on the joint rotations alone
-#: (hybrid-2026-12-03-cpu-warm-figure-noise.json): 1.198x, 0.98x / 0.86x.
+#: the tracked variance (the tracked one overstates the actual spread on the figure, and the limit
+#: weighs all coefficients alike while the shading weighs the low bands). Measured against 0.33 and
+#: without the filter: benchmarks/results/HISTORY.md, hybrid rows.
 VISIBILITY_TRACE = {**REPROJECT_SOFT, "warmup_frames": 24.0, "warmup_noise": 0.1}
 #: The visibility control's training clip, frames and rays per held-out scene (those of the
 #: visibility graphs and harness rows, so that the traced training data is shared with them).
-VISIBILITY_TRAINING = {"figure": ("bundled:figure_train", "0:600:3", 128),
-                       "figure_walk": ("bundled:figure_train", "0:600:3", 128),
-                       "wanderer": ("bundled:wanderer_train", "0:1000:8", 64)}
-#: The trace settings of the visibility control per scene. figure_walk and the wanderer: REPROJECT_SOFT
-#: with 2 filter passes; 64 rays, against 1024-ray prt.trace (its rows in
-#: benchmarks/results/hybrid-2026-12-03-cpu-walk-wanderer.json): figure_walk error 1.11x, noise
-#: 0.66x / 0.56x at frames 8 / 24 (one pass: 1.08x, 1.16x / 1.00x); wanderer 1.16x, 0.90x / 0.84x
-#: (one pass: 1.12x, 1.32x / 1.24x), benchmarks/results/hybrid-2026-12-03-cpu-relative-control-walk-wanderer.json:
-#: python benchmarks/bench_hybrid.py --scenes figure_walk,wanderer --samples 64 --controls visibility
-#: --no-baseline --noise-frame 8,24 --suffix relative-control-walk-wanderer --variants 'rpsb4={...};rpsb4f2={...}'.
+VISIBILITY_TRAINING = {scene: (clip, {"figure": "0:600:3", "figure_walk": "0:600:3", "wanderer": "0:1000:8"}.get(scene),
+                              {"wanderer": 64}.get(scene, 128)) for scene, clip in training_clips("joints").items()}
+#: The trace settings of the visibility control per scene: figure_walk and the wanderer (and any
+#: other scene): REPROJECT_SOFT with 2 filter passes, less noise than one pass at about the same
+#: error (benchmarks/results/HISTORY.md, hybrid rows).
 VISIBILITY_TRACES = {"figure": VISIBILITY_TRACE, "figure_walk": {**REPROJECT_SOFT, "filter_iterations": 2},
                      "wanderer": {**REPROJECT_SOFT, "filter_iterations": 2}}
 
 
 #: SHEXP as control: its world-frame visibility of the blocker spheres (HYB, the sphere budget of
 #: stages/blockers_shexp.toml), the cosine re-applied about each normal, at the transfer's order up
-#: to 6 (on the blockers order 6 leaves a residual that filters better than order 4's: 0.0468
-#: against 0.0499 at 64 rays, alpha 0.5, 3 filter passes).
+#: to 6 (on the blockers order 6 leaves a residual that filters better than order 4's;
+#: benchmarks/results/HISTORY.md, hybrid rows).
 SHEXP_CONTROL = {"order": 6, "budget": 8, "method": "hyb"}
 #: hybrid.trace settings for a control that follows the motion (SHEXP's spheres): a short history
 #: (a new frame weighs at least 0.3) and 3 filter passes over mesh neighbours, since averaging over
-#: frames blurs a moving shadow (any reuse costs the 1024-ray blockers 0.0414 -> 0.043) while the
-#: residual against the spheres is smooth over the surface.
+#: frames blurs a moving shadow (any reuse raises the 1024-ray blockers' error) while the residual
+#: against the spheres is smooth over the surface.
 SHEXP_TRACE = {"alpha": 0.3, "filter_iterations": 3}
 #: hybrid.trace settings for LDPRT's transfer as control (rotated with the surface, tangent frames):
 #: its residual is the change of the self-shadowing since the bake, smooth over the surface, so 4
 #: filter passes and a history blended by its estimated bias (soft reset over 4 frames) with a new
-#: frame weighing at least 0.2 (bend, 64 rays: error 0.0259 against 0.0287 for the last estimate as
-#: control with REPROJECT_SOFT, at about the 1024-ray tracer's noise). The history-aware filter
-#: tops up vertices whose history holds fewer than 12 effective frames (the clip's first frames,
-#: cuts, the soft reset's blends; the moving average alone settles at (2 - alpha) / alpha = 9): on
-#: the bend, 64 rays, against 1024-ray prt.trace, error 1.14x (1.140x without it), noise 0.98x / 0.68x
-#: at frames 8 / 24 (1.10x / 0.73x without it), benchmarks/results/hybrid-2026-12-03-cpu-warm-bend-mse.json:
-#: python benchmarks/bench_hybrid.py --scenes bend --samples 64 --controls ldprt --noise-frame 8,24
-#: --suffix warm-bend-mse --variants 'ldprt4={...};warm12={..., "warmup_frames": 12}'.
+#: frame weighing at least 0.2 (on the bend below the last estimate as control with REPROJECT_SOFT,
+#: at about the 1024-ray tracer's noise). The history-aware filter tops up vertices whose history
+#: holds fewer than 12 effective frames (the clip's first frames, cuts, the soft reset's blends; the
+#: moving average alone settles at (2 - alpha) / alpha = 9). Measurements: benchmarks/results/HISTORY.md,
+#: hybrid rows.
 LDPRT_TRACE = {"alpha": 0.2, "filter_iterations": 4, "reset": "soft", "threshold": 8.0, "bias_frames": 4,
                "warmup_frames": 12.0}
 #: The trace settings each control's harness rows use (others: the stage's defaults).
@@ -200,7 +182,7 @@ def harness_rows(quick: bool = False) -> list:
         rows.append(HarnessRow(
             "hybrid", "n6 K64 visibility rps",
             stages_for("visibility", 64, training=training, frames=frames, training_samples=rays,
-                       trace=VISIBILITY_TRACES[scene]),
+                       trace=VISIBILITY_TRACES.get(scene, {**REPROJECT_SOFT, "filter_iterations": 2})),
             "shade.radiance", scenes=(scene,), quick=False,
             notes=f"64 rays per vertex per frame, control: the data-driven visibility model (as "
                   f"stages/figure_visibility_diffuse.toml, trained on {training.split(':')[-1]}) as transfer; history "

@@ -55,7 +55,6 @@ from ..._wp import cpu_workers, launch_parallel, wp
 from ...basis import sh
 from ...basis.sh_warp import sh_kernels
 from ..common import order_param, rays_param
-from ..rpo.model import cosine_sh
 from ..stage import FrameStage, Param, Port, StageError, register_stage
 from . import kernels
 from .model import surface_neighbours
@@ -384,7 +383,7 @@ class HybridVisibilityTransferStage(FrameStage):
             self._kernel = kernels.world_visibility_transfer_kernel(n, nv)
         else:
             self._axes = inputs["frames"]  # the visibility's tangent frames (the cosine about their n row)
-            self._cos = wp.array(cosine_sh(n).astype(np.float32), dtype=wp.float32, device=dev)
+            self._cos = wp.array(sh.clamped_cosine_sh(n).astype(np.float32), dtype=wp.float32, device=dev)
             self._kernel = kernels.visibility_transfer_kernel(n)
         self._transfer = wp.zeros((ctx.dims["V"], n * n), dtype=wp.float32, device=dev)
         return {"transfer": self._transfer}

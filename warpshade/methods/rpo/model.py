@@ -41,7 +41,6 @@ from ...scene import materials
 __all__ = [
     "COSINE_MODES",
     "VIEW_ORDER",
-    "cosine_sh",
     "fit_view_factors",
     "product_matrices",
 ]
@@ -58,16 +57,6 @@ Z_NODES, PHI_NODES = 32, 64
 
 #: Default SH order of the view factors (see the module docstring).
 VIEW_ORDER = 6
-
-
-def cosine_sh(order: int) -> np.ndarray:
-    """SH of ``max(0, s_z)`` (the clamped cosine about the local normal), (n*n,) float64: the
-    vector whose product matrix is ``C`` of eq. 14."""
-    out = np.zeros(order * order)
-    zh = sh.clamped_cosine_zh(order, normalization="zh")
-    for l in range(order):
-        out[l * l + l] = zh[l]
-    return out
 
 
 def product_matrices(light_sh) -> np.ndarray:
@@ -169,7 +158,7 @@ class ReflectanceOperator:
         v = np.asarray(visibility, np.float64)
         if self.cosine == "brdf":
             return v
-        return sh.product(v, np.broadcast_to(cosine_sh(self.order), v.shape))
+        return sh.product(v, np.broadcast_to(sh.clamped_cosine_sh(self.order), v.shape))
 
     def shade_local(self, views, visibility, light_local) -> np.ndarray:
         """Eq. 11 per receiver, float64: views (V, 3) local, visibility (V, n*n) local, light

@@ -25,13 +25,14 @@ import time
 import numpy as np
 
 from ..._wp import launch_parallel, wp
+from ...basis import sh
 from ...basis.sh_warp import sh_kernels
 from ...scene import brdfs, materials
 from ..common import ShLighting, order_param, rays_param
 from ..stage import FrameStage, Param, Port, PrecomputeStage, StageError, register_stage
 from ..viewer import EYE_PARAM, bind_viewer, check_eye, check_viewer
 from . import kernels
-from .model import COSINE_MODES, VIEW_ORDER, OperatorCache, cosine_sh
+from .model import COSINE_MODES, VIEW_ORDER, OperatorCache
 
 __all__: list[str] = []
 
@@ -189,7 +190,7 @@ class RpoShadeStage(GlossyStage):
         msize = (slots, k, n2, n2) if p["evaluation"] == "matrices" else (1, 1, 1, 1)
         self._matrices = wp.zeros(msize, dtype=wp.float32, device=dev)
         self._material = wp.zeros(ctx.dims["V"], dtype=wp.int32, device=dev)
-        self._cos = wp.array(cosine_sh(n).astype(np.float32), dtype=wp.float32, device=dev)
+        self._cos = wp.array(sh.clamped_cosine_sh(n).astype(np.float32), dtype=wp.float32, device=dev)
         self._zh_axes = wp.zeros(p["zh_lobes"] if p["lighting"] == "zh" else 0, dtype=wp.vec3, device=dev)
         self._zh_axes0 = wp.zeros_like(self._zh_axes)
         self._zh_turn = wp.array(np.eye(3, dtype=np.float32)[None], dtype=wp.mat33, device=dev)

@@ -20,8 +20,9 @@ materials whose per-texel NDFs are fitted with SG lobes and whose shadowing curv
 by PCA (:mod:`.svbrdf`), looked up per vertex or per pixel at the meshes' UVs and decoded in the
 kernels (:mod:`.svbrdf_warp`).
 
-Modules, in the shape of :mod:`warpshade.methods.prt`: :mod:`.stages` (``sg.ssdf``, ``sg.shade``),
-:mod:`.kernels`, :mod:`.model`, :mod:`.mirror` (float64 mirror of the kernels), :mod:`.rows`,
+Modules, in the shape of :mod:`warpshade.methods.prt`: :mod:`.stages` (``sg.ssdf``, ``sg.shade``; the
+shade stage's materials in :mod:`.shade_materials`, lights in :mod:`.shade_lights`, kernel inputs in
+:mod:`.shade_inputs`, reference models in :mod:`.shade_reference`), :mod:`.kernels`, :mod:`.model`, :mod:`.mirror` (float64 mirror of the kernels), :mod:`.rows`,
 :mod:`.budget`, plus :mod:`.brdf`, :mod:`.brdf_warp`, :mod:`.lobes_warp`, :mod:`.measured`,
 :mod:`.lighting`, :mod:`.lighting_warp`.
 """

@@ -85,10 +85,10 @@ def check_meshes(stage, scene) -> None:
 def check_files(stage, resolve) -> None:
     """The 'table' or 'texture' file read and checked (magic, version, dimensions, size,
     values: the readers of :mod:`warpshade.scene.tabulated_aniso`, :mod:`warpshade.scene.tabulated`
-    and :mod:`.svbrdf`), ``resolve`` making the parameter a path; nothing is fitted."""
+    and :mod:`warpshade.scene.svbrdf`), ``resolve`` making the parameter a path; nothing is fitted."""
+    from ...scene.svbrdf import read_svbrdf
     from ...scene.tabulated import read_merl
     from ...scene.tabulated_aniso import read_anisotropic_table
-    from .svbrdf import read_svbrdf
 
     p = stage.params
     name = "table" if p["brdf"] in TABLE_MODELS else "texture"

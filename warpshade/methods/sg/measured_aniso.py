@@ -239,9 +239,9 @@ def stage_material(brdf: str, path, eta: float):
 def stage_reference_table(brdf: str, path):
     """What the glossy reference shades for ``sg.shade``'s measured ``brdf``: the table
     (:func:`.measured.reference_table`), the anisotropic table (:func:`aniso_reference_table`) or the
-    SVBRDF texture (:func:`.svbrdf_material.svbrdf_material`)."""
+    SVBRDF texture (:func:`warpshade.scene.svbrdf.svbrdf_material`)."""
+    from ...scene.svbrdf import svbrdf_material
     from .measured import reference_table
-    from .svbrdf_material import svbrdf_material
 
     read = {"tabulated-aniso": aniso_reference_table, "svbrdf": svbrdf_material}.get(brdf, reference_table)
     return read(path)

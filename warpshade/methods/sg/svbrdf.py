@@ -5,13 +5,10 @@ texels' 1-D shadowing curves compressed together by PCA. Float64 NumPy/SciPy.
 Eq. 13 at texel ``x``: ``rho_s(o, i) = F(|i.h|, eta) S_x(theta_o) S_x(theta_i) D_x(theta_h) /
 (pi (n.i)(n.o))``, ``F`` the Cook-Torrance Fresnel (eq. 14) of one index ``eta`` for the texture.
 
-File (``.svbrdf``, little-endian; :func:`write_svbrdf`, :func:`read_svbrdf`): the 8 bytes
-``WSSVBRDF``, then uint32 ``version`` (1), ``height``, ``width``, ``samples``, float32 ``eta``,
-then float32 ``D`` (height, width, samples) and float32 ``S`` (height, width, samples), both
-sampled at ``samples`` uniform polar angles over [0, pi/2] (ends included; the bundled texture
-has 91, one per degree -- the paper's "90-D" shadowing vectors). Row 0 is the top of the texture
-(``v = 1``), as the image textures of :mod:`warpshade.scene.textures`. ``D >= 0`` (1/sr, with
-F, S and the cosines taken out, as :mod:`.measured` extracts it), ``S`` in [0, 1].
+The texture as stored (the ``.svbrdf`` file, :class:`~warpshade.scene.svbrdf.SVBRDFTable`), its
+texel look-up and the exact material it describes are scene data (:mod:`warpshade.scene.svbrdf`);
+this module fits it. ``D`` is the NDF with F, S and the cosines taken out, as :mod:`.measured`
+extracts it.
 
 Fitting (:func:`fit_svbrdf`):
 
@@ -28,7 +25,8 @@ Fitting (:func:`fit_svbrdf`):
 
 :class:`SVBRDFTexture` holds the result: per-texel lobes (H, W, K), the PCA mean (samples,),
 basis (R, samples) and per-texel coefficients (H, W, R), with the fit report. Look-ups are
-nearest-texel (``u`` repeats, ``v`` is clamped): :meth:`SVBRDFTexture.texel_of`. The Warp side is
+nearest-texel (``u`` repeats, ``v`` is clamped): :meth:`SVBRDFTexture.texel_of`, the scene's
+:func:`~warpshade.scene.svbrdf.nearest_texel_f64`. The Warp side is
 :mod:`.svbrdf_warp`; :func:`svbrdf_slices_f64` and :meth:`SVBRDFTexture.shadow_at` are its
 float64 mirror.
 """
@@ -36,37 +34,24 @@ float64 mirror.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
-from ..._fileio import atomic_path
+from ...scene.svbrdf import SVBRDFTable, nearest_texel_f64, read_svbrdf
 from .brdf import COS_FLOOR, MAX_SHARPNESS, fresnel_cook_torrance
 from .slices import duff_frame_f64
 
 __all__ = [
-    "MAGIC",
-    "SVBRDFTable",
     "SVBRDFTexture",
     "eq13_quadrature_f64",
     "fit_svbrdf",
     "fit_texel_ndfs",
     "over_budget",
     "read_and_fit",
-    "read_svbrdf",
-    "scene_uvs",
     "shadow_pca",
     "svbrdf_slices_f64",
-    "write_svbrdf",
 ]
 
-MAGIC = b"WSSVBRDF"
-VERSION = 1
-_HEADER = 8 + 4 * 4 + 4
-#: Largest texture side and samples per curve a file may declare (a corrupt header is refused
-#: before any allocation).
-MAX_SIDE = 4096
-MAX_SAMPLES = 4096
 #: Sharpness grid of the lobes' initial search (log-spaced) and the bounds of the refinement.
 SHARPNESS_GRID = np.geomspace(0.5, 2.0e4, 48)
 SHARPNESS_MIN = 0.05
@@ -74,89 +59,6 @@ SHARPNESS_MIN = 0.05
 MAX_LOBES = 4
 #: Levenberg-Marquardt iterations of the batched refinement.
 LM_ITERATIONS = 40
-
-
-@dataclass
-class SVBRDFTable:
-    """A texture of eq.-13 materials as stored: ``ndf`` and ``shadow`` (H, W, N) at ``theta``."""
-
-    ndf: np.ndarray
-    shadow: np.ndarray
-    eta: float
-    path: str = ""
-
-    @property
-    def theta(self) -> np.ndarray:
-        return np.linspace(0.0, 0.5 * np.pi, self.ndf.shape[2])
-
-    @property
-    def shape(self) -> tuple[int, int]:
-        return int(self.ndf.shape[0]), int(self.ndf.shape[1])
-
-
-def _check_table(ndf, shadow, eta, where: str):
-    d = np.asarray(ndf, np.float64)
-    s = np.asarray(shadow, np.float64)
-    if d.ndim != 3 or s.shape != d.shape:
-        raise ValueError(f"{where}: ndf and shadow must be (height, width, samples) of one shape, got {d.shape}, {s.shape}")
-    h, w, n = d.shape
-    if not (1 <= h <= MAX_SIDE and 1 <= w <= MAX_SIDE and 4 <= n <= MAX_SAMPLES):
-        raise ValueError(f"{where}: size {h} x {w} with {n} samples is outside 1..{MAX_SIDE} texels, 4..{MAX_SAMPLES} samples")
-    if not np.all(np.isfinite(d)) or np.any(d < 0.0):
-        bad = np.argwhere(~np.isfinite(d) | (d < 0.0))[0]
-        raise ValueError(f"{where}: NDF values must be finite and >= 0 (texel row {bad[0]}, column {bad[1]})")
-    if not np.all(np.isfinite(s)) or np.any(s < 0.0) or np.any(s > 1.0):
-        bad = np.argwhere(~np.isfinite(s) | (s < 0.0) | (s > 1.0))[0]
-        raise ValueError(f"{where}: shadowing values must be finite and in [0, 1] (texel row {bad[0]}, column {bad[1]})")
-    e = float(eta)
-    if not (np.isfinite(e) and 1.0 < e <= 10.0):
-        raise ValueError(f"{where}: eta must be in (1, 10], got {eta!r}")
-    return d, s, e
-
-
-def write_svbrdf(path, ndf, shadow, eta: float = 1.33) -> Path:
-    """Write a texture of eq.-13 materials (module docstring), atomically; returns the path."""
-    path = Path(path)
-    d, s, e = _check_table(ndf, shadow, eta, f"write_svbrdf: {path}")
-    h, w, n = d.shape
-    with atomic_path(path) as tmp:
-        with open(tmp, "wb") as f:
-            f.write(MAGIC)
-            f.write(np.array([VERSION, h, w, n], "<u4").tobytes())
-            f.write(np.array([e], "<f4").tobytes())
-            f.write(np.ascontiguousarray(d, "<f4").tobytes())
-            f.write(np.ascontiguousarray(s, "<f4").tobytes())
-    return path
-
-
-def read_svbrdf(path) -> SVBRDFTable:
-    """Read a ``.svbrdf`` file (module docstring).
-
-    Raises:
-        ValueError: naming the file, when it is missing, not a file, not of this format or
-            version, of a size other than its header says, or holds values out of range.
-    """
-    path = Path(path)
-    where = f"SVBRDF texture {str(path)!r}"
-    if not path.is_file():
-        raise ValueError(f"{where}: no such file")
-    raw = path.read_bytes()
-    if len(raw) < _HEADER or raw[:8] != MAGIC:
-        raise ValueError(f"{where}: not an SVBRDF texture (expected the {MAGIC.decode()} header)")
-    version, h, w, n = (int(x) for x in np.frombuffer(raw, "<u4", 4, 8))
-    if version != VERSION:
-        raise ValueError(f"{where}: version {version}, this reader knows {VERSION}")
-    if not (1 <= h <= MAX_SIDE and 1 <= w <= MAX_SIDE and 4 <= n <= MAX_SAMPLES):
-        raise ValueError(f"{where}: header size {h} x {w} with {n} samples is outside 1..{MAX_SIDE}, 4..{MAX_SAMPLES}")
-    eta = float(np.frombuffer(raw, "<f4", 1, 24)[0])
-    count = h * w * n
-    want = _HEADER + 2 * 4 * count
-    if len(raw) != want:
-        raise ValueError(f"{where}: {len(raw)} bytes, the header ({h} x {w} x {n}) needs {want}")
-    d = np.frombuffer(raw, "<f4", count, _HEADER).reshape(h, w, n).astype(np.float64)
-    s = np.frombuffer(raw, "<f4", count, _HEADER + 4 * count).reshape(h, w, n).astype(np.float64)
-    d, s, eta = _check_table(d, s, eta, where)
-    return SVBRDFTable(d, s, eta, str(path))
 
 
 # ------------------------------------------------------------------------------------------------
@@ -409,12 +311,7 @@ class SVBRDFTexture:
 
     def texel_of(self, uv) -> np.ndarray:
         """Nearest texel (row, column) of UVs (..., 2): ``u`` repeats, ``v`` is clamped; row 0 at ``v = 1``."""
-        uv = np.asarray(uv, np.float64)
-        h, w = self.shape
-        u = uv[..., 0] - np.floor(uv[..., 0])
-        col = np.clip(np.floor(u * w), 0, w - 1).astype(np.int64)
-        row = np.clip(np.floor(np.clip((1.0 - uv[..., 1]) * h, 0.0, h - 1.0)), 0, h - 1).astype(np.int64)
-        return np.stack([row, col], -1)
+        return nearest_texel_f64(uv, self.shape)
 
     def shadow_at(self, texels, cos_theta) -> np.ndarray:
         """``S`` of texels (..., 2) (row, column) at cosines (...,): the PCA reconstruction at the
@@ -489,18 +386,6 @@ def read_and_fit(path, lobes: int | None, ndf_error_budget: float, max_lobes: in
 
         warnings.warn(f"SVBRDF texture {str(path)!r}: {why}", RuntimeWarning, stacklevel=3)
     return fitted
-
-
-def scene_uvs(scene) -> np.ndarray:
-    """The per-vertex UVs of all the scene's meshes, concatenated in scene order, (V, 2) float64;
-    ValueError naming a mesh without UVs, or for non-finite UVs."""
-    missing = [m.path for m in scene.meshes if m.uvs is None]
-    if missing:
-        raise ValueError(f"the texture is looked up at the meshes' UVs; {missing[0]} has none")
-    uv = np.concatenate([np.asarray(m.uvs, np.float64).reshape(-1, 2) for m in scene.meshes])
-    if not np.all(np.isfinite(uv)):
-        raise ValueError("the meshes' UVs must be finite")
-    return uv
 
 
 def svbrdf_slices_f64(texture: SVBRDFTexture, texels, views):

@@ -2,8 +2,9 @@
 the per-texel SG lobes of the NDF and the PCA-compressed shadowing of :mod:`.svbrdf`, looked up
 per vertex or per pixel and warped to the view.
 
-At a point with texture coordinates ``uv`` the texel is the nearest one (:func:`svbrdf_texel`,
-``u`` repeats, ``v`` is clamped, row 0 at ``v = 1``, as :meth:`.svbrdf.SVBRDFTexture.texel_of`).
+At a point with texture coordinates ``uv`` the texel is the nearest one (:func:`svbrdf_texel`: the
+scene's look-up :func:`warpshade.scene.svbrdf.nearest_texel`, ``u`` repeats, ``v`` is clamped, row
+0 at ``v = 1``, as :meth:`.svbrdf.SVBRDFTexture.texel_of`).
 Its lobes ``(z+, lambda_k, mu_k)`` are warped as :func:`.lobes_warp.warped_lobe` does (eq. 18-22):
 ``p_W = 2 (o.z) z - o``, ``lambda_W = lambda / (4 o.z)``, ``mu_W = mu M_o(p_W)`` with eq. 13's
 ``M_o(i) = F(|i.h|, eta) S(o) S(i) / (pi (n.i)(n.o))``; ``S`` is decoded from the texel's PCA
@@ -20,6 +21,7 @@ import numpy as np
 
 from ..._wp import wp
 from ...basis.sg_warp import SG, sg_make
+from ...scene.svbrdf import nearest_texel
 from .brdf import COS_FLOOR, MAX_SHARPNESS
 from .brdf_warp import fresnel_cook_torrance
 
@@ -59,13 +61,8 @@ class SVBRDFTextureWarp:
 
 @wp.func
 def svbrdf_texel(tex: SVBRDFTextureWarp, uv: wp.vec2) -> wp.vec2i:
-    """Nearest texel (row, column) of ``uv``: u repeats, v is clamped."""
-    h = tex.sharpness.shape[0]
-    w = tex.sharpness.shape[1]
-    u = uv[0] - wp.floor(uv[0])
-    x = wp.clamp(u * float(w), 0.0, float(w) - 1.0)
-    y = wp.clamp((1.0 - uv[1]) * float(h), 0.0, float(h) - 1.0)
-    return wp.vec2i(wp.clamp(int(wp.floor(y)), 0, h - 1), wp.clamp(int(wp.floor(x)), 0, w - 1))
+    """Nearest texel (row, column) of ``uv`` in the texture: u repeats, v is clamped."""
+    return nearest_texel(uv, tex.sharpness.shape[0], tex.sharpness.shape[1])
 
 
 @wp.func

@@ -5,7 +5,7 @@ temporally coherent local frames, and shaded glossy by reflectance product opera
 (``rpo.shade``, :mod:`warpshade.methods.rpo`) or diffuse by re-applying the cosine (eq. 14):
 
 * :mod:`.training` -- the training data (world-frame visibility ray traced per training frame by
-  the executor tasks of :mod:`warpshade.methods.datadriven.training`, turned into local frames
+  the executor tasks of :mod:`warpshade.methods._shared.training`, turned into local frames
   by exact SH rotations);
 * :mod:`.clusters` -- mean shift on skinning weights (or positions), cluster tangent frames;
 * :mod:`.fit` -- per-cluster PCA and the linear / quadratic / tanh-network models, cross-validated;
@@ -13,6 +13,9 @@ temporally coherent local frames, and shaded glossy by reflectance product opera
 * :mod:`.kernels` / :mod:`.mirror` -- the per-frame launches and their float64 mirror;
 * :mod:`.stages` -- ``visibility.data``, ``visibility.fit``, ``visibility.predict``, ``visibility.diffuse``;
 * :mod:`.rows` / :mod:`.budget` -- harness rows and error-budget candidates.
+
+Built on :mod:`warpshade.methods._shared` (shared with :mod:`warpshade.methods.datadriven`): the
+pose vectors and their device form, the pose space and its novelty, and the training clip.
 """
 
 from .clusters import cluster_frame_rule, cluster_frames_f64, cluster_vertices, mean_shift

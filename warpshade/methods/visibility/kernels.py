@@ -2,7 +2,7 @@
 
 A frame (all launches on buffers bound at set-up, recorded with the rest of the frame):
 
-1. the pose vector from the joint transforms (:func:`warpshade.methods.datadriven.kernels.pose_features_kernel`),
+1. the pose vector from the joint transforms (:func:`warpshade.methods._shared.pose_kernels.pose_features_kernel`),
    or the cloth's dihedral angles (:mod:`.cloth`);
 2. :func:`inputs_kernel` -- ``x = clip((a - mean) W, low, high)`` (thread per input component);
 3. :func:`features_kernel` -- ``phi = [x, x_i x_j]`` into the activations (thread per feature);

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..datadriven.pose import PARAMETERISATIONS, ROOT_FEATURES
+from .._shared.pose import PARAMETERISATIONS, ROOT_FEATURES
 
 __all__ = ["BLEND_WEIGHT", "RINGS", "SHARE", "cluster_joints", "joint_columns", "local_inputs"]
 

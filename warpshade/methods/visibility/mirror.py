@@ -11,7 +11,6 @@ from __future__ import annotations
 import numpy as np
 
 from ...basis import sh
-from ..rpo.model import cosine_sh
 
 __all__ = ["inputs_f64"]
 
@@ -70,7 +69,7 @@ def diffuse_f64(visibility: np.ndarray, frames: np.ndarray, light: np.ndarray, a
     """Diffuse radiance of local visibility (V, C), frames (V, 3, 3), world SH lighting (3, C), albedo (V, 3)."""
     v = np.asarray(visibility, np.float64)
     order = int(round(np.sqrt(v.shape[1])))
-    cos = cosine_sh(order)
+    cos = sh.clamped_cosine_sh(order)
     t = sh.product(v, np.broadcast_to(cos, v.shape))
     tw = sh.rotate(t, np.swapaxes(np.asarray(frames, np.float64), -1, -2))
     return np.asarray(albedo, np.float64) / np.pi * np.maximum(tw @ np.asarray(light, np.float64).T, 0.0)

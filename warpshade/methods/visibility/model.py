@@ -2,7 +2,7 @@
 
 Made by :func:`fit_visibility` from the training data of ``visibility.data``:
 
-1. **Inputs**: the pose vectors (joint rotations, :mod:`warpshade.methods.datadriven.pose`) or the
+1. **Inputs**: the pose vectors (joint rotations, :mod:`warpshade.methods._shared.pose`) or the
    dihedral angles of a point-cached mesh, standardised and reduced by PCA to the fewest
    components holding ``input_variance`` of their variance (the budget), each divided by its
    standard deviation: ``x = (a - mean) W`` (a x k_in). At run time ``x`` is clamped to the training
@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..datadriven.model import PoseSpace, pose_space
+from .._shared.pose_space import PoseSpace, pose_space
 from .clusters import cluster_frame_rule, cluster_frames_f64, cluster_vertices
 from .fit import expand_features, fit_cluster
 from .relative import cluster_neighbours, relative_features_f64
@@ -110,9 +110,8 @@ def cosine_product_matrix(order: int) -> np.ndarray:
     """The SH product matrix of the clamped cosine about the local normal (+z), (n*n, n*n)
     float64: local visibility to local transfer (eq. 14)."""
     from ...basis import sh
-    from ..rpo.model import cosine_sh
 
-    return sh.product_matrix(cosine_sh(order))
+    return sh.product_matrix(sh.clamped_cosine_sh(order))
 
 
 def fit_visibility(data: dict, *, model: str = "network", frames: str = "cluster", pose: str = "quaternion",
@@ -172,9 +171,9 @@ def fit_visibility(data: dict, *, model: str = "network", frames: str = "cluster
                          f"cross-validation trains every fold on at least {FOLD_TRAIN_MIN} frames): select more "
                          "training frames (visibility.data parameter 'frames')")
     if source == 0:
-        from ..datadriven.stages import _select_columns
+        from .._shared.training import pose_columns
 
-        a = _select_columns(data, pose, root)
+        a = pose_columns(data, pose, root)
     else:
         a = np.asarray(data["dihedral"], np.float64)
     space, w_in = input_space(a, input_variance, input_max)
@@ -366,7 +365,7 @@ def _stack_row(row: np.ndarray, union: dict, at: dict, kin: int) -> np.ndarray:
 
 
 def _pack(results, labels, order, model, frames, source, space, w_in, lo, hi, data, a, pose, root, layout) -> dict:
-    from ..datadriven.pose import PARAMETERISATIONS, ROOT_MODES
+    from .._shared.pose import PARAMETERISATIONS, ROOT_MODES
 
     vcount = labels.shape[0]
     c = order * order

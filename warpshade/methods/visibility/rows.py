@@ -2,22 +2,26 @@
 
 from __future__ import annotations
 
-from ..rows import HarnessRow
+from ..rows import BENCH_SCENES, HarnessRow, training_clips
 
 __all__ = [
     "TRAINING_CLIPS",
     "stages_for",
 ]
 
-#: Held-out test scene -> its training clip and frames (the graphs' selections, so that the cached
+#: Training frames where not every frame of the clip (the graphs' selections, so that the cached
 #: training data is shared with stages/*_visibility.toml).
-TRAINING_CLIPS = {"figure": ("bundled:figure_train", "0:600:3"), "figure_walk": ("bundled:figure_train", "0:600:3"),
-                  "wanderer": ("bundled:wanderer_train", "0:1000:8"), "cloth_heldout": ("bundled:cloth_train", None)}
-#: Rays per vertex of the training visibility of each clip (the wanderer's frames cost ~4x).
-TRAINING_RAYS = {"figure": 128, "figure_walk": 128, "wanderer": 64, "cloth_heldout": 128}
-#: Pose inputs of each clip: joint rotations of a skinned character, dihedral angles of the
-#: simulated cloth (its inputs' PCA keeps 90 % of their variance, as stages/cloth_visibility.toml).
-FEATURES = {"cloth_heldout": ("dihedral", {"input_variance": 0.9})}
+TRAINING_FRAMES = {"figure": "0:600:3", "figure_walk": "0:600:3", "wanderer": "0:1000:8"}
+#: Held-out test scene -> its training clip (:func:`warpshade.methods.rows.training_clips`) and frames.
+TRAINING_CLIPS = {scene: (clip, TRAINING_FRAMES.get(scene)) for scene, clip in training_clips(None).items()}
+#: Rays per vertex of the training visibility of each clip: 128, 64 on the wanderer (its frames cost ~4x).
+TRAINING_RAYS = {scene: {"wanderer": 64}.get(scene, 128) for scene in TRAINING_CLIPS}
+#: Fit settings per pose input besides the joint rotations of a skinned character: the dihedral angles
+#: of a simulated cloth (their PCA keeps 90 % of their variance, as stages/cloth_visibility.toml).
+FEATURE_FIT = {"dihedral": {"input_variance": 0.9}}
+#: Pose inputs and their fit settings per held-out scene whose inputs are not joint rotations.
+FEATURES = {scene: (BENCH_SCENES[scene]["inputs"], FEATURE_FIT[BENCH_SCENES[scene]["inputs"]])
+            for scene in TRAINING_CLIPS if BENCH_SCENES[scene].get("inputs", "joints") != "joints"}
 #: Fit settings of the diffuse rows (stages/figure_visibility_diffuse.toml): per-cluster PCA to 99 %
 #: of the variance, at most 64 components, the model chosen per cluster (``model = "auto"``) among
 #: maps from the joint rotations (or dihedral angles) and from the 4 or 8 nearest clusters' centroids

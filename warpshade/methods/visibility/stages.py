@@ -20,10 +20,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._shared.pose import PARAMETERISATIONS, ROOT_MODES, pose_features, pose_layout, root_references
+from .._shared.pose_kernels import PoseInputs
+from .._shared.training import (TrainingClipStage, check_same_character, parse_frame_selection, topology_key,
+                                trace_training)
 from ..common import order_param, rays_param
-from ..datadriven.pose import PARAMETERISATIONS, ROOT_MODES, pose_features, pose_layout, root_references
-from ..datadriven.stages import TrainingClipStage
-from ..datadriven.training import check_same_character, parse_frame_selection, topology_key, trace_training
 from ..stage import FrameStage, Param, Port, PrecomputeStage, StageError, register_stage
 from . import cloth, kernels
 from .model import FRAME_KINDS, METRICS, MODELS, fit_visibility, model_from_arrays
@@ -43,6 +44,16 @@ class VisibilityDataStage(TrainingClipStage):
     version = 1
     description = ("ray-traced SH visibility (no cosine), points, normals and inputs at every frame of a training "
                    "clip (tasks for an executor)")
+
+    @classmethod
+    def quick_params(cls, params):
+        """16 rays on 10 training frames instead of hundreds (minutes): every 60th of a 600-frame
+        character clip -- two blocks of the blocked cross-validation, at least
+        :func:`~warpshade.methods.visibility.select.fewest_frames` = 8; three of them are the rest pose
+        the range-of-motion part returns to between sweeps, so one fold trains on a single pose, the
+        case in which the selection once changed from host to host (issue 37) -- or every 12th of the
+        cloth's 120-frame clip."""
+        return {"samples": 16, "frames": "0:120:12" if "cloth" in str(params.get("training", "")) else "0:600:60"}
     parameters = {
         "training": TrainingClipStage.TRAINING,
         "frames": Param(None, str, "training frames as 'start:stop[:step]' over frame indices (default: all)"),
@@ -154,6 +165,8 @@ class VisibilityFitStage(PrecomputeStage):
     uses_scene = False
     description = ("clusters, cluster frames, input PCA, per-cluster visibility PCA and a linear / quadratic / "
                    "network model per cluster (sizes from the error budget, cross-validated)")
+    #: One network size (4 hidden neurons) with a short fit (10 iterations).
+    quick = {"hidden": (4,), "max_iterations": 10}
     parameters = {
         "model": Param("network", str, "per-cluster model: ridge, ridge on second-order features, a "
                        "one-hidden-layer tanh network (eq. 12-13), or 'auto': each cluster's ridge map (linear or "
@@ -346,7 +359,7 @@ class VisibilityPredictStage(FrameStage):
             if not np.array_equal(a["topology"], topology_key(scene)):
                 raise StageError(f"{where}: scene {scene.source or '<arrays>'} is not the character the model was "
                                  "trained on (vertex count, faces, skin weights, rest or bind transforms differ)")
-            self._pose = _PoseInputs(scene, list(PARAMETERISATIONS)[kind], ROOT_MODES[root], a["root_reference"], dev)
+            self._pose = PoseInputs(scene, list(PARAMETERISATIONS)[kind], ROOT_MODES[root], a["root_reference"], dev)
             if self._pose.layout.size != a["pose_scale"].size:
                 raise StageError(f"{where}: the model expects {a['pose_scale'].size} pose inputs, the scene gives "
                                  f"{self._pose.layout.size}")
@@ -483,44 +496,10 @@ class _RelativeInputs:
                   inputs=[self._rotations, self._centroids, self._neighbours, self._base, self.features])
 
 
-class _PoseInputs:
-    """The pose vector of the frame on the device (the layout and kernel of ``datadriven.transfer``)."""
-
-    def __init__(self, scene, kind, root, root_reference, dev):
-        from ..._wp import wp
-        from ..datadriven import kernels as dk
-
-        self.layout = layout = pose_layout(scene, kind, root)
-        rest_t, bind, ref_t = [], [], []
-        roots = iter(np.transpose(np.asarray(root_reference, np.float64), (0, 2, 1)))
-        for skel in scene.skeletons:
-            r = np.transpose(np.asarray(skel.rest_transforms, np.float64)[:, :3, :3], (0, 2, 1))
-            r = r / np.linalg.norm(r, axis=-2, keepdims=True)
-            rest_t.extend(np.transpose(r, (0, 2, 1)))
-            bind.extend(np.transpose(np.asarray(skel.bind_transforms, np.float64), (0, 2, 1)))
-            for parent in np.asarray(skel.parents):
-                ref_t.append(next(roots) if parent < 0 and root == "include" else np.eye(3))
-        self._kernel = dk.pose_features_kernel
-        self._parents, self._offsets = _i32(layout.parents, dev), _i32(layout.offsets, dev)
-        self._rest_t = _f32(rest_t, dev, wp.mat33)
-        self._bind = _f32(bind, dev, wp.mat44)
-        self._ref_t = _f32(ref_t, dev, wp.mat33)
-        self._kind = dk.KIND_CODES[kind]
-        self.features = wp.zeros(max(layout.size, 1), dtype=wp.float32, device=dev)
-        self._dev = dev
-
-    def launch(self, state):
-        from ..._wp import wp
-
-        wp.launch(self._kernel, dim=self.layout.joint_count, device=self._dev,
-                  inputs=[state.joint_transforms, state.skin_matrices, self._parents, self._offsets, self._rest_t,
-                          self._bind, self._ref_t, self._kind, self.features])
-
-
 def novelty_report(model, poses: np.ndarray) -> dict:
     """How far the scene's inputs lie from the training inputs (:func:`warpshade.methods.datadriven.novelty`)
     and how many of its frames have an input-PCA coordinate clamped to the widened training range."""
-    from ..datadriven.model import novelty
+    from .._shared.pose_space import novelty
     from .mirror import inputs_f64
     from .model import pose_space_of
 
@@ -552,8 +531,8 @@ class VisibilityDiffuseStage(FrameStage):
     def setup(self, ctx, inputs):
         from ..._wp import wp
         from ...basis.sh_warp import sh_kernels
+        from ...basis import sh
         from ..common import ShLighting
-        from ..rpo.model import cosine_sh
 
         n = self.params["order"]
         try:
@@ -564,7 +543,7 @@ class VisibilityDiffuseStage(FrameStage):
             raise StageError(f"stage {self.name!r}: shades distant lighting (SH) only; this run has sphere lights")
         dev = ctx.device
         self._vis, self._frames, self._albedo = inputs["visibility"], inputs["frames"], inputs["albedo"]
-        self._cos = _f32(cosine_sh(n), dev)
+        self._cos = _f32(sh.clamped_cosine_sh(n), dev)
         self._tables = sh_kernels(n).tables(dev)
         self._kernel = kernels.diffuse_kernel(n)
         self._radiance = wp.zeros((ctx.dims["V"], 3), dtype=wp.float32, device=dev)

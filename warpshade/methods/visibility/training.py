@@ -5,14 +5,14 @@ Per training frame of a clip (a skinned character or a point-cached mesh):
 * the ray-traced SH visibility of every vertex, **no cosine** (the paper's Fig. 8 choice),
   directions below the tangent plane counted open (the RPO convention, :mod:`warpshade.methods.rpo`),
   in the **world** frame. It is traced once, by the executor tasks of
-  :func:`warpshade.methods.datadriven.training.trace_training` (``quantity = "visibility"``), and
+  :func:`warpshade.methods._shared.training.trace_training` (``quantity = "visibility"``), and
   turned into any per-vertex local frame afterwards by exact SH rotations
   (:func:`to_local`): the projection of the same rays in a rotated frame is the rotation of
   the projection, so one trace serves the one-ring frames, the cluster frames and the world frame
   of the Fig. 9 comparison;
 * the world positions and normals of the frame (the local frames are functions of them);
 * the inputs: joint rotations (``features = "joints"``, the pose vectors of
-  :mod:`warpshade.methods.datadriven.pose`) or, for point-cached meshes, the dihedral angles of the
+  :mod:`warpshade.methods._shared.pose`) or, for point-cached meshes, the dihedral angles of the
   interior edges (``features = "dihedral"``, :mod:`warpshade.methods.visibility.cloth`);
 * what the clustering reads: the rest pose, faces, per-vertex dense skinning weights and the mesh
   each vertex belongs to.

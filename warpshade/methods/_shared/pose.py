@@ -1,4 +1,4 @@
-"""Pose vectors of a skinned scene: the inputs ``a`` of the data-driven transfer model.
+"""Pose vectors of a skinned scene: the inputs ``a`` of the data-driven models.
 
 A pose is read from UsdSkel per frame (:class:`warpshade.scene.Skeleton`). Every joint that has
 a parent contributes its joint-local rotation *relative to its rest rotation*,
@@ -20,8 +20,12 @@ turns around needs its transfer trained in the root's frame (not built here).
 Joints are listed skeleton by skeleton in the scene's joint order (the order of
 ``FrameState.joint_transforms``). Joint scales are stripped by normalising the columns of the
 rotation part (as the device kernel does). :func:`pose_features` is the float64 host mirror of
-:func:`warpshade.methods.datadriven.kernels.pose_features_kernel`; the tests compare the two
-and compare both with SciPy's rotations.
+:func:`.pose_kernels.pose_features_kernel`; the tests compare the two and compare both with
+SciPy's rotations.
+
+Used by the data-driven transfer (:mod:`warpshade.methods.datadriven`, which exports
+:data:`PARAMETERISATIONS`, :func:`pose_layout` and :func:`pose_features`) and the data-driven
+visibility (:mod:`warpshade.methods.visibility`).
 """
 
 from __future__ import annotations
@@ -32,9 +36,14 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 __all__ = [
+    "PARAMETERISATIONS",
+    "ROOT_FEATURES",
     "ROOT_MODES",
     "PoseLayout",
     "features_from_rotations",
+    "pose_features",
+    "pose_layout",
+    "root_references",
 ]
 
 #: Pose parameterisations and the numbers per joint.

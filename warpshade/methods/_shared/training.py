@@ -1,4 +1,9 @@
-"""Training data of the data-driven model: ray-traced transfer at every training pose.
+"""The training clip of the data-driven methods (:mod:`warpshade.methods.datadriven`,
+:mod:`warpshade.methods.visibility`): the stage parameter that names it
+(:class:`TrainingClipStage`), the frames it selects (:func:`parse_frame_selection`), the check
+that it holds the graph's character (:func:`check_same_character`), the pose columns a fit reads
+(:func:`pose_columns`), and its ray-traced training data at every training pose
+(:func:`trace_training`).
 
 Each training frame is an independent job (ray tracing every vertex of one pose), so the frames
 are split into tasks of a few frames and run by an executor (:mod:`warpshade.tasks`): in this
@@ -11,8 +16,8 @@ rotations differ from pose to pose, so the Monte Carlo noise of the training tra
 independent across poses and the least-squares fit averages it down (a fixed seed would give
 every pose the same noise pattern, which the bias term would then learn).
 
-Quantity: ``"transfer"`` (the diffuse transfer, with or without bounces: this model's training
-data) or ``"visibility"`` (SH of the binary visibility alone, no cosine, directions below the
+Quantity: ``"transfer"`` (the diffuse transfer, with or without bounces: the training data of the
+data-driven transfer model) or ``"visibility"`` (SH of the binary visibility alone, no cosine, directions below the
 tangent plane counted open as in :mod:`warpshade.methods.rpo`: the training data of the
 data-driven visibility model, :mod:`warpshade.methods.visibility`).
 
@@ -31,9 +36,10 @@ import hashlib
 import numpy as np
 
 from ..._hashing import hash_json
+from ..stage import Param, PrecomputeStage, StageError
 
-__all__ = ["FRAMES_PER_TASK", "frame_seed", "topology_key", "check_same_character", "trace_task", "trace_training",
-           "parse_frame_selection"]
+__all__ = ["FRAMES_PER_TASK", "TrainingClipStage", "check_same_character", "frame_seed", "parse_frame_selection",
+           "pose_columns", "topology_key", "trace_task", "trace_training"]
 
 #: Frames per task: enough work per task (seconds) to hide the task overhead, few enough for
 #: load balance and for a killed worker to lose little.
@@ -231,3 +237,57 @@ def trace_training(scene, frame_indices, order: int, samples: int, seed: int = 0
             if path is not None:
                 path.unlink()
     return transfer
+
+
+def pose_columns(data: dict, kind: str, root: str) -> np.ndarray:
+    """The pose vectors of training data (``poses_<kind>``, float64 (p, a)) without the root
+    joints' columns (``root_<kind>`` flags them) when ``root == "exclude"``."""
+    poses = np.asarray(data[f"poses_{kind}"], np.float64)
+    if root == "exclude":
+        poses = poses[:, np.asarray(data[f"root_{kind}"]) == 0]
+    return poses
+
+
+class TrainingClipStage(PrecomputeStage):
+    """A precompute stage that traces a training clip: the ``training`` parameter (a USD file
+    relative to the graph, or a scene spec; empty: the graph's own scene), keyed by the clip's
+    content rather than its path, and the artifact independent of the graph's scene when the clip
+    is another one (``datadriven.data``, ``visibility.data``)."""
+
+    TRAINING = Param("", str, "training clip: a USD file relative to the graph, or a scene spec such as "
+                     "'bundled:figure_train' (default: the graph's own scene)")
+
+    def __init__(self, name, params=None):
+        super().__init__(name, params)
+        # trained on another clip: the artifact does not depend on the scene the graph runs on
+        self.uses_scene = not self.params["training"]
+
+    def cache_params(self):
+        return {k: v for k, v in self.params.items() if k != "training"}
+
+    def cache_key(self, ctx):
+        if not self.params["training"]:
+            return {}
+        return {"training": self.training_scene(ctx).fingerprint()}
+
+    def training_scene(self, ctx):
+        """The training scene (the graph's scene when ``training`` is empty); StageError names
+        the parameter and the file."""
+        path = self.params["training"]
+        if not path:
+            return ctx.scene
+        from ...io import SCENE_SPEC_PREFIXES, load_scene
+
+        where = f"stage {self.name!r} ({self.type_name}): parameter 'training'"
+        if path.startswith(SCENE_SPEC_PREFIXES):
+            try:
+                return load_scene(path)
+            except (OSError, ValueError) as exc:
+                raise StageError(f"{where} ({path}): {exc}") from None
+        p = ctx.resolve_path(path)
+        if not p.exists():
+            raise StageError(f"{where}: no such file {p}")
+        try:
+            return load_scene(str(p))
+        except (OSError, ValueError) as exc:
+            raise StageError(f"{where} ({p}): {exc}") from None
