@@ -1,24 +1,35 @@
-"""Rays per second of the visibility/transfer kernels, single launch vs chunked launches from a
-thread pool, and Mitsuba 3's ray_test on the same rays in the same run; plus the transfer
+"""Shadow-ray throughput of every CPU path against Embree, side by side in one run, on the bundled
+scenes (blockers, figure, wanderer) and a large mesh (Warp's nonuniform asset); plus the transfer
 convergence table (error vs a high-sample estimate as the sample count quadruples).
 
 Usage::
 
-    python benchmarks/bench_rays.py                      # bundled blockers scene, CPU
-    python benchmarks/bench_rays.py --device cuda:0      # on a GPU
-    python benchmarks/bench_rays.py --scene path.usda --receivers 4096 --samples 256
+    python benchmarks/bench_rays.py --no-convergence           # the four scenes, CPU
+    python benchmarks/bench_rays.py --scenes figure --receivers 4096 --samples 256
+    python benchmarks/bench_rays.py --device cuda:0 --no-embree # Warp paths on a GPU
 
-Writes ``benchmarks/results/rays-<date>-<device>.json``. Measurements:
+Writes ``benchmarks/results/rays-<date>-<device>.json`` and ``...-<device>.png`` (each path's
+throughput over Embree's, per scene, with the goals 0.8 for bulk rays and 0.5 for in-frame
+tracers). Per scene, the rays of ``--receivers`` random vertices x ``--samples`` directions
+(:func:`warpshade.transfer.sample_rays`); each path is timed ``--repeats`` times after one
+warm-up and the median reported. Paths:
 
-* ``transfer``: the full transfer kernel (ray generation, any-hit, order-n SH accumulation);
-* ``anyhit_generated``: any-hit shadow rays generated in the kernel (visibility count only);
-* ``anyhit_explicit``: any-hit on an explicit (origin, direction) batch in device memory -- the
-  rays Mitsuba is given;
-* ``mitsuba_ray_test``: Mitsuba 3 ``scene.ray_test`` on the same explicit batch (llvm_ad_rgb,
-  which uses every core; scalar_rgb in a Python loop otherwise, marked as such).
+* ``warp_anyhit``: ``Visibility.occluded``'s any-hit kernel on the explicit rays, Warp's default
+  BVH (SAH, 4 triangles a leaf), chunked launches from the thread pool;
+* ``warp_best``: the same with the best BVH settings of a sweep over leaf sizes (``--sweep``);
+* ``bake_warp`` / ``bake_embree``: the bulk path, :class:`~warpshade.transfer.TransferTracer`
+  (order 4: ray generation, shadow rays, SH sums) with ``rays="warp"`` / ``rays="embree"``;
+* ``prt_trace``: the in-frame tracer of ``prt.trace`` (TransferTracer, order 6, 64 rays a vertex,
+  every vertex);
+* ``hybrid_trace``: the in-frame residual kernel of ``hybrid.trace`` (order 6, 64 rays a vertex,
+  rays only above the horizon: those are counted), rated against Embree on its own rays;
+* ``embree``: Embree through ``embreex`` on the explicit rays, in this process (``embree_1``) and
+  split over worker processes (``embree_n``, :class:`~warpshade.geometry.embree.EmbreeOcclusion`);
+  the faster of the two is the reference of every ratio;
+* ``mitsuba_ray_test``: Mitsuba 3's ``scene.ray_test`` when Mitsuba is installed.
 
-Each is timed ``--repeats`` times after one warm-up (kernel compilation / Mitsuba JIT) and the
-median is reported.
+Rays that disagree with Embree are counted for every path that yields per-ray answers; the bake's
+two backends are compared on their outputs (max abs difference).
 """
 
 from __future__ import annotations
@@ -36,49 +47,219 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 
-from warpshade._fileio import write_json_atomic  # noqa: E402
+from warpshade._fileio import atomic_path, write_json_atomic  # noqa: E402
 from warpshade._wp import cpu_workers, launch_parallel, resolve_device, wp  # noqa: E402
 from warpshade.geometry.bvh import RAY_MAX_DISTANCE, Visibility, _occlusion_kernel  # noqa: E402
-from warpshade.io import bundled_asset_directory  # noqa: E402
+from warpshade.geometry.embree import EmbreeOcclusion, embree_available  # noqa: E402
+from warpshade.measure import load_bench_scene  # noqa: E402
+from warpshade.methods.hybrid.kernels import QUANTITY_TRANSFER, cycle_direction, frame_rotation, residual_kernel  # noqa: E402
 from warpshade.transfer import TransferTracer, sample_rays  # noqa: E402
 
-DEFAULT_SCENE = Path(bundled_asset_directory()) / "blockers.usda"
+#: The scenes of a full run: three bundled scenes and a large mesh from Warp's assets.
+SCENES = {"blockers": "blockers", "figure": "figure", "wanderer": "wanderer", "nonuniform": "warp-example:nonuniform"}
+#: Goals of issue 40: bulk shadow rays and in-frame tracers, as a fraction of Embree's throughput.
+GOAL_BULK, GOAL_IN_FRAME = 0.8, 0.5
+#: Leaf sizes of the BVH sweep (Warp's default on the CPU is SAH with 4 triangles a leaf).
+LEAF_SIZES = (1, 2, 4, 8)
+#: In-frame tracers: SH order and rays per vertex (prt.trace and hybrid.trace of the figure graphs).
+IN_FRAME_ORDER, IN_FRAME_RAYS = 6, 64
+BULK_PATHS = ("warp_anyhit", "warp_best", "bake_warp", "bake_embree", "embree_n")
+IN_FRAME_PATHS = ("prt_trace", "hybrid_trace")
 
 
-def array_scene():
-    """Fallback scene from arrays: a ground grid with a sphere and a box resting above it."""
-    import trimesh
-
-    from warpshade.scene import Mesh, Scene
-
-    ground = trimesh.creation.box(extents=(6.0, 6.0, 0.05))
-    ground = trimesh.Trimesh(*trimesh.remesh.subdivide_to_size(ground.vertices, ground.faces, 0.2))
-    ball = trimesh.creation.icosphere(4, radius=0.6)
-    ball.apply_translation((0.0, 0.0, 0.9))
-    box = trimesh.creation.box(extents=(0.8, 0.5, 0.6))
-    box.apply_translation((1.2, -0.8, 0.35))
-    return Scene.from_meshes([Mesh("ground", ground.vertices, ground.faces), Mesh("ball", ball.vertices, ball.faces), Mesh("box", box.vertices, box.faces)])
-
-
-def load_scene(path):
-    if path is not None or DEFAULT_SCENE.exists():
-        from warpshade.io import load_usd
-
-        p = Path(path) if path is not None else DEFAULT_SCENE
-        return load_usd(str(p)), p.name
-    return array_scene(), "arrays:ground+ball+box"
+@wp.kernel
+def _hybrid_rays_kernel(points: wp.array(dtype=wp.vec3), normals: wp.array(dtype=wp.vec3), count: int, seed: int,
+                        offset: float, origins: wp.array(dtype=wp.vec3), directions: wp.array(dtype=wp.vec3),
+                        above: wp.array(dtype=wp.int32)):
+    """The rays of the hybrid residual kernel at step 0 (``above``: the ones it traces)."""
+    v, s = wp.tid()
+    n = normals[v]
+    d = frame_rotation(seed, 0, 1, v) * cycle_direction(s, count, 0, 1)
+    i = v * count + s
+    origins[i] = points[v] + offset * n
+    directions[i] = d
+    above[i] = wp.where(wp.dot(n, d) > 0.0, 1, 0)
 
 
-def timed(fn, repeats, device):
-    fn()  # warm-up: compile / JIT
-    wp.synchronize_device(device)
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
+def rounds(paths: dict, repeats: int, device) -> dict:
+    """Seconds of each path per round: one warm-up, then ``repeats`` rounds running every path once
+    in turn (so that load on a shared machine hits all paths alike)."""
+    for fn in paths.values():
         fn()
-        wp.synchronize_device(device)
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
+    wp.synchronize_device(device)
+    times = {name: [] for name in paths}
+    for _ in range(repeats):
+        for name, fn in paths.items():
+            t0 = time.perf_counter()
+            fn()
+            wp.synchronize_device(device)
+            times[name].append(time.perf_counter() - t0)
+    return times
+
+
+def bench_scene(key, spec, args, dev, workers):
+    scene, _ = load_bench_scene(spec)
+    frame = float(scene.frames[0])
+    rng = np.random.default_rng(0)
+    receivers = rng.choice(scene.vertex_count, args.receivers, replace=scene.vertex_count < args.receivers)
+    rays = args.receivers * args.samples
+    print(f"{key}: {scene.vertex_count} vertices, {scene.triangle_count} triangles; "
+          f"{args.receivers} receivers x {args.samples} samples = {rays} rays on {dev}", flush=True)
+    state = scene.evaluate(frame, device=dev)
+    origins, dirs = sample_rays(scene, frame, args.samples, vertices=receivers, device=dev)
+    origins, dirs = origins.reshape(-1, 3), dirs.reshape(-1, 3)
+    o_wp = wp.array(origins, dtype=wp.vec3, device=dev)
+    d_wp = wp.array(dirs, dtype=wp.vec3, device=dev)
+    embree = dev.is_cpu and not args.no_embree and embree_available()
+    if not embree and dev.is_cpu and not args.no_embree:
+        print("  embreex not installed: Embree paths skipped (pip install -e '.[embree]')")
+
+    def explicit(bvh, out):
+        return lambda: launch_parallel(_occlusion_kernel, rays, lambda lo, hi: [bvh.mesh.id, o_wp[lo:hi], d_wp[lo:hi],
+                                                                              float(RAY_MAX_DISTANCE), out[lo:hi]], dev, workers)
+
+    # the BVH sweep: each leaf size on the explicit rays, side by side
+    default_bvh = Visibility.from_scene(scene, frame, device=dev)
+    sweep, best_leaf = {}, None
+    if args.sweep:
+        bvhs = {leaf: Visibility(scene.points_at(frame), scene.faces, device=dev, bvh_leaf_size=leaf) for leaf in LEAF_SIZES}
+        outs = {leaf: wp.empty(rays, dtype=wp.int32, device=dev) for leaf in LEAF_SIZES}
+        times = rounds({leaf: explicit(bvhs[leaf], outs[leaf]) for leaf in LEAF_SIZES}, args.repeats, dev)
+        sweep = {f"sah_leaf{leaf}": rays / statistics.median(t) for leaf, t in times.items()}
+        best_leaf = max(LEAF_SIZES, key=lambda leaf: sweep[f"sah_leaf{leaf}"])
+        print("  sweep (Mrays/s): " + ", ".join(f"{k} {v / 1e6:.2f}" for k, v in sweep.items()))
+    best_bvh = default_bvh if best_leaf is None else Visibility(scene.points_at(frame), scene.faces, device=dev,
+                                                                bvh_leaf_size=best_leaf)
+
+    outs = {name: wp.empty(rays, dtype=wp.int32, device=dev) for name in ("warp_anyhit", "warp_best")}
+    paths = {"warp_anyhit": explicit(default_bvh, outs["warp_anyhit"]), "warp_best": explicit(best_bvh, outs["warp_best"])}
+    bakes = {b: TransferTracer(scene, 4, args.samples, vertices=receivers, device=dev, rays=b)
+             for b in (("warp", "embree") if embree else ("warp",))}
+    for b, tracer in bakes.items():
+        paths[f"bake_{b}"] = (lambda tr: lambda: tr.trace_state(state.points, state.normals))(tracer)
+    prt = TransferTracer(scene, IN_FRAME_ORDER, IN_FRAME_RAYS, device=dev, rays="warp")
+    paths["prt_trace"] = lambda: prt.trace_state(state.points, state.normals)
+
+    # the hybrid residual kernel over every vertex, and its rays for Embree
+    v = scene.vertex_count
+    coeffs = IN_FRAME_ORDER * IN_FRAME_ORDER
+    hybrid_kernel = residual_kernel(IN_FRAME_ORDER)
+    residual = wp.empty((v, coeffs), dtype=wp.float32, device=dev)
+    variance = wp.empty(v, dtype=wp.float32, device=dev)
+    step = wp.zeros(1, dtype=wp.int32, device=dev)
+    no_frames = wp.empty(0, dtype=wp.mat33, device=dev)
+    no_control = wp.empty((0, coeffs), dtype=wp.float32, device=dev)
+    offset = default_bvh.offset
+    paths["hybrid_trace"] = lambda: launch_parallel(hybrid_kernel, v, lambda lo, hi: [
+        default_bvh.id, state.points, state.normals, no_frames, 0, no_control, 0, 0, QUANTITY_TRANSFER, IN_FRAME_RAYS, 1, 0,
+        step, offset, lo, residual, variance], dev, workers)
+    h_o = wp.empty(v * IN_FRAME_RAYS, dtype=wp.vec3, device=dev)
+    h_d = wp.empty(v * IN_FRAME_RAYS, dtype=wp.vec3, device=dev)
+    h_above = wp.empty(v * IN_FRAME_RAYS, dtype=wp.int32, device=dev)
+    wp.launch(_hybrid_rays_kernel, dim=(v, IN_FRAME_RAYS), inputs=[state.points, state.normals, IN_FRAME_RAYS, 0, offset,
+                                                                   h_o, h_d, h_above], device=dev)
+    above = h_above.numpy().astype(bool)
+    hybrid_o, hybrid_d = h_o.numpy()[above], h_d.numpy()[above]
+    hybrid_rays = int(above.sum())
+
+    answers = {}
+    if embree:
+        engines = {"embree_1": EmbreeOcclusion(scene.points_at(frame), scene.faces, workers=1)}
+        if workers > 1 and not args.quick:
+            engines["embree_n"] = EmbreeOcclusion(scene.points_at(frame), scene.faces, workers=workers)
+        for name, engine in engines.items():
+            paths[name] = (lambda e, n: lambda: answers.__setitem__(n, e.occluded(origins, dirs, unit_directions=True)))(engine, name)
+            paths[f"{name}_hybrid_rays"] = (lambda e, n: lambda: answers.__setitem__(n, e.occluded(hybrid_o, hybrid_d,
+                                                                                               unit_directions=True)))(engine, f"{name}_hybrid_rays")
+    times = rounds(paths, args.repeats, dev)
+
+    counts = {name: rays for name in paths}
+    counts["prt_trace"] = v * IN_FRAME_RAYS
+    counts["hybrid_trace"] = hybrid_rays
+    for name in paths:
+        if name.endswith("_hybrid_rays"):
+            counts[name] = hybrid_rays
+    results = {name: {"seconds": statistics.median(t), "rays": counts[name], "rays_per_second": counts[name] / statistics.median(t)}
+               for name, t in times.items()}
+    reference = [n for n in ("embree_1", "embree_n") if n in results]
+    if reference:
+        ref_explicit = {n: np.array(times[n]) for n in reference}
+        ref_hybrid = {n: np.array(times[f"{n}_hybrid_rays"]) for n in reference}
+        for name, t in times.items():
+            if name.endswith("_hybrid_rays"):
+                continue
+            ref = ref_hybrid if name == "hybrid_trace" else ref_explicit
+            # per round: the best Embree of that round over this path (rays per second)
+            ref_rays = hybrid_rays if name == "hybrid_trace" else rays
+            best = np.max([ref_rays / r for r in ref.values()], axis=0)
+            results[name]["ratio_to_embree"] = float(np.median((counts[name] / np.array(t)) / best))
+        embree_hits = answers["embree_1"].astype(bool)
+        for name in ("warp_anyhit", "warp_best"):
+            results[name]["rays_disagreeing_with_embree"] = int(np.sum(outs[name].numpy().astype(bool) != embree_hits))
+        if "embree_n" in answers:
+            results["embree_n"]["rays_disagreeing_with_embree"] = int(np.sum(answers["embree_n"].astype(bool) != embree_hits))
+        # Warp's any-hit on the hybrid kernel's rays against Embree's
+        h_out = default_bvh.occluded(hybrid_o, hybrid_d).numpy().astype(bool)
+        results["hybrid_trace"]["rays_disagreeing_with_embree"] = int(np.sum(h_out != answers["embree_1_hybrid_rays"].astype(bool)))
+        if "bake_embree" in results:
+            a, b = bakes["warp"].result(), bakes["embree"].result()
+            results["bake_embree"]["max_abs_difference_vs_bake_warp"] = float(max(
+                np.abs(a.transfer - b.transfer).max(), np.abs(a.visibility - b.visibility).max()))
+    for name, r in results.items():
+        ratio = f"  {r['ratio_to_embree']:.2f}x Embree" if "ratio_to_embree" in r else ""
+        dis = f"  {r['rays_disagreeing_with_embree']} disagree" if "rays_disagreeing_with_embree" in r else ""
+        print(f"  {name:24s} {r['rays_per_second'] / 1e6:8.2f} Mrays/s  ({r['seconds'] * 1e3:8.1f} ms){ratio}{dis}", flush=True)
+
+    mitsuba = None
+    if not args.no_mitsuba:
+        mitsuba = mitsuba_ray_test(scene.points_at(frame), scene.faces, origins, dirs, args.repeats)
+        if mitsuba is not None:
+            variant, seconds, hits, note = mitsuba
+            disagree = int(np.sum(hits != outs["warp_anyhit"].numpy().astype(bool)[: len(hits)]))
+            results["mitsuba_ray_test"] = {"seconds": seconds, "rays": rays, "rays_per_second": rays / seconds, "variant": variant,
+                                           "note": note, "rays_disagreeing_with_warp": disagree}
+    return {"vertex_count": scene.vertex_count, "triangle_count": scene.triangle_count, "rays": rays,
+            "hybrid_rays": hybrid_rays, "bvh_sweep": sweep, "best_leaf_size": best_leaf, "results": results}, (scene, frame, receivers)
+
+
+def goals(report: dict) -> dict:
+    """Per scene: the best bulk and in-frame ratios to Embree against the goals."""
+    out = {}
+    for key, sc in report["scenes"].items():
+        r = sc["results"]
+        bulk = {n: r[n]["ratio_to_embree"] for n in BULK_PATHS if n in r and "ratio_to_embree" in r[n] and n != "embree_n"}
+        frame = {n: r[n]["ratio_to_embree"] for n in IN_FRAME_PATHS if n in r and "ratio_to_embree" in r[n]}
+        if bulk:
+            best = max(bulk, key=bulk.get)
+            out[key] = {"bulk_best": best, "bulk_ratio": bulk[best], "bulk_goal_met": bulk[best] >= GOAL_BULK,
+                        "in_frame": frame, "in_frame_goal_met": all(x >= GOAL_IN_FRAME for x in frame.values())}
+    return out
+
+
+def chart(report: dict, path: Path) -> None:
+    """Bars: each path's throughput over Embree's, per scene, with the two goals."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = [n for n in (*BULK_PATHS, *IN_FRAME_PATHS) if n != "embree_n"]
+    scenes = [k for k, sc in report["scenes"].items() if any("ratio_to_embree" in v for v in sc["results"].values())]
+    fig, ax = plt.subplots(figsize=(max(6.0, 1.6 * len(scenes) + 3.0), 4.0))
+    width = 0.8 / len(names)
+    for i, name in enumerate(names):
+        vals = [report["scenes"][k]["results"].get(name, {}).get("ratio_to_embree", np.nan) for k in scenes]
+        ax.bar(np.arange(len(scenes)) + (i - (len(names) - 1) / 2) * width, vals, width, label=name)
+    ax.axhline(GOAL_BULK, color="k", ls="--", lw=1, label=f"bulk goal {GOAL_BULK}")
+    ax.axhline(GOAL_IN_FRAME, color="gray", ls=":", lw=1, label=f"in-frame goal {GOAL_IN_FRAME}")
+    ax.set_xticks(np.arange(len(scenes)), scenes)
+    ax.set_ylabel("throughput / Embree's (best of 1 and N processes)")
+    ax.set_title(f"shadow rays on {report['device']} ({report['machine']['cpu_count']} cores), {report['date']}")
+    ax.legend(fontsize=7, ncol=2)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=90)
+    plt.close(fig)
 
 
 def mitsuba_ray_test(points, faces, origins, dirs, repeats):
@@ -144,95 +325,41 @@ def convergence_table(scene, frame, device, receivers, order, counts, reference_
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--scene", default=None, help="USD scene (default: the bundled blockers.usda, else an array scene)")
+    parser.add_argument("--scenes", default=",".join(SCENES), help=f"comma-separated: {', '.join(SCENES)} or scene specs")
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--receivers", type=int, default=4096)
     parser.add_argument("--samples", type=int, default=256)
-    parser.add_argument("--order", type=int, default=4)
-    parser.add_argument("--workers", type=int, default=None, help="thread-pool size for chunked CPU launches (default: warpshade._wp.cpu_workers())")
+    parser.add_argument("--workers", type=int, default=None, help="thread-pool size for chunked CPU launches and Embree "
+                        "worker processes (default: warpshade._wp.cpu_workers())")
     parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--no-sweep", dest="sweep", action="store_false", help="skip the BVH leaf-size sweep")
+    parser.add_argument("--no-embree", action="store_true")
     parser.add_argument("--no-mitsuba", action="store_true")
     parser.add_argument("--no-convergence", action="store_true")
     parser.add_argument("--out", default=None, help="output directory (default benchmarks/results; required with --quick)")
     parser.add_argument("--quick", action="store_true",
-                        help="smoke profile: 256 receivers x 16 samples, one repeat, no Mitsuba, no convergence study")
+                        help="smoke profile: blockers, 256 receivers x 16 samples, one repeat, no sweep, Embree in-process "
+                             "only, no Mitsuba, no convergence study")
     args = parser.parse_args(argv)
     if args.quick and args.out is None:
         parser.error("--quick writes only into --out DIR (never benchmarks/results)")
     args.out = args.out or str(ROOT / "benchmarks" / "results")
     if args.quick:
-        args.receivers, args.samples, args.repeats, args.no_mitsuba, args.no_convergence = 256, 16, 1, True, True
+        args.scenes, args.receivers, args.samples, args.repeats = "blockers", 256, 16, 1
+        args.sweep, args.no_mitsuba, args.no_convergence = False, True, True
 
     dev = resolve_device(args.device)
-    scene, scene_name = load_scene(args.scene)
-    frame = float(scene.frames[0])
-    rng = np.random.default_rng(0)
-    receivers = rng.choice(scene.vertex_count, args.receivers, replace=scene.vertex_count < args.receivers)
     workers = args.workers or cpu_workers()
-    rays = args.receivers * args.samples
-    print(f"scene {scene_name}: {scene.vertex_count} vertices, {scene.triangle_count} triangles; "
-          f"{args.receivers} receivers x {args.samples} samples = {rays} rays on {dev}")
-
-    state = scene.evaluate(frame, device=dev)
-    results = {}
-
-    def record(name, seconds, ray_count, **extra):
-        results[name] = {"seconds": seconds, "rays": ray_count, "rays_per_second": ray_count / seconds, **extra}
-        print(f"  {name:38s} {ray_count / seconds / 1e6:8.2f} Mrays/s  ({seconds * 1e3:.1f} ms)")
-
-    launch_modes = [("single", 1)] + ([("chunked", workers)] if dev.is_cpu and workers > 1 else [])
-    for mode, w in launch_modes:
-        tracer = TransferTracer(scene, args.order, args.samples, vertices=receivers, device=dev, workers=w)
-        seconds = timed(lambda: tracer.trace_state(state.points, state.normals), args.repeats, dev)
-        record(f"transfer_order{args.order}_{mode}", seconds, rays, workers=w)
-        seconds = timed(lambda: tracer.visible_fraction(state.points, state.normals), args.repeats, dev)
-        record(f"anyhit_generated_{mode}", seconds, rays, workers=w)
-
-    origins, dirs = sample_rays(scene, frame, args.samples, vertices=receivers, device=dev)
-    origins, dirs = origins.reshape(-1, 3), dirs.reshape(-1, 3)
-    bvh = Visibility.from_scene(scene, frame, device=dev)
-    o_wp = wp.array(origins, dtype=wp.vec3, device=dev)
-    d_wp = wp.array(dirs, dtype=wp.vec3, device=dev)
-    out = wp.empty(len(origins), dtype=wp.int32, device=dev)
-    seconds = timed(lambda: bvh.occluded(o_wp, d_wp, out=out), args.repeats, dev)
-    record("anyhit_explicit_single", seconds, rays, workers=1)
-    if dev.is_cpu and workers > 1:
-        # the same any-hit kernel over 4 x workers slices of the batch, launched from the thread pool
-        def chunked():
-            launch_parallel(_occlusion_kernel, len(origins), lambda lo, hi: [bvh.mesh.id, o_wp[lo:hi], d_wp[lo:hi],
-                                                                           float(RAY_MAX_DISTANCE), out[lo:hi]], dev, workers)
-
-        seconds = timed(chunked, args.repeats, dev)
-        record("anyhit_explicit_chunked", seconds, rays, workers=workers)
-    warp_hits = out.numpy().astype(bool)
-
-    mitsuba = None
-    if not args.no_mitsuba:
-        mitsuba = mitsuba_ray_test(scene.points_at(frame), scene.faces, origins, dirs, args.repeats)
-        if mitsuba is None:
-            print("  mitsuba not importable: skipped (pip install -e '.[validate]')")
-        else:
-            variant, seconds, hits, note = mitsuba
-            disagree = int(np.sum(hits != warp_hits[: len(hits)]))
-            record("mitsuba_ray_test", seconds, rays, variant=variant, note=note, rays_disagreeing_with_warp=disagree, rays_compared=len(hits))
-            print(f"    mitsuba vs warp: {disagree} of {len(hits)} rays disagree ({note})")
-
-    ratios = {}
-    if "anyhit_explicit_chunked" in results:
-        ratios["chunked_over_single_anyhit_explicit"] = results["anyhit_explicit_chunked"]["rays_per_second"] / results["anyhit_explicit_single"]["rays_per_second"]
-    if f"transfer_order{args.order}_chunked" in results:
-        ratios["chunked_over_single_transfer"] = results[f"transfer_order{args.order}_chunked"]["rays_per_second"] / results[f"transfer_order{args.order}_single"]["rays_per_second"]
-    if "mitsuba_ray_test" in results:
-        best = max(v["rays_per_second"] for k, v in results.items() if k.startswith("anyhit_explicit"))
-        ratios["warp_best_explicit_over_mitsuba"] = best / results["mitsuba_ray_test"]["rays_per_second"]
-    for k, v in ratios.items():
-        print(f"  {k}: {v:.2f}")
+    scenes, last = {}, None
+    for key in [k.strip() for k in args.scenes.split(",") if k.strip()]:
+        scenes[key], last = bench_scene(key, SCENES.get(key, key), args, dev, workers)
 
     convergence = None
-    if not args.no_convergence:
+    if not args.no_convergence and last is not None:
+        scene, frame, receivers = last
         subset = receivers[:256]
-        convergence = convergence_table(scene, frame, dev, subset, min(args.order, 4), (64, 256, 1024, 4096), 16384)
-        print(f"  convergence (order {convergence['order']}, {len(subset)} receivers, reference 16384 samples):")
+        convergence = convergence_table(scene, frame, dev, subset, 4, (64, 256, 1024, 4096), 16384)
+        print(f"  convergence (order 4, {len(subset)} receivers, reference 16384 samples):")
         for row in convergence["rows"]:
             ratio = row.get("error_ratio_vs_previous")
             print(f"    S={row['samples']:5d}  rms={row['rms_error']:.3e}  rel={row['relative_rms_error']:.3e}" + (f"  ratio={ratio:.2f}" if ratio else ""))
@@ -243,30 +370,35 @@ def main(argv=None):
         "date": datetime.date.today().isoformat(),
         "device": str(dev),
         "device_name": dev.name,
-        "machine": {"cpu_count": os.cpu_count(), "platform": platform.platform(), "processor": platform.processor()},
+        "machine": {"cpu_count": os.cpu_count(), "platform": platform.platform(), "processor": platform.processor(),
+                    "load_average": list(os.getloadavg()) if hasattr(os, "getloadavg") else None},
         "warp_version": warp.__version__,
-        "scene": scene_name,
-        "vertex_count": scene.vertex_count,
-        "triangle_count": scene.triangle_count,
         "receivers": args.receivers,
         "samples": args.samples,
-        "order": args.order,
         "workers": workers,
         "repeats": args.repeats,
-        "results": results,
-        "ratios": ratios,
+        "goals": {"bulk": GOAL_BULK, "in_frame": GOAL_IN_FRAME},
+        "scenes": scenes,
         "convergence": convergence,
         "command": "python benchmarks/bench_rays.py " + " ".join(argv if argv is not None else sys.argv[1:]),
     }
-    if mitsuba is not None:
-        import mitsuba as mi
+    if embree_available():
+        from importlib.metadata import version
 
-        report["mitsuba_version"] = mi.__version__
+        report["embreex_version"] = version("embreex")
+    report["goal_check"] = goals(report)
+    for key, g in report["goal_check"].items():
+        frame = ", ".join(f"{n} {x:.2f}x" for n, x in g["in_frame"].items())
+        print(f"{key}: bulk best {g['bulk_best']} {g['bulk_ratio']:.2f}x Embree (goal {GOAL_BULK}: "
+              f"{'met' if g['bulk_goal_met'] else 'missed'}); in-frame {frame} (goal {GOAL_IN_FRAME}: "
+              f"{'met' if g['in_frame_goal_met'] else 'missed'})")
     out_dir = Path(args.out)
     out_dir.mkdir(parents=True, exist_ok=True)
-    path = out_dir / f"rays-{report['date']}-{str(dev).replace(':', '')}.json"
-    write_json_atomic(path, report)
-    print(f"wrote {path}")
+    stem = f"rays-{report['date']}-{str(dev).replace(':', '')}"
+    write_json_atomic(out_dir / f"{stem}.json", report)
+    if report["goal_check"]:
+        chart(report, out_dir / f"{stem}.png")
+    print(f"wrote {out_dir / stem}.json")
     return 0
 
 

@@ -30,7 +30,8 @@ in ``tests/test_bvh.py``:
 The offset is fixed when the BVH is built (or given explicitly), not recomputed by
 :meth:`Visibility.update`, so it does not jitter from frame to frame.
 
-Shadow rays use ``wp.mesh_query_ray_anyhit`` (any intersection, no closest-hit search).
+Shadow rays use ``wp.mesh_query_ray_anyhit`` (any intersection, no closest-hit search). Bulk
+rays outside a recorded frame can go to Embree instead (:mod:`warpshade.geometry.embree`).
 """
 
 import numpy as np
@@ -152,7 +153,8 @@ class Visibility:
         offset: ray-origin offset in scene units (see module docstring).
     """
 
-    def __init__(self, points, faces, device=None, offset: float | None = None, bvh_constructor: str | None = None):
+    def __init__(self, points, faces, device=None, offset: float | None = None, bvh_constructor: str | None = None,
+                 bvh_leaf_size: int | None = None):
         """Build the BVH.
 
         Args:
@@ -161,9 +163,13 @@ class Visibility:
             device: Warp device (None = Warp's default).
             offset: ray-origin offset in scene units; default :func:`ray_offset` of ``points``.
             bvh_constructor: passed to ``wp.Mesh`` ("sah", "median", "lbvh"; None = Warp's default).
+            bvh_leaf_size: triangles per BVH leaf, passed to ``wp.Mesh`` (None = Warp's default,
+                4 for SAH). ``benchmarks/bench_rays.py`` sweeps it: no leaf size beats the default
+                on the bundled scenes by more than the run-to-run noise on the CPU.
         """
         self.device = resolve_device(device)
         self._bvh_constructor = bvh_constructor
+        self._bvh_leaf_size = bvh_leaf_size
         self._build(points, faces)
         host = self.points.numpy()
         self.offset = float(ray_offset(host) if offset is None else offset)
@@ -185,6 +191,8 @@ class Visibility:
         wp.copy(self.points, src)
         self._indices = wp.array(self.faces.reshape(-1), dtype=wp.int32, device=self.device)
         kwargs = {} if self._bvh_constructor is None else {"bvh_constructor": self._bvh_constructor}
+        if self._bvh_leaf_size is not None:
+            kwargs["bvh_leaf_size"] = int(self._bvh_leaf_size)
         self.mesh = wp.Mesh(points=self.points, indices=self._indices, **kwargs)
 
     @classmethod
@@ -205,6 +213,7 @@ class Visibility:
         self = cls.__new__(cls)
         self.device = points.device
         self._bvh_constructor = None
+        self._bvh_leaf_size = None
         f = np.asarray(faces)
         if f.ndim != 2 or f.shape[1] != 3 or f.shape[0] == 0:
             raise ValueError(f"Visibility.over: faces must have shape (triangle_count > 0, 3), got {f.shape}")

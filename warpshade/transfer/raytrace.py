@@ -22,6 +22,11 @@ random rotation. :func:`sample_rays` returns exactly these rays for external che
 
 On the CPU device a launch runs on one thread; :class:`TransferTracer` splits the receivers
 into chunks launched from a small thread pool (:func:`warpshade._wp.launch_parallel`).
+
+Ray backends (:mod:`warpshade.geometry.embree`): with ``rays="embree"`` (or
+``WARPSHADE_RAYS=embree``) on the CPU, :class:`TransferTracer` generates the same rays in batches
+(:func:`sample_rays`' kernel), traces them with Embree and accumulates the same sums from the
+answers; Warp's in-kernel any-hit is the default and the only path on CUDA and inside a capture.
 """
 
 import functools
@@ -34,6 +39,7 @@ from .._wp import cpu_workers, launch_parallel, resolve_device, wp
 from ..basis import quadrature
 from ..basis.sh_warp import MAX_KERNEL_ORDER, sh_kernels
 from ..geometry.bvh import RAY_MAX_DISTANCE, Visibility
+from ..geometry.embree import EmbreeOcclusion, ray_backend
 from ..geometry.frames import TangentFrames
 
 __all__ = [
@@ -54,6 +60,9 @@ PROGRESS_BATCH_RAYS = 1 << 22
 #: pool costs ~0.5 ms per call, ~3% of the ~20 ms such a batch takes on one CPU core.
 CHUNK_MIN_RAYS = 65536
 
+#: Rays per batch handed to the Embree backend (32 MiB of origins and directions).
+EMBREE_BATCH_RAYS = 1 << 20
+
 _RAY_MAX = wp.constant(RAY_MAX_DISTANCE)
 
 
@@ -68,6 +77,15 @@ def random_rotation(seed: int, vertex: int) -> wp.mat33:
     b = wp.sqrt(u1)
     q = wp.quat(a * wp.sin(2.0 * wp.pi * u2), a * wp.cos(2.0 * wp.pi * u2), b * wp.sin(2.0 * wp.pi * u3), b * wp.cos(2.0 * wp.pi * u3))
     return wp.quat_to_matrix(q)
+
+
+@wp.func
+def _blocked(mesh_id: wp.uint64, origin: wp.vec3, d: wp.vec3, occluded: wp.array2d(dtype=wp.int32), row: int, s: int):
+    """Whether ray ``s`` of a receiver is blocked: the answer in ``occluded[row, s]`` when it is
+    not empty (traced by another backend), else Warp's any-hit query."""
+    if occluded.shape[0] > 0:
+        return occluded[row, s] != 0
+    return wp.mesh_query_ray_anyhit(mesh_id, origin, d, _RAY_MAX)
 
 
 @wp.kernel
@@ -86,6 +104,30 @@ def _sample_rays_kernel(
     rot = random_rotation(seed, v)
     origins[r, s] = points[v] + offset * normals[v]
     directions[r, s] = rot * samples[s]
+
+
+@wp.kernel
+def _receiver_rays_kernel(
+    points: wp.array(dtype=wp.vec3),
+    normals: wp.array(dtype=wp.vec3),
+    receivers: wp.array(dtype=wp.int32),
+    receiver_start: int,
+    batch_start: int,
+    samples: wp.array(dtype=wp.vec3),
+    seed: int,
+    offset: float,
+    origins: wp.array2d(dtype=wp.vec3),
+    directions: wp.array2d(dtype=wp.vec3),
+):
+    """The rays of :func:`_sample_rays_kernel` for receiver ``receiver_start + tid``, written to
+    row ``receiver_start + tid - batch_start`` (one thread per receiver, for chunked launches)."""
+    r = receiver_start + wp.tid()
+    v = receivers[r]
+    rot = random_rotation(seed, v)
+    origin = points[v] + offset * normals[v]
+    for s in range(samples.shape[0]):
+        origins[r - batch_start, s] = origin
+        directions[r - batch_start, s] = rot * samples[s]
 
 
 @wp.kernel
@@ -136,6 +178,8 @@ def _transfer_kernel(order: int):
         visibility: wp.array2d(dtype=wp.float32),
         transfer: wp.array2d(dtype=wp.float32),
         ambient_occlusion: wp.array(dtype=wp.float32),
+        occluded: wp.array2d(dtype=wp.int32),
+        occluded_start: int,
     ):
         r = receiver_start + wp.tid()
         v = receivers[r]
@@ -152,7 +196,7 @@ def _transfer_kernel(order: int):
             d = rot * samples[s]
             if open_below != 0 and wp.dot(n, d) <= 0.0:
                 acc_v += sh_eval(to_space * d)  # below the horizon counts as visible (no ray)
-            elif not wp.mesh_query_ray_anyhit(mesh_id, origin, d, _RAY_MAX):
+            elif not _blocked(mesh_id, origin, d, occluded, r - occluded_start, s):
                 y = sh_eval(to_space * d)
                 acc_v += y
                 c = wp.dot(n, d)
@@ -243,6 +287,8 @@ class TransferTracer:
         receivers: receiver vertex indices, wp.array(int32), shape (receiver_count,).
         visibility_sh, transfer_sh: wp.array2d(float32), shape (receiver_count, order**2).
         ambient_occlusion: wp.array(float32), shape (receiver_count,).
+        rays: the shadow-ray backend, ``"warp"`` or ``"embree"`` (the ``rays`` argument, else
+            ``$WARPSHADE_RAYS``; :func:`~warpshade.geometry.embree.ray_backend`).
     """
 
     def __init__(
@@ -261,6 +307,7 @@ class TransferTracer:
         below_horizon: str = "traced",
         bvh: Visibility | None = None,
         progress: bool = False,
+        rays: str | None = None,
     ):
         _check_args(order, samples, space)
         if below_horizon not in ("traced", "visible"):
@@ -292,6 +339,10 @@ class TransferTracer:
         self.ambient_occlusion = wp.zeros(count, dtype=wp.float32, device=self.device)
         self._kernel = _transfer_kernel(self.order)
         self.frame = None
+        # bulk shadow rays: Warp's any-hit in the kernel, or Embree on the CPU (module docstring)
+        self.rays = ray_backend(rays, self.device)
+        self._embree = None
+        self._no_occluded = wp.empty((0, 0), dtype=wp.int32, device=self.device)
 
     @property
     def receiver_count(self) -> int:
@@ -324,28 +375,60 @@ class TransferTracer:
         use_local = 1 if self.space == "local" else 0
         mesh_id = self.bvh.id
 
-        def inputs(start, stop):
-            return [
-                mesh_id, points, normals, frames, use_local, 1 if self.below_horizon == "visible" else 0,
-                self.receivers, start, self.sample_directions,
-                self.seed, self.bvh.offset, self.visibility_sh, self.transfer_sh, self.ambient_occlusion,
-            ]
+        embree = self.rays == "embree" and not self.device.is_capturing
+        if embree:
+            if self._embree is None:
+                self._embree = EmbreeOcclusion(self.bvh.points.numpy(), self.bvh.faces)
+            else:
+                self._embree.update(self.bvh.points.numpy())
 
+        def run(lo, count):
+            """Receivers ``lo .. lo + count``: their rays traced by Embree first, or in the kernel."""
+            occluded, occluded_start = self._no_occluded, 0
+            if embree:
+                occluded, occluded_start = self._embree_batch(points, normals, lo, count), lo
+
+            def inputs(start, stop):
+                return [
+                    mesh_id, points, normals, frames, use_local, 1 if self.below_horizon == "visible" else 0,
+                    self.receivers, lo + start, self.sample_directions, self.seed, self.bvh.offset,
+                    self.visibility_sh, self.transfer_sh, self.ambient_occlusion, occluded, occluded_start,
+                ]
+
+            launch_parallel(self._kernel, count, inputs, self.device, self._launch_workers(), chunks=self.chunks)
+
+        # batches of about PROGRESS_BATCH_RAYS rays, so a long bake shows it is moving; batches of
+        # EMBREE_BATCH_RAYS rays for Embree (their rays are held in memory)
+        batch_rays = min(PROGRESS_BATCH_RAYS, EMBREE_BATCH_RAYS) if embree else PROGRESS_BATCH_RAYS
+        batch = max(1, min(self.receiver_count, batch_rays // max(self.samples, 1)))
         if not self.progress or self.device.is_capturing:
-            launch_parallel(self._kernel, self.receiver_count, inputs, self.device, self._launch_workers(), chunks=self.chunks)
+            if not embree:
+                run(0, self.receiver_count)
+                return
+            for lo in range(0, self.receiver_count, batch):
+                run(lo, min(batch, self.receiver_count - lo))
             return
         from ..tasks import progress_bar
 
-        # batches of about PROGRESS_BATCH_RAYS rays, so a long bake shows it is moving
-        batch = max(1, min(self.receiver_count, PROGRESS_BATCH_RAYS // max(self.samples, 1)))
         with progress_bar(total=self.receiver_count, desc=f"ray tracing {self.samples} rays per vertex", unit="vertex",
                   leave=False) as bar:
             for lo in range(0, self.receiver_count, batch):
                 count = min(batch, self.receiver_count - lo)
-                launch_parallel(self._kernel, count, lambda start, stop, lo=lo: inputs(lo + start, lo + stop), self.device,
-                                self._launch_workers(), chunks=self.chunks)
+                run(lo, count)
                 wp.synchronize_device(self.device)
                 bar.update(count)
+
+    def _embree_batch(self, points, normals, lo: int, count: int):
+        """Embree's answers for the rays of receivers ``lo .. lo + count``, wp.array2d(int32),
+        shape (count, samples), 1 = blocked (the rays of :func:`sample_rays`)."""
+        origins = wp.empty((count, self.samples), dtype=wp.vec3, device=self.device)
+        directions = wp.empty((count, self.samples), dtype=wp.vec3, device=self.device)
+        launch_parallel(_receiver_rays_kernel, count, lambda start, stop: [
+            points, normals, self.receivers, lo + start, lo, self.sample_directions, self.seed, self.bvh.offset,
+            origins, directions], self.device, self._launch_workers(), chunks=self.chunks)
+        hits = self._embree.occluded(origins.numpy().reshape(-1, 3), directions.numpy().reshape(-1, 3),
+                                     unit_directions=True)
+        return wp.array(hits.reshape(count, self.samples), dtype=wp.int32, device=self.device)
 
     def _launch_workers(self) -> int:
         return self.workers if self.receiver_count * self.samples >= self.chunk_min_rays else 1
