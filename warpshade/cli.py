@@ -447,7 +447,8 @@ def _cmd_shade(args) -> int:
     out = args.out or f"warpshade-out/{name}_auto"
     samples = args.validate_samples or VALIDATE_SAMPLES
     report = shade_scene(args.scene, out, target_error=args.target_error, budget_ms=args.budget_ms, glossy=args.glossy,
-                         device=args.device or "cpu", validate_samples=samples, quick=args.quick)
+                         device=args.device or "cpu", validate_samples=samples, quick=args.quick,
+                         training=args.training, tune=not args.no_tune)
     if report["chosen"] is None:
         raise CliError(f"{args.scene}: {report['why']} (see {report['chart']} and the report next to it)")
     if not report["met"]:
@@ -574,7 +575,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default=None, help="output directory (default: warpshade-out/<scene name>_auto)")
     p.add_argument("--validate-samples", type=_positive_int, default=None, metavar="N",
                    help="ground-truth rays per vertex of the held-out validation (default 512)")
-    p.add_argument("--quick", action="store_true", help="one size per method (a first look)")
+    p.add_argument("--training", default=None, metavar="CLIP",
+                   help="a training clip of the same character (USD file or scene spec): adds the data-driven "
+                        "methods, trained on it")
+    p.add_argument("--no-tune", action="store_true",
+                   help="the few-ray tracer with its default reuse settings (default: chosen on the training frames)")
+    p.add_argument("--quick", action="store_true", help="one size per method, no tuning (a first look)")
     p.add_argument("--no-run", action="store_true", help="choose and write the graph, its report and chart; do not run it")
     p.set_defaults(func=_cmd_shade)
     p = sub.add_parser("demo", parents=[common, device], help="run the default bundled scene end to end and print where its outputs are",

@@ -37,8 +37,8 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["WARM_FRAMES", "candidates_for", "choose", "inspect_scene", "measure", "split_frames", "graph_toml", "plot_candidates",
-           "run_frames", "shade_outputs", "shade_scene"]
+__all__ = ["WARM_FRAMES", "candidates_for", "choose", "default_lighting", "inspect_scene", "measure", "split_frames", "graph_toml", "plot_candidates",
+           "run_frames", "shade_outputs", "shade_scene", "training_selection", "tuned_candidate"]
 
 #: Frames a candidate is stepped through before each measured frame (a method with a history
 #: -- the few-ray tracer's running estimate -- is measured as a frame loop would run it).
@@ -113,20 +113,55 @@ def split_frames(scene, per_set: int = 2) -> tuple[np.ndarray, np.ndarray, str]:
     return train, held, ""
 
 
-def candidates_for(scene, glossy: bool = False, quick: bool = False) -> list[dict]:
+#: The most training-clip frames a data-driven candidate traces (evenly spaced over the clip).
+TRAINING_FRAMES = 200
+#: Rays per vertex of a data-driven candidate's training frames.
+TRAINING_SAMPLES = 128
+
+
+def training_selection(clip_frames: int, most: int = TRAINING_FRAMES) -> str:
+    """The ``frames`` selection of a training clip of ``clip_frames`` frames: every ``s``-th frame,
+    ``s`` the least stride that keeps at most ``most`` of them."""
+    if clip_frames < 1:
+        raise ValueError("shade: the training clip has no frames")
+    stride = max(1, math.ceil(clip_frames / most))
+    return f"0:{int(clip_frames)}:{stride}"
+
+
+def _hybrid(add, control: str, samples: int, order: int = 6, **kw):
+    """A hybrid candidate whose reuse settings :func:`warpshade.measure.tune.tune_trace` chooses."""
+    from ..methods.hybrid.rows import stages_for
+
+    facts = {"order": order, "samples": samples, "control": control}
+    tune = {"control": control, "samples": samples, "order": order, **kw}
+    add("hybrid", f"n{order} K{samples} {control}", stages_for(control, samples, order=order, **kw), facts, tune=tune)
+
+
+def tuned_candidate(cand: dict, settings: dict) -> dict:
+    """``cand`` (a tunable hybrid candidate) with ``hybrid.trace`` ``settings`` applied."""
+    from ..methods.hybrid.rows import stages_for
+
+    t = cand["tune"]
+    kw = {k: v for k, v in t.items() if k not in ("control", "samples", "order")}
+    stages = stages_for(t["control"], t["samples"], order=t["order"], trace=dict(settings), **kw)
+    return {**cand, "stages": tuple(stages), "facts": {**cand["facts"], "trace": dict(settings)}}
+
+
+def candidates_for(scene, glossy: bool = False, quick: bool = False, training: dict | None = None) -> list[dict]:
     """The settings worth trying on ``scene``: ``{"method", "label", "stages", "facts",
     "timed_stage"}`` (``timed_stage`` None: the whole frame counts), the per-frame ray tracer
-    among them (``"baseline": True``)."""
-    from ..methods.hybrid.rows import stages_for
+    among them (``"baseline": True``). A hybrid candidate carries ``"tune"`` (its reuse settings
+    are chosen on the training frames, :mod:`.tune`). With ``training`` (``{"clip": spec,
+    "frames": selection}``, a clip of the same character) the data-driven methods join."""
     from ..methods.prt.budget import candidates as prt_candidates
     from ..methods.shexp.rows import graph_stages
 
     kind = inspect_scene(scene)["kind"]
     out = []
 
-    def add(method, label, stages, facts, baseline=False):
+    def add(method, label, stages, facts, baseline=False, tune=None):
         out.append({"method": method, "label": f"{method} {label}", "stages": tuple(stages), "facts": dict(facts),
-                    "timed_stage": None, "baseline": baseline})
+                    "timed_stage": None, "baseline": baseline, "tune": tune})
 
     if glossy:
         from ..methods.rpo.rows import rpo_stages
@@ -145,17 +180,41 @@ def candidates_for(scene, glossy: bool = False, quick: bool = False) -> list[dic
         for c in prt_candidates(orders=(4,) if quick else (3, 4, 6), samples=(256,)):
             add("prt", c["label"], c["stages"], c["facts"])
         return out
-    for k in (16,) if quick else (16, 32, 64):
-        add("hybrid", f"n6 K{k}", stages_for("previous", k, order=6), {"order": 6, "samples": k, "control": "previous"})
+    rays = (16,) if quick else (16, 64)
+    for k in rays:
+        _hybrid(add, "previous", k)
     for order, spheres in ((4, 16),) if quick else ((4, 16), (4, 48), (6, 48)):
         add("shexp", f"n{order} {spheres} spheres", graph_stages(order, "hyb", spheres, hierarchy=spheres > 16),
             {"order": order, "spheres": spheres})
+    if kind == "rigid" and not quick:
+        for k in rays:  # the blocker spheres' visibility as control (needs closed meshes)
+            _hybrid(add, "shexp", k)
     if kind in ("skinned", "deforming"):
         for lobes in (1,) if quick else (1, 4):
             fit = {"order": 4, "lobes": lobes, "samples": 256, "target_error": 0.05}
             add("ldprt", f"n4 N<={lobes}", (("fit", "ldprt.fit", fit, {}), ("frames", "ldprt.frames", {}, {}),
                                              ("shade", "ldprt.shade", {"order": 4, "lobes": lobes}, {})),
                 {"order": 4, "lobes": lobes})
+        if not quick:
+            for k in rays:  # the rest pose's local transfer, rotated with the surface, as control
+                _hybrid(add, "ldprt", k)
+    if training is not None and kind != "static":
+        clip, frames = training["clip"], training["frames"]
+        data = {"training": clip, "frames": frames, "order": 6, "samples": TRAINING_SAMPLES}
+        from ..methods.hybrid.rows import VISIBILITY_FIT
+
+        add("visibility", "n6 diffuse", (("data", "visibility.data", dict(data), {}),
+                                         ("fit", "visibility.fit", dict(VISIBILITY_FIT), {"data": "data.data"}),
+                                         ("predict", "visibility.predict", {"order": 6}, {"model": "fit.model"}),
+                                         ("shade", "visibility.diffuse", {"order": 6}, {})),
+            {"order": 6, "training": clip, "frames": frames})
+        add("datadriven", "n6 reduced", (("data", "datadriven.data", {**data, "samples": 2 * TRAINING_SAMPLES}, {}),
+                                         ("fit", "datadriven.fit", {"model": "reduced", "pose": "quaternion"}, {"data": "data.data"}),
+                                         ("transfer", "datadriven.transfer", {"order": 6}, {"model": "fit.model"}),
+                                         ("shade", "prt.shade", {"order": 6}, {"transfer": "transfer.transfer"})),
+            {"order": 6, "training": clip, "frames": frames})
+        for k in rays:
+            _hybrid(add, "visibility", k, training=clip, frames=frames, training_samples=TRAINING_SAMPLES)
     return out
 
 
@@ -330,14 +389,17 @@ def plot_candidates(rows: list[dict], chosen: dict | None, path, title: str, tar
 # ---- the whole command -------------------------------------------------------------------------------
 def shade_scene(scene_spec: str, out_dir, *, target_error: float | None = None, budget_ms: float | None = None,
                 glossy: str = "auto", device="cpu", cache_dir="default", choice_samples: int = CHOICE_SAMPLES,
-                validate_samples: int = VALIDATE_SAMPLES, quick: bool = False, log=print) -> dict:
+                validate_samples: int = VALIDATE_SAMPLES, quick: bool = False, training: str | None = None,
+                tune: bool = True, log=print) -> dict:
     """Inspect ``scene_spec``, measure the candidates on its training frames, choose, write the
     chosen graph, its report and chart into ``out_dir``, and validate the choice on the held-out
-    frames. Returns the report (also written as ``<name>_auto.json``)."""
+    frames. ``training``: a training clip of the same character (scene spec) for the data-driven
+    candidates; ``tune``: choose the few-ray tracer's reuse settings on the training frames
+    (:mod:`.tune`; off with ``quick``). Returns the report (also written as ``<name>_auto.json``)."""
     from .._fileio import write_json_atomic, write_text_atomic
     from ..io import load_scene
-    from ..scene import LightingSource
     from .truth import ground_truth
+    from .tune import tune_trace
 
     if target_error is not None and not (isinstance(target_error, (int, float)) and target_error > 0):
         raise ValueError(f"--target-error must be a number > 0, got {target_error!r}")
@@ -348,37 +410,68 @@ def shade_scene(scene_spec: str, out_dir, *, target_error: float | None = None, 
     t_start = time.perf_counter()
     scene = load_scene(scene_spec)
     info = inspect_scene(scene)
+    train_clip = None
+    if training is not None:
+        try:
+            clip = load_scene(training)
+        except Exception as exc:
+            raise ValueError(f"--training {training}: {exc}") from None
+        if info["kind"] == "static":
+            raise ValueError(f"--training {training}: the scene {scene_spec} is static; a training clip of poses "
+                             "applies to an animated character")
+        if clip.vertex_count != scene.vertex_count or clip.triangle_count != scene.triangle_count:
+            raise ValueError(f"--training {training}: not the same character as {scene_spec} ({clip.vertex_count:,} "
+                             f"vertices and {clip.triangle_count:,} triangles against {scene.vertex_count:,} and "
+                             f"{scene.triangle_count:,})")
+        train_clip = {"clip": str(Path(training).resolve()) if Path(str(training)).exists() else str(training),
+                      "frames": training_selection(len(clip.frames))}
     name = Path(str(scene_spec).split(":", 1)[-1]).stem or "scene"
     out_dir = Path(out_dir)
     log(f"scene   {info['source']}: {info['kind']}, {info['meshes']} mesh(es), {info['vertices']:,} vertices, "
         f"{info['frames']} frame(s), up {info['up_axis']}, {'a camera' if info['camera'] else 'no camera'}, "
         f"{len(info['lights'])} light(s)" + (f"; skipped: {', '.join(p for p, _ in info['skipped'])}" if info["skipped"] else ""))
+    if train_clip is not None:
+        log(f"training clip {train_clip['clip']}, frames {train_clip['frames']} (data-driven candidates)")
     use_glossy = glossy == "on" or (glossy == "auto" and info["glossy_meshes"] > 0)
     if glossy == "auto":
         log(f"glossy  {'on' if use_glossy else 'off'}: {info['glossy_meshes']} mesh(es) with a UsdPreviewSurface "
             f"roughness below {GLOSSY_ROUGHNESS} (--glossy on|off decides instead)")
-    lighting = LightingSource.fixed(list(scene.lights) or [_sky(scene)], scene.up_axis)
+    lighting = default_lighting(scene)
     stem = f"{name}_auto"
     plan = shade_outputs(out_dir, stem, scene)
     plan.check()  # before any work: nothing is written over a file warpshade did not write
     train, held, note = split_frames(scene)
     log(f"frames  training {[float(f) for f in train]} (the choice), held out {[float(f) for f in held]} (the validation)"
         + (f"; {note}" if note else ""))
-    cands = candidates_for(scene, glossy=use_glossy, quick=quick)
+    cands = candidates_for(scene, glossy=use_glossy, quick=quick, training=train_clip)
     truth = ground_truth(scene, lighting, train, choice_samples, device, cache_dir)
     glossy_truth = lambda model: ground_truth(scene, lighting, train, choice_samples, device, cache_dir, model=model)  # noqa: E731
+    evaluate = lambda c: measure(scene, lighting, c, train, truth, device=device, cache_dir=cache_dir,  # noqa: E731
+                                 glossy_truth=glossy_truth)
     rows = []
     for i, cand in enumerate(cands):
-        row = measure(scene, lighting, cand, train, truth, device=device, cache_dir=cache_dir, glossy_truth=glossy_truth)
+        tuning = None
+        if cand.get("tune") and tune and not quick:
+            log(f"  [{i + 1}/{len(cands)}] {cand['label']}: reuse settings chosen on the training frames")
+            tuned = tune_trace(lambda settings, c=cand: tuned_candidate(c, settings), evaluate,
+                               local=cand["tune"]["control"] == "ldprt", log=log)
+            cands[i] = cand = tuned["candidate"]
+            row, tuning = tuned["row"], tuned["tuning"]
+            row["facts"] = dict(cand["facts"])
+            row["stages"] = [list(st) for st in cand["stages"]]
+            row["tuning"] = tuning
+        else:
+            row = evaluate(cand)
         rows.append(row)
         state = (f"error {row['rel_rms_debiased']:.4f}  {row['frame_ms']:8.2f} ms/frame" if row["status"] == "ok"
                  else f"failed: {row['reason'][:90]}")
-        log(f"  [{i + 1}/{len(cands)}] {row['label']:28s} {state}")
+        log(f"  [{i + 1}/{len(cands)}] {row['label']:28s} {state}" + (f"  (reuse {cand['facts']['trace']})" if tuning else ""))
     chosen, met, why = choose(rows, target_error, budget_ms)
     report = {"scene": info, "request": {"target_error": target_error, "budget_ms": budget_ms, "glossy": glossy,
                                          "default_target": DEFAULT_TARGET if target_error is None and budget_ms is None else None},
               "training_frames": [float(f) for f in train], "held_out_frames": [float(f) for f in held], "frames_note": note,
               "choice_samples": int(choice_samples), "validate_samples": int(validate_samples), "warm_frames": WARM_FRAMES,
+              "training_clip": train_clip, "tuned": bool(tune and not quick),
               "candidates": rows, "met": bool(met), "why": why, "chosen": None, "held_out": None,
               "scene_frames": [float(f) for f in scene.frames]}
     if chosen is not None:
@@ -434,7 +527,10 @@ def shade_outputs(out_dir, stem: str, scene):
                       extra=(d / f"{stem}.toml", d / f"{stem}_choice.json", d / f"{stem}_choice.png"))
 
 
-def _sky(scene):
-    from ..scene import Environment, up_rotation
+def default_lighting(scene):
+    """The lighting ``warpshade shade`` measures under: the scene's own lights, or where it has
+    none a procedural sky about its up axis."""
+    from ..scene import Environment, LightingSource, up_rotation
 
-    return Environment.sky(to_world=up_rotation(scene.up_axis))
+    return LightingSource.fixed(list(scene.lights) or [Environment.sky(to_world=up_rotation(scene.up_axis))],
+                                scene.up_axis)

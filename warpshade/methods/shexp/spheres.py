@@ -30,6 +30,7 @@ Matrices on the host are USD row-vector (``[p, 1] @ M``); on the device, Warp co
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -40,7 +41,8 @@ from ...geometry.spheres import attach as _attach
 from ...geometry.spheres import kernels as _k
 from ...geometry.spheres.fit import RADIUS_PAD_RELATIVE
 
-__all__ = ["ATTACHMENT_KINDS", "SceneSpheres", "SphereAnimator", "scene_receiver_clusters", "spheres_for_scene"]
+__all__ = ["ATTACHMENT_KINDS", "RADIUS_EXCESS", "SceneSpheres", "SphereAnimator", "implicit_spheres", "scene_receiver_clusters",
+           "spheres_for_scene"]
 
 #: Attachment kinds (how a set's centres follow its mesh).
 ATTACHMENT_KINDS = ("rigid", "skinned", "vertex_weights", "triangle_frame")
@@ -308,6 +310,77 @@ def _split_budget(volumes: np.ndarray, budget: int) -> np.ndarray:
     return counts
 
 
+#: Capsules block with spheres along their spine whose radius exceeds the capsule's by at most
+#: this fraction (spacing ``d`` with ``sqrt(1 + (d / 2r)^2) <= 1 + RADIUS_EXCESS``).
+RADIUS_EXCESS = 0.03
+#: Quasi-random points of the outside-volume estimate of a capsule's spheres.
+_EXACT_SAMPLES = 1 << 14
+
+
+def implicit_spheres(mesh, xf: np.ndarray, frame: float) -> SphereSet | None:
+    """The blocker spheres of a tessellated UsdGeom Sphere or Capsule (``mesh.implicit``) whose shape
+    does not change over time, in world space at the frame of ``xf`` (its local-to-world, row
+    vectors): the sphere itself, or spheres along the capsule's spine (:data:`RADIUS_EXCESS`).
+    None for any other mesh (fitted instead). A non-uniform scale bounds by its largest factor."""
+    implicit = getattr(mesh, "implicit", None)
+    if implicit is None or mesh.animation not in ("static", "rigid"):
+        return None
+    kind, params = implicit
+    if kind not in ("Sphere", "Capsule") or any(isinstance(v, np.ndarray) for v in params.values()):
+        return None
+    r = float(params["radius"])
+    if kind == "Sphere":
+        local, radii, h = np.zeros((1, 3)), np.array([r]), 0.0
+    else:
+        h = float(params["height"])
+        step = 2.0 * r * math.sqrt((1.0 + RADIUS_EXCESS) ** 2 - 1.0)
+        n = max(2, math.ceil(h / step) + 1) if h > 0 else 1
+        d = h / (n - 1) if n > 1 else 0.0
+        axis = np.eye(3)[{"X": 0, "Y": 1, "Z": 2}[str(params.get("axis", "Z"))]]
+        local = np.linspace(-0.5 * h, 0.5 * h, n)[:, None] * axis[None, :]
+        radii = np.full(n, math.sqrt(r * r + 0.25 * d * d))
+    scale = _transform_scale(xf)
+    centres = local @ xf[:3, :3] + xf[3, :3]
+    error, error_union = _capsule_outside(r, h, local, radii)
+    volume = (math.pi * r * r * h + 4.0 / 3.0 * math.pi * r ** 3) * scale ** 3
+    return SphereSet(centres=centres, radii=radii * scale, source=mesh.path, error=error, error_union=error_union,
+                     grid_error=error, volume=volume, closed=True,
+                     parameters={"implicit": kind, "exact": True, "frame": float(frame), "radius_excess": RADIUS_EXCESS})
+
+
+def _capsule_outside(r: float, h: float, centres: np.ndarray, radii: np.ndarray) -> tuple[float, float]:
+    """(sum of the spheres' volumes outside the capsule, the union's) over the capsule's volume, by
+    Halton points in each sphere (0, 0 for a sphere's own sphere)."""
+    if centres.shape[0] == 1 and h == 0.0:
+        return 0.0, 0.0
+    from scipy.stats import qmc
+
+    u = qmc.Halton(d=3, scramble=False).random(_EXACT_SAMPLES + 1)[1:]
+    axis = centres[-1] - centres[0]
+    axis = axis / np.linalg.norm(axis)
+
+    def outside(p):  # outside the capsule: farther than r from the spine segment
+        z = np.clip(p @ axis, -0.5 * h, 0.5 * h)
+        return np.linalg.norm(p - z[:, None] * axis[None, :], axis=1) > r
+
+    cube = 2.0 * u - 1.0
+    ball = cube[np.einsum("ij,ij->i", cube, cube) <= 1.0]
+    v_ball = 4.0 / 3.0 * math.pi
+    total, union_out = 0.0, 0.0
+    for k, (c, rad) in enumerate(zip(centres, radii)):
+        p = c + rad * ball
+        out = outside(p)
+        total += out.mean() * v_ball * rad ** 3
+        # the union's outside part, each point counted by its first sphere
+        if k:
+            first = np.all(np.linalg.norm(p[:, None, :] - centres[None, :k, :], axis=2) > radii[None, :k], axis=1)
+        else:
+            first = np.ones(p.shape[0], bool)
+        union_out += (out & first).mean() * v_ball * rad ** 3
+    v = math.pi * r * r * h + 4.0 / 3.0 * math.pi * r ** 3
+    return float(total / v), float(union_out / v)
+
+
 def spheres_for_scene(
     scene,
     frame: float | None = None,
@@ -383,9 +456,13 @@ def spheres_for_scene(
                 candidates.append(paths[m])
             else:
                 candidates.append(int(m))
-    solids, skipped = [], []
+    solids, skipped, exact = [], [], {}
     for i in candidates:
         mesh = scene.meshes[i]
+        own = implicit_spheres(mesh, _mesh_transform(scene, mesh, t), frame)
+        if own is not None:  # a UsdGeom Sphere or Capsule blocks with its own spheres (not from the budget)
+            exact[i] = own
+            continue
         pts = world[mesh.vertex_offset : mesh.vertex_offset + mesh.vertex_count]
         try:
             solid = make_solid(
@@ -395,7 +472,7 @@ def spheres_for_scene(
             skipped.append((mesh.path, str(exc)))
             continue
         solids.append((i, solid))
-    if not solids:
+    if not solids and not exact:
         named = "; ".join(f"{path}: {why.splitlines()[0]}" for path, why in skipped[:3])
         more = f" (and {len(skipped) - 3} more)" if len(skipped) > 3 else ""
         hint = ("" if open_meshes == "shell" else
@@ -404,7 +481,7 @@ def spheres_for_scene(
         raise ValueError(f"scene {scene.source or '<arrays>'}: no closed mesh to bound with spheres; skipped "
                          f"{len(skipped)}: {named}{more}{hint}")
     volumes = np.array([solid_volume(solid=s, samples=4096)[0] for _, s in solids])
-    counts = _split_budget(volumes, int(budget))
+    counts = _split_budget(volumes, int(budget)) if solids else np.zeros(0, int)
     opts = dict(fit_options)
     opts.setdefault("progress", progress)
 
@@ -424,7 +501,9 @@ def spheres_for_scene(
             **opts,
         )
 
-    if split == "volume" or len(solids) == 1:
+    if not solids:
+        sets = []
+    elif split == "volume" or len(solids) == 1:
         sets = [fit(k, int(c)) for k, c in enumerate(counts)]
     else:
         counts = np.ones(len(solids), dtype=int)
@@ -434,6 +513,9 @@ def spheres_for_scene(
             counts[k] += min(counts[k], int(budget) - int(counts.sum()))  # double, or what is left
             sets[k] = fit(k, int(counts[k]))
 
+    entries = sorted([(i, solid, st) for (i, solid), st in zip(solids, sets)] +
+                     [(i, None, st) for i, st in exact.items()], key=lambda e: e[0])
+    solids, sets = [(i, solid) for i, solid, _ in entries], [st for _, _, st in entries]
     kinds, attachments, rest = [], [], []
     for (i, solid), s in zip(solids, sets):
         mesh = scene.meshes[i]
