@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -153,7 +152,7 @@ def check_arguments(parser: argparse.ArgumentParser, args):
     import warp as wp
 
     from warpshade.graph import GraphError, GraphSpec, StageError, StageSpec
-    from warpshade.measure.outputs import plan_outputs
+    from warpshade.measure.outputs import check_output_directory, plan_outputs
 
     try:
         device = wp.get_device(args.device)
@@ -165,13 +164,10 @@ def check_arguments(parser: argparse.ArgumentParser, args):
         graph.check()
     except (GraphError, StageError) as exc:
         parser.error(f"argument --samples: {exc}")
-    if args.out.exists() and not args.out.is_dir():
-        parser.error(f"argument --out: {args.out} is an existing file, not a directory")
     try:
-        args.out.mkdir(parents=True, exist_ok=True)
-        tempfile.TemporaryFile(dir=args.out).close()
+        check_output_directory(args.out)
     except OSError as exc:
-        parser.error(f"argument --out: cannot write into {args.out} ({exc.strerror or exc})")
+        parser.error(f"argument --out: {exc}")
     # the outputs, planned like those of `warpshade run`: never over a file this example did not write there
     plan = plan_outputs(args.out, "newton_cloth", "newton_cloth.usda", range(args.frames), report=False)
     try:

@@ -93,21 +93,23 @@ def captured_stderr():
 
 
 def check_writable_dir(directory, what: str = "output directory") -> Path:
-    """Create ``directory`` if needed and check that files can be created in it.
+    """Create ``directory`` if needed and check that files can be created in it (``what`` names it in
+    the messages; empty: the path alone).
 
     Raises:
         OSError: naming the directory (it is a file, or cannot be created or written).
     """
     d = Path(directory)
+    named = f"{what} {d}" if what else str(d)
     if d.exists() and not d.is_dir():
-        raise NotADirectoryError(f"{what} {d} is an existing file, not a directory")
+        raise NotADirectoryError(f"{named} is an existing file, not a directory")
     try:
         d.mkdir(parents=True, exist_ok=True)
         fd, probe = tempfile.mkstemp(prefix=f".warpshade-probe-{os.getpid()}-", dir=d)
         os.close(fd)
         os.unlink(probe)
     except OSError as exc:
-        raise PermissionError(f"{what} {d} is not writable ({exc.strerror or exc})") from None
+        raise PermissionError(f"{named} is not writable ({exc.strerror or exc})") from None
     return d
 
 

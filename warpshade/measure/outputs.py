@@ -35,7 +35,7 @@ from .._fileio import _pid_alive, temporary_pattern, write_json_atomic
 from ..io.scene_specs import (SCENE_SPEC_PREFIXES, USD_SUFFIXES, bundled_asset_directory, resolve_scene_path,
                               usd_file_dependencies)
 
-__all__ = ["LOCK_NAME", "MANIFEST_NAME", "OutputPlan", "plan_outputs", "run_inputs"]
+__all__ = ["LOCK_NAME", "MANIFEST_NAME", "OutputPlan", "check_output_directory", "plan_outputs", "run_inputs"]
 
 #: The manifest of an output directory, JSON: what warpshade wrote there (``"written"``: name ->
 #: size, mtime) and the processes that wrote there (``"writers"``: the temporary files of their
@@ -407,6 +407,15 @@ class OutputPlan:
                     entries[p.name] = entry
             write_json_atomic(self.manifest, {"written": dict(sorted(entries.items())),
                                               "writers": _writers_to_keep(manifest["writers"], names)})
+
+
+def check_output_directory(directory) -> Path:
+    """Create a script's output directory if needed and check that files can be written there
+    (before any work). Raises ``OSError`` whose message starts with the path: an existing file,
+    or a directory that cannot be created or written."""
+    from .._fileio import check_writable_dir
+
+    return check_writable_dir(directory, what="")
 
 
 def plan_outputs(directory, graph: str, usd_name: str, frames, measured=(), *, previews: bool = True,
