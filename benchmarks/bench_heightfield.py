@@ -7,7 +7,7 @@ stage-graph runtime on the CPU:
   scene evaluation, ``heightfield.visibility``, the shading) of the graph
   ``stages/ripples_height_rpo.toml`` (128^2 visibility texels, 512^2 shading) and of variants:
   other visibility resolutions (64^2, 256^2), n = 3, the horizon march settings, the generic
-  path (per-vertex visibility + ``ldprt.frames`` + ``rpo.shade``);
+  path (per-vertex visibility + ``ldprt.tangents`` + ``rpo.shade``);
 * error against the glossy ray-traced reference (same BRDF, eye and colour; MIS, ``--spp``
   samples) on ``--vertices`` random vertices of frames 0 and 24, for n = 3, 4 and k = 4, 8, 16
   (k <= n^2), the exact-BRDF table, and the variants above;
@@ -268,7 +268,7 @@ def _graph(vis=None, shade=None, generic=False):
     if generic:
         v.params["per_vertex"] = True
         p = {k: s.params[k] for k in ("order", "rank", "brdf", "roughness", "specular") if k in s.params}
-        spec.stages = [v, StageSpec("frames", "ldprt.frames"),
+        spec.stages = [v, StageSpec("tangents", "ldprt.tangents"),
                        StageSpec("shade", "rpo.shade", {**p, "visibility_space": "world"}, {"visibility": "vis.visibility"})]
     return spec
 
@@ -325,7 +325,7 @@ def main(argv=None) -> int:
     if args.quick:
         args.spp, args.vertices, args.frames = 16, 128, 2
 
-    import warpshade.methods.ldprt.stages  # noqa: F401  (ldprt.frames)
+    import warpshade.methods.ldprt.stages  # noqa: F401  (ldprt.tangents)
     import warpshade.methods.heightfield  # noqa: F401  (the height-field stages)
     import warpshade.methods.rpo.stages  # noqa: F401  (rpo.shade)
     from warpshade.reference import shade_glossy

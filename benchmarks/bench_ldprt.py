@@ -66,7 +66,7 @@ def methods(order: int, samples: int, quick: bool) -> list[tuple[str, tuple]]:
                                   ("shade", "prt.shade", {"order": order}, {"transfer": "bake.transfer"}))),
         ("unshadowed n3", (("shade", "prt.unshadowed", {"order": 3}, {}),)),
         (f"rotated SH n{order}", (("bake", "ldprt.transfer", {"order": order, "samples": samples}, {}),
-                                  ("frames", "ldprt.frames", {}, {}),
+                                  ("tangents", "ldprt.tangents", {}, {}),
                                   ("shade", "ldprt.shade_rotated", {"order": order}, {}))),
     ]
     lobe_counts = (1, 2, 3, 4) if not quick else (1,)
@@ -82,7 +82,7 @@ def _ldprt(order, samples, lobes, evaluation="table", target=None):
     fit = {"order": order, "lobes": lobes, "samples": samples}
     if target is not None:
         fit["target_error"] = target
-    return (("fit", "ldprt.fit", fit, {}), ("frames", "ldprt.frames", {}, {}),
+    return (("fit", "ldprt.fit", fit, {}), ("tangents", "ldprt.tangents", {}, {}),
             ("shade", "ldprt.shade", {"order": order, "lobes": lobes, "evaluation": evaluation}, {}))
 
 

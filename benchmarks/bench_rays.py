@@ -52,7 +52,7 @@ from warpshade._wp import cpu_workers, launch_parallel, resolve_device, wp  # no
 from warpshade.geometry.bvh import RAY_MAX_DISTANCE, Visibility, _occlusion_kernel  # noqa: E402
 from warpshade.geometry.embree import EmbreeOcclusion, embree_available  # noqa: E402
 from warpshade.measure import load_bench_scene  # noqa: E402
-from warpshade.methods.hybrid.kernels import QUANTITY_TRANSFER, cycle_direction, frame_rotation, residual_kernel  # noqa: E402
+from warpshade.methods.hybrid.kernels import QUANTITY_TRANSFER, cycle_direction, frame_rotation, residual_kernel, residual_settings  # noqa: E402
 from warpshade.transfer import TransferTracer, sample_rays  # noqa: E402
 
 #: The scenes of a full run: three bundled scenes and a large mesh from Warp's assets.
@@ -150,9 +150,9 @@ def bench_scene(key, spec, args, dev, workers):
     no_frames = wp.empty(0, dtype=wp.mat33, device=dev)
     no_control = wp.empty((0, coeffs), dtype=wp.float32, device=dev)
     offset = default_bvh.offset
+    settings = residual_settings(quantity=QUANTITY_TRANSFER, count=IN_FRAME_RAYS, offset=offset)
     paths["hybrid_trace"] = lambda: launch_parallel(hybrid_kernel, v, lambda lo, hi: [
-        default_bvh.id, state.points, state.normals, no_frames, 0, no_control, 0, 0, QUANTITY_TRANSFER, IN_FRAME_RAYS, 1, 0,
-        step, offset, lo, residual, variance], dev, workers)
+        default_bvh.id, state.points, state.normals, no_frames, no_control, settings, step, lo, residual, variance], dev, workers)
     h_o = wp.empty(v * IN_FRAME_RAYS, dtype=wp.vec3, device=dev)
     h_d = wp.empty(v * IN_FRAME_RAYS, dtype=wp.vec3, device=dev)
     h_above = wp.empty(v * IN_FRAME_RAYS, dtype=wp.int32, device=dev)

@@ -141,7 +141,7 @@ def versus_ldprt(key, frames, gt_samples, samples=(256, 256, 1024)):
     ldprt = lambda frame=None: [  # noqa: E731
         StageSpec("fit", "ldprt.glossy_fit", {"order": 4, "lobes": 3, "rank": 3, "brdf": "microfacet", "samples": samples[0],
                                               **BRDF_PARAMS, **({} if frame is None else {"frame": frame})}),
-        StageSpec("frames", "ldprt.frames"),
+        StageSpec("tangents", "ldprt.tangents"),
         StageSpec("shade", "ldprt.glossy_shade", {"order": 4, "lobes": 3, "rank": 3, "specular": list(COLOR)})]
     rpo_shade = StageSpec("shade", "rpo.shade", {"order": 4, "rank": 8, "brdf": "ggx", **BRDF_PARAMS, "specular": list(COLOR)})
     settings = {"glossy LDPRT n4 b3 N3 (rest bake)": ldprt()}
@@ -151,7 +151,7 @@ def versus_ldprt(key, frames, gt_samples, samples=(256, 256, 1024)):
     settings[f"RPO n4 k8, traced visibility s{samples[1]}"] = [
         StageSpec("vis", "rpo.visibility_traced", {"order": 4, "samples": samples[1]}), rpo_shade]
     settings["RPO n4 k8, rest-pose visibility"] = [StageSpec("vis", "rpo.visibility_static", {"order": 4, "samples": samples[2]}),
-                                                    StageSpec("frames", "ldprt.frames"), rpo_shade]
+                                                    StageSpec("tangents", "ldprt.tangents"), rpo_shade]
     out = []
     for label, stages in settings.items():
         rt = GraphSpec(stages=stages, output="shade.radiance").compile(scene, device="cpu", lighting=lighting, progress=False)
@@ -297,7 +297,7 @@ def swaps_and_builds(key="figure", samples=256, repeats=3, quick=False):
                "matrices_bytes": 4 * op.storage_floats("matrices")}
     scene, lighting = load_bench_scene(key)
     spec = GraphSpec(stages=[StageSpec("vis", "rpo.visibility_static", {"order": 4, "samples": samples}),
-                             StageSpec("frames", "ldprt.frames"),
+                             StageSpec("tangents", "ldprt.tangents"),
                              StageSpec("shade", "rpo.shade", {"order": 4, "rank": 8, "brdf": "ggx", "roughness": 0.5})],
                      output="shade.radiance")
     rt = spec.compile(scene, device="cpu", lighting=lighting, progress=False)

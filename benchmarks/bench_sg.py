@@ -13,7 +13,7 @@ reported raw (``rel_rms``) and with the reference's own Monte Carlo variance rem
 
 Part 1 -- rows through the graph runtime (:func:`warpshade.measure.run_setting`):
 
-* SG (``sg.ssdf`` -> ``sg.environment`` -> ``ldprt.frames`` -> ``sg.shade``): SSDF resolution
+* SG (``sg.ssdf`` -> ``sg.environment`` -> ``ldprt.tangents`` -> ``sg.shade``): SSDF resolution
   16, 32, 64 (x4 supersampled traces; 128 from 512 with ``--ssdf128``) with 8 environment lobes
   and the sun taken out of the sky (shaded as a narrow light with the BRDF at its direction); at
   32: the sun left in the sky, and the paper's method (sun in the sky, every light through the SG
@@ -123,7 +123,7 @@ def ldprt_stages(order: int, rank: int, lobes: int, samples: int = 256) -> tuple
     """Glossy LDPRT stages with the benchmark's BRDF (``stages/sunlit_ldprt_glossy.toml`` at n4 b3 N3)."""
     return (("fit", "ldprt.glossy_fit", {"order": order, "lobes": lobes, "rank": rank, "brdf": "beckmann",
                                          "roughness": ROUGHNESS, "f0": F0, "samples": samples}, {}),
-            ("frames", "ldprt.frames", {}, {}),
+            ("tangents", "ldprt.tangents", {}, {}),
             ("shade", "ldprt.glossy_shade", {"order": order, "lobes": lobes, "rank": rank, "specular": list(SPECULAR)}, {}))
 
 

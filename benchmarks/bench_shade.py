@@ -140,7 +140,7 @@ def run_scene(key: str, training, out: Path, device: str, cache_dir, samples: in
               quick: bool, slack: float = SLACK, reuse: bool = False) -> dict:
     scene = load_scene(f"bundled:{key}")
     lighting = default_lighting(scene)
-    train, held, _ = split_frames(scene)
+    train, held, _ = split_frames(scene, quick=quick)
     truth = ground_truth(scene, lighting, held, samples, device, cache_dir)
     graphs = hand_made(key)
     if quick:

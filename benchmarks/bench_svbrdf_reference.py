@@ -77,7 +77,7 @@ def _mirror(rt, idx, open_sky: bool, texels):
         return buf.numpy().astype(np.float64)[idx]
 
     return shade_f64(pts[idx], nrm[idx], st._eye.numpy()[0], rows(st._albedo), rows(st._spec), np.zeros(idx.size), maps,
-                     rt.frame_outputs["frames"]["frames"].numpy().astype(np.float64), "beckmann", p["f0"], env.mixture,
+                     rt.frame_outputs["tangents"]["tangents"].numpy().astype(np.float64), "beckmann", p["f0"], env.mixture,
                      env.table, e2w, spheres, component=p["component"], cosine=p["cosine"], corners=corners,
                      weights=weights, horizon=p["horizon"], narrow_lights=p["narrow_lights"], svbrdf=(st.svbrdf, texels))
 

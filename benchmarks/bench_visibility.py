@@ -64,7 +64,7 @@ QUICK = {"frames": "0:600:60", "samples": 16, "truth": 64}
 TIMED_FRAMES = 12
 
 
-def _spec(name, quick, model=None, data=None, fit=None):
+def _spec(name, quick, regressor=None, data=None, fit=None):
     from warpshade.graph import load
 
     spec = load(STAGES / f"{name}.toml")
@@ -74,8 +74,8 @@ def _spec(name, quick, model=None, data=None, fit=None):
             if quick:
                 st.params.update(frames=QUICK["frames"], samples=QUICK["samples"])
         if st.type == "visibility.fit":
-            if model is not None:
-                st.params["model"] = model
+            if regressor is not None:
+                st.params["regressor"] = regressor
             st.params.update(fit or {})
             if quick:
                 st.params.update(hidden=(4,), max_iterations=20)
@@ -128,7 +128,7 @@ def part_glossy(scene_name, quick, timed_frames=TIMED_FRAMES, models=MODELS):
 
 #: The previous settings of stages/figure_visibility_diffuse.toml: the per-cluster selection without
 #: the relative inputs (joint rotations only). The settings before those (12 quadratic global inputs
-#: for every cluster, chosen on the held-out figure clip: {"model": "quadratic", "input_max": 12})
+#: for every cluster, chosen on the held-out figure clip: {"regressor": "quadratic", "input_max": 12})
 #: are in benchmarks/results/visibility-2026-12-02-cpu-diffuse-auto.json.
 PREVIOUS_DIFFUSE_FIT = {"relative": 0}
 #: Held-out clips of part 2 and their validation frames (those of the 2007 graphs).

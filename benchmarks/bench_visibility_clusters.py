@@ -11,7 +11,7 @@ on the graph's [validate] frames against the same diffuse reference (``measure_e
   visibility itself (the floor of the SH order);
 * for the ``--worst`` clusters with the largest excess of the model over its PCA floor, every
   candidate of the ``auto`` selection (the relative inputs' too when the graph's fit has them,
-  ``visibility.fit relative``) and their stacked combination (``model = "stack"``) (:mod:`warpshade.methods.visibility.select`: input set,
+  ``visibility.fit relative``) and their stacked combination (``regressor = "stack"``) (:mod:`warpshade.methods.visibility.select`: input set,
   kind, input count, its blocked-CV penalty), refitted in-process on the training clip: its
   blocked cross-validation error on the training clip (the selection's criterion) next to its
   held-out contribution -- a diagnosis of the selection, never a selection (the held-out clip
@@ -210,7 +210,7 @@ def main(argv=None) -> int:
         cv = np.array([r["cv_error"] for r in table])
         ho = np.array([r["heldout_rel"] for r in table])
         rank = lambda v: np.argsort(np.argsort(v))  # noqa: E731
-        # the stacked combination of every candidate (model = "stack"): its weighted out-of-fold error
+        # the stacked combination of every candidate (regressor = "stack"): its weighted out-of-fold error
         # on the training clip next to its held-out contribution
         st = fit_stack(_linear_local(sets), target)
         ph = union_features(held_sets, st["layout"]) @ st["w"].T + st["b"]
@@ -242,7 +242,7 @@ def main(argv=None) -> int:
 
 
 def _linear_local(sets: dict) -> dict:
-    """The candidate sets with linear maps only on local inputs (what ``model = "stack"`` combines)."""
+    """The candidate sets with linear maps only on local inputs (what ``regressor = "stack"`` combines)."""
     return {k: (v[0], v[1] if k == "global" else ("linear",)) for k, v in sets.items()}
 
 

@@ -1,7 +1,7 @@
 """Stacked regression against the per-cluster selection of stages/figure_visibility_diffuse.toml.
 
-The graph with its visibility.fit parameters overridden by each variant (``model = "auto"``: one
-candidate per cluster; ``model = "stack"`` with ``stack_top`` / ``stack_total``:
+The graph with its visibility.fit parameters overridden by each variant (``regressor = "auto"``: one
+candidate per cluster; ``regressor = "stack"`` with ``stack_top`` / ``stack_total``:
 methods/visibility/stack.py), on the held-out figure clip (the graph's [validate] frames) and on
 figure_walk (the frames of stages/figure_walk_datadriven.toml), against the same diffuse ray-traced
 references as ``--validate``; the fits are made on the training clip only and cached like the
@@ -35,11 +35,11 @@ RESULTS = ROOT / "benchmarks" / "results"
 GRAPH = ROOT / "stages" / "figure_visibility_diffuse.toml"
 #: visibility.fit overrides measured.
 VARIANTS = {
-    "auto": {"model": "auto"},
-    "stack": {"model": "stack", "stack_top": 0, "stack_total": "one"},
-    "stack top 8": {"model": "stack", "stack_top": 8, "stack_total": "one"},
-    "stack free": {"model": "stack", "stack_top": 0, "stack_total": "free"},
-    "stack equal top 3": {"model": "stack", "stack_top": 3, "stack_total": "equal"},
+    "auto": {"regressor": "auto"},
+    "stack": {"regressor": "stack", "stack_top": 0, "stack_total": "one"},
+    "stack top 8": {"regressor": "stack", "stack_top": 8, "stack_total": "one"},
+    "stack free": {"regressor": "stack", "stack_top": 0, "stack_total": "free"},
+    "stack equal top 3": {"regressor": "stack", "stack_top": 3, "stack_total": "equal"},
 }
 #: Held-out clips: scene (None: the graph's) and the graph whose [validate] frames are used.
 CLIPS = {"figure": (None, None), "figure_walk": ("bundled:figure_walk", "figure_walk_datadriven")}

@@ -315,7 +315,7 @@ def test_stage_shades_the_table_near_its_reference():
     spec = GraphSpec(stages=[
         StageSpec("ssdf", "sg.ssdf", {"resolution": 8, "supersample": 2}),
         StageSpec("environment", "sg.environment", {"lobes": 3}),
-        StageSpec("frames", "ldprt.frames"),
+        StageSpec("tangents", "ldprt.tangents"),
         StageSpec("shade", "sg.shade", {"eye": tuple(EYE), "brdf": "tabulated-aniso", "eta": 2.0, "lobes": 4,
                                         "table": f"bundled:{ANISO_FILE}", "tangent": "uv"}),
     ], output="shade.radiance", name="aniso-table-test")
@@ -365,7 +365,7 @@ def test_bad_table_is_refused_before_the_ssdf_bake_and_the_environment(tmp_path,
         spec = GraphSpec(stages=[
             StageSpec("ssdf", "sg.ssdf", {"resolution": 8, "supersample": 2}),
             StageSpec("environment", "sg.environment", {"lobes": 3}),
-            StageSpec("frames", "ldprt.frames"),
+            StageSpec("tangents", "ldprt.tangents"),
             StageSpec("shade", "sg.shade", {"eye": tuple(EYE), "brdf": "tabulated-aniso", "table": str(table),
                                             "tangent": "uv"}),
         ], output="shade.radiance", name="aniso-table-refusal")

@@ -30,7 +30,7 @@ samples = 32
 [[stage]]
 name = "fit"
 type = "datadriven.fit"
-model = "reduced"
+reduction = "reduced"
 validation = 0.0
 ka = 2
 kv = 8

@@ -28,8 +28,8 @@ def bend():
     return load_scene("bundled:bend")
 
 
-def _graph(model="reduced", data=None, fit=None, order=3, training=""):
-    stages = list(stages_for(training, model, order=order, samples=64, fit=fit))
+def _graph(reduction="reduced", data=None, fit=None, order=3, training=""):
+    stages = list(stages_for(training, reduction, order=order, samples=64, fit=fit))
     stages[0] = ("data", "datadriven.data", {"order": order, "samples": 64, "frames": "0:60:2", "training": training,
                                              **(data or {})}, {})
     return GraphSpec([StageSpec(n, t, dict(p), dict(i)) for (n, t, p, i) in stages], "shade.radiance", name="dd")
@@ -153,7 +153,7 @@ def test_interreflected_training_feeds_per_channel_shading(device, bend, tmp_pat
     from warpshade.methods.prt import shade_transfer_f64
 
     stages = [StageSpec("data", "datadriven.data", {"order": 2, "samples": 32, "frames": "0:60:6", "bounces": 1}, {}),
-              StageSpec("fit", "datadriven.fit", {"model": "reduced", "validation": 0.0, "ka": 3, "kv": 8}, {"data": "data.data"}),
+              StageSpec("fit", "datadriven.fit", {"reduction": "reduced", "validation": 0.0, "ka": 3, "kv": 8}, {"data": "data.data"}),
               StageSpec("transfer", "datadriven.transfer", {"order": 2, "color": True}, {"model": "fit.model"}),
               StageSpec("shade", "prt.shade", {"order": 2, "color": True, "bounces": 1}, {"transfer_rgb": "transfer.transfer_rgb"})]
     rt = GraphSpec(stages, "shade.radiance", name="dd_rgb").compile(bend, device=device, cache_dir=tmp_path, progress=False,

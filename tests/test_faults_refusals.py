@@ -61,9 +61,9 @@ def _graph(stages, output="shade.radiance", name="refusal"):
     return GraphSpec([StageSpec(n, t, dict(p), dict(i)) for n, t, p, i in stages], output, name=name)
 
 
-def _visibility_graph(model="linear", fit=None, data=None, predict=None, order=3, frames=TRAINING_FRAMES):
+def _visibility_graph(regressor="linear", fit=None, data=None, predict=None, order=3, frames=TRAINING_FRAMES):
     """visibility.data -> visibility.fit -> visibility.predict -> rpo.shade on the bend's own clip."""
-    stages = [list(s) for s in visibility_stages_for("", frames, model, order=order, samples=16,
+    stages = [list(s) for s in visibility_stages_for("", frames, regressor, order=order, samples=16,
                                                      fit={"hidden": (4,), "max_iterations": 10, **(fit or {})})]
     stages[0][2] = {**stages[0][2], **(data or {})}
     stages[2][2] = {**stages[2][2], **(predict or {})}
@@ -86,7 +86,7 @@ def _refused_before_work(spec, bend, match, at_check=True):
 def test_relative_inputs_with_a_model_that_cannot_take_them_are_refused_at_check(bend, no_work, model):
     spec = no_work(_visibility_graph(model, fit={"relative": 4}))
     _refused_before_work(spec, bend, r"stage 'fit' \(visibility.fit\): parameter 'relative' = 4 applies to "
-                                     rf"model = 'auto' or 'stack' only.*'{model}'")
+                                     rf"regressor = 'auto' or 'stack' only.*'{model}'")
 
 
 @pytest.mark.parametrize("hidden", [[], [0.0], [2.5], [4.0, -1.0]])
@@ -96,15 +96,15 @@ def test_hidden_without_positive_whole_counts_is_refused_at_check(bend, no_work,
 
 
 def test_diffuse_metric_in_the_world_frame_is_refused_at_check(bend, no_work):
-    spec = no_work(_visibility_graph("auto", fit={"metric": "diffuse", "frames": "world"}))
+    spec = no_work(_visibility_graph("auto", fit={"metric": "diffuse", "space": "world"}))
     _refused_before_work(spec, bend, r"stage 'fit' \(visibility.fit\): parameter 'metric' = 'diffuse' applies to "
                                      "local frames only")
 
 
 def test_world_frame_fit_wired_into_predict_is_refused_at_check(bend, no_work):
-    spec = no_work(_visibility_graph(fit={"frames": "world"}))
+    spec = no_work(_visibility_graph(fit={"space": "world"}))
     _refused_before_work(spec, bend, r"stage 'predict' \(visibility.predict\): input 'model' is fed by stage 'fit' "
-                                     r"\(visibility.fit\) with parameter 'frames' = 'world'")
+                                     r"\(visibility.fit\) with parameter 'space' = 'world'")
 
 
 @pytest.mark.parametrize("predict_first", [False, True])
@@ -123,7 +123,7 @@ def test_training_order_unlike_the_predict_order_is_refused_at_check(bend, no_wo
 def test_matching_orders_and_local_frames_pass_the_check(no_work):
     """The checks above refuse only what cannot run: the same graph with consistent parameters passes."""
     for spec in (_visibility_graph(), _visibility_graph("auto", fit={"relative": 4, "metric": "diffuse"}),
-                 _visibility_graph("stack", fit={"relative": 2, "frames": "one_ring"}), _visibility_graph(order=4)):
+                 _visibility_graph("stack", fit={"relative": 2, "space": "one_ring"}), _visibility_graph(order=4)):
         no_work(spec).check()
 
 

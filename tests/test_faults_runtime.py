@@ -272,7 +272,7 @@ def sg_runs(tmp_path_factory):
     scene = Scene.from_meshes([Mesh("/ground", pts, faces)], frames=np.arange(2.0))
     spec = GraphSpec(stages=[StageSpec("ssdf", "sg.ssdf", {"resolution": 4, "supersample": 1}),
                              StageSpec("environment", "sg.environment", {"lobes": 2}),
-                             StageSpec("frames", "ldprt.frames"),
+                             StageSpec("tangents", "ldprt.tangents"),
                              StageSpec("shade", "sg.shade", {"eye": (0.5, -1.5, 2.0), "component": "both"})],
                      output="shade.radiance", name="sg-faults")
     cache = tmp_path_factory.mktemp("cache")

@@ -27,7 +27,7 @@ FRAME_ORDER = (0.0, 30.0, 59.0, 30.0, 1.0, 45.0)
 SHEXP_FIT = {"grid_cells": 4000, "teleports": 1}
 GRAPHS = {
     "unshadowed": [("shade", "prt.unshadowed", {"order": 3})],
-    "ldprt": [("fit", "ldprt.fit", {"order": 3, "lobes": 2, "samples": 32, "restarts": 0}), ("frames", "ldprt.frames", {}),
+    "ldprt": [("fit", "ldprt.fit", {"order": 3, "lobes": 2, "samples": 32, "restarts": 0}), ("tangents", "ldprt.tangents", {}),
               ("shade", "ldprt.shade", {"order": 3, "lobes": 2})],
     "shexp": [("tables", "shexp.tables", {"order": 3}), ("blockers", "shexp.blockers", {"budget": 6, **SHEXP_FIT}),
               ("shade", "shexp.shade", {"order": 3})],

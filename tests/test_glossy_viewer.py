@@ -59,7 +59,7 @@ def _sg(shade=None):
     return GraphSpec(stages=[
         StageSpec("ssdf", "sg.ssdf", {"resolution": 8, "supersample": 2}),
         StageSpec("environment", "sg.environment", {"lobes": 3}),
-        StageSpec("frames", "ldprt.frames"),
+        StageSpec("tangents", "ldprt.tangents"),
         StageSpec("shade", "sg.shade", dict(shade or {})),
     ], output="shade.radiance", name="viewer-sg")
 
@@ -67,7 +67,7 @@ def _sg(shade=None):
 def _ldprt():
     return GraphSpec(stages=[
         StageSpec("fit", "ldprt.glossy_fit", {"order": 2, "lobes": 1, "rank": 2, "samples": 16, "view_resolution": 4}),
-        StageSpec("frames", "ldprt.frames"),
+        StageSpec("tangents", "ldprt.tangents"),
         StageSpec("shade", "ldprt.glossy_shade", {"order": 2, "lobes": 1, "rank": 2, "view_resolution": 4}),
     ], output="shade.radiance", name="viewer-ldprt")
 

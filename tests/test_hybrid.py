@@ -62,8 +62,9 @@ def _residual(device, pts, nrm, bvh, samples, control, seed=0, step=0, order=ORD
     var = wp.zeros(v, dtype=wp.float32, device=dev)
     rot = wp.zeros(v, dtype=wp.mat33, device=dev)
     wp.launch(kernels.residual_kernel(order), dim=v, device=dev,
-              inputs=[bvh.id, p, n, wp.empty(0, dtype=wp.mat33, device=dev), 0, ctl, 0 if control is None else 1, 0, quantity, samples,
-                      cycle, seed, stp, bvh.offset, 0, res, var])
+              inputs=[bvh.id, p, n, wp.empty(0, dtype=wp.mat33, device=dev), ctl,
+                      kernels.residual_settings(quantity=quantity, count=samples, cycle=cycle, seed=seed, offset=bvh.offset,
+                                                use_control=control is not None), stp, 0, res, var])
     wp.launch(kernels.rotations_kernel, dim=v, device=dev, inputs=[seed, stp, cycle, rot])
     return res.numpy(), var.numpy(), rot.numpy()
 

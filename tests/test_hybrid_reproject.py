@@ -89,8 +89,8 @@ def _spinning_box(frames, degrees, teleport_at=None):
 def _graph(**trace):
     params = {"order": ORDER, "samples": 16, "control": "previous", "normal_turn": 180.0, "motion": 1000.0,
               "threshold": 1e6, "fade": 1e6, "filter_iterations": 0, **trace}
-    wires = {"frames": "frames.frames"} if params.get("reproject") else {}
-    pre = [StageSpec("frames", "ldprt.frames", {})] if wires else []
+    wires = {"tangents": "tangents.tangents"} if params.get("reproject") else {}
+    pre = [StageSpec("tangents", "ldprt.tangents", {})] if wires else []
     return GraphSpec([*pre, StageSpec("trace", "hybrid.trace", params, wires),
                       StageSpec("shade", "prt.shade", {"order": ORDER}, {"transfer": "trace.transfer"})],
                      "shade.radiance", name="hybrid-reproject-test")
@@ -144,10 +144,10 @@ def test_teleport_still_cuts_the_reprojected_history(device):
 
 def test_reproject_in_the_tangent_frames_is_refused(device):
     scene = _spinning_box(2, 5.0)
-    spec = GraphSpec([StageSpec("frames", "ldprt.frames", {}),
+    spec = GraphSpec([StageSpec("tangents", "ldprt.tangents", {}),
                       StageSpec("trace", "hybrid.trace", {"order": ORDER, "samples": 4, "control": "none", "space": "local",
-                                                          "reproject": True}, {"frames": "frames.frames"}),
+                                                          "reproject": True}, {"tangents": "tangents.tangents"}),
                       StageSpec("shade", "ldprt.shade_rotated", {"order": ORDER},
-                                {"transfer": "trace.transfer", "frames": "frames.frames"})], "shade.radiance")
+                                {"transfer": "trace.transfer", "tangents": "tangents.tangents"})], "shade.radiance")
     with pytest.raises(Exception, match="parameter .reproject. applies to the world frame"):
         spec.compile(scene, device=device, cache_dir=None, progress=False)

@@ -186,12 +186,12 @@ def test_stages_run_and_beat_undeformed_prt(device, scene, sky):
     """Through the runtime: at the bake frame LDPRT == static PRT; on the bent frame LDPRT is
     closer to freshly traced PRT of that frame than the undeformed PRT is (local groove)."""
     fit = {"order": ORDER, "lobes": 3, "samples": 128, "seed": 3, "restarts": 0}
-    ld = _graph(device, [("fit", "ldprt.fit", fit, {}), ("frames", "ldprt.frames", {}, {}),
+    ld = _graph(device, [("fit", "ldprt.fit", fit, {}), ("tangents", "ldprt.tangents", {}, {}),
                          ("shade", "ldprt.shade", {"order": ORDER, "lobes": 3}, {})], scene, sky)
-    direct = _graph(device, [("fit", "ldprt.fit", fit, {}), ("frames", "ldprt.frames", {}, {}),
+    direct = _graph(device, [("fit", "ldprt.fit", fit, {}), ("tangents", "ldprt.tangents", {}, {}),
                              ("shade", "ldprt.shade", {"order": ORDER, "lobes": 3, "evaluation": "direct"}, {})], scene, sky)
     rot = _graph(device, [("bake", "ldprt.transfer", {"order": ORDER, "samples": 128, "seed": 3}, {}),
-                          ("frames", "ldprt.frames", {}, {}), ("shade", "ldprt.shade_rotated", {"order": ORDER}, {})], scene, sky)
+                          ("tangents", "ldprt.tangents", {}, {}), ("shade", "ldprt.shade_rotated", {"order": ORDER}, {})], scene, sky)
     prt = _graph(device, [("bake", "prt.transfer", {"order": ORDER, "samples": 128, "seed": 3}, {}),
                           ("shade", "prt.shade", {"order": ORDER}, {"transfer": "bake.transfer"})], scene, sky)
     light = sky.to_sh(ORDER)

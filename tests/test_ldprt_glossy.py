@@ -107,7 +107,7 @@ def test_glossy_stages_run(device, sheet):
     spec = GraphSpec(stages=[
         StageSpec("fit", "ldprt.glossy_fit", {"order": ORDER, "lobes": 2, "rank": 3, "samples": 32, "view_resolution": 8,
                                               "restarts": 0}),
-        StageSpec("frames", "ldprt.frames"),
+        StageSpec("tangents", "ldprt.tangents"),
         StageSpec("shade", "ldprt.glossy_shade", {"order": ORDER, "lobes": 2, "rank": 3, "view_resolution": 8,
                                                   "eye": (0.0, -2.0, 2.0)}),
     ], output="shade.radiance", name="glossy-test")
@@ -120,7 +120,7 @@ def test_glossy_stages_run(device, sheet):
 def test_glossy_stage_without_camera_or_eye_shades_toward_the_framing_camera(device, sheet):
     spec = GraphSpec(stages=[
         StageSpec("fit", "ldprt.glossy_fit", {"order": 2, "lobes": 1, "rank": 2, "samples": 16, "view_resolution": 4}),
-        StageSpec("frames", "ldprt.frames"),
+        StageSpec("tangents", "ldprt.tangents"),
         StageSpec("shade", "ldprt.glossy_shade", {"order": 2, "lobes": 1, "rank": 2, "view_resolution": 4}),
     ], output="shade.radiance")
     rt = spec.compile(sheet, device=device, cache_dir=None, progress=False,
@@ -133,7 +133,7 @@ def _glossy_validation_runtime(device, sheet, eye, below_horizon="visible"):
         StageSpec("fit", "ldprt.glossy_fit", {"order": ORDER, "lobes": 3, "rank": 9, "samples": 64,
                                               "view_resolution": 16, "brdf": "phong", "exponent": 10.0,
                                               "below_horizon": below_horizon}),
-        StageSpec("frames", "ldprt.frames"),
+        StageSpec("tangents", "ldprt.tangents"),
         StageSpec("shade", "ldprt.glossy_shade", {"order": ORDER, "lobes": 3, "rank": 9, "view_resolution": 16,
                                                   "eye": eye, "specular": (1.0, 0.5, 0.25)}),
     ], output="shade.radiance", name="glossy-validate")

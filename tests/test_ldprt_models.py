@@ -67,12 +67,12 @@ def test_opaque_membrane_is_unshadowed_irradiance(device, sphere_scene):
         spec = GraphSpec(stages=[StageSpec(*s) for s in stages], output="shade.radiance")
         return spec.compile(sphere_scene, device=device, cache_dir=None, progress=False, lighting=light).step(0.0).numpy()
 
-    mem = run([("m", "ldprt.membrane", {"order": 3, "translucency": 0.0}, {}), ("frames", "ldprt.frames", {}, {}),
+    mem = run([("m", "ldprt.membrane", {"order": 3, "translucency": 0.0}, {}), ("tangents", "ldprt.tangents", {}, {}),
                ("shade", "ldprt.shade", {"order": 3, "lobes": 1, "evaluation": "direct"}, {})])
     ref = run([("shade", "prt.unshadowed", {"order": 3}, {})])
     np.testing.assert_allclose(mem, ref, atol=RTOL_FLOAT32 * np.abs(ref).max())
     lit = run([("m", "ldprt.membrane", {"order": 3, "translucency": 0.8, "thickness_scale": 0.1}, {}),
-               ("frames", "ldprt.frames", {}, {}), ("shade", "ldprt.shade", {"order": 3, "lobes": 1}, {})])
+               ("tangents", "ldprt.tangents", {}, {}), ("shade", "ldprt.shade", {"order": 3, "lobes": 1}, {})])
     # the ball is 10 scale lengths thick: hardly any translucency
     np.testing.assert_allclose(lit, ref, rtol=0.01, atol=1e-3 * np.abs(ref).max())
 
@@ -165,7 +165,7 @@ def test_wrinkle_stages_on_a_bending_tube(device):
              "depth_controls": 3, "max_depth": 0.4, "iterations": 20}
     spec = GraphSpec(stages=[
         StageSpec("table", "ldprt.wrinkle_table", table),
-        StageSpec("frames", "ldprt.frames"),
+        StageSpec("tangents", "ldprt.tangents"),
         StageSpec("shade", "ldprt.wrinkle_shade", {"order": 4, "phase_controls": 4, "depth_controls": 3,
                                                    "max_depth": 0.4, "grooves": 4, "depth_range": (0.0, 0.4),
                                                    "compression_gain": 3.0}),

@@ -233,7 +233,7 @@ def test_stage_matches_the_reference_and_is_recordable(device, two_sheets):
     out = rt.step(0.0).numpy().copy()
     st = rt.stages[1]
     vis = rt.frame_outputs["vis"]["visibility"].numpy()
-    frames = rt.frame_outputs["vis"]["frames"].numpy()
+    frames = rt.frame_outputs["vis"]["tangents"].numpy()
     light = rt.state.lighting.sh(3).numpy()
     want, stats = shade_f64(frames, rt.state.points.numpy(), [0.4, -0.6, 3.0], vis, st.operators,
                                   st.material_of_vertex, light)
@@ -426,12 +426,12 @@ def test_brdf_and_parameter_problems_are_refused_before_the_visibility_bake(two_
     static = {"order": 3, "samples": 64}
     spec = GraphSpec(stages=[
         StageSpec("vis", "rpo.visibility_static", static),
-        StageSpec("frames", "ldprt.frames"),
+        StageSpec("tangents", "ldprt.tangents"),
         StageSpec("shade", "rpo.shade", {"order": 3, "rank": 4, "view_order": 4, "eye": [0.4, -0.6, 3.0], **shade}),
     ], output="shade.radiance")
     with pytest.raises(StageError, match=rf"stage 'shade': .*{message}"):
         _compile("cpu", spec, two_sheets)
-    good = GraphSpec(stages=[StageSpec("vis", "rpo.visibility_static", static), StageSpec("frames", "ldprt.frames"),
+    good = GraphSpec(stages=[StageSpec("vis", "rpo.visibility_static", static), StageSpec("tangents", "ldprt.tangents"),
                              StageSpec("shade", "rpo.shade", {"order": 3, "rank": 4, "view_order": 4})],
                      output="shade.radiance")
     with pytest.raises(Baked):  # with nothing to refuse, the bake is reached

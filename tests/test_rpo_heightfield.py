@@ -230,12 +230,12 @@ def test_shade_kernel_matches_float64_mirror(device):
 
 def test_heightfield_shade_agrees_with_rpo_shade(device):
     import warpshade.methods.rpo.stages  # noqa: F401  (rpo.shade)
-    import warpshade.methods.ldprt.stages  # noqa: F401  (ldprt.frames)
+    import warpshade.methods.ldprt.stages  # noqa: F401  (ldprt.tangents)
 
     scene = _ripples(48)
     common = {"order": 4, "rank": 8, "roughness": 0.3}
     stages = [StageSpec("vis", "heightfield.visibility", {"order": 4, "resolution": 48}),
-              StageSpec("frames", "ldprt.frames"),
+              StageSpec("tangents", "ldprt.tangents"),
               StageSpec("rpo", "rpo.shade", {**common, "visibility_space": "world"}, {"visibility": "vis.visibility"}),
               StageSpec("shade", "heightfield.shade", common, {"texel_visibility": "vis.texel_visibility"})]
     rt = GraphSpec(stages=stages, output="shade.radiance").compile(scene, device=device, cache_dir=None, progress=False,

@@ -79,7 +79,7 @@ def _compile(device, scene, lights, shade, env=None):
     spec = GraphSpec(stages=[
         StageSpec("ssdf", "sg.ssdf", {"resolution": 8, "supersample": 2}),
         StageSpec("environment", "sg.environment", {"lobes": 3, **(env or {})}),
-        StageSpec("frames", "ldprt.frames"),
+        StageSpec("tangents", "ldprt.tangents"),
         StageSpec("shade", "sg.shade", {"eye": EYE, **shade}),
     ], output="shade.radiance", name="sg-aniso-test")
     return spec.compile(scene, device=device, progress=False, lighting=LightingSource.fixed(list(lights), "Z"))
@@ -106,7 +106,7 @@ def _mirror(rt, tangents, corners=None, weights=None, points=None, normals=None)
     return shade_f64(
         rt.state.points.numpy() if points is None else points, rt.state.normals.numpy() if normals is None else normals,
         st._eye.numpy()[0], rows(st._albedo), rows(st._spec), np.zeros(count), decode_maps(st.model),
-        rt.frame_outputs["frames"]["frames"].numpy().astype(np.float64), "beckmann", p["f0"],
+        rt.frame_outputs["tangents"]["tangents"].numpy().astype(np.float64), "beckmann", p["f0"],
         env.mixture if env is not None else None, env.table if env is not None else None, e2w, spheres, distant,
         component=p["component"], cosine=p["cosine"], corners=corners, weights=weights, horizon=p["horizon"],
         narrow_lights=p["narrow_lights"], lobe_model=model, lobe_params={**params, "lobes": st.lobe_report["lobes"]},

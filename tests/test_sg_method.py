@@ -85,7 +85,7 @@ def _spec(shade=None, ssdf=None, env=None):
     return GraphSpec(stages=[
         StageSpec("ssdf", "sg.ssdf", {"resolution": 8, "supersample": 2, **(ssdf or {})}),
         StageSpec("environment", "sg.environment", {"lobes": 3, **(env or {})}),
-        StageSpec("frames", "ldprt.frames"),
+        StageSpec("tangents", "ldprt.tangents"),
         StageSpec("shade", "sg.shade", {"eye": EYE, **(shade or {})}),
     ], output="shade.radiance", name="sg-test")
 
@@ -115,7 +115,7 @@ def _reference(rt, corners=None, weights=None, points=None, normals=None, eye=No
         rt.state.points.numpy() if points is None else points, rt.state.normals.numpy() if normals is None else normals,
         st._eye.numpy()[0] if eye is None else eye, st._albedo.numpy() if albedo is None else albedo,
         st._spec.numpy() if specular is None else specular, st._rough.numpy() if roughness is None else roughness,
-        decode_maps(st.model), rt.frame_outputs["frames"]["frames"].numpy().astype(np.float64), p["brdf"], p["f0"],
+        decode_maps(st.model), rt.frame_outputs["tangents"]["tangents"].numpy().astype(np.float64), p["brdf"], p["f0"],
         env.mixture if env is not None else None, env.table if env is not None else None, e2w, spheres, distant,
         component=p["component"], cosine=p["cosine"], corners=corners, weights=weights, horizon=p["horizon"],
         narrow_lights=p["narrow_lights"])
@@ -575,7 +575,7 @@ def test_textured_materials_are_validated_per_vertex_and_per_pixel(device, tmp_p
     spec = GraphSpec(stages=[
         StageSpec("ssdf", "sg.ssdf", {"resolution": 8, "supersample": 2}),
         StageSpec("environment", "sg.environment", {"lobes": 3}),
-        StageSpec("frames", "ldprt.frames"),
+        StageSpec("tangents", "ldprt.tangents"),
         StageSpec("shade", "sg.shade", {"textures": True, "roughness": 0.3}),
     ], output="shade.radiance", name="sg-textured")
     rt = spec.compile(scene, device=device, cache_dir=tmp_path, progress=False, lighting=LightingSource.fixed([sky], "Z"))

@@ -68,7 +68,7 @@ def _compile(device, scene, shade, texture=BUNDLED, lights=(SKY,)):
     spec = GraphSpec(stages=[
         StageSpec("ssdf", "sg.ssdf", {"resolution": 8, "supersample": 2}),
         StageSpec("environment", "sg.environment", {"lobes": 3}),
-        StageSpec("frames", "ldprt.frames"),
+        StageSpec("tangents", "ldprt.tangents"),
         StageSpec("shade", "sg.shade", {"eye": tuple(EYE), "brdf": "svbrdf", "texture": str(texture), "max_lobes": 3,
                                         "ndf_error_budget": NDF_BUDGET, "specular": (1.0, 1.0, 1.0), **shade}),
     ], output="shade.radiance", name="sg-svbrdf-test")
@@ -227,7 +227,7 @@ def _mirror(rt, texels, corners=None, weights=None, points=None, normals=None):
     return shade_f64(
         rt.state.points.numpy() if points is None else points, rt.state.normals.numpy() if normals is None else normals,
         st._eye.numpy()[0], rows(st._albedo), rows(st._spec), np.zeros(count), decode_maps(st.model),
-        rt.frame_outputs["frames"]["frames"].numpy().astype(np.float64), "beckmann", p["f0"], env.mixture, env.table, e2w,
+        rt.frame_outputs["tangents"]["tangents"].numpy().astype(np.float64), "beckmann", p["f0"], env.mixture, env.table, e2w,
         spheres, component=p["component"], cosine=p["cosine"], corners=corners, weights=weights, horizon=p["horizon"],
         narrow_lights=p["narrow_lights"], svbrdf=(st.svbrdf, texels))
 

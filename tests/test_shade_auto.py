@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from warpshade.graph import load
-from warpshade.measure.auto import choose, graph_toml, shade_scene, split_frames
+from warpshade.measure.auto import CHOICE_FRAMES, QUICK_CHOICE_FRAMES, choose, graph_toml, shade_scene, split_frames
 
 
 def _row(label, err, ms, status="ok"):
@@ -59,15 +59,19 @@ class _Frames:
         self.frames = np.arange(n, dtype=np.float64)
 
 
-@pytest.mark.parametrize("count", [1, 2, 3, 6, 60])
-def test_training_and_held_out_frames_are_apart(count):
-    train, held, note = split_frames(_Frames(count))
+@pytest.mark.parametrize("quick", [False, True])
+@pytest.mark.parametrize("count", [1, 2, 3, 6, 10, 60])
+def test_training_and_held_out_frames_are_apart(count, quick):
+    per_set = QUICK_CHOICE_FRAMES if quick else CHOICE_FRAMES
+    train, held, note = split_frames(_Frames(count), quick=quick)
+    if count >= 2 * per_set:
+        assert train.size == held.size == per_set
     assert train.size >= 1 and held.size >= 1
     if count == 1:
         assert "same frame" in note
     elif count >= 2:
         assert not set(train) & set(held)
-    if count >= 6:  # the first and last frames are left out, the sets interleave
+    if count >= 2 * per_set + 2:  # the first and last frames are left out, the sets interleave
         assert 0.0 not in train and float(count - 1) not in held
         assert np.all(np.sort(np.r_[train, held])[::2] == np.sort(train))
 
@@ -108,8 +112,8 @@ def test_shade_chooses_writes_and_validates_on_held_out_frames(tmp_path, cache):
     assert any(line.startswith("held out error") for line in lines)
 
 
-def _static_usd(path):
-    """A sphere on a ground plane, no animation, no time codes, no camera (Y up)."""
+def _static_usd(path, sphere_light=False):
+    """A sphere on a ground plane, no animation, no time codes, no camera (Y up); with ``sphere_light``, lit by one sphere light alone."""
     import trimesh
     from pxr import Usd, UsdGeom
 
@@ -122,8 +126,39 @@ def _static_usd(path):
         mesh.CreatePointsAttr([tuple(p) for p in (m.vertices + np.asarray(offset)).tolist()])
         mesh.CreateFaceVertexCountsAttr([3] * len(m.faces))
         mesh.CreateFaceVertexIndicesAttr(m.faces.ravel().tolist())
+    if sphere_light:
+        from pxr import UsdLux
+
+        lamp = UsdLux.SphereLight.Define(stage, "/World/Lamp")
+        lamp.CreateRadiusAttr(0.5)
+        lamp.CreateIntensityAttr(20.0)
+        UsdGeom.Xformable(lamp.GetPrim()).AddTranslateOp().Set((0.4, 1.4, 0.3))
     stage.GetRootLayer().Save()
     return path
+
+
+def test_a_scene_lit_by_sphere_lights_alone_is_measured_under_a_sky_and_says_so(tmp_path, cache):
+    """The diffuse methods shade distant lighting (SH): a scene whose only light is a sphere light
+    is measured (and its graph written) under the distant lights -- a sky here -- with the left-out
+    light named, not compared black against a reference lit by the lamp."""
+    scene = _static_usd(tmp_path / "lamp.usda", sphere_light=True)
+    lines = []
+    report = shade_scene(str(scene), tmp_path / "out", target_error=0.5, quick=True, choice_samples=64, validate_samples=64,
+                         log=lines.append)
+    assert report["left_out_lights"] == ["/World/Lamp"]
+    assert any("/World/Lamp left out" in line and "procedural sky" in line for line in lines)
+    assert report["held_out"]["status"] == "ok" and report["held_out"]["rel_rms_debiased"] < 0.5
+    assert 'source = "distant"' in (tmp_path / "out" / "lamp_auto.toml").read_text()
+
+
+def test_a_stage_that_leaves_sphere_lights_out_says_so(tmp_path, cache):
+    from warpshade.graph import GraphSpec, StageSpec
+    from warpshade.io import load_scene
+
+    scene = load_scene(str(_static_usd(tmp_path / "lamp.usda", sphere_light=True)))
+    spec = GraphSpec([StageSpec("shade", "prt.unshadowed", {"order": 3})], "shade.radiance", name="lamp")
+    with pytest.warns(UserWarning, match=r"'shade' \(prt.unshadowed\).*sphere light\(s\) /World/Lamp"):
+        spec.compile(scene, device="cpu", progress=False)
 
 
 def test_a_static_scene_is_one_frame_and_says_so(tmp_path, cache):

@@ -80,7 +80,7 @@ def test_a_real_search_on_the_blockers(tmp_path, monkeypatch):
 
     scene = load_scene("bundled:blockers")
     lighting = default_lighting(scene)
-    train, _, _ = split_frames(scene)
+    train, _, _ = split_frames(scene, quick=True)
     truth = ground_truth(scene, lighting, train, 64, "cpu")
     cand = next(c for c in candidates_for(scene, quick=True) if c.get("tune"))
     steps = (("alpha", ({}, {"alpha": 0.5})), ("filter", ({}, {"filter_iterations": 2})))

@@ -321,11 +321,11 @@ def test_components_no_input_explains_are_cut_after_the_fit(rng):
     assert np.linalg.norm(pred - pred_full) < 0.25 * np.linalg.norm(pred_full - pred_full.mean(0))
 
 
-def _bend_graph(model="linear", fit=None):
+def _bend_graph(regressor="linear", fit=None):
     from warpshade.graph import GraphSpec, StageSpec
     from warpshade.methods.visibility.rows import stages_for
 
-    stages = list(stages_for("", "0:60:4", model, order=3, samples=32, fit={"hidden": (4,), "max_iterations": 20,
+    stages = list(stages_for("", "0:60:4", regressor, order=3, samples=32, fit={"hidden": (4,), "max_iterations": 20,
                                                                            **(fit or {})}))
     stages[-1] = ("shade", "rpo.shade", {"order": 3, "rank": 4, "brdf": "ggx", "roughness": 0.5}, {})
     return GraphSpec([StageSpec(n, t, dict(p), dict(i)) for (n, t, p, i) in stages], "shade.radiance", name="vis")
@@ -372,7 +372,7 @@ def test_world_frame_model_is_refused_by_the_frame_stage(device, bend, tmp_path)
     from warpshade.graph import StageError
 
     with pytest.raises(StageError, match="world frame"):
-        _bend_graph(fit={"frames": "world"}).compile(bend, device=device, cache_dir=tmp_path, progress=False,
+        _bend_graph(fit={"space": "world"}).compile(bend, device=device, cache_dir=tmp_path, progress=False,
                                                     scheduler="serial")
 
 

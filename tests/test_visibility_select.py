@@ -1,4 +1,4 @@
-"""Model selection of data-driven visibility (``model = "auto"``, methods/visibility/select.py and
+"""Model selection of data-driven visibility (``regressor = "auto"``, methods/visibility/select.py and
 locality.py): the blocked folds, the product ordering every cluster shares, the selection
 against known generating models, the local joints of a cluster, and the packed model's kernels
 against its float64 mirror."""

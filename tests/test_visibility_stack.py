@@ -1,4 +1,4 @@
-"""Stacked regression of data-driven visibility (``model = "stack"``, methods/visibility/stack.py):
+"""Stacked regression of data-driven visibility (``regressor = "stack"``, methods/visibility/stack.py):
 the combination weights against independent references (scipy's NNLS, a brute-force solve of the
 simplex-constrained least squares over every support), the weighted sum of candidate maps as one
 map on the union of their features, the packed model's kernels against the float64 mirror, and

@@ -122,6 +122,23 @@ class Runtime(RunChanges):
         self.ctx.state = self.state
         self.frame = FrameGraph(self.stages, self.wiring, self.artifacts, self.evaluator, self.ctx, spec.output, capture)
         self.frame_outputs = self.frame.outputs
+        self._check_sphere_lights()
+
+    def _check_sphere_lights(self) -> None:
+        """Say once which stages leave the run's sphere lights out of their radiance."""
+        spheres = self.lighting.sphere_lights() if self.lighting is not None else []
+        if not spheres:
+            return
+        blind = [st for st in self.stages if st.kind == "frame" and "lighting" in st.input_ports()
+                 and not st.shades_sphere_lights]
+        if blind:
+            import warnings
+
+            names = ", ".join(f"{st.name!r} ({st.type_name})" for st in blind)
+            paths = ", ".join(light.path or "<array>" for light in spheres)
+            warnings.warn(f"graph {self.spec.name!r}: stage(s) {names} shade distant lighting (SH) only; the run's "
+                          f"sphere light(s) {paths} are not in their radiance ([lighting] source = \"distant\" leaves "
+                          "them out on purpose; shexp.shade and sg.shade shade sphere lights)", stacklevel=3)
 
     @property
     def fingerprint(self) -> str:

@@ -84,6 +84,17 @@ SCENE_PORTS: dict[str, Port] = {
     "lighting": Port("lighting", (), "the frame's lights (FrameState.lighting, a FrameLighting)"),
 }
 SCENE_STATIC_PORTS = ("albedo",)
+#: Ports renamed so that each name has one meaning (``frames``: time codes): old name -> new name
+#: (the parameters and stage types: :data:`warpshade.methods.stage.RENAMED_PARAMS`, ``RENAMED_TYPES``).
+#: A wire that still names an old port is refused with the new name.
+RENAMED_PORTS = {"frames": "tangents"}
+
+
+def _renamed_port(port: str, ports) -> str:
+    """``"; port 'old' was renamed 'new'"`` when ``port`` is a renamed port whose new name is among
+    ``ports``, else ``""``."""
+    new = RENAMED_PORTS.get(port)
+    return f"; port {port!r} was renamed {new!r}" if new is not None and new in ports else ""
 
 
 @dataclass
@@ -250,6 +261,7 @@ class GraphSpec:
                 if port not in declared:
                     raise GraphError(
                         f"{where}: stage {name!r} has no input port {port!r} (inputs: {sorted(declared)})"
+                        f"{_renamed_port(port, declared)}"
                     )
             for port, want in declared.items():
                 if port in explicit[name]:
@@ -265,7 +277,7 @@ class GraphSpec:
                     if pport not in outs:
                         raise GraphError(
                             f"{where}: stage {name!r} input {port!r}: {prov!r} has no output {pport!r} "
-                            f"(outputs: {sorted(outs)})"
+                            f"(outputs: {sorted(outs)}){_renamed_port(pport, outs)}"
                         )
                     wire = Wire(prov, pport)
                 else:

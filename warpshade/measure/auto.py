@@ -4,7 +4,8 @@ Model no more than the scene needs, chosen on the scene itself:
 
 1. **Inspect** the stage: static / rigid / skinned / deforming meshes, frames, lights, camera,
    up axis, what was skipped (:func:`inspect_scene`).
-2. **Split its frames** (:func:`split_frames`): ``2 n`` frames spread inside the scene's range,
+2. **Split its frames** (:func:`split_frames`): ``2 n`` frames (``n`` = :data:`CHOICE_FRAMES`)
+   spread inside the scene's range,
    alternately *training* frames (the choice is made on them) and *held-out* frames (the chosen
    graph is validated on them and on nothing else). A static scene has one frame: it is both,
    and the report says so.
@@ -37,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["WARM_FRAMES", "candidates_for", "choose", "default_lighting", "inspect_scene", "measure", "split_frames", "graph_toml", "plot_candidates",
+__all__ = ["CHOICE_FRAMES", "QUICK_CHOICE_FRAMES", "WARM_FRAMES", "candidates_for", "choose", "default_lighting", "inspect_scene", "measure", "split_frames", "graph_toml", "plot_candidates",
            "run_frames", "shade_outputs", "shade_scene", "training_selection", "tuned_candidate"]
 
 #: Frames a candidate is stepped through before each measured frame (a method with a history
@@ -93,11 +94,24 @@ def _glossy(mesh) -> bool:
     return isinstance(rough, (int, float)) and float(rough) < GLOSSY_ROUGHNESS
 
 
-def split_frames(scene, per_set: int = 2) -> tuple[np.ndarray, np.ndarray, str]:
-    """(training frames, held-out frames, note): ``2 per_set`` frames spread inside the scene's
+#: Frames of each set (training, held out) of :func:`split_frames`: two frames of a walk cycle can
+#: rank two methods the other way round from the clip (on the bundled wanderer, 2 frames put LDPRT
+#: ahead of data-driven transfer, 8 frames put it 12% behind, as on the held-out frames).
+CHOICE_FRAMES = 4
+#: The same with ``--quick`` (a first look).
+QUICK_CHOICE_FRAMES = 2
+
+
+def split_frames(scene, per_set: int | None = None, quick: bool = False) -> tuple[np.ndarray, np.ndarray, str]:
+    """(training frames, held-out frames, note): ``2 per_set`` frames (``per_set`` default
+    :data:`CHOICE_FRAMES`, :data:`QUICK_CHOICE_FRAMES` with ``quick``) spread inside the scene's
     range (its first and last frames left out when it has more than ``2 per_set + 2``),
     alternately training and held-out; a scene with fewer frames splits what it has, and a
     one-frame scene uses its frame for both (the note says so)."""
+    if per_set is None:
+        per_set = QUICK_CHOICE_FRAMES if quick else CHOICE_FRAMES
+    if int(per_set) < 1:
+        raise ValueError(f"split_frames: per_set must be >= 1, got {per_set!r}")
     f = np.asarray(scene.frames, np.float64)
     if f.size == 1:
         return f.copy(), f.copy(), "one frame: the choice and the validation use the same frame (different rays)"
@@ -192,7 +206,7 @@ def candidates_for(scene, glossy: bool = False, quick: bool = False, training: d
     if kind in ("skinned", "deforming"):
         for lobes in (1,) if quick else (1, 4):
             fit = {"order": 4, "lobes": lobes, "samples": 256, "target_error": 0.05}
-            add("ldprt", f"n4 N<={lobes}", (("fit", "ldprt.fit", fit, {}), ("frames", "ldprt.frames", {}, {}),
+            add("ldprt", f"n4 N<={lobes}", (("fit", "ldprt.fit", fit, {}), ("tangents", "ldprt.tangents", {}, {}),
                                              ("shade", "ldprt.shade", {"order": 4, "lobes": lobes}, {})),
                 {"order": 4, "lobes": lobes})
         if not quick:
@@ -209,7 +223,7 @@ def candidates_for(scene, glossy: bool = False, quick: bool = False, training: d
                                          ("shade", "visibility.diffuse", {"order": 6}, {})),
             {"order": 6, "training": clip, "frames": frames})
         add("datadriven", "n6 reduced", (("data", "datadriven.data", {**data, "samples": 2 * TRAINING_SAMPLES}, {}),
-                                         ("fit", "datadriven.fit", {"model": "reduced", "pose": "quaternion"}, {"data": "data.data"}),
+                                         ("fit", "datadriven.fit", {"reduction": "reduced", "pose": "quaternion"}, {"data": "data.data"}),
                                          ("transfer", "datadriven.transfer", {"order": 6}, {"model": "fit.model"}),
                                          ("shade", "prt.shade", {"order": 6}, {"transfer": "transfer.transfer"})),
             {"order": 6, "training": clip, "frames": frames})
@@ -333,7 +347,9 @@ def graph_toml(name: str, description: str, scene: str, stages, validate_frames,
     """A stage graph file (``warpshade run`` reads it) of ``(name, type, params, inputs)`` tuples."""
     lines = ["# written by `warpshade shade`: the method it chose for this scene; edit and rerun with `warpshade run`",
              "[graph]", f"name = {_toml_value(name)}", f"description = {_toml_value(description)}",
-             f"scene = {_toml_value(scene)}", 'output = "shade.radiance"', "", "[validate]",
+             f"scene = {_toml_value(scene)}", 'output = "shade.radiance"', "",
+             "[lighting]  # the scene's environments and distant lights (a sky where it has none)", 'source = "distant"', "",
+             "[validate]",
              f"frames = {_toml_value([int(f) if float(f).is_integer() else float(f) for f in validate_frames])}",
              f"samples = {int(samples)}"]
     for sname, stype, params, inputs in stages:
@@ -437,10 +453,15 @@ def shade_scene(scene_spec: str, out_dir, *, target_error: float | None = None, 
         log(f"glossy  {'on' if use_glossy else 'off'}: {info['glossy_meshes']} mesh(es) with a UsdPreviewSurface "
             f"roughness below {GLOSSY_ROUGHNESS} (--glossy on|off decides instead)")
     lighting = default_lighting(scene)
+    left_out = left_out_lights(scene)
+    if left_out:
+        under = "the scene's distant lights" if len(left_out) < len(scene.lights) else "a procedural sky"
+        log(f"lights  sphere light(s) {', '.join(left_out)} left out: the methods compared shade distant lighting "
+            f"(SH); measured under {under}")
     stem = f"{name}_auto"
     plan = shade_outputs(out_dir, stem, scene)
     plan.check()  # before any work: nothing is written over a file warpshade did not write
-    train, held, note = split_frames(scene)
+    train, held, note = split_frames(scene, quick=quick)
     log(f"frames  training {[float(f) for f in train]} (the choice), held out {[float(f) for f in held]} (the validation)"
         + (f"; {note}" if note else ""))
     cands = candidates_for(scene, glossy=use_glossy, quick=quick, training=train_clip)
@@ -471,7 +492,7 @@ def shade_scene(scene_spec: str, out_dir, *, target_error: float | None = None, 
                                          "default_target": DEFAULT_TARGET if target_error is None and budget_ms is None else None},
               "training_frames": [float(f) for f in train], "held_out_frames": [float(f) for f in held], "frames_note": note,
               "choice_samples": int(choice_samples), "validate_samples": int(validate_samples), "warm_frames": WARM_FRAMES,
-              "training_clip": train_clip, "tuned": bool(tune and not quick),
+              "training_clip": train_clip, "tuned": bool(tune and not quick), "left_out_lights": left_out,
               "candidates": rows, "met": bool(met), "why": why, "chosen": None, "held_out": None,
               "scene_frames": [float(f) for f in scene.frames]}
     if chosen is not None:
@@ -528,9 +549,17 @@ def shade_outputs(out_dir, stem: str, scene):
 
 
 def default_lighting(scene):
-    """The lighting ``warpshade shade`` measures under: the scene's own lights, or where it has
-    none a procedural sky about its up axis."""
-    from ..scene import Environment, LightingSource, up_rotation
+    """The lighting ``warpshade shade`` measures under: the scene's distant lights (environments and
+    distant lights), or where it has none a procedural sky about its up axis -- the ``[lighting]
+    source = "distant"`` of the graph it writes. Its sphere lights are left out (the diffuse
+    methods shade distant lighting in SH); :func:`shade_scene` says so, naming them."""
+    from ..graph.scene_inputs import lighting_from_spec
 
-    return LightingSource.fixed(list(scene.lights) or [Environment.sky(to_world=up_rotation(scene.up_axis))],
-                                scene.up_axis)
+    return lighting_from_spec({"source": "distant"}, scene)
+
+
+def left_out_lights(scene) -> list[str]:
+    """The paths of the scene's sphere lights (what :func:`default_lighting` leaves out)."""
+    from ..scene import SphereLight
+
+    return [light.path or "<array>" for light in scene.lights if isinstance(light, SphereLight)]

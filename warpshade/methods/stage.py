@@ -48,6 +48,14 @@ __all__: list[str] = []
 #: host object (validated by type name only).
 PORT_DTYPES = ("float32", "float64", "int32", "vec3", "mat33", "arrays", "lighting", "object")
 
+#: Parameters renamed so that each name has one meaning (``frames``: time codes; ``samples``: rays
+#: per vertex; ``model``: the fitted artifact port): ``(stage type, old name) -> new name``. A graph
+#: that still uses an old name is refused with the new one named.
+RENAMED_PARAMS = {("datadriven.fit", "model"): "reduction", ("visibility.fit", "model"): "regressor",
+                  ("visibility.fit", "frames"): "space", ("shexp.tables", "samples"): "quadrature"}
+#: Stage types renamed for the same reason: old type -> new type.
+RENAMED_TYPES = {"ldprt.frames": "ldprt.tangents"}
+
 
 class StageError(ValueError):
     """A stage or graph problem, always naming the stage (and port or parameter) at fault."""
@@ -211,9 +219,11 @@ class Stage:
         params = dict(params or {})
         unknown = sorted(set(params) - set(self.parameters))
         if unknown:
+            renamed = "".join(f"; {k!r} was renamed {RENAMED_PARAMS[(self.type_name, k)]!r}" for k in unknown
+                              if (self.type_name, k) in RENAMED_PARAMS)
             raise StageError(
                 f"stage {name!r} ({self.type_name}): unknown parameter(s) {unknown}; "
-                f"known: {sorted(self.parameters)}"
+                f"known: {sorted(self.parameters)}{renamed}"
             )
         self.params = {k: p.check(name, k, params.get(k, p.default)) for k, p in self.parameters.items()}
 
@@ -317,6 +327,10 @@ class FrameStage(Stage):
     #: :data:`~warpshade.scene.state.Change.MATERIAL`): a material change or track is refused on
     #: a graph without such a stage, where it would be ignored.
     reads_materials: ClassVar[bool] = False
+    #: True when the stage's radiance includes the run's sphere lights (local lights). A stage
+    #: reading the ``lighting`` port without it shades the distant lights (SH) alone: the runtime
+    #: says so, naming the lights, when a run has sphere lights.
+    shades_sphere_lights: ClassVar[bool] = False
 
     def setup(self, ctx: StageContext, inputs: dict) -> dict:
         """Allocate fixed device outputs and bind the inputs (device arrays of upstream ports;
@@ -387,8 +401,9 @@ def get_stage_type(type_name: str, stage_name: str = "?") -> type[Stage]:
     """Look up a stage type by name; raises StageError naming the stage when unknown."""
     types = stage_types()
     if type_name not in types:
+        renamed = f" ({type_name!r} was renamed {RENAMED_TYPES[type_name]!r})" if type_name in RENAMED_TYPES else ""
         raise StageError(
-            f"stage {stage_name!r}: unknown stage type {type_name!r}; known types: {sorted(types)}"
+            f"stage {stage_name!r}: unknown stage type {type_name!r}{renamed}; known types: {sorted(types)}"
         )
     return types[type_name]
 

@@ -17,10 +17,10 @@ TRAINING_FRAMES = {"wanderer": "0:1000:2"}
 TRAINING_CLIPS = {scene: (clip, TRAINING_FRAMES.get(scene)) for scene, clip in training_clips("joints").items()}
 
 
-def stages_for(training: str, model: str = "reduced", order: int = 6, samples: int = 256, fit: dict | None = None,
+def stages_for(training: str, reduction: str = "reduced", order: int = 6, samples: int = 256, fit: dict | None = None,
                bounces: int = 0, frames: str | None = None) -> tuple:
     """The stages of a data-driven graph: training data, fit, per-frame transfer, PRT shading."""
-    fit = {"model": model, **(fit or {})}
+    fit = {"reduction": reduction, **(fit or {})}
     data = {"training": training, "order": order, "samples": samples, "bounces": bounces}
     if frames is not None:
         data["frames"] = frames

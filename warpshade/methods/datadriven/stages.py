@@ -171,7 +171,7 @@ class DataDrivenFitStage(PrecomputeStage):
     uses_scene = False
     description = "linear maps pose -> transfer (Tikhonov, alpha by closed-form LOO), full or PCA-reduced"
     parameters = {
-        "model": Param("reduced", str, "full: one map per coefficient and vertex; reduced: PCA in pose and vertex space",
+        "reduction": Param("reduced", str, "full: one map per coefficient and vertex; reduced: PCA in pose and vertex space",
                        choices=_MODELS),
         "pose": Param("quaternion", str, "joint-angle parameterisation (quaternion: the lowest held-out error "
                       "measured, see benchmarks/bench_datadriven.py)", choices=tuple(PARAMETERISATIONS)),
@@ -234,12 +234,12 @@ class DataDrivenFitStage(PrecomputeStage):
                   "outputs_per_vertex": int(transfer.shape[2])}
         try:
             train, val = validation_split(n, p["validation"])
-            if p["model"] == "reduced" and p["ka"] is not None:
+            if p["reduction"] == "reduced" and p["ka"] is not None:
                 limit = pose_space(poses, pca=True).size
                 if p["ka"] > limit:
                     raise ValueError(f"parameter 'ka' = {p['ka']} exceeds the {limit} pose components there "
                                      f"are ({n} training poses, {poses.shape[1]} pose features); set ka <= {limit}")
-            if p["model"] == "reduced":
+            if p["reduction"] == "reduced":
                 choice = None
                 if val.size and (p["ka"] is None or p["kv"] is None):
                     kw = {}

@@ -40,7 +40,7 @@ Warp kernels per frame:
    the SH ringing the truncated product sees (measured in ``benchmarks/bench_heightfield.py``).
 4. outputs: ``texel_visibility`` (R*R, n*n) and, with ``per_vertex`` (default), ``visibility``
    (V, n*n): bilinear at every grid vertex, world frame, for ``rpo.shade`` with
-   ``visibility_space = "world"`` and frames from ``ldprt.frames``.
+   ``visibility_space = "world"`` and frames from ``ldprt.tangents``.
 
 ``heightfield.shade`` -- eq. 11 at every vertex, arranged for a height field (the paper
 shades 512^2 vertices at full resolution over sub-sampled visibility):

@@ -97,7 +97,7 @@ from ...transfer.raytrace import random_rotation
 
 wp.set_module_options({"enable_backward": False})
 
-__all__ = ["QUANTITY_TRANSFER", "QUANTITY_VISIBILITY", "STEP_STRIDE", "RESET_NONE", "RESET_VARIANCE", "RESET_MOTION", "RESET_NONFINITE"]
+__all__ = ["ResidualSettings", "residual_settings", "QUANTITY_TRANSFER", "QUANTITY_VISIBILITY", "STEP_STRIDE", "RESET_NONE", "RESET_VARIANCE", "RESET_MOTION", "RESET_NONFINITE"]
 
 #: Added to the seed per frame step: consecutive frames draw unrelated rotations.
 STEP_STRIDE = 7919
@@ -152,9 +152,39 @@ def advance_kernel(step: wp.array(dtype=wp.int32)):
     step[0] = step[0] + 1
 
 
+@wp.struct
+class ResidualSettings:
+    """Constants of one :func:`residual_kernel` launch (set from the stage's parameters)."""
+
+    use_local: int  # 1: the SH are evaluated in the tangent frame ``frames[v]`` (else the world frame)
+    use_control: int  # 1: ``control`` holds the control's transfer ``T_hat`` (else it is zero)
+    add_control: int  # 1: write ``T_hat + r`` (the full one-frame estimate) instead of ``r``
+    quantity: int  # QUANTITY_TRANSFER (cosine-weighted visibility) or QUANTITY_VISIBILITY
+    count: int  # K, rays per vertex and frame
+    cycle: int  # M, frames per cycle of shifted direction sets
+    seed: int  # seed of the per-vertex, per-cycle random rotations
+    offset: float  # ray origins' offset along the normal (scene units)
+
+
+def residual_settings(*, quantity: int = 0, count: int, cycle: int = 1, seed: int = 0, offset: float,
+                      use_local: bool = False, use_control: bool = False, add_control: bool = False) -> ResidualSettings:
+    """A :class:`ResidualSettings` from Python values."""
+    rs = ResidualSettings()
+    rs.use_local = 1 if use_local else 0
+    rs.use_control = 1 if use_control else 0
+    rs.add_control = 1 if add_control else 0
+    rs.quantity = int(quantity)
+    rs.count = int(count)
+    rs.cycle = int(cycle)
+    rs.seed = int(seed)
+    rs.offset = float(offset)
+    return rs
+
+
 @functools.lru_cache(maxsize=None)
 def residual_kernel(order: int):
-    """The per-vertex residual kernel at an SH order (cached)."""
+    """The per-vertex residual kernel at an SH order (cached): inputs ``mesh_id, points, normals,
+    frames, control, settings (ResidualSettings), step, start, residual, variance``."""
     sh = sh_kernels(order)
     C = sh.coeff_count
     vec_t = sh.vec
@@ -166,40 +196,33 @@ def residual_kernel(order: int):
         points: wp.array(dtype=wp.vec3),
         normals: wp.array(dtype=wp.vec3),
         frames: wp.array(dtype=wp.mat33),
-        use_local: int,
         control: wp.array2d(dtype=wp.float32),
-        use_control: int,
-        add_control: int,
-        quantity: int,
-        count: int,
-        cycle: int,
-        seed: int,
+        settings: ResidualSettings,
         step: wp.array(dtype=wp.int32),
-        offset: float,
         start: int,
         residual: wp.array2d(dtype=wp.float32),
         variance: wp.array(dtype=wp.float32),
     ):
         v = start + wp.tid()
         n = normals[v]
-        origin = points[v] + offset * n
+        origin = points[v] + settings.offset * n
         st = step[0]
-        rot = frame_rotation(seed, st, cycle, v)
+        rot = frame_rotation(settings.seed, st, settings.cycle, v)
         to_space = wp.identity(3, dtype=float)
-        if use_local != 0:
+        if settings.use_local != 0:
             to_space = frames[v]
         t_hat = vec_t()
-        if use_control != 0:
+        if settings.use_control != 0:
             for i in range(C):
                 t_hat[i] = control[v, i]
         acc = vec_t()
         m2 = float(0.0)
-        for s in range(count):
-            d = rot * cycle_direction(s, count, st, cycle)
+        for s in range(settings.count):
+            d = rot * cycle_direction(s, settings.count, st, settings.cycle)
             y = sh_eval(to_space * d)
             f = float(0.0)
             c = wp.dot(n, d)
-            if quantity == QUANTITY_TRANSFER:
+            if settings.quantity == QUANTITY_TRANSFER:
                 if c > 0.0:
                     if not wp.mesh_query_ray_anyhit(mesh_id, origin, d, _RAY_MAX):
                         f = c
@@ -211,13 +234,13 @@ def residual_kernel(order: int):
             e = f - wp.dot(t_hat, y)
             acc += e * y
             m2 += e * e
-        k = count
+        k = settings.count
         weight = 4.0 * wp.pi / float(k)
         norm2 = float(0.0)
         for i in range(C):
             r = acc[i] * weight
             norm2 += r * r
-            if add_control != 0:
+            if settings.add_control != 0:
                 r += t_hat[i]
             residual[v, i] = r
         second = float(C) * weight * m2

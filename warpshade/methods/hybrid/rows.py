@@ -20,7 +20,7 @@ DATADRIVEN_SCENES = {scene: (clip, {"wanderer": "0:1000:2"}.get(scene)) for scen
 #: (per cluster the ridge model chosen by blocked cross-validation on the training clip, from the
 #: joint rotations or the nearest clusters' centroids in the cluster's frame, PCA to 99 %), so the
 #: two share the cached fit (its errors as control: benchmarks/results/HISTORY.md, hybrid rows).
-VISIBILITY_FIT = {"model": "auto", "variance": 0.99, "k_max": 64, "relative": 8}
+VISIBILITY_FIT = {"regressor": "auto", "variance": 0.99, "k_max": 64, "relative": 8}
 
 
 #: hybrid.trace settings that keep the history through a turn (reprojected; no cut by the normal's
@@ -84,13 +84,13 @@ def stages_for(control: str, samples: int, order: int = 6, training: str | None 
     local = control == "ldprt" or space == "local"
     if local:
         params["space"] = "local"
-        pre = (("frames", "ldprt.frames", {}, {}),)
-        wires = {"frames": "frames.frames"}
-        shade = ("shade", "ldprt.shade_rotated", {"order": order}, {"transfer": "trace.transfer", "frames": "frames.frames"})
+        pre = (("tangents", "ldprt.tangents", {}, {}),)
+        wires = {"tangents": "tangents.tangents"}
+        shade = ("shade", "ldprt.shade_rotated", {"order": order}, {"transfer": "trace.transfer", "tangents": "tangents.tangents"})
     else:
         pre, wires = (), {}
         if params.get("reproject"):
-            pre, wires = (("frames", "ldprt.frames", {}, {}),), {"frames": "frames.frames"}
+            pre, wires = (("tangents", "ldprt.tangents", {}, {}),), {"tangents": "tangents.tangents"}
         shade = ("shade", "prt.shade", {"order": order}, {"transfer": "trace.transfer"})
     if control in ("previous", "none"):
         return (*pre, ("trace", "hybrid.trace", {**params, "control": control}, wires), shade)
@@ -101,7 +101,7 @@ def stages_for(control: str, samples: int, order: int = 6, training: str | None 
         if frames is not None:
             data["frames"] = frames
         return (("data", "datadriven.data", data, {}),
-                ("fit", "datadriven.fit", {"model": "reduced"}, {"data": "data.data"}),
+                ("fit", "datadriven.fit", {"reduction": "reduced"}, {"data": "data.data"}),
                 ("model", "datadriven.transfer", {"order": order}, {"model": "fit.model"}),
                 *pre, ("trace", "hybrid.trace", {**params, "control": "model"}, {"control": "model.transfer", **wires}), shade)
     if control == "visibility":
@@ -111,12 +111,12 @@ def stages_for(control: str, samples: int, order: int = 6, training: str | None 
         if frames is not None:
             data["frames"] = frames
         if params.get("reproject"):  # the history turns with the visibility's own tangent frames
-            wires = {"frames": "predict.frames"}
+            wires = {"tangents": "predict.tangents"}
         return (("data", "visibility.data", data, {}),
                 ("fit", "visibility.fit", dict(VISIBILITY_FIT), {"data": "data.data"}),
                 ("predict", "visibility.predict", {"order": order}, {"model": "fit.model"}),
                 ("model", "hybrid.visibility_transfer", {"order": order},
-                 {"visibility": "predict.visibility", "frames": "predict.frames"}),
+                 {"visibility": "predict.visibility", "tangents": "predict.tangents"}),
                 ("trace", "hybrid.trace", {**params, "control": "model"}, {"control": "model.transfer", **wires}), shade)
     if control == "shexp":
         if local:
@@ -140,8 +140,8 @@ def glossy_stages_for(samples: int, order: int = 4, control: str = "static", bak
     and frame with ``rpo.visibility_static`` (``control = "static"``), the last estimate
     (``"previous"``) or nothing (``"none"``) as control, shaded by ``rpo.shade`` (glossy)."""
     params = {"order": order, "samples": samples, "quantity": "visibility", "space": "local", **(trace or {})}
-    wires = {"frames": "frames.frames"}
-    pre = [("frames", "ldprt.frames", {}, {})]
+    wires = {"tangents": "tangents.tangents"}
+    pre = [("tangents", "ldprt.tangents", {}, {})]
     if control == "static":
         pre.append(("static", "rpo.visibility_static", {"order": order, "samples": bake_samples}, {}))
         params["control"], wires["control"] = "model", "static.visibility"
@@ -151,7 +151,7 @@ def glossy_stages_for(samples: int, order: int = 4, control: str = "static", bak
         raise ValueError(f"glossy_stages_for: unknown control {control!r}")
     shade_params = {"order": order, "rank": 8, "brdf": "ggx", "roughness": 0.5, **(shade or {})}
     return (*pre, ("trace", "hybrid.trace", params, wires),
-            ("shade", "rpo.shade", shade_params, {"visibility": "trace.visibility", "frames": "frames.frames"}))
+            ("shade", "rpo.shade", shade_params, {"visibility": "trace.visibility", "tangents": "tangents.tangents"}))
 
 
 def harness_rows(quick: bool = False) -> list:

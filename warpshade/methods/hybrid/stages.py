@@ -29,7 +29,7 @@
   left as it is (:func:`.kernels.warm_blend_kernel`).
 
   Controls (``control``): ``model`` -- a transfer on the input port ``control`` (the data-driven
-  transfer, LDPRT's local transfer with ``space = "local"`` and the tangent frames on ``frames``,
+  transfer, LDPRT's local transfer with ``space = "local"`` and the tangent frames on ``tangents``,
   a static bake); ``previous`` -- the stage's own last estimate (the history then lives in the
   control: the one-frame estimate ``T_prev + r`` is filtered and ``T = (1 - a) T_prev + a B(T_prev + r)``,
   ``B`` the filter: filtering the correction ``r`` alone and adding it to the state would let the
@@ -81,7 +81,7 @@ class HybridTraceStage(FrameStage):
         "quantity": Param("transfer", str, "what the rays estimate: diffuse transfer (for prt.shade) or SH "
                           "visibility open below the horizon (output 'visibility', for rpo.shade)",
                           choices=("transfer", "visibility")),
-        "space": Param("world", str, "frame of the coefficients (local: per-vertex tangent frames on port 'frames')",
+        "space": Param("world", str, "frame of the coefficients (local: per-vertex tangent frames on port 'tangents')",
                        choices=SPACES),
         "cycle": Param(16, int, "frames per cycle of shifted Fibonacci sets (stratified together; one random "
                        "rotation per vertex and cycle); 1: a new rotation every frame", minimum=1, maximum=256),
@@ -94,7 +94,7 @@ class HybridTraceStage(FrameStage):
         "test": Param("filtered", str, "what the variance test compares with the history: the one-frame estimate before "
                       "the filter (raw, against its own variance) or after it (filtered)", choices=("raw", "filtered")),
         "reproject": Param(False, bool, "world frame: carry each vertex's history by its tangent frame's turn since the "
-                           "last frame (port 'frames'), so that a turning surface keeps it"),
+                           "last frame (port 'tangents'), so that a turning surface keeps it"),
         "reset": Param("hard", str, "below the threshold: the history fades from 'fade' on (hard), or the fresh frame "
                        "gets the weight of least mean squared error for the history's estimated bias (soft)",
                        choices=("hard", "soft")),
@@ -154,7 +154,7 @@ class HybridTraceStage(FrameStage):
             ports["control"] = Port("float32", ("V", "C"), f"control model's {self.params['quantity']}, {space} frame",
                                     space=space)
         if space == "local" or self.params["reproject"]:
-            ports["frames"] = Port("mat33", ("V",), "tangent frames, world space, rows (t, b, n)")
+            ports["tangents"] = Port("mat33", ("V",), "tangent frames, world space, rows (t, b, n)")
         return ports
 
     def output_ports(self):
@@ -181,7 +181,7 @@ class HybridTraceStage(FrameStage):
         self._bvh = ctx.state.bvh
         self._points, self._normals = inputs["points"], inputs["normals"]
         self._use_local = 1 if p["space"] == "local" else 0
-        self._frames_in = inputs["frames"] if "frames" in inputs else wp.empty(0, dtype=wp.mat33, device=dev)
+        self._frames_in = inputs["tangents"] if "tangents" in inputs else wp.empty(0, dtype=wp.mat33, device=dev)
         self._transfer = wp.zeros((v, c), dtype=wp.float32, device=dev)
         if p["control"] == "model":
             self._control, self._use_control = inputs["control"], 1
@@ -246,12 +246,14 @@ class HybridTraceStage(FrameStage):
     def launch(self, state):
         p, dev = self.params, self._dev
         v = self._transfer.shape[0]
-        mesh_id, offset = self._bvh.id, self._bvh.offset
+        settings = kernels.residual_settings(
+            quantity=kernels.QUANTITY_VISIBILITY if p["quantity"] == "visibility" else kernels.QUANTITY_TRANSFER,
+            count=p["samples"], cycle=p["cycle"], seed=p["seed"], offset=self._bvh.offset, use_local=self._use_local,
+            use_control=self._use_control, add_control=self._params.in_control)
+        fixed = [self._bvh.id, self._points, self._normals, self._frames_in, self._control, settings, self._step]
 
         def ray_inputs(start, stop):
-            return [mesh_id, self._points, self._normals, self._frames_in, self._use_local, self._control,
-                    self._use_control, self._params.in_control,
-                    1 if p["quantity"] == "visibility" else 0, p["samples"], p["cycle"], p["seed"], self._step, offset, start, self._raw, self._variance]
+            return [*fixed, start, self._raw, self._variance]
 
         if p["reproject"]:
             target = self._transfer if self._params.in_control else self._state.history
@@ -335,7 +337,7 @@ class HybridVisibilityTransferStage(FrameStage):
                    "a control for hybrid.trace")
     parameters = {
         "order": order_param(6, minimum=1, maximum=8),
-        "space": Param("local", str, "frame of the visibility: local (tangent frames on 'frames', e.g. "
+        "space": Param("local", str, "frame of the visibility: local (tangent frames on 'tangents', e.g. "
                        "visibility.predict) or world (e.g. shexp.visibility; the cosine about the vertex normal)",
                        choices=SPACES),
         "visibility_order": Param(None, int, "SH order of the visibility (default: order); lower orders are "
@@ -365,7 +367,7 @@ class HybridVisibilityTransferStage(FrameStage):
                     "normals": Port("vec3", ("V",))}
         return {"visibility": Port("float32", ("V", "Cv"), "SH visibility (no cosine, open below the horizon), "
                                    "tangent frame", space="local"),
-                "frames": Port("mat33", ("V",), "the tangent frames of the visibility, rows (t, b, n)")}
+                "tangents": Port("mat33", ("V",), "the tangent frames of the visibility, rows (t, b, n)")}
 
     def output_ports(self):
         return {"transfer": Port("float32", ("V", "C"), "diffuse transfer implied by the visibility, world frame",
@@ -382,7 +384,7 @@ class HybridVisibilityTransferStage(FrameStage):
             self._cos = wp.array(sh.clamped_cosine_zh(n, "zh").astype(np.float32), dtype=wp.float32, device=dev)
             self._kernel = kernels.world_visibility_transfer_kernel(n, nv)
         else:
-            self._axes = inputs["frames"]  # the visibility's tangent frames (the cosine about their n row)
+            self._axes = inputs["tangents"]  # the visibility's tangent frames (the cosine about their n row)
             self._cos = wp.array(sh.clamped_cosine_sh(n).astype(np.float32), dtype=wp.float32, device=dev)
             self._kernel = kernels.visibility_transfer_kernel(n)
         self._transfer = wp.zeros((ctx.dims["V"], n * n), dtype=wp.float32, device=dev)

@@ -1,7 +1,7 @@
 """Local, deformable PRT with zonal-harmonic lobes (Sloan, Luna, Snyder 2005).
 
 Transfer is ray traced once in each vertex's tangent frame, fitted with a few ZH lobes, and
-rotated with the surface every frame (``ldprt.fit`` -> ``ldprt.frames`` -> ``ldprt.shade``);
+rotated with the surface every frame (``ldprt.fit`` -> ``ldprt.tangents`` -> ``ldprt.shade``);
 parametric models (thin membrane, sinusoidal wrinkles) and glossy LDPRT build on the same
 lobes, and so do texture patches (Sec. 5): a tileable height field's transfer fitted per texel
 (``ldprt.patch``) and mapped by UV onto a deforming surface, per vertex and per pixel
@@ -17,11 +17,11 @@ Modules, in the shape of every method (see :mod:`warpshade.methods.prt`): :mod:`
 from .model import LDPRTModel, fit_transfer, local_transfer
 from .mirror import shade_f64, world_transfer_f64
 from .rows import harness_rows
-from .stages import LdprtFitStage, LdprtFramesStage, LdprtTransferStage, LdprtShadeRotatedStage, LdprtShadeStage
+from .stages import LdprtFitStage, LdprtTangentsStage, LdprtTransferStage, LdprtShadeRotatedStage, LdprtShadeStage
 
 __all__ = [
     "LdprtFitStage",
-    "LdprtFramesStage",
+    "LdprtTangentsStage",
     "LDPRTModel",
     "LdprtTransferStage",
     "LdprtShadeRotatedStage",

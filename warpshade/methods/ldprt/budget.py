@@ -26,7 +26,7 @@ def candidates(orders=GRID["orders"], lobes=GRID["lobes"], fit_targets=GRID["fit
                 fit = {"order": int(order), "lobes": int(count), "samples": 256, "target_error": float(target)}
                 out.append({
                     "label": f"n{int(order)} N<={int(count)} fit {float(target):g}",
-                    "stages": (("fit", "ldprt.fit", fit, {}), ("frames", "ldprt.frames", {}, {}),
+                    "stages": (("fit", "ldprt.fit", fit, {}), ("tangents", "ldprt.tangents", {}, {}),
                                ("shade", "ldprt.shade", {"order": int(order), "lobes": int(count)}, {})),
                     "facts": {"order": int(order), "lobes": int(count), "fit_target": float(target)},
                     "timed_stage": "shade",

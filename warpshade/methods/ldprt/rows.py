@@ -18,7 +18,7 @@ def _ldprt_stages(lobes: int, target_error=None, evaluation: str = "table", orde
         fit["target_error"] = target_error
     return (
         ("fit", "ldprt.fit", fit, {}),
-        ("frames", "ldprt.frames", {}, {}),
+        ("tangents", "ldprt.tangents", {}, {}),
         ("shade", "ldprt.shade", {"order": order, "lobes": lobes, "evaluation": evaluation}, {}),
     )
 
@@ -45,7 +45,7 @@ def harness_rows(quick: bool = False) -> list:
             "ldprt-glossy", f"n{order} b{rank} N{lobes}",
             (("fit", "ldprt.glossy_fit", {"order": order, "lobes": lobes, "rank": rank, "samples": 256,
                                           "brdf": "microfacet", "roughness": 0.5}, {}),
-             ("frames", "ldprt.frames", {}, {}),
+             ("tangents", "ldprt.tangents", {}, {}),
              ("shade", "ldprt.glossy_shade", {"order": order, "lobes": lobes, "rank": rank}, {})),
             "shade.radiance", scenes=scenes, quick=quick_row,
             notes="glossy LDPRT (GGX roughness 0.5) towards the scene camera, vs the glossy ray-traced reference",
@@ -53,7 +53,7 @@ def harness_rows(quick: bool = False) -> list:
     rows.append(HarnessRow(
         "ldprt", f"rotated SH n{HARNESS_ORDER}",
         (("bake", "ldprt.transfer", {"order": HARNESS_ORDER, "samples": 256}, {}),
-         ("frames", "ldprt.frames", {}, {}),
+         ("tangents", "ldprt.tangents", {}, {}),
          ("shade", "ldprt.shade_rotated", {"order": HARNESS_ORDER}, {})),
         "shade.radiance", scenes=scenes, quick=False, notes="full local SH transfer rotated per vertex (zxzxz)",
     ))

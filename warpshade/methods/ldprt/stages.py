@@ -6,7 +6,8 @@
   linear stored exactly), ``fit_error`` (V,).
 * ``ldprt.transfer`` (precompute): the local-frame transfer vectors alone (V, n*n), for the
   full-SH-rotation baseline.
-* ``ldprt.frames`` (per frame): tangent frames of the current (deformed) mesh on the device.
+* ``ldprt.tangents`` (per frame): tangent frames of the current (deformed) mesh on the device (port
+  ``tangents``).
 * ``ldprt.shade`` (per frame): rotate each vertex's lobe axes by its frame and shade, either with
   the light-specialised table ``e^(s)`` built from the frame's lighting SH (``evaluation =
   "table"``, eq. 24-25, O(nN) per vertex; the table kernel is launched every frame and rebuilds
@@ -138,15 +139,15 @@ class LdprtTransferStage(PrecomputeStage):
 
 
 @register_stage
-class LdprtFramesStage(FrameStage):
-    type_name = "ldprt.frames"
+class LdprtTangentsStage(FrameStage):
+    type_name = "ldprt.tangents"
     description = "per-vertex tangent frames of the current pose (rows t, b, n)"
 
     def input_ports(self):
         return {"points": Port("vec3", ("V",)), "normals": Port("vec3", ("V",))}
 
     def output_ports(self):
-        return {"frames": Port("mat33", ("V",), "tangent frames, world space, rows (t, b, n)")}
+        return {"tangents": Port("mat33", ("V",), "tangent frames, world space, rows (t, b, n)")}
 
     def setup(self, ctx, inputs):
         from ...geometry.frames import TangentFrames
@@ -154,7 +155,7 @@ class LdprtFramesStage(FrameStage):
         self._points, self._normals = inputs["points"], inputs["normals"]
         self._tf = TangentFrames.from_scene(ctx.scene, device=ctx.device)
         self._frames = wp.zeros(ctx.dims["V"], dtype=wp.mat33, device=ctx.device)
-        return {"frames": self._frames}
+        return {"tangents": self._frames}
 
     def launch(self, state):
         self._tf.compute(self._points, self._normals, out=self._frames)
@@ -178,7 +179,7 @@ class LdprtShadeStage(FrameStage):
 
     def input_ports(self):
         return {
-            "frames": Port("mat33", ("V",)),
+            "tangents": Port("mat33", ("V",)),
             "axes": Port("float32", ("V", "L", 3)),
             "coeffs": Port("float32", ("V", "L", "N")),
             "counts": Port("int32", ("V",)),
@@ -210,11 +211,11 @@ class LdprtShadeStage(FrameStage):
             wp.launch(self._table_kernel, dim=self._table.shape[:2], inputs=[light.light, light.changed, self._table],
                       device=dev)
             wp.launch(self._shade_table, dim=count,
-                      inputs=[i["frames"], self._axes, i["coeffs"], i["counts"], i["stored"], self._table, light.light,
+                      inputs=[i["tangents"], self._axes, i["coeffs"], i["counts"], i["stored"], self._table, light.light,
                               i["albedo"], self._radiance], device=dev)
         else:
             wp.launch(self._shade_direct, dim=count,
-                      inputs=[i["frames"], self._axes, i["coeffs"], i["counts"], i["stored"], light.light, i["albedo"],
+                      inputs=[i["tangents"], self._axes, i["coeffs"], i["counts"], i["stored"], light.light, i["albedo"],
                               self._radiance], device=dev)
 
     def model_bytes(self) -> int:
@@ -232,7 +233,7 @@ class LdprtShadeRotatedStage(FrameStage):
 
     def input_ports(self):
         return {
-            "frames": Port("mat33", ("V",)),
+            "tangents": Port("mat33", ("V",)),
             "transfer": Port("float32", ("V", "C")),
             "albedo": Port("float32", ("V", 3)),
             "lighting": Port("lighting"),
@@ -254,7 +255,7 @@ class LdprtShadeRotatedStage(FrameStage):
         i = self._in
         self._lighting.launch()
         wp.launch(self._kernel, dim=self._radiance.shape[0],
-                  inputs=[i["frames"], i["transfer"], self._tables, self._lighting.light, i["albedo"], self._radiance],
+                  inputs=[i["tangents"], i["transfer"], self._tables, self._lighting.light, i["albedo"], self._radiance],
                   device=self._radiance.device)
 
 
@@ -361,7 +362,7 @@ class LdprtGlossyShadeStage(FrameStage):
 
     def input_ports(self):
         return {
-            "frames": Port("mat33", ("V",)),
+            "tangents": Port("mat33", ("V",)),
             "points": Port("vec3", ("V",)),
             "glossy_axes": Port("float32", ("V", "R", 3)),
             "glossy_coeffs": Port("float32", ("V", "R", "N")),
@@ -391,7 +392,7 @@ class LdprtGlossyShadeStage(FrameStage):
         self._kernel = kernels.glossy_kernel(p["order"])
         self._radiance = wp.zeros((v, 3), dtype=wp.float32, device=ctx.device)
         vertices = kernels.GlossyVertices()
-        vertices.frames, vertices.points, vertices.axes = inputs["frames"], inputs["points"], self._axes
+        vertices.frames, vertices.points, vertices.axes = inputs["tangents"], inputs["points"], self._axes
         vertices.coeffs, vertices.stored, vertices.lobes = inputs["glossy_coeffs"], inputs["glossy_stored"], p["lobes"]
         shading = kernels.GlossyShading()
         shading.eye, shading.factors, shading.table = self._eye, inputs["view_factors"], self._table
@@ -526,7 +527,7 @@ class LdprtWrinkleShadeStage(FrameStage):
 
     def input_ports(self):
         return {
-            "frames": Port("mat33", ("V",)),
+            "tangents": Port("mat33", ("V",)),
             "points": Port("vec3", ("V",)),
             "wrinkle_axes": Port("float32", ("PX", "PD", 3, 3)),
             "wrinkle_coeffs": Port("float32", ("PX", "PD", 3, "N")),
@@ -559,7 +560,7 @@ class LdprtWrinkleShadeStage(FrameStage):
         self._depth = wp.zeros(v, dtype=wp.float32, device=dev)
         self._radiance = wp.zeros((v, 3), dtype=wp.float32, device=dev)
         vertices = kernels.WrinkleVertices()
-        vertices.frames, vertices.phase = inputs["frames"], self._layout["phase"]
+        vertices.frames, vertices.phase = inputs["tangents"], self._layout["phase"]
         vertices.groove_angle, vertices.depth, vertices.albedo = self._layout["groove_angle"], self._depth, inputs["albedo"]
         table = kernels.WrinkleTable()
         table.axes, table.coeffs, table.stored = self._table_axes, inputs["wrinkle_coeffs"], inputs["wrinkle_stored"]

@@ -21,13 +21,13 @@ def rpo_stages(visibility: str = "traced", order: int = 4, rank: int = 8, lighti
                 ("shade", "rpo.shade", shade, {}))
     if visibility == "static":
         return (("vis", "rpo.visibility_static", {"order": order, "samples": samples}, {}),
-                ("frames", "ldprt.frames", {}, {}),
+                ("tangents", "ldprt.tangents", {}, {}),
                 ("shade", "rpo.shade", shade, {}))
     if visibility == "shexp":
         return (("tables", "shexp.tables", {"order": order}, {}),
                 ("blockers", "shexp.blockers", {"budget": 48, "hierarchy": True}, {}),
                 ("vis", "shexp.visibility", {"order": order, "method": "hyb"}, {}),
-                ("frames", "ldprt.frames", {}, {}),
+                ("tangents", "ldprt.tangents", {}, {}),
                 ("shade", "rpo.shade", {**shade, "visibility_space": "world"}, {}))
     raise ValueError(f"rpo rows: unknown visibility generator {visibility!r}")
 

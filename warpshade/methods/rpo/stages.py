@@ -172,7 +172,7 @@ class RpoShadeStage(GlossyStage):
     }
 
     def input_ports(self):
-        return {"frames": Port("mat33", ("V",)), "points": Port("vec3", ("V",)),
+        return {"tangents": Port("mat33", ("V",)), "points": Port("vec3", ("V",)),
                 "visibility": Port("float32", ("V", "C"), space=self.params["visibility_space"]),
                 "lighting": Port("lighting")}
 
@@ -196,7 +196,7 @@ class RpoShadeStage(GlossyStage):
         self._zh_turn = wp.array(np.eye(3, dtype=np.float32)[None], dtype=wp.mat33, device=dev)
         self._zh_coeffs = wp.zeros((max(self._zh_axes.shape[0], 1), 3, n), dtype=wp.float32, device=dev)
         self._flags = wp.zeros(ctx.dims["V"], dtype=wp.int32, device=dev)
-        self._frames, self._points, self._visibility = inputs["frames"], inputs["points"], inputs["visibility"]
+        self._frames, self._points, self._visibility = inputs["tangents"], inputs["points"], inputs["visibility"]
         self._lighting = ShLighting(inputs["lighting"], n)
         self._frame_lighting = inputs["lighting"]
         self._tables = sh_kernels(n).tables(dev)
@@ -375,7 +375,7 @@ class RpoVisibilityTracedStage(FrameStage):
 
     def output_ports(self):
         return {"visibility": Port("float32", ("V", "C"), "SH visibility, tangent frame", space="local"),
-                "frames": Port("mat33", ("V",), "tangent frames of the frame (rows t, b, n)")}
+                "tangents": Port("mat33", ("V",), "tangent frames of the frame (rows t, b, n)")}
 
     def setup(self, ctx, inputs):
         from ...transfer import TransferTracer
@@ -384,7 +384,7 @@ class RpoVisibilityTracedStage(FrameStage):
         self._points, self._normals = inputs["points"], inputs["normals"]
         self._tracer = TransferTracer(ctx.scene, p["order"], p["samples"], space="local", device=ctx.device,
                                       seed=p["seed"], below_horizon="visible", bvh=ctx.state.bvh)
-        return {"visibility": self._tracer.visibility_sh, "frames": self._tracer.tangent_frames.frames}
+        return {"visibility": self._tracer.visibility_sh, "tangents": self._tracer.tangent_frames.frames}
 
     def launch(self, state):
         self._tracer.launch(self._points, self._normals)

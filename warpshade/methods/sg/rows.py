@@ -20,7 +20,7 @@ def sg_stages(resolution: int = 32, supersample: int = 4, error_budget: float = 
     shade = dict(brdf or BRDF)
     return (("ssdf", "sg.ssdf", {"resolution": resolution, "supersample": supersample, "error_budget": error_budget}, {}),
             ("environment", "sg.environment", {"lobes": env_lobes, "sun": sun}, {}),
-            ("frames", "ldprt.frames", {}, {}),
+            ("tangents", "ldprt.tangents", {}, {}),
             ("shade", "sg.shade", shade, {}))
 
 

@@ -145,6 +145,7 @@ MULTI_LOBE_PARAMS = {
 class SgShadeStage(FrameStage):
     type_name = "sg.shade"
     reads_materials = True
+    shades_sphere_lights = True
     description = "spherical-Gaussian shading (eq. 39, 41-43) with SSDF visibility, per vertex (and per pixel)"
     @classmethod
     def quick_params(cls, params):  # a fitted NDF's budget fits up to 8 lobes in turn (seconds each): 2 lobes
@@ -174,7 +175,7 @@ class SgShadeStage(FrameStage):
         self._check_parameters()
 
     def input_ports(self):
-        return {"ssdf": Port("arrays"), "environment": Port("arrays"), "frames": Port("mat33", ("V",)),
+        return {"ssdf": Port("arrays"), "environment": Port("arrays"), "tangents": Port("mat33", ("V",)),
                 "points": Port("vec3", ("V",)),
                 "normals": Port("vec3", ("V",)), "albedo": Port("float32", ("V", 3)), "lighting": Port("lighting")}
 
@@ -200,7 +201,7 @@ class SgShadeStage(FrameStage):
         if self.model.coeffs.shape[0] != ctx.dims["V"]:
             raise StageError(f"stage {self.name!r}: SSDFs of {self.model.coeffs.shape[0]} vertices for a scene of "
                              f"{ctx.dims['V']}")
-        self._frames, self._points, self._normals = inputs["frames"], inputs["points"], inputs["normals"]
+        self._frames, self._points, self._normals = inputs["tangents"], inputs["points"], inputs["normals"]
         self._albedo_in = inputs["albedo"]
         self._frame_lighting = inputs["lighting"]
         self._environment_in = inputs["environment"]

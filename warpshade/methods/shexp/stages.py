@@ -3,7 +3,7 @@
 Precompute (artifacts cached by the runtime):
 
 * ``shexp.tables`` -- the per-order tables: log visibility of a blocking cap over its angular
-  radius (ZH coefficients, 512 samples) and the optimal-linear a/b coefficients over ``||f^||``;
+  radius (ZH coefficients, ``quadrature`` = 512 samples) and the optimal-linear a/b coefficients over ``||f^||``;
 * ``shexp.blockers`` -- sphere sets bounding the scene's closed occluder meshes (attached to
   their animation), optionally the sphere hierarchy and receiver clusters, as named arrays
   (:class:`.blockers.BlockerModel`);
@@ -46,10 +46,11 @@ class ShexpTablesStage(PrecomputeStage):
     type_name = "shexp.tables"
     uses_scene = False
     description = "per-order SH exp/log tables: blocking-cap log visibility and OL coefficients"
-    parameters = {"order": _ORDER, "samples": Param(512, int, "table samples (the paper uses 256)", minimum=256, maximum=8192)}
+    parameters = {"order": _ORDER, "quadrature": Param(512, int, "table quadrature samples (the paper uses 256)", minimum=256,
+                                                       maximum=8192)}
 
     def dims(self):
-        return {"N": self.params["order"], "S": self.params["samples"]}  # N: SH bands (ZH coefficients)
+        return {"N": self.params["order"], "S": self.params["quadrature"]}  # N: SH bands (ZH coefficients)
 
     def output_ports(self):
         return {
@@ -60,9 +61,9 @@ class ShexpTablesStage(PrecomputeStage):
         }
 
     def precompute(self, ctx, inputs):
-        order, samples = self.params["order"], self.params["samples"]
-        cap = sh.log_cap_table(order, samples)
-        ol = sh.ol_table(order, samples)
+        order, quadrature = self.params["order"], self.params["quadrature"]
+        cap = sh.log_cap_table(order, quadrature)
+        ol = sh.ol_table(order, quadrature)
         return {
             "log_cap": cap.zh.astype(np.float32),
             "ol_a": ol.a.astype(np.float32),
@@ -161,6 +162,7 @@ class ShexpShadeStage(FrameStage):
     type_name = "shexp.shade"
     #: also write the (windowed) per-vertex SH visibility (``shexp.visibility``)
     store_visibility = False
+    shades_sphere_lights = True
     description = "SHEXP per frame: spheres, cuts, log accumulation, SH exp, diffuse shading"
     parameters = {
         "order": _ORDER,

@@ -1,4 +1,4 @@
-"""Local inputs of a cluster: the joint rotations of the joints near it (``model = "auto"``).
+"""Local inputs of a cluster: the joint rotations of the joints near it (``regressor = "auto"``).
 
 A skinned cluster's visibility depends mostly on the joints that move it and their neighbours in
 the skeleton (the locality of data-driven PRT, James and Fatahalian's and Nowrouzezahrai et al.'s

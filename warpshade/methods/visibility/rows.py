@@ -23,7 +23,7 @@ FEATURE_FIT = {"dihedral": {"input_variance": 0.9}}
 FEATURES = {scene: (BENCH_SCENES[scene]["inputs"], FEATURE_FIT[BENCH_SCENES[scene]["inputs"]])
             for scene in TRAINING_CLIPS if BENCH_SCENES[scene].get("inputs", "joints") != "joints"}
 #: Fit settings of the diffuse rows (stages/figure_visibility_diffuse.toml): per-cluster PCA to 99 %
-#: of the variance, at most 64 components, the model chosen per cluster (``model = "auto"``) among
+#: of the variance, at most 64 components, the model chosen per cluster (``regressor = "auto"``) among
 #: maps from the joint rotations (or dihedral angles) and from the 4 or 8 nearest clusters' centroids
 #: in the cluster's frame (``relative``).
 DIFFUSE_FIT = {"variance": 0.99, "k_max": 64, "relative": 8}
@@ -31,7 +31,7 @@ DIFFUSE_FIT = {"variance": 0.99, "k_max": 64, "relative": 8}
 GLOSSY = {"brdf": "ggx", "roughness": 0.5}
 
 
-def stages_for(training: str, frames: str | None, model: str = "network", order: int = 4, samples: int = 128,
+def stages_for(training: str, frames: str | None, regressor: str = "network", order: int = 4, samples: int = 128,
                shade: str = "glossy", fit: dict | None = None, features: str = "joints") -> tuple:
     """Training data, fit, per-frame prediction and shading (``"glossy"``: rpo.shade, ``"diffuse"``:
     visibility.diffuse)."""
@@ -39,7 +39,7 @@ def stages_for(training: str, frames: str | None, model: str = "network", order:
     if frames is not None:
         data["frames"] = frames
     stages = [("data", "visibility.data", data, {}),
-              ("fit", "visibility.fit", {"model": model, **(fit or {})}, {"data": "data.data"}),
+              ("fit", "visibility.fit", {"regressor": regressor, **(fit or {})}, {"data": "data.data"}),
               ("predict", "visibility.predict", {"order": order}, {"model": "fit.model"})]
     if shade == "glossy":
         stages.append(("shade", "rpo.shade", {"order": order, "rank": 8, **GLOSSY}, {}))

@@ -1,4 +1,4 @@
-"""Model selection per cluster (``model = "auto"``): blocked cross-validation over pose segments of the training clip.
+"""Model selection per cluster (``regressor = "auto"``): blocked cross-validation over pose segments of the training clip.
 
 A cluster's candidates are ridge maps from the first ``m`` input-PCA components (``m`` in
 :data:`INPUT_COUNTS`, at most the model's input components) to its PCA weights, on those inputs

@@ -1,4 +1,4 @@
-"""Stacked regression per cluster (``model = "stack"``): a weighted sum of the selection's candidates.
+"""Stacked regression per cluster (``regressor = "stack"``): a weighted sum of the selection's candidates.
 
 Where blocked cross-validation ranks a cluster's candidates (:mod:`.select`) unstably, picking
 one of them is a noisy choice; stacking (Wolpert 1992; Breiman 1996, "Stacked regressions")

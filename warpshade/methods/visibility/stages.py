@@ -168,13 +168,13 @@ class VisibilityFitStage(PrecomputeStage):
     #: One network size (4 hidden neurons) with a short fit (10 iterations).
     quick = {"hidden": (4,), "max_iterations": 10}
     parameters = {
-        "model": Param("network", str, "per-cluster model: ridge, ridge on second-order features, a "
+        "regressor": Param("network", str, "per-cluster model: ridge, ridge on second-order features, a "
                        "one-hidden-layer tanh network (eq. 12-13), or 'auto': each cluster's ridge map (linear or "
                        "quadratic, global or nearby-joint inputs, input count, penalty) chosen by blocked "
                        "cross-validation over contiguous segments of the training clip, or 'stack': each cluster's "
                        "non-negative combination of the best of those candidates, weighted to minimise their "
                        "blocked out-of-fold error (stacked regression)", choices=MODELS),
-        "frames": Param("cluster", str, "frames the visibility is modelled in: cluster PCA directions in the "
+        "space": Param("cluster", str, "frames the visibility is modelled in: cluster PCA directions in the "
                         "tangent plane, the one-ring frames of warpshade.geometry.frames, or the world frame "
                         "(measurements only: the frame stages take local frames)", choices=FRAME_KINDS),
         "pose": Param("quaternion", str, "joint-angle parameterisation", choices=tuple(PARAMETERISATIONS)),
@@ -215,12 +215,12 @@ class VisibilityFitStage(PrecomputeStage):
         where = f"stage {self.name!r} ({self.type_name})"
         if not p["hidden"] or any(h < 1 or h != int(h) for h in p["hidden"]):
             raise StageError(f"{where}: parameter 'hidden' needs positive whole neuron counts, got {p['hidden']!r}")
-        if p["relative"] > 0 and p["model"] not in ("auto", "stack"):
-            raise StageError(f"{where}: parameter 'relative' = {p['relative']} applies to model = 'auto' or 'stack' "
-                             f"only (the models that choose among candidate inputs), not model = {p['model']!r}")
-        if p["metric"] == "diffuse" and p["frames"] == "world":
+        if p["relative"] > 0 and p["regressor"] not in ("auto", "stack"):
+            raise StageError(f"{where}: parameter 'relative' = {p['relative']} applies to regressor = 'auto' or 'stack' "
+                             f"only (the models that choose among candidate inputs), not regressor = {p['regressor']!r}")
+        if p["metric"] == "diffuse" and p["space"] == "world":
             raise StageError(f"{where}: parameter 'metric' = 'diffuse' applies to local frames only (the cosine is "
-                             "about the local normal), not frames = 'world'")
+                             "about the local normal), not space = 'world'")
         #: The SH order of the training data on port 'data' when its provider is known (check_wiring).
         self.data_order: int | None = None
         self._predictors: dict = {}  # visibility.predict stages wired to 'model', checked once data_order is known
@@ -251,7 +251,7 @@ class VisibilityFitStage(PrecomputeStage):
             labels = cloth.cluster_labels(data)
         try:
             with ctx.executor() as ex:
-                model = fit_visibility(data, model=p["model"], frames=p["frames"], pose=p["pose"], root=p["root"],
+                model = fit_visibility(data, model=p["regressor"], frames=p["space"], pose=p["pose"], root=p["root"],
                                        input_variance=p["input_variance"], input_max=p["input_max"],
                                        variance=p["variance"], predictable=p["predictable"], k_max=p["k_max"], bandwidth=p["bandwidth"],
                                        min_cluster=p["min_cluster"], hidden=hidden,
@@ -293,7 +293,7 @@ def _i32(a, dev):
 class VisibilityPredictStage(FrameStage):
     type_name = "visibility.predict"
     description = ("per-vertex SH visibility in local frames from the frame's pose by the data-driven model "
-                   "(pose -> input PCA -> per-cluster model -> PCA basis), with the frames")
+                   "(pose -> input PCA -> per-cluster model -> PCA basis), with their tangent frames")
     parameters = {"order": _ORDER,
                   "basis": Param("half", str, "device storage of the per-vertex PCA basis (the bulk of a frame's "
                                  "memory reads): float16 or float32", choices=kernels.BASIS_PRECISIONS)}
@@ -308,7 +308,7 @@ class VisibilityPredictStage(FrameStage):
     def output_ports(self):
         return {"visibility": Port("float32", ("V", "C"), "SH visibility (no cosine, open below the horizon), "
                                    "tangent frames", space="local"),
-                "frames": Port("mat33", ("V",), "the tangent frames of the visibility, rows (t, b, n)")}
+                "tangents": Port("mat33", ("V",), "the tangent frames of the visibility, rows (t, b, n)")}
 
     def check_wiring(self, upstream):
         self._fit = upstream["model"][0] if isinstance(upstream["model"][0], VisibilityFitStage) else None
@@ -324,10 +324,10 @@ class VisibilityPredictStage(FrameStage):
         if fit is None:
             return
         where = f"stage {self.name!r} ({self.type_name})"
-        if fit.params["frames"] == "world":
+        if fit.params["space"] == "world":
             raise StageError(f"{where}: input 'model' is fed by stage {fit.name!r} ({fit.type_name}) with parameter "
-                             "'frames' = 'world' (a model in the world frame is for measurements; this stage predicts "
-                             "in local frames): fit it with frames = 'cluster' or 'one_ring'")
+                             "'space' = 'world' (a model in the world frame is for measurements; this stage predicts "
+                             "in local frames): fit it with space = 'cluster' or 'one_ring'")
         if fit.data_order is not None and fit.data_order != self.params["order"]:
             raise StageError(f"{where}: parameter 'order' = {self.params['order']}, but the model of stage "
                              f"{fit.name!r} is trained on visibility of order {fit.data_order} (its training data's "
@@ -348,8 +348,8 @@ class VisibilityPredictStage(FrameStage):
         if order != self.params["order"]:
             raise StageError(f"{where}: the model was trained at order {order}; the stage has order {self.params['order']}")
         if FRAME_KINDS[frames_code] == "world":
-            raise StageError(f"{where}: the model was fitted in the world frame (frames = 'world', for measurements); "
-                             "fit it with frames = 'cluster' or 'one_ring'")
+            raise StageError(f"{where}: the model was fitted in the world frame (space = 'world', for measurements); "
+                             "fit it with space = 'cluster' or 'one_ring'")
         if a["labels"].shape[0] != scene.vertex_count:
             raise StageError(f"{where}: the model has {a['labels'].shape[0]} vertices, scene "
                              f"{scene.source or '<arrays>'} has {scene.vertex_count}")
@@ -415,7 +415,7 @@ class VisibilityPredictStage(FrameStage):
         self._features = features
         self._novelty = novelty_report(model, poses)
         self._frame_times = np.asarray(scene.frames, np.float64)
-        return {"visibility": self._vis, "frames": self._frames}
+        return {"visibility": self._vis, "tangents": self._frames}
 
     def launch(self, state):
         from ..._wp import launch_parallel, wp
@@ -522,7 +522,7 @@ class VisibilityDiffuseStage(FrameStage):
         return {"C": self.params["order"] ** 2}
 
     def input_ports(self):
-        return {"visibility": Port("float32", ("V", "C"), space="local"), "frames": Port("mat33", ("V",)),
+        return {"visibility": Port("float32", ("V", "C"), space="local"), "tangents": Port("mat33", ("V",)),
                 "albedo": Port("float32", ("V", 3)), "lighting": Port("lighting")}
 
     def output_ports(self):
@@ -542,7 +542,7 @@ class VisibilityDiffuseStage(FrameStage):
         if inputs["lighting"].sphere_light_count:
             raise StageError(f"stage {self.name!r}: shades distant lighting (SH) only; this run has sphere lights")
         dev = ctx.device
-        self._vis, self._frames, self._albedo = inputs["visibility"], inputs["frames"], inputs["albedo"]
+        self._vis, self._frames, self._albedo = inputs["visibility"], inputs["tangents"], inputs["albedo"]
         self._cos = _f32(sh.clamped_cosine_sh(n), dev)
         self._tables = sh_kernels(n).tables(dev)
         self._kernel = kernels.diffuse_kernel(n)
