@@ -57,7 +57,7 @@ from warpshade.measure import VALIDATE_SEED
 from warpshade.methods.prt import shade_transfer_f64
 from warpshade.scene import LightingSource  # noqa: E402
 from warpshade.methods.datadriven import model as dd  # noqa: E402
-from warpshade.methods.datadriven import PARAMETERISATIONS, pose_features, pose_layout
+from warpshade.methods.datadriven import PARAMETERISATIONS, novelty, pose_features, pose_layout, pose_space
 from warpshade.methods.datadriven import hemisphere_transfer_error
 from warpshade.methods.datadriven.rows import TRAINING_CLIPS, stages_for  # noqa: E402
 from warpshade.transfer import compute  # noqa: E402
@@ -173,7 +173,7 @@ def main(argv=None) -> int:
     kind, root = "quaternion", "include"  # the fit stage's default (see the parameterisation study below)
     A = _select(data, kind, root)
     print(f"{args.character}: {p} training frames, {V} vertices, {C} coefficients, {A.shape[1]} pose features "
-          f"({int(dd.pose_space(A, False).active.sum())} vary)", flush=True)
+          f"({int(pose_space(A, False).active.sum())} vary)", flush=True)
 
     # ---- shading against ray-traced ground truth on the graphs' [validate] frames ---------------
     lights = {s.source: LightingSource.fixed(s.lights, s.up_axis) for s in tests}
@@ -252,7 +252,7 @@ def main(argv=None) -> int:
     t0 = time.perf_counter()
     basis = dd.coefficient_basis(B, 64 if args.quick else 512, weights=weights)
     pca_s = time.perf_counter() - t0
-    space = dd.pose_space(A, pca=True)
+    space = pose_space(A, pca=True)
     result["spectra"] = {"pose_variance": (space.variance / space.total_variance).tolist(),
                          "coefficient_energy": (basis[1] ** 2 / basis[2]).tolist(), "pca_s": pca_s}
     ka_sweep = sorted({k for k in (1, 2, 4, 8, 16, 32) if k <= space.size} | {space.size})
@@ -316,7 +316,7 @@ def main(argv=None) -> int:
     for s in tests + [train_scene]:
         frames = test_frames.get(s.source, train_frames)
         P = _poses(s, frames, kind, root, ref_rot)
-        score = dd.novelty(full.pose, P, A)["nearest"]
+        score = novelty(full.pose, P, A)["nearest"]
         pred = models["chosen"].predict(P)
         tr = truth.get(s.source, truth_train)
         for i, f in enumerate(frames):

@@ -15,7 +15,8 @@ Model no more than the scene needs, chosen on the scene itself:
    static visibility) are measured against the glossy ray-traced reference.
 4. **Measure** each candidate on the training frames (:func:`measure`): its radiance against
    ray-traced ground truth (the relative RMS error with the reference's own noise removed,
-   ``rel_rms_debiased``), and its median time per frame. A method with a history (the few-ray
+   ``rel_rms_debiased``), and its median time per frame (the lowest median of
+   :data:`TIMING_PASSES` passes). A method with a history (the few-ray
    tracer) is stepped through :data:`WARM_FRAMES` frames before each measured frame, as a user's
    frame loop would. A candidate that cannot run on the scene (SHEXP without a closed mesh, ...)
    is kept in the report with the reason.
@@ -38,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["CHOICE_FRAMES", "QUICK_CHOICE_FRAMES", "WARM_FRAMES", "candidates_for", "choose", "default_lighting", "inspect_scene", "measure", "split_frames", "graph_toml", "plot_candidates",
+__all__ = ["CHOICE_FRAMES", "QUICK_CHOICE_FRAMES", "TIMING_PASSES", "WARM_FRAMES", "candidates_for", "choose", "default_lighting", "inspect_scene", "measure", "split_frames", "graph_toml", "plot_candidates",
            "run_frames", "shade_outputs", "shade_scene", "training_selection", "tuned_candidate"]
 
 #: Frames a candidate is stepped through before each measured frame (a method with a history
@@ -49,6 +50,12 @@ DEFAULT_TARGET = 0.1
 #: Ground-truth rays per vertex of the choice (training frames) and of the held-out validation.
 CHOICE_SAMPLES = 256
 VALIDATE_SAMPLES = 512
+#: Timing passes over a candidate's frames: its time per frame is the lowest of the passes'
+#: medians (a shared machine's load only ever adds time; one slow pass must not decide a close
+#: call). Passes after the first run only while one pass takes under
+#: :data:`TIMING_PASS_LIMIT_S` seconds.
+TIMING_PASSES = 3
+TIMING_PASS_LIMIT_S = 5.0
 #: ``--glossy auto`` shades glossy when a mesh's UsdPreviewSurface roughness is below this.
 GLOSSY_ROUGHNESS = 0.4
 
@@ -260,10 +267,18 @@ def measure(scene, lighting, cand: dict, frames, truth: dict, *, device="cpu", c
         rt = spec.compile(scene, device=device, cache_dir=cache_dir, progress=False, lighting=lighting)
         compile_s = time.perf_counter() - t0
         radiance = {}
-        for window in _windows(scene, frames, warm):
+        windows = _windows(scene, frames, warm)
+        start, t_pass = len(rt.frame_s), time.perf_counter()
+        for window in windows:
             rt.run(window, record=True, warmup=False)
             radiance[window[-1]] = np.array(rt.results[window[-1]], copy=True)
-        timing = rt.timing_summary()
+        medians = [float(np.median(rt.frame_s[start:]))]
+        t_pass = time.perf_counter() - t_pass
+        while len(medians) < TIMING_PASSES and t_pass < TIMING_PASS_LIMIT_S:
+            start = len(rt.frame_s)
+            for window in windows:
+                rt.run(window, record=True, warmup=False)
+            medians.append(float(np.median(rt.frame_s[start:])))
         model = reference_model(rt)
         ref = truth if model is None else glossy_truth(model)
         err = setting_error(radiance, ref)
@@ -274,7 +289,7 @@ def measure(scene, lighting, cand: dict, frames, truth: dict, *, device="cpu", c
         return row
     debiased = err.get("rel_rms_debiased", err["rel_rms"])
     row.update(status="ok", reason="", rel_rms=float(err["rel_rms"]), rel_rms_debiased=float(debiased),
-               frame_ms=1e3 * float(timing["median_frame_s"]), compile_s=compile_s,
+               frame_ms=1e3 * min(medians), frame_ms_passes=[1e3 * m for m in medians], compile_s=compile_s,
                glossy=model is not None)
     if not np.isfinite(row["rel_rms"]):
         row.update(status="failed", reason="its radiance is not finite")

@@ -11,12 +11,12 @@ a training clip: full, or reduced by PCA of the pose vectors and of the per-vert
 Built on :mod:`warpshade.methods._shared` (shared with :mod:`warpshade.methods.visibility`): the
 pose vectors from UsdSkel joint transforms (three parameterisations, root apart; their host and
 device forms), the pose space (standardisation, PCA, novelty) and the training clip, traced as
-tasks of a few frames for an executor. ``PARAMETERISATIONS``, ``pose_layout``, ``pose_features``
-and ``novelty`` are public here.
+tasks of a few frames for an executor. ``PARAMETERISATIONS``, ``pose_layout``, ``pose_features``,
+``pose_space`` and ``novelty`` are public here.
 """
 
 from .._shared.pose import PARAMETERISATIONS, pose_features, pose_layout
-from .._shared.pose_space import novelty
+from .._shared.pose_space import novelty, pose_space
 from .model import DataDrivenModel, choose_sizes, fit_full, fit_reduced
 from .mirror import hemisphere_transfer_error, transfer_f64
 from .rows import harness_rows
@@ -34,6 +34,7 @@ __all__ = [
     "harness_rows",
     "hemisphere_transfer_error",
     "novelty",
+    "pose_space",
     "pose_features",
     "pose_layout",
     "transfer_f64",
