@@ -19,8 +19,8 @@ import numpy as np
 
 from warpshade._fileio import write_json_atomic
 from warpshade.measure import ground_truth_model
-from warpshade.measure.pictures import ERROR_COLORMAP, ERROR_LIMIT, write_panels
-from warpshade.measure.pixels import exposure_for, pixel_stage, render_frame
+from warpshade.measure._pictures import ERROR_COLORMAP, ERROR_LIMIT, write_panels
+from warpshade.measure._pixels import exposure_for, pixel_stage, render_frame
 from warpshade.reference import reference_image
 from warpshade.render import tonemap_f64
 from warpshade.scene import Environment
@@ -60,7 +60,7 @@ class DishRun:
 
 def render_first_frame(spec, device: str, width: int, height: int, progress: bool) -> DishRun:
     """Compile ``spec`` on ``device``, step its first frame and render it per pixel at
-    ``width`` x ``height`` (:func:`warpshade.measure.pixels.render_frame`), timing the compile and
+    ``width`` x ``height`` (:func:`warpshade.measure._pixels.render_frame`), timing the compile and
     the render."""
     t0 = time.perf_counter()
     rt = spec.compile(device=device, progress=progress)

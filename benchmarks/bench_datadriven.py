@@ -56,10 +56,10 @@ from warpshade.measure import combine_metrics, error_metrics, ground_truth  # no
 from warpshade.measure import VALIDATE_SEED
 from warpshade.methods.prt import shade_transfer_f64
 from warpshade.scene import LightingSource  # noqa: E402
-from warpshade.methods.datadriven import model as dd  # noqa: E402
+from warpshade.methods.datadriven import _model as dd  # noqa: E402
 from warpshade.methods.datadriven import PARAMETERISATIONS, novelty, pose_features, pose_layout, pose_space
 from warpshade.methods.datadriven import hemisphere_transfer_error
-from warpshade.methods.datadriven.rows import TRAINING_CLIPS, stages_for  # noqa: E402
+from warpshade.methods.datadriven._rows import TRAINING_CLIPS, stages_for  # noqa: E402
 from warpshade.transfer import compute  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
@@ -357,7 +357,7 @@ def _local_frame(train_scene, world_data, tests, test_frames, truth, A_world, re
     """Fit the transfer in per-vertex tangent frames (the same training frames and seeds as the
     world-frame data), rotate predictions back to world per vertex."""
     from warpshade.basis import sh
-    from warpshade.geometry.frames import TangentFrames, tangent_frames_f64
+    from warpshade.geometry._frames import TangentFrames, tangent_frames_f64
     from warpshade.methods._shared.training import trace_training
 
     seed = int(np.asarray(world_data["settings"]).reshape(-1)[4])

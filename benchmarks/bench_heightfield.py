@@ -65,8 +65,8 @@ COMPARE_DATE = "2026-12-02"
 _CHILD = r"""
 import json, sys, time
 import numpy as np
-import warpshade.methods.heightfield.kernels as K
-import warpshade.methods.heightfield, warpshade.methods.rpo.stages
+import warpshade.methods.heightfield._kernels as K
+import warpshade.methods.heightfield, warpshade.methods.rpo._stages
 from warpshade._wp import wp, launch_parallel
 from warpshade.graph import load
 frames = int(sys.argv[1])
@@ -325,9 +325,9 @@ def main(argv=None) -> int:
     if args.quick:
         args.spp, args.vertices, args.frames = 16, 128, 2
 
-    import warpshade.methods.ldprt.stages  # noqa: F401  (ldprt.tangents)
+    import warpshade.methods.ldprt._stages  # noqa: F401  (ldprt.tangents)
     import warpshade.methods.heightfield  # noqa: F401  (the height-field stages)
-    import warpshade.methods.rpo.stages  # noqa: F401  (rpo.shade)
+    import warpshade.methods.rpo._stages  # noqa: F401  (rpo.shade)
     from warpshade.reference import shade_glossy
     from warpshade.render import render
 

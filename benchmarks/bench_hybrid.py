@@ -57,13 +57,13 @@ from warpshade._fileio import atomic_path, write_json_atomic  # noqa: E402
 from warpshade._wp import cpu_workers  # noqa: E402
 from warpshade.measure import ground_truth, lag, load_bench_scene, noise  # noqa: E402
 from warpshade.methods.hybrid import stages_for  # noqa: E402
-from warpshade.methods.hybrid.rows import VISIBILITY_TRAINING  # noqa: E402
+from warpshade.methods.hybrid._rows import VISIBILITY_TRAINING  # noqa: E402
 from warpshade.tasks import progress_bar  # noqa: E402
 
 SCENES = ("blockers", "cloth", "bend", "figure")
 TRAINING = {"figure": "bundled:figure_train", "figure_walk": "bundled:figure_train"}
 # Visibility control: per scene the training clip, frames and rays per vertex per training frame,
-# warpshade.methods.hybrid.rows.VISIBILITY_TRAINING (as warpshade.methods.visibility.rows.TRAINING_CLIPS /
+# warpshade.methods.hybrid._rows.VISIBILITY_TRAINING (as warpshade.methods.visibility._rows.TRAINING_CLIPS /
 # TRAINING_RAYS and the scenes' stages/*_visibility*.toml: a traced wanderer frame costs ~4x a figure
 # frame, hence every eighth of its 1000 frames at 64 rays).
 

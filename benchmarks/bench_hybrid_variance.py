@@ -37,7 +37,7 @@ from warpshade._fileio import write_json_atomic  # noqa: E402
 from warpshade.graph import GraphSpec, StageSpec  # noqa: E402
 from warpshade.measure import load_bench_scene  # noqa: E402
 from warpshade.methods.hybrid import stages_for  # noqa: E402
-from warpshade.methods.hybrid.rows import LDPRT_TRACE, REPROJECT_SOFT  # noqa: E402
+from warpshade.methods.hybrid._rows import LDPRT_TRACE, REPROJECT_SOFT  # noqa: E402
 
 
 def scene_stages(key: str, samples: int, order: int) -> tuple:

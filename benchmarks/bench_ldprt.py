@@ -147,7 +147,7 @@ def error_budget(scene, order: int, samples: int, targets=(0.1, 0.05, 0.02), max
 
 def cost_ratios(device, vertex_count: int, orders, lobe_counts, repeats: int) -> list[dict]:
     from warpshade.basis.sh_warp import sh_kernels
-    from warpshade.methods.ldprt import kernels
+    from warpshade.methods.ldprt import _kernels as kernels
 
     rng = np.random.default_rng(5)
     rows = []
@@ -210,7 +210,7 @@ def cost_ratios(device, vertex_count: int, orders, lobe_counts, repeats: int) ->
 
 def table_error(device, orders, widths) -> list[dict]:
     """Max |table shade - direct shade| relative to the RMS of the direct shade, random models."""
-    from warpshade.methods.ldprt import kernels
+    from warpshade.methods.ldprt import _kernels as kernels
 
     rng = np.random.default_rng(6)
     out = []

@@ -15,7 +15,7 @@ the CPU, per pixel from a camera framing the cloth, at frames 0 and 30 (the clot
 
 each measured against the ground truth ray traced on the displaced geometry (the cloth
 subdivided to about one edge per patch texel and moved along its normals by the patch heights:
-:class:`warpshade.methods.ldprt.patch.PatchGeometry`), over the pixels of the cloth, as relative
+:class:`warpshade.methods.ldprt._patch.PatchGeometry`), over the pixels of the cloth, as relative
 RMS (``sqrt(mean |d|^2) / sqrt(mean |ref|^2)`` over RGB) with the part the reference's own noise
 explains, over all those pixels and over those at least two pixels inside the cloth's outline
 (``*_interior``: without the silhouettes, where the displaced outline differs from the smooth
@@ -70,7 +70,7 @@ def _smooth_albedo(scene, frame, camera, width, height, ss, shade):
     """Albedo per ray on the smooth surface: the surface's times the patch's at the UVs (ones for
     the procedural patches), so the smooth ground truth differs from the displaced one only in
     the relief."""
-    from warpshade.methods.ldprt.patch import sample_heights
+    from warpshade.methods.ldprt._patch import sample_heights
     from warpshade.reference import pixel_hits
 
     hits = pixel_hits(scene, frame, camera, width, height, ss, device="cpu")
@@ -113,12 +113,12 @@ def main(argv=None) -> int:
     import matplotlib.pyplot as plt
     from scipy import ndimage
 
-    from warpshade.measure.pixels import render_frame
-    from warpshade.measure.pictures import ERROR_LIMIT
+    from warpshade.measure._pixels import render_frame
+    from warpshade.measure._pictures import ERROR_LIMIT
     from warpshade.reference import reference_image
     from warpshade.render import tonemap_f64
     from warpshade.scene import Camera
-    from warpshade.scene.materials import Lambert
+    from warpshade.scene._materials import Lambert
 
     quick = args.quick
     width = 32 if quick else int(args.width)

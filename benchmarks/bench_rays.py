@@ -24,7 +24,7 @@ warm-up and the median reported. Paths:
 * ``hybrid_trace``: the in-frame residual kernel of ``hybrid.trace`` (order 6, 64 rays a vertex,
   rays only above the horizon: those are counted), rated against Embree on its own rays;
 * ``embree``: Embree through ``embreex`` on the explicit rays, in this process (``embree_1``) and
-  split over worker processes (``embree_n``, :class:`~warpshade.geometry.embree.EmbreeOcclusion`);
+  split over worker processes (``embree_n``, :class:`~warpshade.geometry._embree.EmbreeOcclusion`);
   the faster of the two is the reference of every ratio;
 * ``mitsuba_ray_test``: Mitsuba 3's ``scene.ray_test`` when Mitsuba is installed.
 
@@ -49,10 +49,10 @@ ROOT = Path(__file__).resolve().parents[1]
 
 from warpshade._fileio import atomic_path, write_json_atomic  # noqa: E402
 from warpshade._wp import cpu_workers, launch_parallel, resolve_device, wp  # noqa: E402
-from warpshade.geometry.bvh import RAY_MAX_DISTANCE, Visibility, _occlusion_kernel  # noqa: E402
-from warpshade.geometry.embree import EmbreeOcclusion, embree_available  # noqa: E402
+from warpshade.geometry._bvh import RAY_MAX_DISTANCE, Visibility, _occlusion_kernel  # noqa: E402
+from warpshade.geometry._embree import EmbreeOcclusion, embree_available  # noqa: E402
 from warpshade.measure import load_bench_scene  # noqa: E402
-from warpshade.methods.hybrid.kernels import QUANTITY_TRANSFER, cycle_direction, frame_rotation, residual_kernel, residual_settings  # noqa: E402
+from warpshade.methods.hybrid._kernels import QUANTITY_TRANSFER, cycle_direction, frame_rotation, residual_kernel, residual_settings  # noqa: E402
 from warpshade.transfer import TransferTracer, sample_rays  # noqa: E402
 
 #: The scenes of a full run: three bundled scenes and a large mesh from Warp's assets.

@@ -80,7 +80,7 @@ def time_case(brdf, samples, repeats, device):
 
 
 def analytic():
-    from warpshade.scene import materials
+    from warpshade.scene import _materials as materials
 
     return materials.Microfacet(roughness=0.3, distribution="ggx", f0=0.1)
 
@@ -120,7 +120,7 @@ def main(argv=None):
     out_dir = Path(args.out or ROOT / "benchmarks" / "results")
     device = resolve_device(args.device)
 
-    from warpshade.scene.tabulated import TabulatedBRDF
+    from warpshade.scene._tabulated import TabulatedBRDF
 
     ggx = analytic()
     one = TabulatedBRDF.from_brdf(ggx, dims=dims, channel="g", interpolation="linear")

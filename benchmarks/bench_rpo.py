@@ -73,10 +73,10 @@ def _lightings(scene):
 
 def sweep(key, frames, gt_samples, quick):
     """Part 1 on one scene: errors per (lighting, frame, n, k)."""
-    from warpshade.geometry.frames import TangentFrames
+    from warpshade.geometry._frames import TangentFrames
     from warpshade.measure import ground_truth, load_bench_scene
     from warpshade.methods.rpo import build_operator, fit_zh_lighting, shade_exact_brdf, shade_f64
-    from warpshade.scene import materials as M
+    from warpshade.scene import _materials as M
     from warpshade.transfer import compute
 
     scene, _ = load_bench_scene(key, rotate_degrees_per_frame=0.0)
@@ -166,7 +166,7 @@ def versus_ldprt(key, frames, gt_samples, samples=(256, 256, 1024)):
 def costs(key, quick):
     """Part 3: per-frame cost of each generator + the operators, and of settings of the shading."""
     from warpshade.measure import load_bench_scene, run_setting
-    from warpshade.methods.rpo.rows import rpo_stages
+    from warpshade.methods.rpo._rows import rpo_stages
 
     scene, lighting = load_bench_scene(key)
     frames = list(scene.frames[:: max(1, len(scene.frames) // (2 if quick else 16))])
@@ -202,8 +202,8 @@ def kernel_costs(vertices: int = 65536, repeats: int = 7, orders=(3, 4, 6)):
     from warpshade._wp import launch_parallel, wp
     from warpshade.basis import sh
     from warpshade.basis.sh_warp import sh_kernels
-    from warpshade.methods.rpo import build_operator, kernels
-    from warpshade.scene import materials as M
+    from warpshade.methods.rpo import build_operator, _kernels as kernels
+    from warpshade.scene import _materials as M
 
     rng = np.random.default_rng(0)
     dev = "cpu"
@@ -272,9 +272,9 @@ def swaps_and_builds(key="figure", samples=256, repeats=3, quick=False):
     from warpshade.graph import GraphSpec, StageSpec
     from warpshade.measure import load_bench_scene
     from warpshade.methods.rpo import build_operator
-    from warpshade.methods.rpo import stages as rpo_stages_mod
-    from warpshade.scene import materials as M
-    from warpshade.scene.tabulated import read_merl, write_merl
+    from warpshade.methods.rpo import _stages as rpo_stages_mod
+    from warpshade.scene import _materials as M
+    from warpshade.scene._tabulated import read_merl, write_merl
 
     builds = {}
     with tempfile.TemporaryDirectory() as tmp:
@@ -331,7 +331,7 @@ def roughness_sweep(quick):
     from warpshade.basis import sh
     from warpshade.methods.rpo import build_operator
     from warpshade.scene import Environment, LightingSource
-    from warpshade.scene import materials as M
+    from warpshade.scene import _materials as M
 
     rng = np.random.default_rng(5)
     count, z_nodes, phi_nodes = (30, 64, 128) if quick else (300, 256, 512)

@@ -7,7 +7,7 @@ sky; the moving sphere light is left out except in part 5), one material for eve
 Beckmann microfacet BRDF with roughness 0.2, f0 0.04 and specular colour 0.9, seen from the scene
 camera. Error: relative RMS over vertices of the specular radiance against the glossy ray-traced
 reference of the same BRDF, eye and colour (:func:`warpshade.measure.ground_truth`, 1024 spp,
-seed :data:`warpshade.measure.truth.GT_SEED`, cached on disk) on frames 0 and 24; each error is
+seed :data:`warpshade.measure._truth.GT_SEED`, cached on disk) on frames 0 and 24; each error is
 reported raw (``rel_rms``) and with the reference's own Monte Carlo variance removed
 (``rel_rms_debiased``), and the reference noise is reported next to it.
 
@@ -32,9 +32,9 @@ SG environment table is only built once per cache directory).
 Part 2 -- per pixel (the SG method, SSDF 32): time per 640 x 480 frame (:func:`render_frame`: step,
 G-buffer, materials, shade) and relighting only (the shading kernel over a reused G-buffer), medians
 of >= 5 frames; per-vertex radiance interpolated per pixel against per-pixel shading at 160 x 120,
-both against :func:`warpshade.reference.pixels.reference_image` (the paper's Fig. 8); the textured
+both against :func:`warpshade.reference._pixels.reference_image` (the paper's Fig. 8); the textured
 variant (roughness and colours from the UsdPreviewSurface textures per pixel,
-:func:`warpshade.measure.pixels.measure_pixels`) and one frame with the moving lamp and both BRDF
+:func:`warpshade.measure._pixels.measure_pixels`) and one frame with the moving lamp and both BRDF
 terms (``stages/sunlit_sg_lights.toml``) written as PNG and EXR.
 
 Writes ``sg-<date>-cpu[-quick].json``, ``-pareto.png``, ``-pixels.png`` (Fig. 8 strip; with
@@ -111,9 +111,9 @@ def load(quick: bool = False):
 
 
 def sg_stages(resolution: int, supersample: int = 4, lobes: int = 8, sun: str = "separate", **shade) -> tuple:
-    """SG graph stages (``warpshade.methods.sg.rows.sg_stages`` with this benchmark's BRDF, plus
+    """SG graph stages (``warpshade.methods.sg._rows.sg_stages`` with this benchmark's BRDF, plus
     any ``sg.shade`` parameter, e.g. ``horizon``)."""
-    from warpshade.methods.sg.rows import sg_stages as base
+    from warpshade.methods.sg._rows import sg_stages as base
 
     stages = list(base(resolution, supersample, 0.02, lobes, brdf={**SG_SHADE, **shade}, sun=sun))
     return tuple(stages)
@@ -129,7 +129,7 @@ def ldprt_stages(order: int, rank: int, lobes: int, samples: int = 256) -> tuple
 
 def rpo_stages(visibility: str, samples: int) -> tuple:
     """RPO n4 k8 stages with the benchmark's BRDF over traced or rest-pose visibility."""
-    from warpshade.methods.rpo.rows import rpo_stages as base
+    from warpshade.methods.rpo._rows import rpo_stages as base
 
     out = []
     for name, kind, params, inputs in base(visibility, samples=samples):
@@ -265,7 +265,7 @@ def graph_rows(scene, lighting, quick, ssdf128, gt_samples, timing_frames, log):
 def baseline_rows(scene, lighting, truth, spps):
     """Brute force: the glossy reference estimator itself each frame at low sample counts."""
     from warpshade.reference import GlossyReferenceShader
-    from warpshade.scene import materials as M
+    from warpshade.scene import _materials as M
 
     brdf = M.Microfacet(ROUGHNESS, "beckmann", f0=F0)
     eye = np.asarray(scene.camera.position, np.float64)
@@ -330,7 +330,7 @@ def _sg_runtime(scene, lighting, stages, name):
 def pixel_timing(rt, frames, width, height):
     """Full frames (:func:`render_frame`) and relighting only (shade over a reused G-buffer)."""
     from warpshade._wp import wp
-    from warpshade.measure.pixels import pixel_bvh, pixel_stage, render_frame
+    from warpshade.measure._pixels import pixel_bvh, pixel_stage, render_frame
     from warpshade.render import camera_for, render_gbuffer
 
     render_frame(rt, frames[0], width, height)  # warm-up: kernels built, BVH made
@@ -372,7 +372,7 @@ def vertex_vs_pixel(rt, frames, width, height, samples):
     """Fig. 8: per-vertex radiance interpolated per pixel and per-pixel shading, both against the
     per-pixel glossy reference (same BRDF, eye, colour, sky); images for the strip."""
     from warpshade.measure import ground_truth_model
-    from warpshade.measure.pixels import pixel_bvh, pixel_stage, render_frame
+    from warpshade.measure._pixels import pixel_bvh, pixel_stage, render_frame
     from warpshade.reference import reference_image
     from warpshade.render import interpolate_vertex_values, render_gbuffer
 
@@ -407,15 +407,15 @@ def textured_pixels(scene, env_only, stem, res, samples, width, height, frames, 
     """Per-pixel error of the textured variant (environment only) and one frame with every light
     of the scene, the moving lamp included (PNG + EXR, ``lights_size`` pixels).
 
-    :func:`warpshade.measure.pixels.measure_pixels` cannot measure it: it asks the stage for its
+    :func:`warpshade.measure._pixels.measure_pixels` cannot measure it: it asks the stage for its
     reference model, which ``sg.shade`` refuses with ``textures = true``. So the same measurement
     is made here: the per-pixel materials the method shaded with (textures sampled at each hit)
     go to :func:`reference_image` as per-ray roughness and specular colour, with the stage's
     Beckmann BRDF, eye and the frame's lights; relative RMS over fully covered pixels."""
-    from warpshade.measure.pixels import render_frame, write_pixel_images
+    from warpshade.measure._pixels import render_frame, write_pixel_images
     from warpshade.reference import reference_image
     from warpshade.scene import LightingSource
-    from warpshade.scene import materials as M
+    from warpshade.scene import _materials as M
 
     out_dir = Path(stem).parent
     prefix = Path(stem).name
@@ -465,7 +465,7 @@ def strip(path, panels, ref):
     import matplotlib.pyplot as plt
 
     from warpshade._fileio import atomic_path
-    from warpshade.measure.pixels import exposure_for
+    from warpshade.measure._pixels import exposure_for
     from warpshade.render import tonemap_f64
 
     ex = exposure_for(ref.reshape(-1, 3))

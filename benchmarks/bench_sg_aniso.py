@@ -2,7 +2,7 @@
 reference, and the best isotropic approximation of the same material beside it.
 
 One run of the graph (SSDFs and the sky's SG mixture and prefiltered table precomputed, cached),
-frame 0, rendered per pixel by ``sg.shade`` (:func:`warpshade.measure.pixels.render_frame`): the
+frame 0, rendered per pixel by ``sg.shade`` (:func:`warpshade.measure._pixels.render_frame`): the
 anisotropic Ward dish (NDF lobes warped per lobe in each pixel's UV tangent frame). The reference
 is :func:`warpshade.reference.reference_image` with the stage's per-pixel reference model (the
 same Ward BRDF, eye and specular colour, the same UV tangents at each hit, ``samples`` rays per
@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 import warpshade.graph as graph
-from warpshade.measure.pixels import render_frame
+from warpshade.measure._pixels import render_frame
 
 from _dish import (best_isotropic, pixel_masks, quick_overrides, rel_rms, relative_noise, render_and_reference,
                    write_aniso_outputs)

@@ -3,7 +3,7 @@ ray-traced reference, against the analytic model the table was written from, and
 isotropic approximation of the same measured material.
 
 One run of the graph, frame 0, rendered per pixel by ``sg.shade``
-(:func:`warpshade.measure.pixels.render_frame`): eq. 13's 2-D NDF and 1-D shadowing extracted from
+(:func:`warpshade.measure._pixels.render_frame`): eq. 13's 2-D NDF and 1-D shadowing extracted from
 the bundled ``brushed_aniso.anisobrdf``, the NDF as free-axis SG lobes warped per lobe in each
 pixel's UV tangent frame. References (:func:`warpshade.reference.reference_image`, ``samples`` rays
 per pixel, the same UV tangents at each hit):
@@ -43,8 +43,8 @@ from pathlib import Path
 import numpy as np
 
 import warpshade.graph as graph
-from warpshade.measure.pixels import pixel_stage, render_frame
-from warpshade.methods.sg import measured_aniso
+from warpshade.measure._pixels import pixel_stage, render_frame
+from warpshade.methods.sg import _measured_aniso as measured_aniso
 from warpshade.usd_assets.generator.aniso_table import ANISO_ROUGHNESS, ANISO_ROUGHNESS_Y, aniso_model
 
 from _dish import (best_isotropic, pixel_masks, quick_overrides, rel_rms, relative_noise, render_and_reference,
@@ -82,7 +82,7 @@ def isotropic_variants(m, slopes):
 
 def analytic_factors(m):
     """The analytic model's eq.-13 factors on the grid of the extraction ``m`` (module docstring)."""
-    from warpshade.methods.sg.brdf import eta_from_f0
+    from warpshade.methods.sg._brdf import eta_from_f0
 
     model = aniso_model()
     tt, pp = np.meshgrid(m.theta_h, m.phi_h, indexing="ij")

@@ -35,8 +35,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 
 from warpshade._fileio import atomic_path, write_json_atomic
-from warpshade.methods.sg import brdf, slices
-from warpshade.methods.sg import ndf as sg_ndf
+from warpshade.methods.sg import _brdf as brdf, _slices as slices
+from warpshade.methods.sg import _ndf as sg_ndf
 
 RESULTS = ROOT / "benchmarks" / "results"
 VIEW_THETAS = (0.0, 30.0, 60.0, 75.0, 85.0)

@@ -4,7 +4,7 @@ against a float64 quadrature of the exact per-texel materials.
 One run of the graph (SSDFs and the sky's SG mixture and prefiltered table precomputed), frame
 0, rendered per pixel by ``sg.shade`` with ``brdf = "svbrdf"``: each pixel's texel (nearest, at
 the UV interpolated at the hit) gives its NDF lobes and its shadowing decoded from the PCA. The
-oracle here is :func:`warpshade.methods.sg.svbrdf.eq13_quadrature_f64` (the glossy ray-traced
+oracle here is :func:`warpshade.methods.sg._svbrdf.eq13_quadrature_f64` (the glossy ray-traced
 reference shades the texture too: ``--validate`` and ``bench_svbrdf_reference.py``): for each pixel of a subset of the dish's
 pixels, eq. 13 with the texel's EXACT analytic ``D`` and ``S``
 (:func:`warpshade.usd_assets.generator.svbrdf.texel_material`) integrated against the sky
@@ -31,11 +31,11 @@ import numpy as np
 
 import warpshade.graph as graph
 from warpshade._fileio import write_json_atomic
-from warpshade.measure.pictures import ERROR_COLORMAP, ERROR_LIMIT, write_panels
-from warpshade.measure.pixels import exposure_for, pixel_bvh
-from warpshade.methods.sg.svbrdf import eq13_quadrature_f64
+from warpshade.measure._pictures import ERROR_COLORMAP, ERROR_LIMIT, write_panels
+from warpshade.measure._pixels import exposure_for, pixel_bvh
+from warpshade.methods.sg._svbrdf import eq13_quadrature_f64
 from warpshade.render import render_gbuffer, tonemap_f64
-from warpshade.scene.svbrdf import scene_uvs
+from warpshade.scene._svbrdf import scene_uvs
 from warpshade.usd_assets.generator.svbrdf import SVBRDF_ETA, texel_material
 
 from _dish import dated_stem, dish_mask, quick_overrides, rel_rms, render_first_frame, sole_environment

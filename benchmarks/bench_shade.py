@@ -1,11 +1,11 @@
 """``warpshade shade``'s automatic choice against the hand-made graphs of the bundled animated scenes.
 
 For each scene, in one run on one device, on the same held-out frames (those ``warpshade shade``
-holds out: :func:`warpshade.measure.auto.split_frames`) against the same ray-traced ground truth:
+holds out: :func:`warpshade.measure._auto.split_frames`) against the same ray-traced ground truth:
 
 1. every hand-made diffuse graph of the scene (``stages/*.toml`` whose ``scene`` is it; glossy
    graphs, which shade another quantity, are left out) measured as ``warpshade shade`` measures a
-   candidate (:func:`warpshade.measure.auto.measure`: stepped through the frames before each
+   candidate (:func:`warpshade.measure._auto.measure`: stepped through the frames before each
    held-out frame; error with the reference's noise removed; median time per frame);
 2. ``warpshade shade`` with ``--budget-ms`` the time per frame of the most accurate hand-made graph
    times ``--slack`` (default :data:`SLACK`: repeated timings of one graph on this shared machine
@@ -51,7 +51,7 @@ from warpshade._fileio import atomic_path, write_json_atomic
 from warpshade.graph import load
 from warpshade.io import load_scene
 from warpshade.measure import ground_truth
-from warpshade.measure.auto import VALIDATE_SAMPLES, choose, default_lighting, measure, shade_scene, split_frames
+from warpshade.measure._auto import VALIDATE_SAMPLES, choose, default_lighting, measure, shade_scene, split_frames
 
 ROOT = Path(__file__).resolve().parents[1]
 #: The bundled animated scenes and the training clip of their character (None: no character).
@@ -186,7 +186,7 @@ def pareto(rows: list[dict]) -> list[dict]:
 
 def pareto_choices(candidates, hand_rows, slack, scene, lighting, held, truth, device, cache_dir, key) -> list[dict]:
     """At each Pareto hand-made graph's time (times ``slack``): what ``warpshade shade``'s rule picks
-    from its measured candidates (:func:`warpshade.measure.auto.choose` on the training rows), that
+    from its measured candidates (:func:`warpshade.measure._auto.choose` on the training rows), that
     choice measured on the held-out frames, and the ratio of errors."""
     out, measured = [], {}
     for g in sorted(pareto(hand_rows), key=lambda r: r["frame_ms"]):

@@ -24,8 +24,8 @@ Parts (``--parts``, default all), each measured side by side in one run:
 * ``shading`` -- the three shading paths (direct: one SH product per receiver; the L*H(N)
   lat-long table over normals, rebuilt per frame; the product-matrix path (M_L g).H(N)) on
   41k receivers with varied normals: time per frame and difference from direct.
-* ``budget`` -- the error budget (:func:`warpshade.measure.budget.choose` over
-  :func:`warpshade.methods.shexp.budget.candidates`) on two bundled scenes: the cheapest
+* ``budget`` -- the error budget (:func:`warpshade.measure._budget.choose` over
+  :func:`warpshade.methods.shexp._budget.candidates`) on two bundled scenes: the cheapest
   setting (order, sphere budget, exp method) for each of the targets 0.1, 0.15, 0.2 and 0.25.
 * ``compile`` -- cold compile time of the per-order receiver kernels (subprocess, empty cache).
 * ``ratio`` -- what the per-band ratio vectors of hierarchy cuts fix (eq. 37, the seams of the
@@ -69,7 +69,7 @@ ROOT = Path(__file__).resolve().parent.parent
 from warpshade._fileio import atomic_path, write_json_atomic  # noqa: E402
 from warpshade._wp import wp  # noqa: E402
 from warpshade.basis import sh  # noqa: E402
-from warpshade.methods.shexp import pipeline  # noqa: E402
+from warpshade.methods.shexp import _pipeline as pipeline  # noqa: E402
 
 RESULTS_DIR = ROOT / "benchmarks" / "results"
 PAPER_SPEEDUP = {3: 1.9, 4: 3.4, 5: 6.5, 6: 11.0}
@@ -140,12 +140,12 @@ def figure_spheres(count: int = 60, procedural: bool = False):
         return c, r, f"procedural {count}-sphere figure (--quick)"
     try:
         from warpshade.io import load_scene
-        from warpshade.methods.shexp.model import build_blocker_model
+        from warpshade.methods.shexp._model import build_blocker_model
 
         scene = load_scene("bundled:figure")
         spheres = build_blocker_model(scene, count, calibrate=False).spheres
         f0 = float(scene.frames[0])
-        return spheres.centres_at(scene, f0), spheres.radii_at(scene, f0), "figure.usda sphere set (warpshade.methods.shexp.spheres)"
+        return spheres.centres_at(scene, f0), spheres.radii_at(scene, f0), "figure.usda sphere set (warpshade.methods.shexp._spheres)"
     except Exception as exc:  # the sphere module is optional here: say which spheres were used
         c, r = procedural_figure(count)
         return c, r, f"procedural 60-sphere figure ({type(exc).__name__}: {exc})"
@@ -218,7 +218,7 @@ def part_battle(args) -> dict:
 
 
 def part_exp(args) -> dict:
-    from warpshade.methods.shexp import mirror
+    from warpshade.methods.shexp import _mirror as mirror
 
     res = 40
     points, normals = ground_grid(res, 6.0)
@@ -311,8 +311,8 @@ def sphere_trace_errors(scene, lighting, frames, budget: int, orders, samples: i
     frame's state.
     """
     from warpshade.measure import run_setting
-    from warpshade.methods.shexp.model import BlockerFrames, BlockerModel
-    from warpshade.methods.shexp.pipeline import ShexpShader, SphereTracer
+    from warpshade.methods.shexp._model import BlockerFrames, BlockerModel
+    from warpshade.methods.shexp._pipeline import ShexpShader, SphereTracer
     from warpshade.scene import FrameEvaluator
 
     res = run_setting(scene, lighting, [("blockers", "shexp.blockers", {"budget": budget}, {}),
@@ -425,10 +425,10 @@ def _candidate_row(c) -> dict:
 
 
 def budget_report(quick: bool = False, targets=BUDGET_TARGETS, scenes=BUDGET_SCENES, device="cpu") -> dict:
-    """:func:`warpshade.measure.budget.choose` over SHEXP's candidates on two bundled scenes,
+    """:func:`warpshade.measure._budget.choose` over SHEXP's candidates on two bundled scenes,
     and the choice read off the same measurements for each target."""
     from warpshade.measure import choose, load_bench_scene, pick
-    from warpshade.methods.shexp import budget
+    from warpshade.methods.shexp import _budget as budget
 
     out = {"targets": list(targets), "scenes": {}}
     for key in scenes:

@@ -46,12 +46,12 @@ ROOT = Path(__file__).resolve().parents[1]
 from warpshade._fileio import atomic_path, write_json_atomic
 from warpshade._wp import launch_parallel, resolve_device, wp
 from warpshade.geometry import spheres as sp
-from warpshade.geometry.spheres import core as core_internals
-from warpshade.geometry.spheres import fit as fit_internals
-from warpshade.geometry.spheres import kernels
-from warpshade.geometry.spheres import tree as tree_internals
+from warpshade.geometry.spheres import _core as core_internals
+from warpshade.geometry.spheres import _fit as fit_internals
+from warpshade.geometry.spheres import _kernels as kernels
+from warpshade.geometry.spheres import _tree as tree_internals
 from warpshade.io import load_scene
-from warpshade.methods.shexp import spheres as ss
+from warpshade.methods.shexp import _spheres as ss
 from warpshade.scene import FrameEvaluator
 
 #: Ren et al. 2006, Figure 4 (bunny): E for three sphere-set constructions.

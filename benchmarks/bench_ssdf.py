@@ -8,7 +8,7 @@ count chosen for the error budget, exact vs randomised SVD time.
 
 Part 3 -- the product with an SG lobe (Fig. 7 analogue): per vertex and lobe axis,
 ``integral G(i; p, lambda, 1) V(i)`` over the upper hemisphere ray traced by sampling the lobe
-(:func:`warpshade.transfer.ssdf.trace_lobe_visibility`) against ``f_h(Vd(p), lambda)`` (eq. 30)
+(:func:`warpshade.transfer._ssdf.trace_lobe_visibility`) against ``f_h(Vd(p), lambda)`` (eq. 30)
 from the uncompressed SSDF and from the PCA at each term count; errors in units of
 ``f_h(pi/2, lambda)`` (the unoccluded lobe). Two references explain the error: ``horizon_only``
 (an open sky, where the SSDF is +pi/2 but the truth stops at the horizon: exactly
@@ -78,7 +78,7 @@ def main(argv=None) -> int:
     from warpshade._wp import cpu_workers
     from warpshade.basis import sg
     from warpshade.io import load_scene
-    from warpshade.transfer import ssdf, ssdf_pca, ssdf_products
+    from warpshade.transfer import _ssdf as ssdf, _ssdf_pca as ssdf_pca, _ssdf_products as ssdf_products
 
     resolution, supersample = (32, 4) if args.quick else (128, 4)
     count = 32 if args.quick else args.vertices

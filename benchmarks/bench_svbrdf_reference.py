@@ -2,9 +2,9 @@
 its texture of eq.-13 materials: a float64 split at a random subset of the dish's vertices.
 
 One run of the graph, frame 0. The reference is the graph's own ``--validate`` ground truth (the
-cached one: ``[validate]`` samples, the validate seed; :func:`warpshade.measure.truth.ground_truth`
-of the stage's reference model, :class:`~warpshade.scene.svbrdf.SVBRDFMaterial`).
-At the subset, :func:`warpshade.methods.sg.svbrdf.eq13_quadrature_f64` (Gauss-Legendre x uniform
+cached one: ``[validate]`` samples, the validate seed; :func:`warpshade.measure._truth.ground_truth`
+of the stage's reference model, :class:`~warpshade.scene._svbrdf.SVBRDFMaterial`).
+At the subset, :func:`warpshade.methods.sg._svbrdf.eq13_quadrature_f64` (Gauss-Legendre x uniform
 nodes over each vertex's hemisphere, every node ray traced for visibility against the frame's BVH
 from the reference's shadow-ray origin) of the texture with, in turn:
 
@@ -39,15 +39,15 @@ import numpy as np
 
 import warpshade.graph as graph
 from warpshade._fileio import write_json_atomic
-from warpshade.geometry.bvh import Visibility
+from warpshade.geometry._bvh import Visibility
 from warpshade.measure import VALIDATE_SEED, ground_truth, reference_model
 from warpshade.methods.sg import decode_maps, shade_f64
-from warpshade.methods.sg.slices import duff_frame_f64
-from warpshade.methods.sg.svbrdf import eq13_quadrature_f64, svbrdf_slices_f64
-from warpshade.reference.svbrdf_warp import vertex_texels
+from warpshade.methods.sg._slices import duff_frame_f64
+from warpshade.methods.sg._svbrdf import eq13_quadrature_f64, svbrdf_slices_f64
+from warpshade.reference._svbrdf_warp import vertex_texels
 from warpshade.scene import SphereLight
-from warpshade.scene.materials import hemisphere_quadrature
-from warpshade.scene.svbrdf import scene_uvs
+from warpshade.scene._materials import hemisphere_quadrature
+from warpshade.scene._svbrdf import scene_uvs
 from warpshade.usd_assets.generator.svbrdf import texel_material
 
 from _dish import dated_stem, quick_overrides, rel_rms, relative_noise, sole_environment

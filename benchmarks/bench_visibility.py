@@ -181,10 +181,10 @@ def part_diffuse(quick, as_written=False, walk=True, previous=True):
 def part_wanderer_diffuse(quick):
     """The harness's wanderer diffuse row (``visibility auto n6 diffuse``: the settings of
     stages/figure_visibility_diffuse.toml on the wanderer's training data of
-    :data:`warpshade.methods.visibility.rows.TRAINING_CLIPS`) next to the 2007 linear model
+    :data:`warpshade.methods.visibility._rows.TRAINING_CLIPS`) next to the 2007 linear model
     (stages/wanderer_datadriven.toml) trained on the *same* frames and rays, both on the wanderer's
     held-out clip against the diffuse reference at stages/wanderer_datadriven.toml's [validate] frames."""
-    from warpshade.methods.visibility.rows import TRAINING_CLIPS, TRAINING_RAYS
+    from warpshade.methods.visibility._rows import TRAINING_CLIPS, TRAINING_RAYS
 
     training, frames = TRAINING_CLIPS["wanderer"]
     rays = TRAINING_RAYS["wanderer"]
@@ -215,8 +215,8 @@ def diffuse_floors(rt, quick):
     from warpshade.measure import combine_metrics, error_metrics, measure_error
     from warpshade.methods.datadriven import pose_features, pose_layout
     from warpshade.methods.visibility import predict_f64, to_local
-    from warpshade.methods.visibility.mirror import inputs_f64
-    from warpshade.methods.visibility.model import local_frames_f64
+    from warpshade.methods.visibility._mirror import inputs_f64
+    from warpshade.methods.visibility._model import local_frames_f64
     from warpshade.transfer import compute
 
     spec, scene = rt.spec, rt.scene
@@ -279,8 +279,8 @@ def part_studies(quick, rt):
     """Visibility-space error on the held-out frames (module docstring, part 3)."""
     from warpshade.methods.datadriven import pose_features, pose_layout
     from warpshade.methods.visibility import fit_visibility, predict_f64, to_local
-    from warpshade.methods.visibility.mirror import inputs_f64
-    from warpshade.methods.visibility.model import cosine_product_matrix, local_frames_f64
+    from warpshade.methods.visibility._mirror import inputs_f64
+    from warpshade.methods.visibility._model import cosine_product_matrix, local_frames_f64
     from warpshade.tasks import executor
     from warpshade.transfer import compute
 

@@ -3,13 +3,13 @@
 On the bundled Newton banner clips (``bundled:cloth_train``, 120 frames, and
 ``bundled:cloth_heldout``, 60 frames; 1,089 vertices, 2,048 triangles), on the CPU:
 
-* the dihedral-angle PCA (:class:`warpshade.methods.visibility.cloth.DihedralFeatures`) for
+* the dihedral-angle PCA (:class:`warpshade.methods.visibility._cloth.DihedralFeatures`) for
   retained-variance targets from 0.5 to 0.99: components kept, and the relative RMS error of the
   angles rebuilt from the features on the training and the held-out clip (the input side of the
   paper's Fig. 5);
 * the time of the per-frame feature program (two Warp kernel launches: angles, projection) and of
   the float64 NumPy path, median over the held-out frames;
-* rotation-sequence clusters (:func:`~warpshade.methods.visibility.cloth.rotation_clusters`) for
+* rotation-sequence clusters (:func:`~warpshade.methods.visibility._cloth.rotation_clusters`) for
   1 to 64 clusters: the rigid-fit residual of the training clip's labels on the training and the
   held-out clip (clusters against error, the paper's Fig. 4 for the segmentation alone), and the
   count the default budget (0.01 m) picks.
@@ -57,7 +57,7 @@ def _relative_error(model, points) -> float:
 
 
 def _features(train, test, faces, targets):
-    from warpshade.methods.visibility.cloth import DihedralFeatures
+    from warpshade.methods.visibility._cloth import DihedralFeatures
 
     rows = []
     for target in targets:
@@ -96,7 +96,7 @@ def _timing(model, test):
 
 
 def _clusters(train, test, faces, counts):
-    from warpshade.methods.visibility.cloth import rigid_fit_residual, rotation_clusters
+    from warpshade.methods.visibility._cloth import rigid_fit_residual, rotation_clusters
 
     rows = []
     for k in counts:
@@ -170,7 +170,7 @@ def main(argv=None) -> int:
     t_start = time.perf_counter()
     print(f"dihedral features: {len(train)} training frames, {len(test)} held out", flush=True)
     features = _features(train, test, faces, targets)
-    from warpshade.methods.visibility.cloth import DihedralFeatures
+    from warpshade.methods.visibility._cloth import DihedralFeatures
 
     timing = _timing(DihedralFeatures.fit(train, faces, variance=0.9), test)
     print(f"  feature program: {timing['kernel_ms']} ms per frame (Warp, CPU), float64 NumPy {timing['numpy_f64_ms']} ms", flush=True)

@@ -11,7 +11,7 @@ on the graph's [validate] frames against the same diffuse reference (``measure_e
   visibility itself (the floor of the SH order);
 * for the ``--worst`` clusters with the largest excess of the model over its PCA floor, every
   candidate of the ``auto`` selection (the relative inputs' too when the graph's fit has them,
-  ``visibility.fit relative``) and their stacked combination (``regressor = "stack"``) (:mod:`warpshade.methods.visibility.select`: input set,
+  ``visibility.fit relative``) and their stacked combination (``regressor = "stack"``) (:mod:`warpshade.methods.visibility._select`: input set,
   kind, input count, its blocked-CV penalty), refitted in-process on the training clip: its
   blocked cross-validation error on the training clip (the selection's criterion) next to its
   held-out contribution -- a diagnosis of the selection, never a selection (the held-out clip
@@ -60,12 +60,12 @@ def main(argv=None) -> int:
     from warpshade.measure import measure_error
     from warpshade.methods.datadriven import pose_features, pose_layout
     from warpshade.methods.visibility import predict_f64, to_local
-    from warpshade.methods.visibility import select as S
-    from warpshade.methods.visibility.fit import _principal, pca_size
-    from warpshade.methods.visibility.mirror import inputs_f64
-    from warpshade.methods.visibility.model import _input_sets, cosine_product_matrix, input_space, local_frames_f64
-    from warpshade.methods.visibility.relative import relative_features_f64
-    from warpshade.methods.visibility.stack import fit_stack, union_features
+    from warpshade.methods.visibility import _select as S
+    from warpshade.methods.visibility._fit import _principal, pca_size
+    from warpshade.methods.visibility._mirror import inputs_f64
+    from warpshade.methods.visibility._model import _input_sets, cosine_product_matrix, input_space, local_frames_f64
+    from warpshade.methods.visibility._relative import relative_features_f64
+    from warpshade.methods.visibility._stack import fit_stack, union_features
     from warpshade.transfer import compute
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
@@ -249,15 +249,15 @@ def _linear_local(sets: dict) -> dict:
 def nested_cv(data, labels, fr_train, poses, xg, fit_params, relative=(None, None)) -> dict:
     """Nested blocked CV of candidate families (module docstring): ``{"rel": family -> relative
     error over every cluster, "per_cluster": family -> [squared error per cluster]}``."""
-    from warpshade.methods.visibility import select as S
+    from warpshade.methods.visibility import _select as S
     from warpshade.methods.visibility import to_local
-    from warpshade.methods.visibility.fit import _principal, pca_size
-    from warpshade.methods.visibility.model import _input_sets
+    from warpshade.methods.visibility._fit import _principal, pca_size
+    from warpshade.methods.visibility._model import _input_sets
 
     pcount = xg.shape[0]
     kc = int(labels.max()) + 1
     outer = S.blocked_folds(pcount)
-    from warpshade.methods.visibility.stack import fit_stack, union_features
+    from warpshade.methods.visibility._stack import fit_stack, union_features
 
     fams = ("auto", "auto without relative", "global", "local", "quadratic 12", "stack")
     sse = {f: np.zeros(kc) for f in fams}

@@ -54,8 +54,8 @@ from warpshade.measure import (  # noqa: E402
     scene_kinds,
     setting_error,
 )
-from warpshade.measure.scenes import ROTATE_DEGREES_PER_FRAME  # noqa: E402
-from warpshade.methods.rows import all_rows  # noqa: E402
+from warpshade.measure._scenes import ROTATE_DEGREES_PER_FRAME  # noqa: E402
+from warpshade.methods._rows import all_rows  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
 SCENES = BENCH_SCENES

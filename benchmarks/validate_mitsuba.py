@@ -92,12 +92,12 @@ ROOT = Path(__file__).resolve().parents[1]
 
 from warpshade._fileio import write_json_atomic  # noqa: E402
 from warpshade._wp import resolve_device, wp  # noqa: E402
-from warpshade.geometry.bvh import RAY_MAX_DISTANCE, Visibility  # noqa: E402
+from warpshade.geometry._bvh import RAY_MAX_DISTANCE, Visibility  # noqa: E402
 from warpshade.io import bundled_asset_directory  # noqa: E402
 from warpshade.reference import ReferenceShader, pixel_hits, reference_image  # noqa: E402
 from warpshade.render import camera_for, interpolate_vertex_values, render, write_png  # noqa: E402
 from warpshade.render import tonemap_f64
-from warpshade.scene import DistantLight, Environment, SphereLight, materials  # noqa: E402
+from warpshade.scene import DistantLight, Environment, SphereLight, _materials as materials  # noqa: E402
 from warpshade.transfer import sample_rays  # noqa: E402
 
 DEFAULT_SCENE = Path(bundled_asset_directory()) / "blockers.usda"

@@ -5,7 +5,7 @@ Scene: a 4 m ground grid and a ball above it (an icosphere, for a shadow), both 
 ``(u, v) = R (x, y)`` turned by ``UV_TURN_DEG`` so that the tangent (the direction of increasing
 u) is neither an axis of the grid nor of the camera, lit by the procedural sky
 (``Environment.sky``) and, with ``--point-light``, by a point light. Material: the anisotropic
-Beckmann microfacet BRDF, ours :class:`warpshade.scene.materials.AnisotropicMicrofacet`
+Beckmann microfacet BRDF, ours :class:`warpshade.scene._materials.AnisotropicMicrofacet`
 (``roughness`` a_x along the tangent, ``roughness_y`` a_y along the bitangent; Smith masking with
 the projected roughness and the rational Lambda; ``f0 = 1``: Schlick gives 1) evaluated by
 :func:`warpshade.reference.reference_image` with ``tangents = "uv"``; Mitsuba's ``twosided``
@@ -46,7 +46,7 @@ from warpshade._fileio import write_json_atomic
 from warpshade._wp import resolve_device
 from warpshade.reference import reference_image
 from warpshade.render import tonemap_f64, write_png
-from warpshade.scene import Camera, Environment, Mesh, Scene, SphereLight, materials
+from warpshade.scene import Camera, Environment, Mesh, Scene, SphereLight, _materials as materials
 
 #: Smoke profile (tests/test_benchmarks.py): skipped where Mitsuba 3 is not installed
 #: (pip install -e '.[validate]').

@@ -6,7 +6,7 @@ loads ``nv_humanoid.xml``, capsules and spheres) is read from the installed ``ne
 driven by a sinusoidal gait of joint position targets, solved with ``SolverXPBD`` (it runs on
 the CPU device as on CUDA). Each visible shape of the model -- a Newton sphere, capsule, box,
 cylinder, cone or ellipsoid -- is tessellated once, in its body's frame, as warpshade tessellates
-the matching implicit USD prim (:func:`warpshade.io.usd_implicit.tessellate`), and the shapes
+the matching implicit USD prim (:func:`warpshade.io.tessellate`), and the shapes
 together are one mesh with the same topology at every frame. After each simulated frame a Warp
 kernel places every vertex with its body's transform (``State.body_q``) and the points are fed to
 a warpshade run compiled once: ``rt.step(0, points={"/World/Body": points})``. The graph is
@@ -25,7 +25,7 @@ Outputs in ``--out``:
   the counts, and the relative RMS error per measured frame against ray-traced ground truth
   (``--truth-samples`` rays per vertex, with the reference's own noise reported beside it).
 
-They are planned like the outputs of ``warpshade run`` (:func:`warpshade.measure.outputs.plan_outputs`):
+They are planned like the outputs of ``warpshade run`` (:func:`warpshade.measure.plan_outputs`):
 a file of one of those names that this example did not write there itself (the folder's manifest,
 ``.warpshade-outputs.json``, says which it did) is never replaced. The arguments and the output
 folder are checked before the simulation starts: a problem is a usage error (exit status 2) that
@@ -126,7 +126,7 @@ def shape_mesh(geo_type: int, scale, segments: int):
     """
     import newton
 
-    from warpshade.io.usd_implicit import tessellate
+    from warpshade.io import tessellate
 
     s = [float(v) for v in scale]
     stretch = np.ones(3)
@@ -298,7 +298,7 @@ def shading_scene(robot: Robot, rest_points: np.ndarray, faces: np.ndarray, albe
 def measured_frames(frame_count: int, count: int) -> list:
     """The frames measured against ground truth: ``count`` of the first, middle and last (the
     previewed frames), the last ones first (the body has moved most by then)."""
-    from warpshade.measure.outputs import preview_frames
+    from warpshade.measure import preview_frames
 
     shown = preview_frames(range(frame_count))
     return sorted(shown[::-1][:count])
@@ -311,7 +311,7 @@ def check_arguments(parser: argparse.ArgumentParser, args):
 
     Returns:
         ``(device, graph, plan)``: the Warp device, the shading graph and the checked output plan
-        (:func:`warpshade.measure.outputs.plan_outputs`).
+        (:func:`warpshade.measure.plan_outputs`).
     """
     if args.frames < 1:
         parser.error(f"argument --frames: must be >= 1, got {args.frames}")
@@ -322,7 +322,7 @@ def check_arguments(parser: argparse.ArgumentParser, args):
     if args.truth_samples < 16:
         parser.error(f"argument --truth-samples: must be >= 16, got {args.truth_samples}")
     from warpshade.graph import GraphError, GraphSpec, StageError, StageSpec
-    from warpshade.measure.outputs import check_output_directory, plan_outputs
+    from warpshade.measure import check_output_directory, plan_outputs
 
     try:
         device = wp.get_device(args.device)
@@ -373,7 +373,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     device, graph, plan = check_arguments(parser, args)
     robot = ROBOTS[args.robot]
-    from warpshade.io.usd_write import write_vertex_colors
+    from warpshade.io import write_vertex_colors
     from warpshade.measure import comparison_figure
     from warpshade.render import render
     from warpshade.tasks import progress_bar

@@ -15,7 +15,7 @@ Outputs in ``--out``:
   each with per-vertex ``primvars:displayColor`` (linear RGB radiance) per frame;
 * ``newton_cloth_<frame>.png`` -- previews of the first, middle and last frames.
 
-They are planned like the outputs of ``warpshade run`` (:func:`warpshade.measure.outputs.plan_outputs`):
+They are planned like the outputs of ``warpshade run`` (:func:`warpshade.measure.plan_outputs`):
 a file of one of those names that this example did not write there itself (the folder's manifest,
 ``.warpshade-outputs.json``, says which it did) is never replaced. The arguments and the output
 folder are checked before the simulation starts: a problem is a usage error (exit status 2) that
@@ -144,7 +144,7 @@ def check_arguments(parser: argparse.ArgumentParser, args):
 
     Returns:
         ``(device, graph, plan)``: the Warp device, the shading graph and the checked output plan
-        (:func:`warpshade.measure.outputs.plan_outputs`).
+        (:func:`warpshade.measure.plan_outputs`).
     """
     for flag, value in (("--frames", args.frames), ("--cells", args.cells)):
         if value < 1:
@@ -152,7 +152,7 @@ def check_arguments(parser: argparse.ArgumentParser, args):
     import warp as wp
 
     from warpshade.graph import GraphError, GraphSpec, StageError, StageSpec
-    from warpshade.measure.outputs import check_output_directory, plan_outputs
+    from warpshade.measure import check_output_directory, plan_outputs
 
     try:
         device = wp.get_device(args.device)
@@ -183,7 +183,7 @@ def main(argv=None) -> int:
     device, graph, plan = check_arguments(parser, args)
     import warp as wp
 
-    from warpshade.io.usd_write import write_vertex_colors
+    from warpshade.io import write_vertex_colors
     from warpshade.render import render
 
     with wp.ScopedDevice(device):

@@ -309,7 +309,7 @@ def _hdr_differences(name: str, bundled_path: str, generated_path: str) -> list[
 
 # ---- MERL tabulated BRDF ------------------------------------------------------------------------
 def _merl_differences(name: str, bundled_path: str, generated_path: str) -> list[str]:
-    from warpshade.scene.tabulated import read_merl
+    from warpshade.scene._tabulated import read_merl
 
     try:
         a, b = (read_merl(p).table for p in (bundled_path, generated_path))
@@ -338,7 +338,7 @@ def _merl_differences(name: str, bundled_path: str, generated_path: str) -> list
 
 # ---- other tables and textures -----------------------------------------------------------------
 def _svbrdf_differences(name: str, bundled_path: str, generated_path: str) -> list[str]:
-    from warpshade.scene.svbrdf import read_svbrdf
+    from warpshade.scene._svbrdf import read_svbrdf
 
     try:
         a, b = read_svbrdf(bundled_path), read_svbrdf(generated_path)
@@ -350,7 +350,7 @@ def _svbrdf_differences(name: str, bundled_path: str, generated_path: str) -> li
 
 
 def _anisobrdf_differences(name: str, bundled_path: str, generated_path: str) -> list[str]:
-    from warpshade.scene.tabulated_aniso import read_anisotropic_table
+    from warpshade.scene._tabulated_aniso import read_anisotropic_table
 
     try:
         a, b = (read_anisotropic_table(p).table for p in (bundled_path, generated_path))

@@ -39,7 +39,7 @@ def sg_bake_refused(monkeypatch):
     """The SSDF bake and the environment's preparation of ``sg.shade`` raise :class:`BakeReached`:
     a test of a check that must come before any precompute asserts a refusal, or this exception
     when there is nothing to refuse."""
-    import warpshade.methods.sg.stages as sg_stages
+    import warpshade.methods.sg._stages as sg_stages
 
     def bake(*args, **kwargs):
         raise BakeReached

@@ -14,13 +14,13 @@ from tolerances import assert_within_stderr
 
 from warpshade._wp import wp
 from warpshade.io import bundled_asset_directory
-from warpshade.methods.sg.measured_aniso import AnisotropicMeasured, aniso_measured_material, extract_anisotropic
+from warpshade.methods.sg._measured_aniso import AnisotropicMeasured, aniso_measured_material, extract_anisotropic
 from warpshade.reference import shade_glossy
-from warpshade.scene import Environment, Mesh, Scene, materials
-from warpshade.scene.materials_warp import BRDFParams, brdf_eval, brdf_pdf, brdf_sample, upload_brdf
-from warpshade.scene.tabulated_aniso import (ANISO_HEADER_BYTES, AnisotropicTable, aniso_cell_centres,
+from warpshade.scene import Environment, Mesh, Scene, _materials as materials
+from warpshade.scene._materials_warp import BRDFParams, brdf_eval, brdf_pdf, brdf_sample, upload_brdf
+from warpshade.scene._tabulated_aniso import (ANISO_HEADER_BYTES, AnisotropicTable, aniso_cell_centres,
                                              read_anisotropic_table, tabulate_anisotropic, write_anisotropic_table)
-from warpshade.scene.tabulated import half_diff_directions
+from warpshade.scene._tabulated import half_diff_directions
 from warpshade.usd_assets.generator.aniso_table import ANISO_DIMS, ANISO_FILE, aniso_model, make_aniso_table
 
 from asset_compare import asset_differences

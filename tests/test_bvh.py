@@ -6,7 +6,7 @@ import pytest
 import trimesh
 
 from warpshade._wp import wp
-from warpshade.geometry.bvh import (
+from warpshade.geometry._bvh import (
     RAY_OFFSET_FLOAT32_GUARD,
     RAY_OFFSET_RELATIVE,
     Visibility,

@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from warpshade.methods.datadriven import model as dd
+from warpshade.methods.datadriven import _model as dd
 from warpshade.methods.datadriven import PARAMETERISATIONS, novelty, pose_features, pose_layout
 from warpshade.methods.datadriven import hemisphere_transfer_error
 from warpshade.methods._shared.pose_space import pose_space
-from warpshade.methods.datadriven.stages import model_from_arrays, model_to_arrays
+from warpshade.methods.datadriven._stages import model_from_arrays, model_to_arrays
 from warpshade.scene import Mesh, Scene, Skeleton, SkinBinding
 
 #: float32 kernels: pose features are a few rotations composed (angles ~1 rad).
@@ -277,8 +277,8 @@ def test_pose_layout_errors():
 @pytest.mark.parametrize("reduced", [True, False])
 def test_frame_products_match_float64_model(rng, device, reduced):
     from warpshade._wp import wp
-    from warpshade.methods.datadriven import kernels
-    from warpshade.methods.datadriven.stages import _blocks, _vec
+    from warpshade.methods.datadriven import _kernels as kernels
+    from warpshade.methods.datadriven._stages import _blocks, _vec
 
     A, B = _regression_case(rng, p=50, a=11, v=300, c=9, constant=(4,))
     model = dd.fit_reduced(A, B, ka=5, kv=19) if reduced else dd.fit_full(A, B)

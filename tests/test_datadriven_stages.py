@@ -10,7 +10,7 @@ import pytest
 
 from warpshade.graph import GraphError, GraphSpec, StageSpec
 from warpshade.io import load_scene
-from warpshade.methods.datadriven.rows import stages_for
+from warpshade.methods.datadriven._rows import stages_for
 from warpshade.methods._shared.training import trace_training
 from warpshade.graph import StageError
 from warpshade.transfer import compute

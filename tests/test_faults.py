@@ -207,7 +207,7 @@ def test_environment_errors_are_one_line(tmp_path, capsys, monkeypatch):
         rc, out, err = _run(capsys, *argv)
         assert rc == 2 and re.search(message, err) and "Traceback" not in err, (argv, err)
     # a full disk while the USD layer is written
-    import warpshade.io.usd_write as usd_write
+    import warpshade.io._usd_write as usd_write
 
     def full(*args, **kwargs):
         raise OSError(errno.ENOSPC, "No space left on device", str(tmp_path / "o" / "g.usda"))
@@ -332,7 +332,7 @@ def test_the_readme_python_loop_writes_usd(device, tmp_path):
 
 
 def test_large_outputs_are_binary_usd():
-    from warpshade.io.usd_write import USDA_MAX_BYTES, usd_output_name
+    from warpshade.io._usd_write import USDA_MAX_BYTES, usd_output_name
 
     class _Scene:
         vertex_count = 2_000_000

@@ -18,9 +18,9 @@ from warpshade import cli
 from warpshade.tasks import progress_bar
 from warpshade.graph import default_cache_dir, load
 from warpshade.measure import Measurement, render_comparisons, run_exposure
-from warpshade.measure.pictures import ERROR_LABEL, write_panels
-from warpshade.scene.materials import Microfacet
-from warpshade.scene.tabulated import read_merl, write_merl
+from warpshade.measure._pictures import ERROR_LABEL, write_panels
+from warpshade.scene._materials import Microfacet
+from warpshade.scene._tabulated import read_merl, write_merl
 
 from grids import CUBE_USDA as CUBE
 
@@ -196,7 +196,7 @@ def test_panels_have_titles_and_a_labelled_colour_bar(tmp_path, monkeypatch):
 
 
 def test_pixel_error_panel_maps_the_signed_error():
-    from warpshade.measure.pixels import _error_image
+    from warpshade.measure._pixels import _error_image
 
     ref = np.ones((4, 4, 3))
     est = ref.copy()
@@ -229,7 +229,7 @@ def test_figure_rpo_shexp_blocks_with_the_ground_and_says_where_its_error_is():
     """The reviewer's reading of the 0.35 error (light from below the ground) is not what happens:
     the static ground plane is a disc blocker of the graph's blocker model, above every figure
     vertex, and the description (the run report's) names the cause that remains."""
-    from warpshade.methods.shexp.model import plane_blockers
+    from warpshade.methods.shexp._model import plane_blockers
 
     spec = load(ROOT / "stages" / "figure_rpo_shexp.toml")
     blockers = next(st for st in spec.stages if st.type == "shexp.blockers")

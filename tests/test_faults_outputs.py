@@ -1,7 +1,7 @@
 """Issue 23, data loss and late or unclear errors: every case refused early, by name, with nothing lost.
 
 * Data loss: ``--out`` pointing at a folder that holds inputs. A run plans every file it will write
-  before any work (:func:`warpshade.measure.outputs.plan_outputs`) and never replaces a file that
+  before any work (:func:`warpshade.measure._outputs.plan_outputs`) and never replaces a file that
   warpshade did not write there itself (the folder's manifest says which it did).
 * Sizes that would not fit (``restarts``, ``view_resolution``, ``table_width``, an HDR header)
   are refused naming the parameter or file, before anything is allocated.
@@ -35,7 +35,7 @@ from hypothesis import strategies as st
 from warpshade import cli
 from warpshade.graph import GraphError, GraphSpec, Param, StageError, load
 from warpshade.io import read_hdr, read_image, write_hdr
-from warpshade.measure.outputs import MANIFEST_NAME, plan_outputs
+from warpshade.measure._outputs import MANIFEST_NAME, plan_outputs
 
 from grids import CUBE_USDA as CUBE
 from hang import START_S
@@ -181,8 +181,8 @@ _TABLE = 'type = "rpo.shade"\norder = 3\nrank = 4\neye = [0.0, -3.0, 1.0]\nbrdf 
 def test_a_forged_manifest_never_lets_a_run_replace_a_file_it_reads(tmp_path, capsys, monkeypatch, case):
     """A manifest entry that claims an input (forged, or stale: copied with the folder) does not
     make it an output: every file the graph reads is protected, not only the scene."""
-    from warpshade.scene.materials import Microfacet
-    from warpshade.scene.tabulated import write_merl
+    from warpshade.scene._materials import Microfacet
+    from warpshade.scene._tabulated import write_merl
 
     out = tmp_path / "o"
     out.mkdir()
@@ -284,7 +284,7 @@ def test_two_runs_writing_into_one_folder_keep_each_others_entries(tmp_path, mon
     where there is none): two plans recording at once lose no entry."""
     import threading
 
-    import warpshade.measure.outputs as outputs
+    import warpshade.measure._outputs as outputs
 
     if lock == "lock directory":
         monkeypatch.setattr(outputs, "_flock_directory", lambda directory: None)
@@ -319,7 +319,7 @@ def test_two_runs_writing_into_one_folder_keep_each_others_entries(tmp_path, mon
 
 
 def test_a_lock_directory_held_too_long_is_named(tmp_path, monkeypatch):
-    import warpshade.measure.outputs as outputs
+    import warpshade.measure._outputs as outputs
 
     monkeypatch.setattr(outputs, "_flock_directory", lambda directory: None)
     monkeypatch.setattr(outputs, "LOCK_TIMEOUT_S", 0.2)
@@ -441,8 +441,8 @@ def test_tabulated_brdfs_with_validate_pass_the_checks_before_work(tmp_path, cap
     """The glossy reference shades tabulated BRDFs: a table as the stage's BRDF or in the material
     track passes --validate's checks (the run reaches its work); a material the reference does
     not shade is refused before any work, naming the entry and the file."""
-    from warpshade.scene.materials import Microfacet
-    from warpshade.scene.tabulated import write_merl
+    from warpshade.scene._materials import Microfacet
+    from warpshade.scene._tabulated import write_merl
 
     class Reached(Exception):
         pass
@@ -465,7 +465,7 @@ def test_tabulated_brdfs_with_validate_pass_the_checks_before_work(tmp_path, cap
     rc, err = _run(capsys, "run", str(g), "--out", str(tmp_path / "o2"), "--validate", "--device", "cpu")
     assert "Reached" in err, err
     # a material the reference has no device form of: named with its file, before any work
-    from warpshade.scene import materials_warp
+    from warpshade.scene import _materials_warp as materials_warp
 
     def unsupported(brdf):
         raise ValueError("the ray-traced glossy reference does not shade BRDF 'tabulated'")
@@ -490,7 +490,7 @@ def test_an_unwritable_cache_names_the_directory_and_variable_before_any_work(tm
 
 def test_a_cache_that_refuses_a_write_names_the_directory_and_variable(tmp_path, monkeypatch):
     from warpshade.graph import ArtifactCache
-    from warpshade.graph import cache as cache_module
+    from warpshade.graph import _cache as cache_module
 
     def read_only(path, *args, **kwargs):
         raise PermissionError(errno.EACCES, "Permission denied", str(path))

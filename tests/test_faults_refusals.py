@@ -16,9 +16,9 @@ from warpshade.io import load_scene
 from warpshade.methods.hybrid import glossy_stages_for
 from warpshade.methods.hybrid import stages_for as hybrid_stages_for
 from warpshade.methods.visibility import fit_cluster, fit_visibility
-from warpshade.methods.visibility.rows import stages_for as visibility_stages_for
-from warpshade.methods.visibility.select import fewest_frames
-from warpshade.methods.visibility.stack import fit_stack
+from warpshade.methods.visibility._rows import stages_for as visibility_stages_for
+from warpshade.methods.visibility._select import fewest_frames
+from warpshade.methods.visibility._stack import fit_stack
 
 #: Training frames of the bend the small visibility graphs select (15 of its 60: enough for the fit).
 TRAINING_FRAMES = "0:60:4"
@@ -181,7 +181,7 @@ def test_too_few_training_frames_are_refused_before_tracing(bend, no_work, model
 
 def test_too_few_frames_of_another_clip_are_refused_before_tracing(bend, monkeypatch):
     """A training clip other than the graph's scene: refused when the clip is read, before its tracing."""
-    from warpshade.methods.visibility import stages as visibility_stages
+    from warpshade.methods.visibility import _stages as visibility_stages
 
     monkeypatch.setattr(visibility_stages, "trace_training", _sentinel("visibility.data", "trace_training"))
     spec = _visibility_graph(data={"training": "bundled:bend"}, frames=FEW_FRAMES)

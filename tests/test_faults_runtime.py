@@ -17,9 +17,9 @@ from hypothesis import strategies as st
 from warpshade.tasks import executor
 from warpshade.graph import GraphError, GraphSpec, StageError, StageSpec
 from warpshade.scene import Environment, LightingSource, Mesh, Scene, SphereLight
-from warpshade.scene import materials as M
-from warpshade.scene.brdfs import brdf_from_spec, make_brdf
-from warpshade.scene.tabulated import read_merl, write_merl
+from warpshade.scene import _materials as M
+from warpshade.scene._brdfs import brdf_from_spec, make_brdf
+from warpshade.scene._tabulated import read_merl, write_merl
 
 #: Few examples each: every one compiles or steps a tiny graph on the CPU.
 FEW = settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])

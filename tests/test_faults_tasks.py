@@ -30,7 +30,7 @@ from warpshade.graph import ArtifactCache, GraphSpec, StageSpec
 from warpshade.io import load_scene
 from warpshade.measure import ground_truth
 from warpshade.methods._shared import training
-from warpshade.methods.datadriven.rows import stages_for
+from warpshade.methods.datadriven._rows import stages_for
 from warpshade.scene import LightingSource
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -336,7 +336,7 @@ def _truth(bend, cache_dir, ex=None):
 
 
 def test_interrupted_ground_truth_resumes_where_it_stopped(bend, tmp_path, monkeypatch):
-    import warpshade.measure.truth as truth
+    import warpshade.measure._truth as truth
 
     uninterrupted = _truth(bend, None)
     cache_dir = tmp_path / "truth"
@@ -361,7 +361,7 @@ def test_interrupted_ground_truth_resumes_where_it_stopped(bend, tmp_path, monke
 
 
 def test_a_ground_truth_entry_of_the_wrong_shape_is_computed_again(bend, tmp_path, monkeypatch):
-    import warpshade.measure.truth as truth
+    import warpshade.measure._truth as truth
 
     cache_dir = tmp_path / "truth"
     _truth(bend, cache_dir)

@@ -14,7 +14,7 @@ from warpshade._wp import record_program
 from warpshade.graph import GraphError, GraphSpec, StageSpec
 from warpshade.io import load_scene
 from warpshade.scene import DistantLight, Environment, FrameEvaluator, LightingSource, LightTrack, SphereLight
-from warpshade.scene.state import CPU_REFIT_NOTE
+from warpshade.scene._state import CPU_REFIT_NOTE
 
 from tolerances import REPLAY_RTOL
 

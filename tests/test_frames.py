@@ -7,8 +7,8 @@ import trimesh
 from scipy.spatial.transform import Rotation
 
 from warpshade._wp import wp
-from warpshade.geometry.frames import DEGENERATE_STRETCH, TangentFrames, frame_rule, tangent_frames_f64
-from warpshade.geometry.normals import vertex_normals_f64
+from warpshade.geometry._frames import DEGENERATE_STRETCH, TangentFrames, frame_rule, tangent_frames_f64
+from warpshade.geometry._normals import vertex_normals_f64
 
 from tolerances import ATOL_FLOAT32
 

@@ -86,7 +86,7 @@ def y_up():
 
 
 def test_framing_viewer_is_frame_camera_of_the_bounds_over_the_frames(y_up):
-    from warpshade.methods.viewer import scene_viewer
+    from warpshade.methods._viewer import scene_viewer
 
     viewer = scene_viewer(y_up)
     assert viewer.source == "framing" and "up axis Y" in viewer.note

@@ -12,9 +12,9 @@ from warpshade._wp import wp
 from warpshade.basis import sh
 from warpshade.basis.sh_warp import sh_kernels
 from warpshade.graph import GraphSpec, StageSpec
-from warpshade.io import heightfield as hfio
-from warpshade.methods.heightfield import kernels as hfk
-from warpshade.methods.heightfield import mirror as ref
+from warpshade.io import _heightfield as hfio
+from warpshade.methods.heightfield import _kernels as hfk
+from warpshade.methods.heightfield import _mirror as ref
 from warpshade.scene import Camera, Environment, LightingSource, Mesh, Scene
 
 # the product matrices against the float64 SH product, relative to the largest coefficient

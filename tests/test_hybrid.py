@@ -7,11 +7,11 @@ import trimesh
 
 from warpshade._wp import wp
 from warpshade.basis import quadrature
-from warpshade.geometry.bvh import Visibility, trace_occlusion_f64
-from warpshade.geometry.normals import vertex_normals_f64
+from warpshade.geometry._bvh import Visibility, trace_occlusion_f64
+from warpshade.geometry._normals import vertex_normals_f64
 from warpshade.graph import GraphSpec, StageSpec
 from warpshade.methods.hybrid import cycle_directions_f64, filter_f64, residual_f64, surface_neighbours, temporal_f64
-from warpshade.methods.hybrid import kernels
+from warpshade.methods.hybrid import _kernels as kernels
 from warpshade.scene import Environment, Mesh, Scene
 
 from tolerances import ATOL_FLOAT32, STDERR_SIGMAS, assert_close
@@ -475,7 +475,7 @@ def test_recorded_frames_equal_launches_from_python(device, monkeypatch, control
     launch from Python."""
     import warp
 
-    from warpshade.scene.state import CPU_REFIT_NOTE
+    from warpshade.scene._state import CPU_REFIT_NOTE
 
     from tolerances import REPLAY_RTOL
 

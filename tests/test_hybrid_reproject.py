@@ -9,7 +9,7 @@ from warpshade._wp import wp
 from warpshade.basis import quadrature, sh
 from warpshade.basis.sh_warp import sh_kernels
 from warpshade.graph import GraphSpec, StageSpec
-from warpshade.methods.hybrid import kernels, reproject_f64
+from warpshade.methods.hybrid import _kernels as kernels, reproject_f64
 from warpshade.scene import Environment, Mesh, Scene
 
 from tolerances import assert_close
@@ -116,7 +116,7 @@ def test_spinning_convex_box_keeps_its_history_only_when_reprojected(device, rep
         rt.step(f)
     stage = _trace_stage(rt)
     t = stage._transfer.numpy().astype(np.float64)
-    from warpshade.geometry.normals import vertex_normals_f64
+    from warpshade.geometry._normals import vertex_normals_f64
 
     last = float(scene.frames[-1])
     exact = _clamped_cosine(vertex_normals_f64(scene.points_at(last), scene.faces))

@@ -11,7 +11,7 @@ from warpshade.basis import quadrature, sh
 from warpshade.basis.sh_warp import sh_kernels
 from warpshade.graph import GraphSpec, StageError, StageSpec
 from warpshade.methods.hybrid import stages_for, visibility_transfer_f64, world_visibility_transfer_f64
-from warpshade.methods.hybrid.kernels import visibility_transfer_kernel, world_visibility_transfer_kernel
+from warpshade.methods.hybrid._kernels import visibility_transfer_kernel, world_visibility_transfer_kernel
 from warpshade.scene import Environment, Mesh, Scene
 
 from tolerances import assert_close

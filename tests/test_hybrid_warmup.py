@@ -8,7 +8,7 @@ import trimesh
 
 from warpshade._wp import wp
 from warpshade.graph import GraphSpec, StageError, StageSpec
-from warpshade.methods.hybrid import (filter_f64, kernels, surface_neighbours, temporal_f64, warm_blend_f64,
+from warpshade.methods.hybrid import (filter_f64, _kernels as kernels, surface_neighbours, temporal_f64, warm_blend_f64,
                                       warm_filter_f64, warm_weight_f64)
 from warpshade.scene import Environment, Mesh, Scene
 

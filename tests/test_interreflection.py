@@ -19,7 +19,7 @@ from grids import ground_grid
 from hang import HANG_S
 
 from warpshade.basis import quadrature
-from warpshade.geometry.bvh import Visibility
+from warpshade.geometry._bvh import Visibility
 from warpshade.reference import ReferenceShader, shade
 from warpshade.scene import Environment, Mesh, Scene
 from warpshade.transfer import MAX_BOUNCES, InterreflectionTracer, compute, sample_rays

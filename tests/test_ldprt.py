@@ -13,17 +13,17 @@ from scipy.spatial.transform import Rotation
 from warpshade._wp import wp
 from warpshade.basis import sh
 from warpshade.basis.sh_warp import sh_kernels
-from warpshade.geometry.frames import TangentFrames
+from warpshade.geometry._frames import TangentFrames
 from warpshade.graph import GraphSpec, StageSpec, load
 from warpshade.scene import LightingSource
 from warpshade.methods.ldprt import (
     fit_transfer,
-    kernels,
+    _kernels as kernels,
     local_transfer,
     shade_f64,
     world_transfer_f64,
 )
-from warpshade.methods.ldprt.mirror import rotate_stored
+from warpshade.methods.ldprt._mirror import rotate_stored
 from warpshade.scene import Environment, Mesh, Scene
 from warpshade.transfer import compute
 

@@ -6,15 +6,15 @@ import pytest
 
 from warpshade._wp import wp
 from warpshade.basis import sh
-from warpshade.geometry.frames import TangentFrames
+from warpshade.geometry._frames import TangentFrames
 from warpshade.graph import GraphSpec, StageSpec
 from warpshade.measure import measure_error
 from warpshade.scene import LightingSource
-from warpshade.methods.ldprt import kernels
-from warpshade.methods.ldprt.glossy import fit_glossy, glossy_rows
-from warpshade.methods.ldprt.mirror import shade_glossy_f64
+from warpshade.methods.ldprt import _kernels as kernels
+from warpshade.methods.ldprt._glossy import fit_glossy, glossy_rows
+from warpshade.methods.ldprt._mirror import shade_glossy_f64
 from warpshade.scene import Environment, Mesh, Scene
-from warpshade.scene import materials as M
+from warpshade.scene import _materials as M
 
 ORDER = 3
 # float32 kernel vs float64 mirror (table look-ups, 65 x 128, order 3, against exact SH in

@@ -9,9 +9,9 @@ from warpshade._wp import wp
 from warpshade.basis import quadrature, sh, zh
 from warpshade.graph import GraphSpec, StageSpec
 from warpshade.scene import LightingSource
-from warpshade.methods.ldprt import kernels
-from warpshade.methods.ldprt.membrane import membrane_coefficients, thickness
-from warpshade.methods.ldprt.wrinkle import (
+from warpshade.methods.ldprt import _kernels as kernels
+from warpshade.methods.ldprt._membrane import membrane_coefficients, thickness
+from warpshade.methods.ldprt._wrinkle import (
     bilinear_weights,
     evaluate_table,
     fit_wrinkle_table,

@@ -1,4 +1,4 @@
-"""LDPRT texture patches (warpshade.methods.ldprt.patch, patch_warp): kernels against their float64
+"""LDPRT texture patches (warpshade.methods.ldprt._patch, patch_warp): kernels against their float64
 mirrors, a flat patch against unshadowed shading, the lobes' rotation against SH rotation, the
 displaced geometry of the ground truth, and the failure cases."""
 
@@ -10,9 +10,9 @@ from tolerances import ATOL_FLOAT64, ATOL_ZH_FLOAT32, assert_close
 
 from warpshade._wp import wp
 from warpshade.basis import sh
-from warpshade.methods.ldprt import mirror
-from warpshade.methods.ldprt import patch as lp
-from warpshade.methods.ldprt import patch_warp as pw
+from warpshade.methods.ldprt import _mirror as mirror
+from warpshade.methods.ldprt import _patch as lp
+from warpshade.methods.ldprt import _patch_warp as pw
 from warpshade.graph import StageError
 
 #: Order of the small patches of these tests.
@@ -372,8 +372,8 @@ def _patch_run(scene, device, parallax=True):
 def test_stage_shades_pixels_like_the_mirror(device, parallax):
     """``render_pixels`` on a deformed frame: UVs, dP/du, dP/dv and albedo interpolated at the hits,
     the frame from the G-buffer normal, (the parallax march), the four texels -- against float64."""
-    from warpshade.geometry.bvh import Visibility
-    from warpshade.measure.protocols import PixelStage
+    from warpshade.geometry._bvh import Visibility
+    from warpshade.measure._protocols import PixelStage
     from warpshade.render import render_gbuffer
     from warpshade.scene import Camera
 
@@ -412,7 +412,7 @@ def test_stage_shades_pixels_like_the_mirror(device, parallax):
 def test_pixels_are_measured_on_the_displaced_geometry(device, tmp_path):
     """``measure_pixels`` traces the stage's displaced sheet (the UV-less block copied as it is) and
     measures the patched prims' pixels; the patch beats the undisplaced shading."""
-    from warpshade.measure.pixels import measure_pixels
+    from warpshade.measure._pixels import measure_pixels
 
     scene = _wavy_sheet(with_block=True)
     rt = _patch_run(scene, device)

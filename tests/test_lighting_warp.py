@@ -8,7 +8,7 @@ from scipy.stats import chi2
 
 from warpshade.basis import quadrature
 from warpshade.scene import Environment
-from warpshade.scene.lighting_warp import (
+from warpshade.scene._lighting_warp import (
     LUMINANCE_FLOOR,
     disabled_environment,
     env_texel_pdf_f64,

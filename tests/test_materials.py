@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from warpshade.basis import sh
-from warpshade.scene import materials as M
+from warpshade.scene import _materials as M
 
 # Directional albedo by the (96 x 192) hemisphere rule: the peaked lobes (Phong 20, GGX 0.3) are
 # resolved to better than this.

@@ -5,7 +5,7 @@ warpshade/ outgrows it.
   ``harness_rows``;
 * every built-in stage type is ``<package>.<name>``, registered by a class named after it
   (package prefix + CamelCase of the name + ``Stage``: ``prt.shade`` -> ``PrtShadeStage``) that
-  lives in that package's ``stages.py``; the prefix is the package's name in the capitals its
+  lives in that package's ``_stages.py``; the prefix is the package's name in the capitals its
   classes give it (``DataDriven``, ``HeightField``, ``Ldprt``), the same for all of them, so a new
   package needs no entry here;
 * no module in ``warpshade/`` is over :data:`MAX_MODULE_LINES` lines, save the listed ones being
@@ -24,7 +24,8 @@ ROOT = Path(__file__).resolve().parent.parent
 PACKAGE = ROOT / "warpshade"
 
 #: The modules every method package has (docs/adding-a-method.md).
-TEMPLATE_MODULES = ("__init__", "model", "kernels", "mirror", "stages", "rows", "budget")
+#: (every one but ``__init__`` internal: ``_``-prefixed, its public names exported by ``__init__``).
+TEMPLATE_MODULES = ("__init__", "_model", "_kernels", "_mirror", "_stages", "_rows", "_budget")
 #: Longest module, in lines.
 MAX_MODULE_LINES = 800
 #: Modules over the limit that are being split (path relative to warpshade/ -> why); the test
@@ -49,7 +50,7 @@ def test_method_package_has_the_template(package):
     mod = importlib.import_module(f"warpshade.methods.{package}")
     assert mod.__doc__ and mod.__doc__.strip(), f"warpshade.methods.{package} has no docstring"
     assert callable(getattr(mod, "harness_rows", None)), f"warpshade.methods.{package} has no harness_rows"
-    budget = importlib.import_module(f"warpshade.methods.{package}.budget")
+    budget = importlib.import_module(f"warpshade.methods.{package}._budget")
     assert isinstance(budget.GRID, dict) and callable(budget.candidates)
 
 
@@ -73,8 +74,8 @@ def test_stage_types_follow_the_naming_rule():
         if not dot or not rest or package not in methods.METHOD_PACKAGES:
             wrong.append(f"{name}: the prefix is not a method package")
             continue
-        if cls.__module__ != f"warpshade.methods.{package}.stages":
-            wrong.append(f"{name}: {cls.__name__} lives in {cls.__module__}, not warpshade.methods.{package}.stages")
+        if cls.__module__ != f"warpshade.methods.{package}._stages":
+            wrong.append(f"{name}: {cls.__name__} lives in {cls.__module__}, not warpshade.methods.{package}._stages")
         prefix = _class_prefix(name, cls.__name__)
         if prefix is None:
             wrong.append(f"{name}: class {cls.__name__}, expected <{package} in capitals>"

@@ -14,8 +14,8 @@ import pytest
 
 from warpshade import cli
 from warpshade.graph import GraphSpec
-from warpshade.measure.outputs import MANIFEST_NAME, plan_outputs
-from warpshade.measure.pictures import movie_format, write_movie
+from warpshade.measure._outputs import MANIFEST_NAME, plan_outputs
+from warpshade.measure._pictures import movie_format, write_movie
 
 from grids import CUBE_USDA as CUBE
 

@@ -97,7 +97,7 @@ def test_lighting_override_shape_is_checked(device):
 
 def test_per_channel_transfer_kernel_matches_float64(device, rng):
     from warpshade._wp import wp
-    from warpshade.methods.prt import kernels
+    from warpshade.methods.prt import _kernels as kernels
     from warpshade.methods.prt import shade_transfer_f64
 
     t = rng.normal(size=(50, 3, 9)).astype(np.float32)

@@ -34,6 +34,50 @@ def _public_modules() -> dict[str, Path]:
     return out
 
 
+#: What users import (README "Layout"): every package's ``__init__``, the basis's maths modules,
+#: the stage contract, the task executor and the command. Every other module is internal and
+#: ``_``-prefixed; a new public module is a decision, made here.
+PUBLIC_MODULES = {
+    "warpshade", "warpshade.cli", "warpshade.tasks",
+    "warpshade.basis", "warpshade.basis.quadrature", "warpshade.basis.sg", "warpshade.basis.sg_warp",
+    "warpshade.basis.sh", "warpshade.basis.sh_warp", "warpshade.basis.zh",
+    "warpshade.geometry", "warpshade.geometry.spheres", "warpshade.graph", "warpshade.io", "warpshade.measure",
+    "warpshade.reference", "warpshade.render", "warpshade.scene", "warpshade.transfer",
+    "warpshade.methods", "warpshade.methods.stage",
+    *(f"warpshade.methods.{m}" for m in ("datadriven", "heightfield", "hybrid", "ldprt", "prt", "rpo", "sg",
+                                         "shexp", "visibility")),
+}
+
+
+def test_the_public_modules_are_the_decided_ones():
+    found = set(_public_modules())
+    assert found == PUBLIC_MODULES, (f"public modules not decided on: {sorted(found - PUBLIC_MODULES)}; "
+                                     f"decided but missing: {sorted(PUBLIC_MODULES - found)}")
+
+
+def _module_imports(source: str):
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.ImportFrom) and node.level == 0 and (node.module or "").startswith("warpshade"):
+            yield node.lineno, node.module
+        elif isinstance(node, ast.Import):
+            yield from ((node.lineno, a.name) for a in node.names if a.name.startswith("warpshade"))
+
+
+def test_users_are_shown_public_modules_only():
+    """The README, the docs and the examples import from public modules only, and name no internal
+    module in their text (a method author's page, docs/adding-a-method.md, excepted for the text)."""
+    wrong = []
+    for path in [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")), *sorted((ROOT / "examples").rglob("*.py"))]:
+        text = path.read_text()
+        code = _python_blocks(text) if path.suffix == ".md" else text
+        wrong += [f"{path.relative_to(ROOT)}:{line}: imports {m}" for line, m in _module_imports(code)
+                  if any(part.startswith("_") for part in m.split("."))]
+        if path.name != "adding-a-method.md":
+            wrong += [f"{path.relative_to(ROOT)}: names {m}" for m in sorted(set(re.findall(r"warpshade(?:\.\w+)*\._\w+", text)))
+                      if m != "warpshade.__version__"]
+    assert not wrong, "internal modules shown to users:\n" + "\n".join(wrong)
+
+
 def _all_of(path: Path) -> list[str]:
     for node in ast.parse(path.read_text()).body:
         if isinstance(node, ast.Assign) and any(isinstance(t, ast.Name) and t.id == "__all__" for t in node.targets):

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from warpshade._wp import wp
-from warpshade.geometry.bvh import Visibility, trace_occlusion_f64
-from warpshade.geometry.embree import (
+from warpshade.geometry._bvh import Visibility, trace_occlusion_f64
+from warpshade.geometry._embree import (
     BACKEND_DISAGREEMENT_TOLERANCE,
     RAYS_ENV,
     EmbreeOcclusion,
@@ -56,7 +56,7 @@ def test_ray_backend_choice(monkeypatch):
 
 
 def test_missing_embreex_falls_back_with_one_line(monkeypatch, capsys):
-    import warpshade.geometry.embree as embree
+    import warpshade.geometry._embree as embree
 
     monkeypatch.setattr(embree, "embree_available", lambda: False)
     monkeypatch.setattr(embree, "_said", set())
@@ -94,7 +94,7 @@ def test_embree_matches_warp_and_float64_on_explicit_rays():
 
 @needs_embree
 def test_embree_worker_processes_give_the_same_answers(monkeypatch):
-    import warpshade.geometry.embree as embree
+    import warpshade.geometry._embree as embree
 
     scene = _blocks_scene()
     frame = float(scene.frames[0])

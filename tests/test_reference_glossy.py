@@ -9,11 +9,11 @@ import trimesh
 from grids import ground_grid
 
 from warpshade._wp import wp
-from warpshade.geometry.bvh import trace_occlusion_f64
+from warpshade.geometry._bvh import trace_occlusion_f64
 from warpshade.reference import shade, shade_glossy
-from warpshade.scene import DistantLight, Environment, Mesh, Scene, SphereLight, materials
-from warpshade.scene.materials_warp import BRDFParams, brdf_eval, brdf_pdf, brdf_sample, upload_brdf
-from warpshade.methods.sg.brdf import AshikhminShirley, Ward
+from warpshade.scene import DistantLight, Environment, Mesh, Scene, SphereLight, _materials as materials
+from warpshade.scene._materials_warp import BRDFParams, brdf_eval, brdf_pdf, brdf_sample, upload_brdf
+from warpshade.methods.sg._brdf import AshikhminShirley, Ward
 
 from tolerances import STDERR_SIGMAS, assert_within_stderr
 

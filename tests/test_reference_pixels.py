@@ -1,4 +1,4 @@
-"""Per-pixel ground truth (warpshade.reference.pixels): against the per-vertex references at a
+"""Per-pixel ground truth (warpshade.reference._pixels): against the per-vertex references at a
 vertex hit by a pixel centre, as the same estimator as shade_points, per-pixel roughness and
 colour maps against uniform runs, a glossy plane under a constant sky against the BRDF's
 directional albedo (hemisphere quadrature), the box filter against its float64 mirror, the
@@ -12,8 +12,8 @@ from grids import ground_grid
 from warpshade._wp import wp
 from warpshade.io import read_exr
 from warpshade.reference import GlossyReferenceShader, pixel_hits, reference_image, shade, shade_glossy
-from warpshade.reference.pixels import _box_filter_kernel, _coverage_kernel, box_filter_f64
-from warpshade.scene import Camera, Environment, Mesh, Scene, materials
+from warpshade.reference._pixels import _box_filter_kernel, _coverage_kernel, box_filter_f64
+from warpshade.scene import Camera, Environment, Mesh, Scene, _materials as materials
 
 from tolerances import RTOL_FLOAT32, STDERR_SIGMAS, assert_within_stderr
 

@@ -11,17 +11,17 @@ import pytest
 
 from warpshade._wp import wp
 from warpshade.io import bundled_asset_directory
-from warpshade.methods.sg.brdf import TabulatedMicrofacet
-from warpshade.methods.sg import brdf as sg_brdf
-from warpshade.methods.sg.brdf_warp import fresnel_cook_torrance as shading_fresnel
-from warpshade.methods.sg.svbrdf import eq13_quadrature_f64
+from warpshade.methods.sg._brdf import TabulatedMicrofacet
+from warpshade.methods.sg import _brdf as sg_brdf
+from warpshade.methods.sg._brdf_warp import fresnel_cook_torrance as shading_fresnel
+from warpshade.methods.sg._svbrdf import eq13_quadrature_f64
 from warpshade.reference import shade_glossy
-from warpshade.reference.svbrdf_warp import (brdf_with_texel, fresnel_dielectric as reference_fresnel, surface_brdf_eval,
+from warpshade.reference._svbrdf_warp import (brdf_with_texel, fresnel_dielectric as reference_fresnel, surface_brdf_eval,
                                              surface_brdf_pdf, surface_brdf_sample, upload_svbrdf_material, vertex_texels)
 from warpshade.scene import Environment, Mesh, Scene
-from warpshade.scene.materials_warp import BRDFParams
-from warpshade.scene.svbrdf import SVBRDFMaterial, fresnel_dielectric, nearest_texel_f64, scene_uvs, svbrdf_material
-from warpshade.scene.tabulated import TabulatedBRDF
+from warpshade.scene._materials_warp import BRDFParams
+from warpshade.scene._svbrdf import SVBRDFMaterial, fresnel_dielectric, nearest_texel_f64, scene_uvs, svbrdf_material
+from warpshade.scene._tabulated import TabulatedBRDF
 from warpshade.usd_assets.generator.svbrdf import SVBRDF_FILE, smith_shadowing, texel_material
 
 from grids import ground_grid
@@ -263,9 +263,9 @@ def test_pixel_texels_are_the_nearest_texel_of_the_interpolated_uv(device, mater
     """Per camera hit, the texel of the UV interpolated with the G-buffer's barycentrics (the SG
     pixel kernel's expression) against the float64 look-up of the float64 interpolation; and the
     per-pixel reference of an SVBRDF runs with them."""
-    from warpshade.geometry.bvh import Visibility
+    from warpshade.geometry._bvh import Visibility
     from warpshade.reference import reference_image
-    from warpshade.reference.svbrdf_warp import hit_texels
+    from warpshade.reference._svbrdf_warp import hit_texels
     from warpshade.render import render_gbuffer
     from warpshade.scene import Camera
 
@@ -314,7 +314,7 @@ def test_validate_path_runs_on_the_dish_graph(device, tmp_path):
     are the stage's, and the per-vertex and per-pixel measurements run."""
     import warpshade.graph as graph
     from warpshade.measure import measure_error, reference_model
-    from warpshade.measure.pixels import measure_pixels
+    from warpshade.measure._pixels import measure_pixels
     from warpshade.scene import LightingSource, up_rotation
     spec = graph.load(Path(__file__).resolve().parent.parent / "stages" / "dish_sg_svbrdf.toml")
     assert spec.validate_spec.get("samples", 0) >= 256

@@ -9,10 +9,10 @@ from grids import ground_grid
 
 from warpshade._wp import wp
 from warpshade.reference import reference_image, shade_glossy
-from warpshade.scene import Camera, Environment, Mesh, Scene, materials
-from warpshade.scene.materials_warp import (BRDFParams, brdf_eval, brdf_pdf, brdf_sample, check_reference_brdf, table_lobe,
+from warpshade.scene import Camera, Environment, Mesh, Scene, _materials as materials
+from warpshade.scene._materials_warp import (BRDFParams, brdf_eval, brdf_pdf, brdf_sample, check_reference_brdf, table_lobe,
                                             upload_brdf, upload_brdf_passes)
-from warpshade.scene.tabulated import TabulatedBRDF, read_merl, write_merl
+from warpshade.scene._tabulated import TabulatedBRDF, read_merl, write_merl
 
 from tolerances import assert_within_stderr
 

@@ -1,7 +1,7 @@
 """One meaning per name: the stage parameters, stage type and port renamed so that ``frames`` means
 time codes, ``samples`` rays per vertex and ``model`` the fitted artifact port only. A graph that
 still uses an old name is refused, before any work, with the new name in the error
-(``warpshade.methods.stage.RENAMED_PARAMS`` / ``RENAMED_TYPES``, ``warpshade.graph.spec.RENAMED_PORTS``)."""
+(``warpshade.methods.stage.RENAMED_PARAMS`` / ``RENAMED_TYPES``, ``warpshade.graph._spec.RENAMED_PORTS``)."""
 
 import re
 from pathlib import Path
@@ -10,7 +10,7 @@ import pytest
 
 import warpshade.methods  # noqa: F401  (registers the stage types)
 from warpshade.graph import GraphError, GraphSpec, StageError, StageSpec, get_stage_type, load, stage_types
-from warpshade.graph.spec import RENAMED_PORTS
+from warpshade.graph._spec import RENAMED_PORTS
 from warpshade.methods.stage import RENAMED_PARAMS, RENAMED_TYPES
 
 STAGES = Path(__file__).resolve().parents[1] / "stages"

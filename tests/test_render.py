@@ -10,7 +10,7 @@ from grids import ground_grid
 from PIL import Image
 
 from warpshade._wp import wp
-from warpshade.measure.pictures import ERROR_COLORMAP
+from warpshade.measure._pictures import ERROR_COLORMAP
 from warpshade.measure import comparison_figure, error_colors
 from warpshade.render import camera_basis, frame_camera, render, tonemap_f64, write_png
 from warpshade.render import tonemap

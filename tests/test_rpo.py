@@ -11,14 +11,14 @@ from warpshade.basis import sh
 from warpshade.basis.sh_warp import sh_kernels
 from warpshade.graph import GraphError, GraphSpec, StageSpec
 from warpshade.measure import reference_model
-from warpshade.methods.rpo import kernels
+from warpshade.methods.rpo import _kernels as kernels
 from warpshade.methods.rpo import fit_zh_lighting
 from warpshade.methods.rpo import OperatorCache, build_operator
 from warpshade.methods.rpo import shade_exact_brdf, shade_f64
 from warpshade.graph import StageError
 from warpshade.scene import Environment, LightingSource, Mesh, Scene
-from warpshade.scene import materials as M
-from warpshade.scene.tabulated import write_merl
+from warpshade.scene import _materials as M
+from warpshade.scene._tabulated import write_merl
 
 # Gaunt form F(wo) * v against the paper's sum_b u_b M_b v (both float64): the same sums in
 # another order; measured 1e-16.
@@ -362,7 +362,7 @@ def test_colour_table_shades_each_channel_with_its_own_brdf(device, two_sheets, 
     """A coloured table (channel shapes differ: red GGX 0.3, green GGX 0.5, blue Phong) read by
     default keeps its colour: channel c of the shaded frame is channel c of a run with that
     channel's BRDF alone (three operator sets in three slots), not the luminance."""
-    from warpshade.scene.tabulated import TabulatedBRDF, tabulate
+    from warpshade.scene._tabulated import TabulatedBRDF, tabulate
 
     dims = (16, 16, 32)
     table = np.stack([tabulate(M.Microfacet(0.3), dims)[0], tabulate(M.Microfacet(0.5), dims)[1] * 0.7,

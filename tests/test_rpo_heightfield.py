@@ -15,11 +15,11 @@ from scipy.spatial.transform import Rotation
 from warpshade._wp import wp
 from warpshade.basis import sh
 from warpshade.graph import GraphSpec, StageSpec, load
-from warpshade.io import heightfield as hfio
+from warpshade.io import _heightfield as hfio
 from warpshade.io import bundled_asset_directory, load_scene
-from warpshade.methods.heightfield import kernels as hfk
-from warpshade.methods.heightfield import model as hf
-from warpshade.methods.heightfield import mirror as ref
+from warpshade.methods.heightfield import _kernels as hfk
+from warpshade.methods.heightfield import _model as hf
+from warpshade.methods.heightfield import _mirror as ref
 from warpshade.graph import StageError
 from warpshade.scene import Camera, Environment, LightingSource, Mesh, Scene
 
@@ -229,8 +229,8 @@ def test_shade_kernel_matches_float64_mirror(device):
 
 
 def test_heightfield_shade_agrees_with_rpo_shade(device):
-    import warpshade.methods.rpo.stages  # noqa: F401  (rpo.shade)
-    import warpshade.methods.ldprt.stages  # noqa: F401  (ldprt.tangents)
+    import warpshade.methods.rpo._stages  # noqa: F401  (rpo.shade)
+    import warpshade.methods.ldprt._stages  # noqa: F401  (ldprt.tangents)
 
     scene = _ripples(48)
     common = {"order": 4, "rank": 8, "roughness": 0.3}
@@ -324,7 +324,7 @@ def test_loader_expands_the_height_field(tmp_path, device):
 def test_shade_diagnostics_count_every_vertex_of_a_chunked_launch(device):
     # 96^2 vertices: more than two CPU chunks, so several threads shade at once; the counts are
     # per-vertex flags summed on the host, never a counter the threads share
-    from warpshade.methods.heightfield.stages import CPU_CHUNK_MIN
+    from warpshade.methods.heightfield._stages import CPU_CHUNK_MIN
 
     scene = _ripples(96)
     assert scene.vertex_count > 2 * CPU_CHUNK_MIN

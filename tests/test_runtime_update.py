@@ -99,7 +99,7 @@ class _Spy:
     """Counts set-ups per frame stage and frame recordings of one runtime."""
 
     def __init__(self, rt, monkeypatch):
-        import warpshade.graph.frame as frame_module
+        import warpshade.graph._frame as frame_module
 
         self.setups = {st.name: 0 for st in rt.frame_stages}
         self.records = 0

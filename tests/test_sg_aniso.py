@@ -7,19 +7,19 @@ import numpy as np
 import pytest
 
 from warpshade._wp import wp
-from warpshade.geometry.bvh import Visibility
-from warpshade.geometry.uv_tangents import UVTangents, uv_tangents_f64
+from warpshade.geometry._bvh import Visibility
+from warpshade.geometry._uv_tangents import UVTangents, uv_tangents_f64
 from warpshade.graph import GraphSpec, StageError, StageSpec
 from warpshade.measure import reference_model
 from warpshade.methods.sg import decode_maps, microfacet_brdf, ndf_lobes, shade_f64
-from warpshade.methods.sg.brdf import Ward
-from warpshade.methods.sg.lights import directional_light_lobe
-from warpshade.methods.sg.lobes_warp import upload_lobes, warped_slices
-from warpshade.methods.sg.mirror import tangent_frame_f64, warped_slices_f64
+from warpshade.methods.sg._brdf import Ward
+from warpshade.methods.sg._lights import directional_light_lobe
+from warpshade.methods.sg._lobes_warp import upload_lobes, warped_slices
+from warpshade.methods.sg._mirror import tangent_frame_f64, warped_slices_f64
 from warpshade.render import render_gbuffer
 from warpshade.scene import Camera, DistantLight, Environment, LightingSource, Mesh, Scene, SphereLight
-from warpshade.scene import materials as M
-from warpshade.scene.materials_warp import upload_brdf
+from warpshade.scene import _materials as M
+from warpshade.scene._materials_warp import upload_brdf
 
 from grids import ground_grid
 from tolerances import ATOL_FLOAT32
@@ -300,7 +300,7 @@ MEASURED_SHADOW_ATOL = 0.25
 
 def test_extracted_microfacet_recovers_the_analytic_ndf_and_shadowing():
     from warpshade.io import bundled_asset_directory
-    from warpshade.methods.sg.measured import measured_material
+    from warpshade.methods.sg._measured import measured_material
     from warpshade.usd_assets.generator.measured import MEASURED_FILE, measured_ndf, measured_shadowing
 
     mm = measured_material(f"{bundled_asset_directory()}/{MEASURED_FILE}")
@@ -314,7 +314,7 @@ def test_extracted_microfacet_recovers_the_analytic_ndf_and_shadowing():
 
 
 def test_extraction_refuses_a_table_without_data():
-    from warpshade.methods.sg.measured import extract_microfacet
+    from warpshade.methods.sg._measured import extract_microfacet
 
     v = np.tile([0.0, 0.0, 1.0], (10, 1))
     with pytest.raises(ValueError, match="usable samples"):

@@ -13,10 +13,10 @@ import pytest
 
 from warpshade._wp import wp
 from warpshade.basis.sg import SGMixture
-from warpshade.methods.sg import brdf, slices
-from warpshade.methods.sg import ndf as sg_ndf
-from warpshade.methods.sg import brdf_warp
-from warpshade.scene.materials import Microfacet, hemisphere_quadrature
+from warpshade.methods.sg import _brdf as brdf, _slices as slices
+from warpshade.methods.sg import _ndf as sg_ndf
+from warpshade.methods.sg import _brdf_warp as brdf_warp
+from warpshade.scene._materials import Microfacet, hemisphere_quadrature
 
 # M_o * D against Microfacet.evaluate: the same float64 products in another order (measured 4e-13).
 RTOL_FACTORISATION = 1e-12

@@ -14,7 +14,7 @@ import pytest
 
 from warpshade.basis import quadrature, sg
 from warpshade.io import bundled_asset_directory, read_hdr
-from warpshade.methods.sg import envfit, envmap, lights, prefilter
+from warpshade.methods.sg import _envfit as envfit, _envmap as envmap, _lights as lights, _prefilter as prefilter
 from warpshade.scene import DistantLight, Environment, SphereLight, sky_radiance
 
 from tolerances import RTOL_FLOAT32
@@ -284,7 +284,7 @@ def test_point_light_lobe_energy_and_irradiance(device):
     np.testing.assert_allclose(lobe_e, exact, rtol=SPHERE_IRRADIANCE_RTOL)
     # the Warp function agrees (float32)
     from warpshade._wp import wp
-    from warpshade.methods.sg.lighting_warp import point_light_kernel
+    from warpshade.methods.sg._lighting_warp import point_light_kernel
 
     xs = np.concatenate([x, [[0.0, 0.0, 2.01], [0.0, 0.0, 2.0]]])
     xa = wp.array(xs.astype(np.float32), dtype=wp.vec3, device=device)

@@ -8,19 +8,19 @@ import numpy as np
 import pytest
 
 from warpshade.basis import sg
-from warpshade.geometry.bvh import Visibility
+from warpshade.geometry._bvh import Visibility
 from warpshade.graph import GraphSpec, StageSpec
 from warpshade.measure import reference_model
 from warpshade.methods.sg import EnvironmentLighting, decode_maps, shade_f64
-from warpshade.methods.sg import model as sg_model
-from warpshade.methods.sg import stages as sg_stages
-from warpshade.methods.sg.lights import directional_light_lobe
+from warpshade.methods.sg import _model as sg_model
+from warpshade.methods.sg import _stages as sg_stages
+from warpshade.methods.sg._lights import directional_light_lobe
 from warpshade.methods.sg import PrefilteredEnvironment
 from warpshade.graph import StageError
 from warpshade.reference import shade_glossy
 from warpshade.render import GBuffer, render_gbuffer
 from warpshade.scene import Camera, DistantLight, Environment, LightingSource, LightTrack, Mesh, Scene, SphereLight
-from warpshade.scene import materials as M
+from warpshade.scene import _materials as M
 
 from grids import ground_grid
 
@@ -434,7 +434,7 @@ def test_validation_refusals(device, blocked):
     assert np.all(np.isfinite(cook.step(0.0).numpy()))
     with pytest.raises(StageError, match="cook-torrance.*cannot be validated"):
         reference_model(cook)
-    # Ward (isotropic here) has an exact model in the reference (:mod:`warpshade.scene.materials_warp`)
+    # Ward (isotropic here) has an exact model in the reference (:mod:`warpshade.scene._materials_warp`)
     ward = _compile(device, blocked, [SKY], {"brdf": "ward", "roughness": 0.3})
     assert reference_model(ward)["brdf"].alpha_x == 0.3 and reference_model(ward)["brdf"].alpha_y == 0.3
     with pytest.raises(StageError, match="exponent"):
@@ -567,7 +567,7 @@ def test_textured_materials_are_validated_per_vertex_and_per_pixel(device, tmp_p
     per-vertex reference (a roughness and colour per vertex), and the per-pixel reference."""
     from warpshade.io import load_scene
     from warpshade.measure import measure_error
-    from warpshade.measure.pixels import measure_pixels
+    from warpshade.measure._pixels import measure_pixels
     from warpshade.scene import up_rotation
 
     scene = load_scene("bundled:sunlit")

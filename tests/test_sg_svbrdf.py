@@ -7,15 +7,15 @@ and bad or degenerate textures."""
 import numpy as np
 import pytest
 
-from warpshade.geometry.bvh import Visibility
+from warpshade.geometry._bvh import Visibility
 from warpshade.graph import GraphSpec, StageError, StageSpec
 from warpshade.io import bundled_asset_directory
 from warpshade.methods.sg import decode_maps, shade_f64
-from warpshade.methods.sg.svbrdf import eq13_quadrature_f64, fit_svbrdf, fit_texel_ndfs, shadow_pca, svbrdf_slices_f64
-from warpshade.methods.sg.svbrdf_warp import svbrdf_slices, svbrdf_texels, upload_svbrdf
+from warpshade.methods.sg._svbrdf import eq13_quadrature_f64, fit_svbrdf, fit_texel_ndfs, shadow_pca, svbrdf_slices_f64
+from warpshade.methods.sg._svbrdf_warp import svbrdf_slices, svbrdf_texels, upload_svbrdf
 from warpshade.render import render_gbuffer
 from warpshade.scene import Camera, Environment, LightingSource, Mesh, Scene, SphereLight
-from warpshade.scene.svbrdf import read_svbrdf, write_svbrdf
+from warpshade.scene._svbrdf import read_svbrdf, write_svbrdf
 from warpshade.usd_assets.generator.svbrdf import (SVBRDF_ETA, SVBRDF_FILE, make_svbrdf, svbrdf_material,
                                                    texel_material)
 

@@ -1,4 +1,4 @@
-"""`warpshade shade`: the choice of a method for a user's scene (warpshade/measure/auto.py).
+"""`warpshade shade`: the choice of a method for a user's scene (warpshade/measure/_auto.py).
 
 The rule of the choice on measured rows (cheapest meeting a target, most accurate within a
 budget, the nearest when nothing qualifies, every candidate's verdict), the split of the frames
@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from warpshade.graph import load
-from warpshade.measure.auto import CHOICE_FRAMES, QUICK_CHOICE_FRAMES, TIMING_PASSES, choose, graph_toml, shade_scene, split_frames
+from warpshade.measure._auto import CHOICE_FRAMES, QUICK_CHOICE_FRAMES, TIMING_PASSES, choose, graph_toml, shade_scene, split_frames
 
 
 def _row(label, err, ms, status="ok"):

@@ -1,4 +1,4 @@
-"""The few-ray tracer's reuse settings chosen on the training frames (warpshade/measure/tune.py),
+"""The few-ray tracer's reuse settings chosen on the training frames (warpshade/measure/_tune.py),
 and ``warpshade shade --training`` (the data-driven candidates on a clip of the same character).
 
 The search rule on a synthetic error surface whose minimum is known (each step keeps the least
@@ -11,8 +11,8 @@ import math
 
 import pytest
 
-from warpshade.measure.auto import candidates_for, shade_scene, training_selection, tuned_candidate
-from warpshade.measure.tune import KEEP_MARGIN, STEPS, tune_trace
+from warpshade.measure._auto import candidates_for, shade_scene, training_selection, tuned_candidate
+from warpshade.measure._tune import KEEP_MARGIN, STEPS, tune_trace
 
 
 def _surface(best: dict, failing=()):
@@ -76,7 +76,7 @@ def test_a_real_search_on_the_blockers(tmp_path, monkeypatch):
     monkeypatch.setenv("WARPSHADE_CACHE", str(tmp_path / "cache"))
     from warpshade.io import load_scene
     from warpshade.measure import ground_truth
-    from warpshade.measure.auto import default_lighting, measure, split_frames
+    from warpshade.measure._auto import default_lighting, measure, split_frames
 
     scene = load_scene("bundled:blockers")
     lighting = default_lighting(scene)

@@ -1,7 +1,7 @@
 """SHEXP per-receiver kernels against float64 mirrors, analytic oracles and failure cases.
 
 Blocker spheres are placed by hand here (the sphere-set construction has its own tests); the
-oracles are :mod:`warpshade.methods.shexp.mirror` (an independent float64 implementation),
+oracles are :mod:`warpshade.methods.shexp._mirror` (an independent float64 implementation),
 the exact projection of a blocking cap (:func:`sh.cap_zh`), the unshadowed irradiance of
 :mod:`warpshade.methods.prt`, and the analytic cosine-weighted solid angle of a cap.
 """
@@ -11,8 +11,8 @@ import pytest
 
 from warpshade._wp import wp
 from warpshade.basis import sh
-from warpshade.methods.shexp import cut_kernels, kernels, mirror, pipeline
-from warpshade.methods.shexp.tables import sphere_light_lobes
+from warpshade.methods.shexp import _cut_kernels as cut_kernels, _kernels as kernels, _mirror as mirror, _pipeline as pipeline
+from warpshade.methods.shexp._tables import sphere_light_lobes
 
 from tolerances import RTOL_TABLE, assert_within_stderr
 
@@ -105,7 +105,7 @@ def test_shading_paths_agree(device, scene):
 
 
 def test_no_blockers_equals_unshadowed(device, scene):
-    from warpshade.methods.prt.kernels import unshadowed_kernel
+    from warpshade.methods.prt._kernels import unshadowed_kernel
 
     s = dict(scene, centres=np.zeros((0, 3)), radii=np.zeros(0))
     rad, g = run(s, device=device)

@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 from warpshade.io import load_usd
-from warpshade.methods.shexp.model import build_blocker_model
-from warpshade.methods.shexp.spheres import RADIUS_EXCESS, spheres_for_scene
+from warpshade.methods.shexp._model import build_blocker_model
+from warpshade.methods.shexp._spheres import RADIUS_EXCESS, spheres_for_scene
 
 #: Centres and radii go through USD's double matrices and one float64 product.
 EXACT_RTOL = 1e-9
@@ -142,7 +142,7 @@ def test_implicit_prims_alone_need_no_closed_mesh(tmp_path):
 def test_a_graph_shades_a_capsule_scene(tmp_path, device):
     """shexp over a capsule above a ground plane: finite, and the ground under the capsule darker."""
     from warpshade.graph import GraphSpec, StageSpec
-    from warpshade.measure.auto import default_lighting
+    from warpshade.measure._auto import default_lighting
 
     n = 13  # a grid ground: per-vertex shading needs vertices under the capsule
     xs = np.linspace(-3.0, 3.0, n)

@@ -10,8 +10,8 @@ import trimesh
 
 from warpshade.graph import GraphSpec, StageSpec
 from warpshade.scene import LightingSource
-from warpshade.methods.shexp import mirror
-from warpshade.methods.shexp.model import BlockerModel, plane_blockers
+from warpshade.methods.shexp import _mirror as mirror
+from warpshade.methods.shexp._model import BlockerModel, plane_blockers
 from warpshade.scene import Environment, Mesh, Scene
 from warpshade.scene import ground_plane
 
@@ -98,12 +98,12 @@ def test_static_bake_reduces_to_prt(device):
 
 
 def test_blocker_model_arrays_roundtrip(device, scene, tmp_path):
-    from warpshade.methods.shexp.model import build_blocker_model
+    from warpshade.methods.shexp._model import build_blocker_model
 
     model = build_blocker_model(scene, 3, hierarchy=True, vertices_per_cluster=40, device=device, **FIT)
     # through the on-disk artifact format: flattened "arrays" port entries in one .npz
     from warpshade.graph import ArtifactCache
-    from warpshade.graph.precompute import _flatten, _unflatten
+    from warpshade.graph._precompute import _flatten, _unflatten
     from warpshade.graph import Port
 
     ports = {"model": Port("arrays")}
@@ -125,7 +125,7 @@ def test_plane_blockers_and_kernel(device, scene):
     np.testing.assert_allclose(planes[0, 3:6], [0, 0, 1], atol=1e-12)
     assert planes[0, 6] == pytest.approx(np.sqrt(4.0 * 4.0 / np.pi))  # the 4 m square ground as a disc
     # receivers above, on and below the plane; no spheres
-    from warpshade.methods.shexp.pipeline import shade_receivers
+    from warpshade.methods.shexp._pipeline import shade_receivers
 
     pts = np.array([[0, 0, 0.5], [0.3, 0.2, 0.0], [0.1, 0, -0.7], [0, 0, 3.0]])
     nrm = np.tile([1.0, 0, 0], (4, 1))
@@ -154,7 +154,7 @@ def test_sphere_trace_stage_and_bad_inputs(device, scene):
 
 def test_error_budget_picks_cheapest_setting_meeting_target(scene, tmp_path):
     from warpshade.measure import choose
-    from warpshade.methods.shexp.budget import candidates
+    from warpshade.methods.shexp._budget import candidates
 
     lighting = LightingSource(scene.lights, scene.up_axis, 0.0, 0.0)
     grid = candidates(orders=(4,), spheres=(1, 4), methods=("ol", "hyb"), blocker_params=FIT)

@@ -5,7 +5,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from warpshade._wp import wp
-from warpshade.geometry.skinning import (
+from warpshade.geometry._skinning import (
     launch_transform_normals,
     launch_transform_points,
     skin_points,

@@ -7,7 +7,7 @@ centre update, and the mean-value-coordinate identities (partition of unity, lin
 Fits use coarse grids and few spheres so the whole file stays fast.
 
 The sphere geometry is :mod:`warpshade.geometry.spheres`; the scene's blocker spheres and their
-per-frame animation are :mod:`warpshade.methods.shexp.spheres`, driven here by a
+per-frame animation are :mod:`warpshade.methods.shexp._spheres`, driven here by a
 :class:`~warpshade.scene.FrameEvaluator` as a frame would drive them.
 """
 
@@ -21,14 +21,14 @@ from scipy.spatial.transform import Rotation
 
 from warpshade._wp import record_program
 from warpshade.geometry import spheres as sp
-from warpshade.geometry.spheres import attach
-from warpshade.geometry.spheres import fit as fit_internals
-from warpshade.geometry.spheres import mvc
+from warpshade.geometry.spheres import _attach as attach
+from warpshade.geometry.spheres import _fit as fit_internals
+from warpshade.geometry.spheres import _mvc as mvc
 from warpshade.io import load_scene
 from warpshade.scene import FrameEvaluator, Mesh, Scene
 
 
-from warpshade.methods.shexp import spheres as ss  # noqa: E402
+from warpshade.methods.shexp import _spheres as ss  # noqa: E402
 
 from tolerances import ATOL_FLOAT32, REPLAY_RTOL, assert_close
 
@@ -357,7 +357,7 @@ def test_recorded_animator_replays_the_skinned_figure(figure_scene, figure_spher
 def test_recorded_blocker_frames_match_uncaptured_launches(figure_scene, device):
     # SHEXP's per-frame blocker pass (animator, refit, receiver bounds, cut, ratio vectors)
     # recorded with the scene evaluation and replayed, against uncaptured launches
-    from warpshade.methods.shexp import model as blockers
+    from warpshade.methods.shexp import _model as blockers
     scene = figure_scene
     model = blockers.build_blocker_model(scene, 12, hierarchy=True, vertices_per_cluster=300, **FAST_FIT)
     frames = blockers.BlockerFrames(scene, model, 3, theta_max_degrees=25.0, device=device)

@@ -9,10 +9,10 @@ import trimesh
 from grids import ground_grid
 
 from warpshade.basis import sg
-from warpshade.geometry.bvh import Visibility, trace_occlusion_f64
-from warpshade.geometry.frames import TangentFrames
+from warpshade.geometry._bvh import Visibility, trace_occlusion_f64
+from warpshade.geometry._frames import TangentFrames
 from warpshade.scene import Mesh, Scene
-from warpshade.transfer import ssdf, ssdf_pca, ssdf_products
+from warpshade.transfer import _ssdf as ssdf, _ssdf_pca as ssdf_pca, _ssdf_products as ssdf_products
 
 HALF_PI = 0.5 * np.pi
 # Warp's float32 watertight ray test vs float64 Moller-Trumbore on the same rays: grazing rays

@@ -96,7 +96,7 @@ def test_sky_has_a_small_very_bright_sun(scene):
 
 
 def test_the_sun_casts_a_shadow_of_the_knot_in_view(scene, device):
-    from warpshade.geometry.bvh import Visibility
+    from warpshade.geometry._bvh import Visibility
 
     ground = _mesh(scene, "Ground")
     sun = sunlit.sunlit_sun_direction()

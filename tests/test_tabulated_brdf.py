@@ -9,8 +9,8 @@ import struct
 import numpy as np
 import pytest
 
-from warpshade.scene import materials as M
-from warpshade.scene import tabulated as T
+from warpshade.scene import _materials as M
+from warpshade.scene import _tabulated as T
 
 # The half/diff transform and its inverse, float64.
 ATOL_TRANSFORM = 1e-10

@@ -8,7 +8,7 @@ from PIL import Image
 
 from warpshade.io import load_usd
 from warpshade.scene import Mesh
-from warpshade.scene.textures import WRAP_MODES, linear_to_srgb, sample_surface_warp, sample_texture_warp, srgb_to_linear
+from warpshade.scene._textures import WRAP_MODES, linear_to_srgb, sample_surface_warp, sample_texture_warp, srgb_to_linear
 from warpshade.scene import SurfaceMaps, Texture
 
 #: float32 texel arithmetic (bilinear weights and 4 products) against float64: a few ulps of

@@ -8,7 +8,7 @@ import trimesh
 from grids import ground_grid
 
 from warpshade.basis import sh
-from warpshade.geometry.bvh import Visibility, trace_occlusion_f64
+from warpshade.geometry._bvh import Visibility, trace_occlusion_f64
 from warpshade.scene import Mesh, Scene
 from warpshade.transfer import TransferTracer, compute, sample_rays
 

@@ -317,7 +317,7 @@ def test_figure_structure_and_arms_cross_in_front_of_the_torso(clips):
     forearm = np.isin(body.skin.joint_indices[:, 0], [names.index("LElbow"), names.index("RElbow")]) & (
         body.skin.joint_weights[:, 0] > 0.99
     )
-    from warpshade.geometry.skinning import skin_points_f64
+    from warpshade.geometry._skinning import skin_points_f64
 
     in_front = []
     for t in range(len(scene.frames)):

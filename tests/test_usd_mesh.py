@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from warpshade.io import load_scene, load_usd, resolve_scene_path
-from warpshade.io.usd_mesh import ZERO_AREA_RELATIVE
+from warpshade.io._usd_mesh import ZERO_AREA_RELATIVE
 
 #: Values pass through USD float32 attributes; compare at float32 resolution.
 ATOL_FLOAT32_IO = 1e-6
@@ -399,7 +399,7 @@ def test_warp_examples_load_with_ground_and_sky(name, vertices, triangles):
     assert (mesh.vertex_count, mesh.triangle_count) == (vertices, triangles)
     assert plain.up_axis == "Y" and len(plain.frames) == 1 and mesh.normals is not None
     # smooth faceVarying normals become per-vertex normals that agree with the geometry
-    from warpshade.geometry.normals import vertex_normals_f64
+    from warpshade.geometry._normals import vertex_normals_f64
 
     area_weighted = vertex_normals_f64(mesh.points, mesh.faces)
     assert np.median(np.sum(area_weighted * mesh.normals, axis=1)) > 0.99

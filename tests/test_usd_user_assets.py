@@ -22,9 +22,9 @@ import pytest
 
 from warpshade import cli
 from warpshade.graph import GraphError, extend_static_frames, load
-from warpshade.graph.scene_inputs import scene_animation
+from warpshade.graph._scene_inputs import scene_animation
 from warpshade.io import load_usd
-from warpshade.io.usd_implicit import IMPLICIT_TYPES, SEGMENTS, tessellate
+from warpshade.io._usd_implicit import IMPLICIT_TYPES, SEGMENTS, tessellate
 
 ROOT = Path(__file__).resolve().parents[1]
 #: Tessellated vertices are computed in float64 from sin/cos of exact angles: on the analytic
@@ -125,7 +125,7 @@ def test_skel_animation_without_a_range_is_read_at_its_samples(tmp_path):
 
 
 def test_too_many_time_samples_are_refused_naming_the_attribute(tmp_path, monkeypatch):
-    import warpshade.io.usd as usd
+    import warpshade.io._usd as usd
 
     samples = ", ".join(f"{t}: [(0,0,{t}), (1,0,0), (0,1,0)]" for t in range(6))
     path = _write(tmp_path / "long.usda", _tri("Long", f"point3f[] points.timeSamples = {{ {samples} }}"))

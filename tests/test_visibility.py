@@ -10,13 +10,13 @@ from scipy.spatial.transform import Rotation
 from tolerances import ATOL_FLOAT32, ATOL_FLOAT64, REPLAY_RTOL, RTOL_FLOAT32
 
 from warpshade._wp import wp
-from warpshade.geometry.frames import frame_rule, tangent_frames_f64
+from warpshade.geometry._frames import frame_rule, tangent_frames_f64
 from warpshade.io import load_scene
 from warpshade.methods.visibility import (cluster_frame_rule, cluster_frames_f64, cluster_vertices, diffuse_f64,
-                                          fit_cluster, fit_visibility, kernels, mean_shift, model_from_arrays,
+                                          fit_cluster, fit_visibility, _kernels as kernels, mean_shift, model_from_arrays,
                                           predict_f64, to_local)
-from warpshade.methods.visibility.fit import _loss_grad, network_forward, warm_start
-from warpshade.methods.visibility.mirror import inputs_f64
+from warpshade.methods.visibility._fit import _loss_grad, network_forward, warm_start
+from warpshade.methods.visibility._mirror import inputs_f64
 from warpshade.transfer import compute
 
 #: A network warm start reproduces the linear map up to O(eps^2) of the tanh: first-layer
@@ -30,7 +30,7 @@ def bend():
 
 
 def _rest(scene):
-    from warpshade.methods.visibility.training import rest_points
+    from warpshade.methods.visibility._training import rest_points
 
     return rest_points(scene)
 
@@ -70,7 +70,7 @@ def test_mean_shift_finds_separated_modes_and_merges_tiny_clusters(rng):
 
 
 def test_skinning_weight_clusters_follow_joints(bend):
-    from warpshade.methods.visibility.training import dense_skin_weights, mesh_ids
+    from warpshade.methods.visibility._training import dense_skin_weights, mesh_ids
 
     w = dense_skin_weights(bend)
     labels = cluster_vertices(w, _rest(bend), mesh_ids(bend), bandwidth=0.3)
@@ -156,7 +156,7 @@ def test_network_that_does_not_beat_ridge_falls_back_and_says_so(rng):
 def _synthetic_data(rng, p=24, joints=(0, 1)):
     """visibility.data-shaped arrays over the bend's mesh, visibility a smooth function of a 2-d pose."""
     scene = load_scene("bundled:bend")
-    from warpshade.methods.visibility.training import dense_skin_weights, mesh_ids
+    from warpshade.methods.visibility._training import dense_skin_weights, mesh_ids
 
     v = scene.vertex_count
     poses = rng.uniform(-1, 1, (p, 5))
@@ -323,7 +323,7 @@ def test_components_no_input_explains_are_cut_after_the_fit(rng):
 
 def _bend_graph(regressor="linear", fit=None):
     from warpshade.graph import GraphSpec, StageSpec
-    from warpshade.methods.visibility.rows import stages_for
+    from warpshade.methods.visibility._rows import stages_for
 
     stages = list(stages_for("", "0:60:4", regressor, order=3, samples=32, fit={"hidden": (4,), "max_iterations": 20,
                                                                            **(fit or {})}))

@@ -17,7 +17,7 @@ from scipy.spatial.transform import Rotation
 from tolerances import ATOL_FLOAT64, assert_close
 from warpshade._wp import wp
 from warpshade.io import bundled_asset_directory, load_usd
-from warpshade.methods.visibility.cloth import (
+from warpshade.methods.visibility._cloth import (
     DEGENERATE_RELATIVE_AREA,
     DihedralFeatures,
     DihedralInputs,

@@ -11,9 +11,9 @@ from tolerances import ATOL_FLOAT32
 
 from warpshade._wp import wp
 from warpshade.io import load_scene
-from warpshade.methods.visibility import fit_visibility, kernels, predict_f64
-from warpshade.methods.visibility.mirror import inputs_f64
-from warpshade.methods.visibility.relative import (EXTRA, WIDTH, candidate_columns, cluster_neighbours,
+from warpshade.methods.visibility import fit_visibility, _kernels as kernels, predict_f64
+from warpshade.methods.visibility._mirror import inputs_f64
+from warpshade.methods.visibility._relative import (EXTRA, WIDTH, candidate_columns, cluster_neighbours,
                                                    relative_features_f64, rigid_f64, width)
 
 from test_visibility import _bend_graph, _serial

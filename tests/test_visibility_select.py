@@ -10,10 +10,10 @@ from tolerances import ATOL_FLOAT32
 
 from warpshade.io import load_scene
 from warpshade.methods.visibility import fit_visibility, predict_f64
-from warpshade.methods.visibility.fit import expand_features
-from warpshade.methods.visibility.locality import cluster_joints, joint_columns, local_inputs
-from warpshade.methods.visibility.mirror import inputs_f64
-from warpshade.methods.visibility.select import (RIDGE_GRID, SELECT_MARGIN, blocked_folds, choose, fewest_frames, fit_selected,
+from warpshade.methods.visibility._fit import expand_features
+from warpshade.methods.visibility._locality import cluster_joints, joint_columns, local_inputs
+from warpshade.methods.visibility._mirror import inputs_f64
+from warpshade.methods.visibility._select import (RIDGE_GRID, SELECT_MARGIN, blocked_folds, choose, fewest_frames, fit_selected,
                                                  penalty_scale, prefix_features, prefix_pairs,
                                                  select_ridge)
 
@@ -218,7 +218,7 @@ def bend():
 def _local_data(scene, rng, p=90):
     """Visibility of the bend character that depends on each vertex's own joints' rotations only
     (linear in them, weighted by the skinning), plus noise; every joint's inputs vary at random."""
-    from warpshade.methods.visibility.training import dense_skin_weights, mesh_ids
+    from warpshade.methods.visibility._training import dense_skin_weights, mesh_ids
 
     v = scene.vertex_count
     w = dense_skin_weights(scene).astype(np.float64)
@@ -292,8 +292,8 @@ def test_metric_pca_is_the_pca_of_the_cosine_weighted_transfer(rng):
     of its covariance), its mean is the visibility's, and no basis of the same size reconstructs the
     transfer better (the unweighted PCA of the visibility is strictly worse in the metric)."""
     from warpshade.methods.visibility import fit_cluster
-    from warpshade.methods.visibility.fit import metric_apply, metric_inverse
-    from warpshade.methods.visibility.model import cosine_product_matrix
+    from warpshade.methods.visibility._fit import metric_apply, metric_inverse
+    from warpshade.methods.visibility._model import cosine_product_matrix
 
     order, n, p = 3, 4, 40
     c = order * order
@@ -339,7 +339,7 @@ def test_diffuse_metric_fit_kernels_match_the_mirror(device, bend, rng, precisio
     """A model fitted in the diffuse metric (its basis mapped back through the pseudo-inverse of the
     cosine product matrix) runs on the same kernels: they match the float64 mirror (over the stored,
     float16-rounded basis for half storage), and the transfer M_cos v they give matches too."""
-    from warpshade.methods.visibility.model import cosine_product_matrix
+    from warpshade.methods.visibility._model import cosine_product_matrix
 
     data = _local_data(bend, rng, p=60)
     model = fit_visibility(data, model="auto", executor=_serial(), metric="diffuse")

@@ -13,9 +13,9 @@ from scipy.optimize import nnls
 from tolerances import ATOL_FLOAT32
 
 from warpshade.methods.visibility import fit_visibility, predict_f64
-from warpshade.methods.visibility.mirror import inputs_f64
-from warpshade.methods.visibility.select import blocked_folds, candidates, fit_selected, penalty_scale, prefix_features
-from warpshade.methods.visibility.stack import fit_stack, stack_weights, union_features, union_map
+from warpshade.methods.visibility._mirror import inputs_f64
+from warpshade.methods.visibility._select import blocked_folds, candidates, fit_selected, penalty_scale, prefix_features
+from warpshade.methods.visibility._stack import fit_stack, stack_weights, union_features, union_map
 
 from test_visibility import _run_predict, _serial
 from test_visibility_select import _frames_subset, _local_data, bend  # noqa: F401 (the module's scene fixture)
@@ -120,7 +120,7 @@ def test_stacked_map_on_the_union_is_the_weighted_sum_of_the_candidates(rng):
     one = [dict(picks[0], weight=1.0)]
     xs = sets[one[0]["set"]][0]
     w1, b1 = fit_selected(xs, y, one[0]["kind"], one[0]["inputs"], one[0]["penalty"])
-    from warpshade.methods.visibility.stack import _layout
+    from warpshade.methods.visibility._stack import _layout
 
     lay = _layout(one, {"global": 8})
     wu, bu = union_map(one, [(w1, b1)], np.ones(1), lay)

@@ -177,7 +177,7 @@ def test_ridge_stops_cancelling_lobes_on_brdf_rows():
     """BRDF-specialised rows (GGX, n = 6) fitted with 3 lobes: the unregularised objective ends
     in lobes whose norms are ~1e5 x the row's (they cancel; float32 shading turns that into
     noise); the default ridge keeps them near the row's norm at no loss of total error."""
-    from warpshade.scene.materials import Microfacet, factorize
+    from warpshade.scene._materials import Microfacet, factorize
 
     rows = factorize(Microfacet(roughness=0.5, distribution="ggx", f0=0.04), 6, 12, 16).rows
     # the joint (axes + coefficients) BFGS of the greedy strategy shows the cancellation plainly;

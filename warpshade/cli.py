@@ -261,8 +261,8 @@ def _run_graph(graph_file, frames=None, device=None, out_dir=None, validate=Fals
 
 
 def _movie_format() -> str:
-    """``mp4`` or ``gif`` (:func:`warpshade.measure.pictures.movie_format`), or a CliError saying what to install."""
-    from .measure.pictures import movie_format
+    """``mp4`` or ``gif`` (:func:`warpshade.measure._pictures.movie_format`), or a CliError saying what to install."""
+    from .measure._pictures import movie_format
 
     try:
         return movie_format()
@@ -272,24 +272,24 @@ def _movie_format() -> str:
 
 def _plan_run(spec, scene, out, run_frames, measured, validate, previews, usd_format, movie_format=None):
     """The files of the run, planned and checked before any work
-    (:func:`warpshade.measure.outputs.plan_outputs`); with ``validate``, the stages measured are
+    (:func:`warpshade.measure._outputs.plan_outputs`); with ``validate``, the stages measured are
     asked whether their parameters allow a ground truth at all.
 
     Raises:
         FileExistsError: a planned file warpshade did not write there or one the run reads, naming it.
         StageError: a stage that cannot be measured, naming it and its parameter.
     """
-    from .io.usd_write import usd_output_name
-    from .measure.outputs import plan_outputs, run_inputs
-    from .measure.pixels import pixel_stage_of
-    from .measure.protocols import check_measurable
+    from .io._usd_write import usd_output_name
+    from .measure._outputs import plan_outputs, run_inputs
+    from .measure._pixels import pixel_stage_of
+    from .measure._protocols import check_measurable
 
     stages, _ = spec.build()
     shader = pixel_stage_of(stages, spec.output)
     if validate:
         output_name = spec.output.split(".", 1)[0]
         check_measurable(next(s for s in stages if s.name == output_name))
-        from .scene.materials_warp import check_reference_brdf
+        from .scene._materials_warp import check_reference_brdf
 
         for entry in spec.materials:
             try:
@@ -311,7 +311,7 @@ def _check_cache() -> None:
     """The artifact cache must take new entries: say so before any work, naming the directory and
     how to choose another."""
     from ._fileio import check_writable_dir
-    from .graph.cache import default_cache_dir
+    from .graph._cache import default_cache_dir
 
     cache = default_cache_dir()
     try:
@@ -322,13 +322,13 @@ def _check_cache() -> None:
 
 def _finish_run(spec, rt, plan, measured, left_out, validate, previews, tasks, validate_samples=None) -> dict:
     """The measuring layer's part of a run: USD layer, previews, error, comparisons, report, each
-    written where ``plan`` (:class:`~warpshade.measure.outputs.OutputPlan`) says and recorded in
+    written where ``plan`` (:class:`~warpshade.measure._outputs.OutputPlan`) says and recorded in
     the output directory's manifest once written."""
     from pathlib import Path
 
     from .measure import measure_error, render_comparisons, render_previews, write_report, write_usd
-    from .measure.pictures import render_comparison_movie, render_movie
-    from .measure.pixels import measure_pixels, pixel_stage, write_pixel_images
+    from .measure._pictures import render_comparison_movie, render_movie
+    from .measure._pixels import measure_pixels, pixel_stage, write_pixel_images
 
     out = plan.directory
     outputs = {"left_out": left_out, "png": []}
@@ -411,8 +411,8 @@ def _refuse_scene_as_graph(name: str) -> None:
     expected: say what it is and how to run a graph on it."""
     from pathlib import Path
 
-    from .graph.loader import usd_scene_kind
-    from .io.scene_specs import SCENE_SPEC_PREFIXES, USD_SUFFIXES
+    from .graph._loader import usd_scene_kind
+    from .io._scene_specs import SCENE_SPEC_PREFIXES, USD_SUFFIXES
 
     kind = None
     if name.startswith(SCENE_SPEC_PREFIXES):
@@ -441,7 +441,7 @@ def _cmd_shade(args) -> int:
     """Choose, size and validate a method for a scene; write the chosen graph; run it."""
     from pathlib import Path
 
-    from .measure.auto import VALIDATE_SAMPLES, run_frames, shade_scene
+    from .measure._auto import VALIDATE_SAMPLES, run_frames, shade_scene
 
     name = Path(str(args.scene).split(":", 1)[-1]).stem or "scene"
     out = args.out or f"warpshade-out/{name}_auto"
@@ -499,13 +499,19 @@ def _positive_int(text: str) -> int:
 
 def _frames(text: str) -> str:
     from .graph import GraphError
-    from .graph.loader import check_frames_spec
+    from .graph._loader import check_frames_spec
 
     try:
         check_frames_spec(text, "value")
     except GraphError as exc:
         raise argparse.ArgumentTypeError(str(exc).split(": ", 1)[-1]) from None
     return text
+
+
+def _cmd_budget(args) -> int:
+    from .measure._budget import main as budget_main
+
+    return budget_main(args.budget_args)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -583,6 +589,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quick", action="store_true", help="one size per method, no tuning (a first look)")
     p.add_argument("--no-run", action="store_true", help="choose and write the graph, its report and chart; do not run it")
     p.set_defaults(func=_cmd_shade)
+    p = sub.add_parser("budget", add_help=False,
+                       help="measure a method's candidate settings on a scene and pick the cheapest meeting a target error "
+                            "(warpshade budget --help)")
+    p.add_argument("budget_args", nargs=argparse.REMAINDER)
+    p.set_defaults(func=_cmd_budget)
     p = sub.add_parser("demo", parents=[common, device], help="run the default bundled scene end to end and print where its outputs are",
                        description="Run stages/demo.toml (Warp's bunny under a rotating sky, static PRT) with validation.")
     p.add_argument("--out", default=None, help="output directory (default: warpshade-out/demo)")
@@ -630,6 +641,9 @@ def main(argv=None) -> int:
     from .methods.stage import StageError
 
     parser = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv[:1] == ["budget"]:  # its own parser reads every flag after the word (--help included)
+        return _cmd_budget(argparse.Namespace(budget_args=argv[1:]))
     args = parser.parse_args(argv)
     debug = getattr(args, "debug", False)
     try:

@@ -8,10 +8,10 @@ Public surface::
     radiance = rt.step(frame)                         # wp.array (vertex_count, 3), per frame
     rt.run()                                          # every frame, recorded in rt.results
 
-Modules: :mod:`.spec` (a graph, its wiring and validation), :mod:`.loader` (TOML files),
-:mod:`.scene_inputs` (frames, lighting, scene options), :mod:`.precompute` (cached artifacts),
-:mod:`.frame` (set-up, the recorded frame), :mod:`.changes` (run-time changes),
-:mod:`.runtime` (the run).
+Modules: :mod:`._spec` (a graph, its wiring and validation), :mod:`._loader` (TOML files),
+:mod:`._scene_inputs` (frames, lighting, scene options), :mod:`._precompute` (cached artifacts),
+:mod:`._frame` (set-up, the recorded frame), :mod:`._changes` (run-time changes),
+:mod:`._runtime` (the run).
 
 Writing USD, pictures and reports, and measuring against ground truth, are in
 :mod:`warpshade.measure`.
@@ -19,12 +19,12 @@ Writing USD, pictures and reports, and measuring against ground truth, are in
 
 from ..methods.stage import (FrameStage, Param, Port, PrecomputeStage, Stage, StageContext, StageError, get_stage_type,
                              register_stage, stage_types)
-from .cache import ArtifactCache, default_cache_dir
-from .errors import GraphError
-from .loader import load
-from .runtime import Runtime
-from .scene_inputs import extend_static_frames, lighting_from_spec, parse_frames
-from .spec import SCENE_PORTS, GraphSpec, StageSpec
+from ._cache import ArtifactCache, default_cache_dir
+from ._errors import GraphError
+from ._loader import load
+from ._runtime import Runtime
+from ._scene_inputs import extend_static_frames, lighting_from_spec, parse_frames
+from ._spec import SCENE_PORTS, GraphSpec, StageSpec
 
 __all__ = [
     "ArtifactCache",

@@ -1,10 +1,10 @@
 """USD and image input/output: the only layer that imports ``pxr`` (loaded on first use).
 
-Modules: :mod:`~warpshade.io.usd` (the stage reader, with :mod:`~warpshade.io.usd_mesh`,
-:mod:`~warpshade.io.usd_skel`, :mod:`~warpshade.io.usd_lights`, :mod:`~warpshade.io.textures`
-and :mod:`~warpshade.io.heightfield`), :mod:`~warpshade.io.scene_specs` (scene specs and the
-bundled scenes, no ``pxr``), :mod:`~warpshade.io.usd_write` (shading results out),
-:mod:`~warpshade.io.images` (HDR images).
+Modules: :mod:`~warpshade.io._usd` (the stage reader, with :mod:`~warpshade.io._usd_mesh`,
+:mod:`~warpshade.io._usd_skel`, :mod:`~warpshade.io._usd_lights`, :mod:`~warpshade.io._textures`
+and :mod:`~warpshade.io._heightfield`), :mod:`~warpshade.io._scene_specs` (scene specs and the
+bundled scenes, no ``pxr``), :mod:`~warpshade.io._usd_write` (shading results out),
+:mod:`~warpshade.io._images` (HDR images).
 
 Public names:
 
@@ -17,14 +17,16 @@ Public names:
   package data of the installed package);
 * :func:`read_image`, :func:`read_exr`, :func:`read_hdr`, :func:`write_hdr`,
   :func:`write_exr` -- linear HDR images;
+* :func:`tessellate` -- an implicit shape (a UsdGeom Sphere, Capsule, Cube, Cylinder, Cone or
+  Plane, by kind and parameters) as a triangle mesh; :func:`write_vertex_colors` -- per-vertex colours onto a USD mesh;
 * :func:`read_texture_file` -- a material texture image (PNG, JPEG, ... or EXR/HDR) as stored
-  (UsdPreviewSurface networks are read by :mod:`warpshade.io.textures` during :func:`load_usd`).
+  (UsdPreviewSurface networks are read by :mod:`warpshade.io._textures` during :func:`load_usd`).
 """
 
 from __future__ import annotations
 
-from .images import read_exr, read_hdr, read_image, write_exr, write_hdr
-from .scene_specs import SCENE_SPEC_PREFIXES, bundled_asset_directory, resolve_scene_path
+from ._images import read_exr, read_hdr, read_image, write_exr, write_hdr
+from ._scene_specs import SCENE_SPEC_PREFIXES, bundled_asset_directory, resolve_scene_path
 
 __all__ = [
     "load_usd",
@@ -38,20 +40,27 @@ __all__ = [
     "write_hdr",
     "write_exr",
     "read_texture_file",
+    "tessellate",
+    "write_vertex_colors",
 ]
 
 _USD_NAMES = ("load_usd", "load_scene")
 _TEXTURE_NAMES = ("read_texture_file",)
+_LAZY = {"tessellate": "_usd_implicit", "write_vertex_colors": "_usd_write"}
 
 
 def __getattr__(name):
-    # pxr is heavy: import warpshade.io.usd only when one of its functions is asked for.
+    # pxr is heavy: import warpshade.io._usd only when one of its functions is asked for.
     if name in _USD_NAMES:
-        from . import usd
+        from . import _usd as usd
 
         return getattr(usd, name)
     if name in _TEXTURE_NAMES:
-        from . import textures
+        from . import _textures as textures
 
         return getattr(textures, name)
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(f"{__name__}.{_LAZY[name]}"), name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

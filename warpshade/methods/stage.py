@@ -10,18 +10,18 @@ A stage declares typed input and output ports and typed parameters, and is one o
 * ``"frame"`` -- runs every frame. :meth:`FrameStage.setup` allocates its device outputs once and
   binds its inputs (device arrays of upstream ports, the scene's per-frame arrays);
   :meth:`FrameStage.launch` ``(state)`` only launches kernels on fixed buffers, reading what
-  changes per frame from the :class:`~warpshade.scene.state.FrameState` -- never from the
+  changes per frame from the :class:`~warpshade.scene._state.FrameState` -- never from the
   runtime or another stage -- so the whole frame (scene evaluation and every stage) is recorded
   once and replayed, on CUDA and on the CPU (:func:`warpshade._wp.record_program`).
 
 Changes that do not come from the frame (a new lighting, albedo, eye or a stage parameter)
 reach a frame stage through one call per update, :meth:`FrameStage.notify_changed` with
-:class:`~warpshade.scene.state.Change` flags and the names of the parameters that changed
+:class:`~warpshade.scene._state.Change` flags and the names of the parameters that changed
 (after Newton's ``notify_model_changed`` and Mitsuba's ``SceneParameters.update``).
 
 Every stage type registers itself under a dotted name (``"prt.transfer"``) with
 :func:`register_stage`; stage graphs (TOML or Python, :mod:`warpshade.graph`) refer to stages
-by that name. This module sits in the methods layer so that each method's ``stages.py`` can
+by that name. This module sits in the methods layer so that each method's ``_stages.py`` can
 subclass :class:`Stage` without importing the graph runtime above it.
 
 Port shape symbols, the same in every method: ``V`` vertices, ``F`` triangles, ``T`` frames of
@@ -37,7 +37,7 @@ import numbers
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
-from ..scene.state import Change
+from ..scene._state import Change
 
 __all__: list[str] = []
 
@@ -132,8 +132,8 @@ class StageContext:
         scene: the :class:`~warpshade.scene.Scene`.
         device: the Warp device.
         dims: scene dimensions ``{"V": vertices, "T": frames, "F": triangles}``.
-        lighting: the :class:`~warpshade.scene.lighting.LightingSource` of the run (host).
-        state: the run's :class:`~warpshade.scene.state.FrameState` (its arrays keep their
+        lighting: the :class:`~warpshade.scene._lighting.LightingSource` of the run (host).
+        state: the run's :class:`~warpshade.scene._state.FrameState` (its arrays keep their
             addresses; bind them in ``setup``); None during precompute.
         progress: whether long work may show progress bars.
         base_dir: directory that relative file parameters resolve against (the stage graph
@@ -141,7 +141,7 @@ class StageContext:
         scheduler: where independent precompute tasks run (:func:`warpshade.tasks.executor`:
             None = ``$WARPSHADE_SCHEDULER`` or local worker processes, ``"serial"``,
             ``"local:N"``, a Dask scheduler address).
-        cache: the run's artifact cache (:class:`~warpshade.graph.cache.ArtifactCache`:
+        cache: the run's artifact cache (:class:`~warpshade.graph._cache.ArtifactCache`:
             ``load(key)``, ``store(key, arrays)``, ``path(key)``), where a precompute made of
             many tasks keeps each finished task's result so that an interrupted run resumes
             where it stopped; None (or a disabled cache): nothing is kept.
@@ -324,7 +324,7 @@ class FrameStage(Stage):
     #: BVH over the state's points (``state.bvh``), refit inside the recorded frame.
     needs_bvh: ClassVar[bool] = False
     #: True when the stage shades the run's BRDFs (``state.materials``, told by
-    #: :data:`~warpshade.scene.state.Change.MATERIAL`): a material change or track is refused on
+    #: :data:`~warpshade.scene._state.Change.MATERIAL`): a material change or track is refused on
     #: a graph without such a stage, where it would be ignored.
     reads_materials: ClassVar[bool] = False
     #: True when the stage's radiance includes the run's sphere lights (local lights). A stage
@@ -335,7 +335,7 @@ class FrameStage(Stage):
     def setup(self, ctx: StageContext, inputs: dict) -> dict:
         """Allocate fixed device outputs and bind the inputs (device arrays of upstream ports;
         ``points``/``normals``/``albedo`` and ``lighting`` -- the state's
-        :class:`~warpshade.scene.lighting_warp.FrameLighting` -- from the scene).
+        :class:`~warpshade.scene._lighting_warp.FrameLighting` -- from the scene).
 
         Returns output name -> device array (the same arrays are filled every frame).
         """
@@ -346,8 +346,8 @@ class FrameStage(Stage):
         raise NotImplementedError(f"stage {self.name!r} ({self.type_name}) has no launch")
 
     def notify_changed(self, flags: Change, keys: frozenset = frozenset()) -> bool:
-        """Something outside the frame changed (:class:`~warpshade.scene.state.Change` flags);
-        with :data:`~warpshade.scene.state.Change.PARAMETERS`, ``keys`` names the parameters of
+        """Something outside the frame changed (:class:`~warpshade.scene._state.Change` flags);
+        with :data:`~warpshade.scene._state.Change.PARAMETERS`, ``keys`` names the parameters of
         this stage that changed (``self.params`` already holds their new values). Called once per
         ``Runtime.update``: changes made together (``Runtime.batch``) arrive as one call, their
         flags and parameter names merged.

@@ -3,12 +3,12 @@
 ``render(scene, frame, colors=...)`` interpolates per-vertex colours at the primary hits;
 ``render(scene, frame, shade=callback)`` calls ``callback(gbuffer)`` for per-pixel radiance.
 Images are tone-mapped (exposure + sRGB or Reinhard) and written to PNG atomically. Pictures of
-a method against ground truth are the measuring layer's (:mod:`warpshade.measure.pictures`).
+a method against ground truth are the measuring layer's (:mod:`warpshade.measure._pictures`).
 """
 
-from .camera import camera_basis, camera_for, frame_camera
-from .image import GREY_BACKGROUND, TONEMAP_MODES, tonemap, tonemap_f64, write_png
-from .raycast import GBuffer, RenderResult, interpolate_vertex_values, render, render_gbuffer
+from ._camera import camera_basis, camera_for, frame_camera
+from ._image import GREY_BACKGROUND, TONEMAP_MODES, tonemap, tonemap_f64, write_png
+from ._raycast import GBuffer, RenderResult, interpolate_vertex_values, render, render_gbuffer
 
 __all__ = [
     "GBuffer",

@@ -9,7 +9,7 @@ maths (log-space accumulation) and the scene's blocker model live in
 :mod:`warpshade.methods.shexp`.
 
 Construction (:func:`fit_spheres`). The variational Lloyd-style construction of sec. 6.2
-(:mod:`.fit` has the details): flood-fill clustering of surface
+(:mod:`._fit` has the details): flood-fill clustering of surface
 and interior samples by outside-volume cost, Powell centre updates minimising the outside volume
 of each cluster's bounding sphere (all clusters in lockstep, the objective evaluated by a Warp
 kernel on an occupancy grid; scipy's Powell is the reference it is tested against), and cluster
@@ -31,14 +31,14 @@ ground plane) raises ValueError naming the mesh, unless ``open_mesh="shell"``, w
 shell of half-thickness ``shell_thickness`` around the surface instead (for thin blockers that
 must cast shadows).
 
-Attachment (:mod:`.attach`). Coordinates that carry a fitted centre along with its mesh:
+Attachment (:mod:`._attach`). Coordinates that carry a fitted centre along with its mesh:
 mean value coordinates (MVC) w.r.t. the fit-pose mesh (on a mesh of several closed parts, the
 part holding most of the sphere's samples), optionally pre-multiplied by per-vertex bone
 weights into a few (bone, weighted bind-space point) pairs -- exactly the MVC of the skinned
 mesh when every bone is kept; linear blend skinning of the centre with its cluster's mean skin
 weights; or, for open shells, a barycentric point plus an offset fixed in the nearest
 triangle's frame. Which mesh of a scene gets which, and the per-frame animation on the device,
-are SHEXP's blocker model (:mod:`warpshade.methods.shexp.spheres`); nothing in this package
+are SHEXP's blocker model (:mod:`warpshade.methods.shexp._spheres`); nothing in this package
 reads a scene.
 
 Hierarchy (:func:`build_sphere_tree`, :class:`SphereTree`, :class:`SphereTreeRefit`).
@@ -67,7 +67,7 @@ Typical use (precompute once, cache the ``to_arrays()`` dicts; then per frame)::
     cut.launch(bounds.centres, bounds.radii)     # cut.cut_nodes (C, capacity), cut.cut_count (C,)
 """
 
-from .core import (
+from ._core import (
     DEFAULT_GRID_CELLS,
     GRID_CELLS_PER_SPHERE,
     OutsideVolume,
@@ -78,9 +78,9 @@ from .core import (
     outside_volume,
     solid_volume,
 )
-from .fit import Solid, make_solid
-from .kernels import cut_accept, merge_sphere_pair
-from .tree import (
+from ._fit import Solid, make_solid
+from ._kernels import cut_accept, merge_sphere_pair
+from ._tree import (
     DEFAULT_THETA_MAX_DEGREES,
     REFIT_MODES,
     HierarchyCut,

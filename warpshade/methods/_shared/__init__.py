@@ -1,7 +1,7 @@
 """What more than one method package builds on, below the methods that use it.
 
 A method package imports no other method package's modules; a piece that two methods need lives
-here (or lower: :mod:`warpshade.basis`, :mod:`warpshade.transfer`, :mod:`warpshade.methods.common`)
+here (or lower: :mod:`warpshade.basis`, :mod:`warpshade.transfer`, :mod:`warpshade.methods._common`)
 with the methods that use it named in its module docstring. Nothing here imports a method
 package. The package is not a method (:data:`warpshade.methods.METHOD_PACKAGES` skips
 ``_``-prefixed packages) and is internal: the public names among its contents are re-exported

@@ -177,7 +177,7 @@ def trace_training(scene, frame_indices, order: int, samples: int, seed: int = 0
         executor: a :class:`warpshade.tasks.Executor` (default: :func:`warpshade.tasks.executor`,
             closed afterwards).
         cache: where each finished task's transfer is kept until all are assembled (an
-            :class:`~warpshade.graph.cache.ArtifactCache`: ``load``, ``store``, ``path``), so that
+            :class:`~warpshade.graph._cache.ArtifactCache`: ``load``, ``store``, ``path``), so that
             an interrupted call resumes: tasks found there are not traced again. None: no cache.
         report: a dict that receives ``tasks`` and ``tasks_cached`` (found in ``cache``).
 

@@ -2,26 +2,26 @@
 eq. 4-5 and sec. 7 / Fig. 11, after Snyder and Nowrouzezahrai 2008).
 
 A height field is a regular G x G grid mesh (row-major vertices, row r along +y, column c along
-+x, Z-up; :mod:`warpshade.io.heightfield`) whose heights change every frame. Two frame stages:
++x, Z-up; :mod:`warpshade.io._heightfield`) whose heights change every frame. Two frame stages:
 
 ``heightfield.visibility`` -- world-frame SH visibility from horizon angles (eq. 4-5), all in
 Warp kernels per frame:
 
 1. the frame's heights (the z of ``points``) -> a max pyramid: level k holds the maximum height
-   over 2^k x 2^k vertices (:func:`.model.pyramid_levels`);
+   over 2^k x 2^k vertices (:func:`._model.pyramid_levels`);
 2. at every texel of an R x R visibility grid (``resolution``: sub-sampled, corners on the grid
    corners) and for each of A azimuths ``phi_i = 2 pi i / A`` (``azimuths``), the horizon: the
    largest slope ``(H - h0) / d`` of the pyramid over a march with doubling distance
    (``d_j = spacing * 2^(j / q)``, q = ``samples_per_octave``), each sample reading the
    maximum of the pyramid cell holding it, on the level whose cell side is ``footprint`` times
-   the step to the next sample (:func:`.model.march_plan`; ``footprint = 1`` is conservative: no gaps
+   the step to the next sample (:func:`._model.march_plan`; ``footprint = 1`` is conservative: no gaps
    along the march, but the cell's maximum raises the horizon by about 3.5 degrees on the
    water; the default 0.5 halves that bias; ``benchmarks/bench_heightfield.py`` measured
    q = 1, 0.5 as cheapest with no loss against the glossy reference). The march ends at the
    grid's edge: beyond it nothing blocks;
 3. the visibility of the azimuthal wedge ``[phi_i - pi/A, phi_i + pi/A]`` is 0 below the horizon
    elevation and 1 above (eq. 4); its SH comes from a canonical wedge about phi = 0 tabulated
-   over the sine of the horizon elevation (:func:`.model.wedge_table`, float64 Gauss-Legendre in
+   over the sine of the horizon elevation (:func:`._model.wedge_table`, float64 Gauss-Legendre in
    cos(theta) with the azimuthal integral in closed form, built once at set-up) and placed by a
    z-rotation (``sh_rotate_z``); the wedges are summed (eq. 5). The kernel reads the canonical
    wedge's cosine coefficients (the sine terms vanish about phi = 0) and turns each azimuth's
@@ -63,30 +63,30 @@ shades 512^2 vertices at full resolution over sub-sampled visibility):
   sines of the Euler angles come from the frame, the multiple angles by recurrence).
 
 Views at or below a vertex's tangent plane give 0 (counted); negative radiance from SH ringing
-is clamped (counted): :meth:`.stages.HeightFieldShadeStage.diagnostics`.
+is clamped (counted): :meth:`._stages.HeightFieldShadeStage.diagnostics`.
 
 Modules, as in every method (``docs/adding-a-method.md``):
 
-* :mod:`.stages` -- the two graph stages (the shading one shares RPO's glossy-stage base);
-* :mod:`.kernels` -- the Warp kernels;
-* :mod:`.model` -- what the stages build at set-up: the checked grid layout, the march, the
+* :mod:`._stages` -- the two graph stages (the shading one shares RPO's glossy-stage base);
+* :mod:`._kernels` -- the Warp kernels;
+* :mod:`._model` -- what the stages build at set-up: the checked grid layout, the march, the
   wedge and view tables (a height field has no artifact that outlives a run);
-* :mod:`.mirror` -- the float64 mirror of the kernels, the tests' oracle;
-* :mod:`.rows` -- the settings the speed-vs-accuracy harness runs;
-* :mod:`.budget` -- the candidate settings an error budget chooses from.
+* :mod:`._mirror` -- the float64 mirror of the kernels, the tests' oracle;
+* :mod:`._rows` -- the settings the speed-vs-accuracy harness runs;
+* :mod:`._budget` -- the candidate settings an error budget chooses from.
 
 A declared dependency on a sibling method: the only one among the method packages
 (:mod:`warpshade.methods`). This method is RPO on a height field, so it builds on
 :mod:`warpshade.methods.rpo`: the operators (``OPERATORS``), the shading parameters
 (``SHADE_PARAMS``) and the glossy-stage base (``GlossyStage``), and, for ``factors = "exact"``,
-RPO's BRDF-table quadrature (``rpo.model.Z_NODES``, ``PHI_NODES``), so that both methods shade
+RPO's BRDF-table quadrature (``rpo._model.Z_NODES``, ``PHI_NODES``), so that both methods shade
 one BRDF from one table.
 """
 
-from .model import GridLayout, grid_layout, march_plan, pyramid_levels, view_table, wedge_table
-from .mirror import shade_f64, visibility_f64
-from .rows import harness_rows
-from .stages import HeightFieldShadeStage, HeightFieldVisibilityStage
+from ._model import GridLayout, grid_layout, march_plan, pyramid_levels, view_table, wedge_table
+from ._mirror import shade_f64, visibility_f64
+from ._rows import harness_rows
+from ._stages import HeightFieldShadeStage, HeightFieldVisibilityStage
 
 __all__ = [
     "GridLayout",

@@ -7,23 +7,23 @@ frame's estimate, or nothing), an unbiased control-variate estimate whose varian
 model's residual; the residual is filtered over mesh neighbours and averaged per vertex over
 frames, the history cut where the surface moves fast or fresh rays disagree with it.
 
-* :mod:`.stages` -- ``hybrid.trace`` (per frame): ports, parameters, buffers; and
+* :mod:`._stages` -- ``hybrid.trace`` (per frame): ports, parameters, buffers; and
   ``hybrid.visibility_transfer``: a data-driven visibility model's prediction as world-frame
   transfer, the control of ``hybrid.trace``;
-* :mod:`.kernels` -- the residual (rays), the edge-aware filter, the moving average, the
+* :mod:`._kernels` -- the residual (rays), the edge-aware filter, the moving average, the
   history-aware filter (more filtering where a vertex's history is short);
-* :mod:`.mirror` -- their float64 mirror, the tests' oracle;
-* :mod:`.model` -- the surface neighbourhood built at set-up (any topology, reported);
-* :mod:`.rows` -- the harness rows (K in {8, 16, 32, 64} x each control);
-* :mod:`.budget` -- the candidate settings an error budget chooses from.
+* :mod:`._mirror` -- their float64 mirror, the tests' oracle;
+* :mod:`._model` -- the surface neighbourhood built at set-up (any topology, reported);
+* :mod:`._rows` -- the harness rows (K in {8, 16, 32, 64} x each control);
+* :mod:`._budget` -- the candidate settings an error budget chooses from.
 """
 
-from .mirror import (cycle_directions_f64, estimate_f64, filter_f64, reproject_f64, residual_f64, temporal_f64,
+from ._mirror import (cycle_directions_f64, estimate_f64, filter_f64, reproject_f64, residual_f64, temporal_f64,
                      visibility_transfer_f64, warm_blend_f64, warm_filter_f64, warm_weight_f64,
                      world_visibility_transfer_f64)
-from .model import SurfaceNeighbours, surface_neighbours
-from .rows import glossy_stages_for, harness_rows, stages_for
-from .stages import HybridTraceStage, HybridVisibilityTransferStage
+from ._model import SurfaceNeighbours, surface_neighbours
+from ._rows import glossy_stages_for, harness_rows, stages_for
+from ._stages import HybridTraceStage, HybridVisibilityTransferStage
 
 __all__ = [
     "HybridTraceStage",

@@ -5,19 +5,19 @@ rotated with the surface every frame (``ldprt.fit`` -> ``ldprt.tangents`` -> ``l
 parametric models (thin membrane, sinusoidal wrinkles) and glossy LDPRT build on the same
 lobes, and so do texture patches (Sec. 5): a tileable height field's transfer fitted per texel
 (``ldprt.patch``) and mapped by UV onto a deforming surface, per vertex and per pixel
-(``ldprt.patch_shade``, :mod:`.patch`, :mod:`.patch_warp`). Captures local shadowing that moves with the surface; distant occlusion that changes
+(``ldprt.patch_shade``, :mod:`._patch`, :mod:`._patch_warp`). Captures local shadowing that moves with the surface; distant occlusion that changes
 with the pose (an arm over the torso) is not modelled.
 
-Modules, in the shape of every method (see :mod:`warpshade.methods.prt`): :mod:`.stages`,
-:mod:`.kernels`, :mod:`.model` (the fitted lobes), :mod:`.mirror` (float64 mirrors),
-:mod:`.rows` (harness settings), :mod:`.budget` (candidate settings); and the variants
-:mod:`.glossy`, :mod:`.membrane`, :mod:`.wrinkle`, :mod:`.patch` (with its kernels :mod:`.patch_warp`).
+Modules, in the shape of every method (see :mod:`warpshade.methods.prt`): :mod:`._stages`,
+:mod:`._kernels`, :mod:`._model` (the fitted lobes), :mod:`._mirror` (float64 mirrors),
+:mod:`._rows` (harness settings), :mod:`._budget` (candidate settings); and the variants
+:mod:`._glossy`, :mod:`._membrane`, :mod:`._wrinkle`, :mod:`._patch` (with its kernels :mod:`._patch_warp`).
 """
 
-from .model import LDPRTModel, fit_transfer, local_transfer
-from .mirror import shade_f64, world_transfer_f64
-from .rows import harness_rows
-from .stages import LdprtFitStage, LdprtTangentsStage, LdprtTransferStage, LdprtShadeRotatedStage, LdprtShadeStage
+from ._model import LDPRTModel, fit_transfer, local_transfer
+from ._mirror import shade_f64, world_transfer_f64
+from ._rows import harness_rows
+from ._stages import LdprtFitStage, LdprtTangentsStage, LdprtTransferStage, LdprtShadeRotatedStage, LdprtShadeStage
 
 __all__ = [
     "LdprtFitStage",

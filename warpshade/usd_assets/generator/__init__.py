@@ -23,7 +23,7 @@ describes it: :mod:`.blockers`, :mod:`.figure` (``figure``, ``figure_train``, ``
 :mod:`.figure_orbit`, :mod:`.cloth`, :mod:`.cloth_clips` (``cloth_train``, ``cloth_heldout``), :mod:`.bend`,
 :mod:`.wanderer` (``wanderer_train``, ``wanderer_test``), :mod:`.ripples`, :mod:`.sunlit`, :mod:`.dish`, :mod:`.measured`
 (a MERL-layout table, not a USD scene), :mod:`.aniso_table` (``--scenes aniso_table``: an anisotropic
-table in warpshade's own layout, :mod:`warpshade.scene.tabulated_aniso`; not a USD scene; its
+table in warpshade's own layout, :mod:`warpshade.scene._tabulated_aniso`; not a USD scene; its
 reproduction is tested in ``tests/test_aniso_table.py``).
 
 Output is deterministic on one machine: coordinates, weights and quaternions are rounded to 1e-4

@@ -1,9 +1,9 @@
 """``brushed_aniso.anisobrdf`` -- a tabulated anisotropic BRDF in warpshade's own 4-D layout
-(:mod:`warpshade.scene.tabulated_aniso`), written from an analytic anisotropic microfacet model with
+(:mod:`warpshade.scene._tabulated_aniso`), written from an analytic anisotropic microfacet model with
 a shadowing term (no measured anisotropic file can be fetched here), for the measured anisotropic
 material of Wang et al. 2009 (sec. 4.2, eq. 13; ``stages/dish_sg_aniso_measured.toml``).
 
-The model is :class:`warpshade.scene.materials.AnisotropicMicrofacet`, a brushed-metal-like
+The model is :class:`warpshade.scene._materials.AnisotropicMicrofacet`, a brushed-metal-like
 anisotropic Beckmann surface: ``D(h) F(v.h) G(v, s) / (4 (n.v)(n.s))`` with slope
 ``ANISO_ROUGHNESS`` along the tangent (+x, the UV tangent on the dish: around it, where brush marks
 run) and ``ANISO_ROUGHNESS_Y`` across it, Schlick's Fresnel of ``ANISO_F0`` and Smith's separable
@@ -19,8 +19,8 @@ from __future__ import annotations
 
 import os
 
-from ...scene.materials import AnisotropicMicrofacet
-from ...scene.tabulated_aniso import tabulate_anisotropic, write_anisotropic_table
+from ...scene._materials import AnisotropicMicrofacet
+from ...scene._tabulated_aniso import tabulate_anisotropic, write_anisotropic_table
 
 ANISO_FILE = "brushed_aniso.anisobrdf"
 ANISO_DIMS = (24, 24, 48, 12)

@@ -3,7 +3,7 @@ one frame). A shallow dish (radius ``DISH_RADIUS``: a bowl rising from 0.03 m at
 0.15 m, a rounded lip and an outer wall down to the ground; 25 rings x 97 columns with the seam
 duplicated) whose vertex UVs are polar: ``u = azimuth / 2 pi`` (increasing counter-clockwise
 about +Z) and ``v`` the arc length along the profile, so the UV tangent (the direction of
-increasing u, :mod:`warpshade.geometry.uv_tangents`) runs around the dish, the direction of
+increasing u, :mod:`warpshade.geometry._uv_tangents`) runs around the dish, the direction of
 circular brush marks; exact vertex normals of the surface of revolution. A ball (radius 0.14 m,
 lat-long UVs) rests in the dish off centre and casts a shadow on it; a 31 x 31 vertex ground grid
 (5 m, planar UVs) under them. The bundled sky (``sky.hdr``, sun towards

@@ -2,7 +2,7 @@
 an analytic model with a shadowing term (no measured file can be fetched here), for the measured
 materials of Wang et al. 2009 (sec. 4.2, eq. 13; ``stages/dish_sg_measured.toml``).
 
-The model is eq. 13 itself (:class:`warpshade.methods.sg.brdf.TabulatedMicrofacet`):
+The model is eq. 13 itself (:class:`warpshade.methods.sg._brdf.TabulatedMicrofacet`):
 ``F(|i.h|, 1.33) S(o) S(i) D(h) / (pi (n.i)(n.o))`` with the normalised Beckmann NDF of slope
 ``MEASURED_ROUGHNESS``, ``D = exp(-tan^2 theta_h / m^2) / (pi m^2 cos^4 theta_h)``, and the Smith
 shadowing factor of a Beckmann surface of slope ``MEASURED_SHADOW_ROUGHNESS`` (the rational
@@ -18,8 +18,8 @@ import os
 
 import numpy as np
 
-from ...methods.sg.brdf import TabulatedMicrofacet
-from ...scene.tabulated import write_merl
+from ...methods.sg._brdf import TabulatedMicrofacet
+from ...scene._tabulated import write_merl
 
 MEASURED_FILE = "measured_coating.binary"
 MEASURED_DIMS = (24, 12, 24)

@@ -1,7 +1,7 @@
 """``ripples.usda`` -- an animated water surface as a procedural height field (8 m square, 512 x 512
 vertices, 48 frames that loop): a swell, three crossing chop waves, two circular ripples and a
 static seeded terrain term, described by the ``warpshade:heightField:*`` attributes of one Mesh
-prim (:mod:`warpshade.io.heightfield`, expanded by the loader), under the sky, with a camera
+prim (:mod:`warpshade.io._heightfield`, expanded by the loader), under the sky, with a camera
 looking across the water toward the sun at a glancing angle.
 """
 
@@ -11,7 +11,7 @@ import os
 
 from pxr import Gf, UsdGeom, Vt
 
-from ...io.heightfield import HeightFieldSpec, author
+from ...io._heightfield import HeightFieldSpec, author
 from .sky import define_sky
 from .writing import FPS, define_camera, new_stage, save_stage
 
@@ -22,7 +22,7 @@ RIPPLES_RESOLUTION = 512
 
 def make_ripples(out_dir: str, resolution: int = RIPPLES_RESOLUTION, frame_count: int = RIPPLES_FRAMES,
                  file_name: str = "ripples.usda") -> str:
-    """The water height field (warpshade.io.heightfield): every wave advances a whole number of
+    """The water height field (warpshade.io._heightfield): every wave advances a whole number of
     periods over the clip, so frame ``frame_count`` would equal frame 0."""
     duration = frame_count / FPS
 

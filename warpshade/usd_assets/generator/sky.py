@@ -1,7 +1,7 @@
 """The sky every bundled scene shares (except ``sunlit``, which has its own).
 
 A ``DomeLight`` (/World/Sky) whose lat-long texture ``sky.hdr`` (``SKY_SIZE`` = 64 x 128, Radiance
-RGBE) is :func:`warpshade.scene.lighting.sky_radiance` with a soft sun towards ``SUN_DIRECTION``;
+RGBE) is :func:`warpshade.scene._lighting.sky_radiance` with a soft sun towards ``SUN_DIRECTION``;
 the dome carries USD's ``rotateX:orientToStageUpAxis`` op so its +Y pole points up (+Z).
 """
 
@@ -12,8 +12,8 @@ import os
 import numpy as np
 from pxr import Sdf, UsdLux
 
-from ...io.images import write_hdr
-from ...scene.lighting import sky_radiance, usd_dome_texel_directions
+from ...io._images import write_hdr
+from ...scene._lighting import sky_radiance, usd_dome_texel_directions
 
 
 SKY_FILE = "sky.hdr"

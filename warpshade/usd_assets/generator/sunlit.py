@@ -8,7 +8,7 @@ roughness texture ``sunlit_knot_roughness.png`` (128 x 128 grey, raw, repeat) of
 broken by noise between 0.08 and 0.5; the ground uses the metallic workflow (metallic 0, so
 F0 = 0.04) with an sRGB diffuse texture ``sunlit_ground_diffuse.png`` (a 4 x 4 stone / slate
 checker) and a raw roughness texture ``sunlit_ground_roughness.png`` (rust-like noise, 0.15 to
-0.5). Roughness values are what ``warpshade.scene.materials.Microfacet(roughness=...)`` takes
+0.5). Roughness values are what ``warpshade.scene._materials.Microfacet(roughness=...)`` takes
 (its alpha; warpshade does not square UsdPreviewSurface roughness). Lights: a DomeLight with
 its own sky ``sunlit_sky.hdr`` (256 x 512 lat-long): a clear sky with a soft aureole plus a
 sun disc 1.2 degrees across at 40 degrees elevation (azimuth 70 degrees from +X towards +Y),
@@ -27,8 +27,8 @@ import os
 import numpy as np
 from pxr import Gf, Sdf, UsdGeom, UsdLux, UsdShade, Vt
 
-from ...io.images import write_hdr
-from ...scene.lighting import sky_radiance, usd_dome_texel_directions
+from ...io._images import write_hdr
+from ...scene._lighting import sky_radiance, usd_dome_texel_directions
 from .shapes import grid, smoothstep, torus_knot
 from .writing import define_camera, define_mesh, new_stage, rounded, save_stage
 

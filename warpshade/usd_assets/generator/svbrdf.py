@@ -1,6 +1,6 @@
 """``svbrdf_rings.svbrdf`` -- a spatially varying measured material (Wang et al. 2009, sec. 4.2):
 a texture of eq.-13 microfacet materials, written from analytic models (no measured SVBRDF can
-be fetched here), for ``stages/dish_sg_svbrdf.toml`` (format: :mod:`warpshade.scene.svbrdf`).
+be fetched here), for ``stages/dish_sg_svbrdf.toml`` (format: :mod:`warpshade.scene._svbrdf`).
 
 Every texel is a blend of three eq.-13 materials (:data:`SVBRDF_MATERIALS`): a normalised Beckmann
 NDF of slope ``m`` and the Smith shadowing factor of a Beckmann surface of slope ``s`` (the
@@ -23,7 +23,7 @@ import os
 
 import numpy as np
 
-from ...scene.svbrdf import write_svbrdf
+from ...scene._svbrdf import write_svbrdf
 
 SVBRDF_FILE = "svbrdf_rings.svbrdf"
 SVBRDF_SIZE = (32, 32)
