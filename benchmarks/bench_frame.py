@@ -54,7 +54,10 @@ def _median_ms(xs) -> float:
 
 def bare_kernel_ms(rt, repeats: int = 200) -> float:
     """One order-4 ``shade_transfer_kernel`` launch over the run's vertices, synchronised."""
-    from warpshade.methods.prt import _kernels as kernels
+    try:
+        from warpshade.methods.prt import _kernels as kernels
+    except ImportError:  # --before a commit whose modules were not yet _-prefixed
+        from warpshade.methods.prt import kernels
 
     v = rt.scene.vertex_count
     dev = rt.device
