@@ -592,7 +592,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("budget", add_help=False,
                        help="measure a method's candidate settings on a scene and pick the cheapest meeting a target error "
                             "(warpshade budget --help)")
-    p.add_argument("budget_args", nargs=argparse.REMAINDER)
+    p.add_argument("budget_args", nargs=argparse.REMAINDER, help="the flags of warpshade budget (see warpshade budget --help)")
     p.set_defaults(func=_cmd_budget)
     p = sub.add_parser("demo", parents=[common, device], help="run the default bundled scene end to end and print where its outputs are",
                        description="Run stages/demo.toml (Warp's bunny under a rotating sky, static PRT) with validation.")
