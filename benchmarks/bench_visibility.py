@@ -333,17 +333,17 @@ def part_studies(quick, rt):
     with executor("serial") as ex:
         def fit(**kw):
             t0 = time.perf_counter()
-            m = fit_visibility(data, model="linear", executor=ex, **kw)
+            m = fit_visibility(data, regressor="linear", executor=ex, **kw)
             return m, time.perf_counter() - t0
 
         for kind in ("cluster", "one_ring", "world"):
-            m, s = fit(frames=kind)
+            m, s = fit(space=kind)
             out["frames_kind"][kind] = {"error": error(m), "fit_s": s, "cv_error": m.report["cv_error"]}
             print("frames", kind, out["frames_kind"][kind], flush=True)
             if kind == "cluster":
                 out["cosine"]["without (visibility, cosine applied after)"] = {"transfer_error": transfer_error(m, "visibility"),
                                                                               "components": int(np.sum(m.report["components"]))}
-                mt, _ = fit(frames=kind, target="transfer")
+                mt, _ = fit(space=kind, target="transfer")
                 out["cosine"]["with (transfer modelled)"] = {"transfer_error": transfer_error(mt, "transfer"),
                                                             "components": int(np.sum(mt.report["components"]))}
                 print("cosine", out["cosine"], flush=True)

@@ -209,7 +209,7 @@ def test_fit_of_too_few_frames_is_a_clear_error(model):
     data = {"visibility": np.ones((p, 5, 9), np.float32), "settings": np.array([3, 16, 0, 1])}
     with pytest.raises(ValueError, match=rf"training data holds {p} frame\(s\); the fit needs at least "
                                          rf"{fewest_frames()}.*visibility.data parameter 'frames'"):
-        fit_visibility(data, model=model)
+        fit_visibility(data, regressor=model)
 
 
 @pytest.mark.parametrize("count", [1, 2, 3])

@@ -176,7 +176,7 @@ def _synthetic_data(rng, p=24, joints=(0, 1)):
 @pytest.fixture(scope="module")
 def synthetic_model():
     data = _synthetic_data(np.random.default_rng(5))
-    return data, fit_visibility(data, model="network", hidden=(4,), max_iterations=40, executor=_serial())
+    return data, fit_visibility(data, regressor="network", hidden=(4,), max_iterations=40, executor=_serial())
 
 
 def _serial():
@@ -240,7 +240,7 @@ def _run_predict(arrays, features, device, precision="single"):
 def test_model_kernels_match_mirror_and_novel_poses_stay_bounded(device, synthetic_model, model_kind, precision):
     data, model = synthetic_model
     if model_kind != "network":
-        model = fit_visibility(data, model=model_kind, executor=_serial())
+        model = fit_visibility(data, regressor=model_kind, executor=_serial())
     a = model.arrays
     # the float64 mirror over the basis the kernel stores (float16-rounded for half storage)
     stored = dict(a, basis=np.asarray(a["basis"], np.float16).astype(np.float64)) if precision == "half" else a
@@ -261,7 +261,7 @@ def test_constant_inputs_are_a_clear_error(rng):
     data = _synthetic_data(rng, p=10)
     data["poses_quaternion"] = np.ones_like(data["poses_quaternion"])
     with pytest.raises(ValueError, match="no pose feature varies"):
-        fit_visibility(data, model="linear", executor=_serial())
+        fit_visibility(data, regressor="linear", executor=_serial())
 
 
 def test_tiny_clusters_fit_without_nan(rng):
@@ -272,7 +272,7 @@ def test_tiny_clusters_fit_without_nan(rng):
     labels[10:19] = 5  # 9 vertices whose visibility does not vary (k = 0)
     data["visibility"][:, labels == 5] = 0.0  # constant over the poses: no component
     data["visibility"][:, labels == 5, 0] = 0.5  # (rotation invariant: the same in every frame)
-    model = fit_visibility(data, model="network", hidden=(2,), max_iterations=5, labels=labels, executor=_serial())
+    model = fit_visibility(data, regressor="network", hidden=(2,), max_iterations=5, labels=labels, executor=_serial())
     assert 0 in model.report["components"]
     out = predict_f64(model.arrays, inputs_f64(model.arrays, data["poses_quaternion"][:1])[0])
     assert np.all(np.isfinite(out))
@@ -392,6 +392,6 @@ def test_transfer_target_is_for_local_frames_only():
     from warpshade.methods.visibility import fit_visibility
 
     with pytest.raises(ValueError, match="target must be 'visibility' or 'transfer'.*'world'"):
-        fit_visibility({}, frames="world", target="transfer")
+        fit_visibility({}, space="world", target="transfer")
     with pytest.raises(ValueError, match="target must be .* got 'cosine'"):
         fit_visibility({}, target="cosine")

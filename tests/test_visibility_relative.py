@@ -148,7 +148,7 @@ def test_auto_selects_relative_inputs_and_packs_their_products(rng):
     novel poses it is far closer than the model without them."""
     data, labels = _relative_data(rng)
     train = {k: (v[:160] if k in ("visibility", "points", "normals", "poses_quaternion") else v) for k, v in data.items()}
-    model = fit_visibility(train, model="auto", labels=labels, relative=2, frames="world", executor=_serial())
+    model = fit_visibility(train, regressor="auto", labels=labels, relative=2, space="world", executor=_serial())
     sel = {s["cluster"]: s for s in model.report["selected"]}
     assert all(sel[k]["input_set"].startswith("near") for k in range(4)), sel
     assert sel[0]["model_used"] == "quadratic"
@@ -156,7 +156,7 @@ def test_auto_selects_relative_inputs_and_packs_their_products(rng):
     assert a["relative_neighbours"].shape == (4, 2) and model.report["relative_inputs"] == 4 * width(2)
     x = inputs_f64(a, data["poses_quaternion"][160:], data["points"][160:])
     err = sum(np.sum((predict_f64(a, x[t]) - data["visibility"][160 + t]) ** 2) for t in range(40))
-    plain = fit_visibility(train, model="auto", labels=labels, frames="world", executor=_serial())
+    plain = fit_visibility(train, regressor="auto", labels=labels, space="world", executor=_serial())
     xp = inputs_f64(plain.arrays, data["poses_quaternion"][160:])
     err_plain = sum(np.sum((predict_f64(plain.arrays, xp[t]) - data["visibility"][160 + t]) ** 2) for t in range(40))
     # measured 0.0026; the products shifted by one activation in the packed rows give 0.77
@@ -169,7 +169,7 @@ def test_relative_needs_a_selecting_model(rng):
     data, labels = _relative_data(rng, p=30)
     for model, relative in (("linear", 2), ("auto", -1)):
         with pytest.raises(ValueError, match="relative"):
-            fit_visibility(data, model=model, labels=labels, relative=relative, frames="world", executor=_serial())
+            fit_visibility(data, regressor=model, labels=labels, relative=relative, space="world", executor=_serial())
 
 
 def test_stage_frame_with_relative_inputs_is_the_float64_model(device, tmp_path):

@@ -252,7 +252,7 @@ def test_auto_model_chooses_local_inputs_and_its_kernels_match_the_mirror(device
 
     full = _local_data(bend, rng, p=110)
     data, test = _frames_subset(full, slice(0, 90)), _frames_subset(full, slice(90, 110))
-    model = fit_visibility(data, model="auto", executor=_serial())
+    model = fit_visibility(data, regressor="auto", executor=_serial())
     rep = model.report
     assert model.model == "auto" and len(rep["selected"]) == rep["clusters"]
     assert any(s.get("input_set", "global") != "global" for s in rep["selected"])
@@ -273,7 +273,7 @@ def test_auto_model_chooses_local_inputs_and_its_kernels_match_the_mirror(device
         num = sum(np.sum((predict_f64(m.arrays, x[t]) - to_local(test["visibility"][t], fr)) ** 2) for t in range(20))
         return float(num)
 
-    linear = fit_visibility(data, model="linear", executor=_serial())
+    linear = fit_visibility(data, regressor="linear", executor=_serial())
     assert heldout_error(model) < heldout_error(linear)
 
 
@@ -281,7 +281,7 @@ def test_auto_falls_back_to_global_inputs_without_a_joint_layout(rng):
     from test_visibility import _synthetic_data
 
     data = _synthetic_data(rng)  # five inputs that are not joint rotations of the skinning joints
-    model = fit_visibility(data, model="auto", executor=_serial())
+    model = fit_visibility(data, regressor="auto", executor=_serial())
     assert all(s.get("input_set", "global") == "global" for s in model.report["selected"])
 
 
@@ -342,7 +342,7 @@ def test_diffuse_metric_fit_kernels_match_the_mirror(device, bend, rng, precisio
     from warpshade.methods.visibility._model import cosine_product_matrix
 
     data = _local_data(bend, rng, p=60)
-    model = fit_visibility(data, model="auto", executor=_serial(), metric="diffuse")
+    model = fit_visibility(data, regressor="auto", executor=_serial(), metric="diffuse")
     assert model.report["metric"] == "diffuse" and model.model == "auto"
     a = model.arrays
     stored = dict(a, basis=np.asarray(a["basis"], np.float16).astype(np.float64)) if precision == "half" else a
@@ -361,7 +361,7 @@ def test_diffuse_metric_parameter(bend, rng):
 
     data = _local_data(bend, rng, p=60)
     with pytest.raises(ValueError, match="metric"):
-        fit_visibility(data, model="linear", frames="world", executor=_serial(), metric="diffuse")
+        fit_visibility(data, regressor="linear", space="world", executor=_serial(), metric="diffuse")
     fit_stage = get_stage_type("visibility.fit")
     assert fit_stage("fit", {}).cache_params()["metric"] == "visibility"  # the metric is part of the artifact's key
     assert fit_stage("fit", {"metric": "diffuse"}).cache_params()["metric"] == "diffuse"

@@ -131,7 +131,7 @@ def test_stacked_map_on_the_union_is_the_weighted_sum_of_the_candidates(rng):
 def test_stack_model_kernels_match_the_mirror_and_novel_poses_stay_bounded(device, bend, rng):  # noqa: F811
     full = _local_data(bend, rng, p=110)
     data, test = _frames_subset(full, slice(0, 90)), _frames_subset(full, slice(90, 110))
-    model = fit_visibility(data, model="stack", executor=_serial(), stack_top=12)
+    model = fit_visibility(data, regressor="stack", executor=_serial(), stack_top=12)
     rep = model.report
     assert model.model == "stack" and rep["models_used"]["stack"] + rep["models_used"]["constant"] == rep["clusters"]
     stacked = [s for s in rep["selected"] if "stack" in s]
@@ -179,7 +179,7 @@ def test_stack_parameters(bend, rng):  # noqa: F811
 
     data = _local_data(bend, rng, p=40)
     with pytest.raises(ValueError, match="stack_total"):
-        fit_visibility(data, model="stack", executor=_serial(), stack_total="most")
+        fit_visibility(data, regressor="stack", executor=_serial(), stack_total="most")
     fit_stage = get_stage_type("visibility.fit")
     assert fit_stage("fit", {}).cache_params()["stack_top"] == 0  # part of the artifact's key
     assert fit_stage("fit", {"stack_total": "free"}).cache_params()["stack_total"] == "free"

@@ -114,7 +114,7 @@ def cosine_product_matrix(order: int) -> np.ndarray:
     return sh.product_matrix(sh.clamped_cosine_sh(order))
 
 
-def fit_visibility(data: dict, *, model: str = "network", frames: str = "cluster", pose: str = "quaternion",
+def fit_visibility(data: dict, *, regressor: str = "network", space: str = "cluster", pose: str = "quaternion",
                    root: str = "include", input_variance: float = 0.99, input_max: int = 24, variance: float = 0.95,
                    predictable: float = 0.99, k_max: int = 32, bandwidth: float = 0.3, min_cluster: int = 8, hidden=(8, 16),
                    max_iterations: int = 300, margin: float = 0.25, seed: int = 0, labels=None, executor=None,
@@ -133,7 +133,7 @@ def fit_visibility(data: dict, *, model: str = "network", frames: str = "cluster
     mapped back by the pseudo-inverse of ``M_cos``, so that the model's arrays and stages are those
     of the visibility metric). Local frames only.
 
-    ``stack_top``, ``stack_total`` (``model = "stack"``, :mod:`._stack`): the candidates (least
+    ``stack_top``, ``stack_total`` (``regressor = "stack"``, :mod:`._stack`): the candidates (least
     blocked-CV error first; 0: all) the per-cluster combination may use, and the constraint on its weights.
 
     ``relative`` (``"auto"``, ``"stack"``): the most neighbouring clusters whose centroids, in each
@@ -146,20 +146,20 @@ def fit_visibility(data: dict, *, model: str = "network", frames: str = "cluster
     t0 = time.perf_counter()
     from ._stack import TOTALS
 
-    if model == "stack" and (int(stack_top) < 0 or stack_total not in TOTALS):
+    if regressor == "stack" and (int(stack_top) < 0 or stack_total not in TOTALS):
         raise ValueError(f"stack_top must be 0 (every candidate) or more and stack_total one of {TOTALS}, got "
                          f"{stack_top!r} and {stack_total!r}")
-    if model not in MODELS or frames not in FRAME_KINDS:
-        raise ValueError(f"model must be one of {MODELS} and frames one of {FRAME_KINDS}")
-    if metric not in METRICS or (metric == "diffuse" and (frames == "world" or target == "transfer")):
+    if regressor not in MODELS or space not in FRAME_KINDS:
+        raise ValueError(f"regressor must be one of {MODELS} and space one of {FRAME_KINDS}")
+    if metric not in METRICS or (metric == "diffuse" and (space == "world" or target == "transfer")):
         raise ValueError(f"metric must be one of {METRICS} ('diffuse': a visibility target in a local frame), got "
-                         f"{metric!r} with target {target!r} and frames {frames!r}")
-    if int(relative) < 0 or (int(relative) > 0 and model not in ("auto", "stack")):
-        raise ValueError(f"relative must be 0 or a neighbour count for model 'auto' or 'stack', got {relative!r} "
-                         f"with model {model!r}")
-    if target not in ("visibility", "transfer") or (target == "transfer" and frames == "world"):
+                         f"{metric!r} with target {target!r} and space {space!r}")
+    if int(relative) < 0 or (int(relative) > 0 and regressor not in ("auto", "stack")):
+        raise ValueError(f"relative must be 0 or a neighbour count for regressor 'auto' or 'stack', got {relative!r} "
+                         f"with regressor {regressor!r}")
+    if target not in ("visibility", "transfer") or (target == "transfer" and space == "world"):
         raise ValueError(f"target must be 'visibility' or 'transfer' (the latter in a local frame), got {target!r} "
-                         f"with frames {frames!r}")
+                         f"with space {space!r}")
     settings = np.asarray(data["settings"]).reshape(-1)
     order = int(settings[0])
     source = int(settings[3])
@@ -176,8 +176,8 @@ def fit_visibility(data: dict, *, model: str = "network", frames: str = "cluster
         a = pose_columns(data, pose, root)
     else:
         a = np.asarray(data["dihedral"], np.float64)
-    space, w_in = input_space(a, input_variance, input_max)
-    x = (a - space.mean) @ w_in
+    inputs, w_in = input_space(a, input_variance, input_max)
+    x = (a - inputs.mean) @ w_in
     span = x.max(0) - x.min(0)
     lo, hi = x.min(0) - margin * span, x.max(0) + margin * span
     if labels is None:
@@ -190,14 +190,14 @@ def fit_visibility(data: dict, *, model: str = "network", frames: str = "cluster
         g = relative_features_f64(data["points"], data["rest_points"], labels, neighbours)
         a_full = np.concatenate([a, g], axis=1)
         w_in = np.concatenate([w_in, np.zeros((g.shape[1], w_in.shape[1]))], axis=0)
-        mean_full = np.concatenate([space.mean, g.mean(0)])
+        mean_full = np.concatenate([inputs.mean, g.mean(0)])
     else:
         neighbours = neighbours[:, :0]
-        a_full, mean_full = a, space.mean
-    fr = local_frames_f64(frames, data["points"], data["normals"], data["rest_points"], data["faces"], labels)
+        a_full, mean_full = a, inputs.mean
+    fr = local_frames_f64(space, data["points"], data["normals"], data["rest_points"], data["faces"], labels)
     local = np.empty(vis.shape, np.float32)
     for t in range(pcount):
-        local[t] = vis[t] if frames == "world" else to_local(vis[t], fr[t])
+        local[t] = vis[t] if space == "world" else to_local(vis[t], fr[t])
     if target == "transfer":
         local = local @ cosine_product_matrix(order).T.astype(np.float32)
     weight = {}
@@ -210,19 +210,19 @@ def fit_visibility(data: dict, *, model: str = "network", frames: str = "cluster
     local_w = [{} for _ in range(kc)]
     for cl in range(kc):
         rows = np.flatnonzero(labels == cl)
-        tasks.append({"x": x, "y": local[:, rows, :].reshape(pcount, -1), "model": model, "variance": variance,
+        tasks.append({"x": x, "y": local[:, rows, :].reshape(pcount, -1), "model": regressor, "variance": variance,
                       "predictable": predictable, "k_max": k_max, "hidden": tuple(int(h) for h in hidden), "max_iterations": max_iterations,
                       "seed": seed, "cluster": cl, "vertices": int(rows.size), "stack_top": int(stack_top),
                       "stack_total": stack_total, **weight})
-        if model in ("auto", "stack"):
+        if regressor in ("auto", "stack"):
             tasks[-1]["input_sets"] = _input_sets(data, source, pose, root, a_full, x, labels, cl, input_variance, input_max,
                                                   local_w[cl], neighbours, a.shape[1],
-                                                  ("linear", "quadratic") if model == "auto" else ("linear",))
+                                                  ("linear", "quadratic") if regressor == "auto" else ("linear",))
     tasks_order = sorted(range(kc), key=lambda i: -tasks[i]["vertices"])
     own = executor is None
     ex = new_executor() if own else executor
     try:
-        done = ex.map(fit_cluster, [tasks[i] for i in tasks_order], desc=f"fitting {kc} clusters ({model})",
+        done = ex.map(fit_cluster, [tasks[i] for i in tasks_order], desc=f"fitting {kc} clusters ({regressor})",
                       progress=progress)
     finally:
         if own:
@@ -231,25 +231,25 @@ def fit_visibility(data: dict, *, model: str = "network", frames: str = "cluster
     for i, r in zip(tasks_order, done):
         results[i] = r
     layout = None
-    if model in ("auto", "stack"):
+    if regressor in ("auto", "stack"):
         w_in, layout = _auto_layout(results, local_w, w_in)
         xa = (a_full - mean_full) @ w_in
         span = xa.max(0) - xa.min(0)
         lo, hi = xa.min(0) - margin * span, xa.max(0) + margin * span
-    arrays = _pack(results, labels, order, model, frames, source, space, w_in, lo, hi, data, a, pose, root, layout)
+    arrays = _pack(results, labels, order, regressor, space, source, inputs, w_in, lo, hi, data, a, pose, root, layout)
     arrays["pose_mean"] = np.asarray(mean_full, np.float64)
     arrays["relative_neighbours"] = np.asarray(neighbours, np.int32)
     reports = [r["report"] for r in results]
     fallbacks = [r for r in reports if "fallback" in r]
     report = {"clusters": kc, "cluster_sizes": [int(r["vertices"]) for r in reports],
               "components": [int(r["components"]) for r in reports], "input_components": int(w_in.shape[1]),
-              "input_features": int(a.shape[1]), "relative_inputs": int(a_full.shape[1] - a.shape[1]), "model": model, "frames": frames, "metric": metric,
+              "input_features": int(a.shape[1]), "relative_inputs": int(a_full.shape[1] - a.shape[1]), "model": regressor, "frames": space, "metric": metric,
               "models_used": {m: sum(r["model_used"] == m for r in reports)
                               for m in ("constant", "linear", "quadratic", "network", "stack")},
               "fallbacks": [{"cluster": r["cluster"], "reason": r["fallback"]} for r in fallbacks],
               **({"selected": [{k: r[k] for k in ("cluster", "vertices", "model_used", "input_set", "inputs", "ridge", "cv_error",
                                                   "cv_error_best", "stack") if k in r} for r in reports]}
-                 if model in ("auto", "stack") else {}),
+                 if regressor in ("auto", "stack") else {}),
               "cv_error": float(np.sqrt(sum(r["cv_error"] ** 2 * r["vertices"] for r in reports) / vcount)),
               "cluster_fit_s": [round(r["fit_s"], 3) for r in reports], "total_fit_s": time.perf_counter() - t0,
               "retained_variance_min": float(min(r["retained_variance"] for r in reports))}

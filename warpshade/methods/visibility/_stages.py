@@ -251,7 +251,7 @@ class VisibilityFitStage(PrecomputeStage):
             labels = cloth.cluster_labels(data)
         try:
             with ctx.executor() as ex:
-                model = fit_visibility(data, model=p["regressor"], frames=p["space"], pose=p["pose"], root=p["root"],
+                model = fit_visibility(data, regressor=p["regressor"], space=p["space"], pose=p["pose"], root=p["root"],
                                        input_variance=p["input_variance"], input_max=p["input_max"],
                                        variance=p["variance"], predictable=p["predictable"], k_max=p["k_max"], bandwidth=p["bandwidth"],
                                        min_cluster=p["min_cluster"], hidden=hidden,
