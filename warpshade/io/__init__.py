@@ -44,21 +44,12 @@ __all__ = [
     "write_vertex_colors",
 ]
 
-_USD_NAMES = ("load_usd", "load_scene")
-_TEXTURE_NAMES = ("read_texture_file",)
-_LAZY = {"tessellate": "_usd_implicit", "write_vertex_colors": "_usd_write"}
+#: Public names read on first use from their module (``_usd`` imports pxr, which is heavy).
+_LAZY = {"load_usd": "_usd", "load_scene": "_usd", "read_texture_file": "_textures",
+         "tessellate": "_usd_implicit", "write_vertex_colors": "_usd_write"}
 
 
 def __getattr__(name):
-    # pxr is heavy: import warpshade.io._usd only when one of its functions is asked for.
-    if name in _USD_NAMES:
-        from . import _usd as usd
-
-        return getattr(usd, name)
-    if name in _TEXTURE_NAMES:
-        from . import _textures as textures
-
-        return getattr(textures, name)
     if name in _LAZY:
         import importlib
 

@@ -270,19 +270,16 @@ def measure(scene, lighting, cand: dict, frames, truth: dict, *, device="cpu", c
                          name=cand["label"].replace(" ", "-"))
         rt = spec.compile(scene, device=device, cache_dir=cache_dir, progress=False, lighting=lighting)
         compile_s = time.perf_counter() - t0
-        radiance = {}
+        radiance, medians, t_pass = {}, [], 0.0
         windows = _windows(scene, frames, warm)
-        start, t_pass = len(rt.frame_s), time.perf_counter()
-        for window in windows:
-            rt.run(window, record=True, warmup=False)
-            radiance[window[-1]] = np.array(rt.results[window[-1]], copy=True)
-        medians = [float(np.median(rt.frame_s[start:]))]
-        t_pass = time.perf_counter() - t_pass
-        while len(medians) < TIMING_PASSES and t_pass < TIMING_PASS_LIMIT_S:
-            start = len(rt.frame_s)
+        while not medians or (len(medians) < TIMING_PASSES and t_pass < TIMING_PASS_LIMIT_S):
+            start, t0 = len(rt.frame_s), time.perf_counter()
             for window in windows:
                 rt.run(window, record=True, warmup=False)
+                if not medians:  # the first pass's radiance is the one measured
+                    radiance[window[-1]] = np.array(rt.results[window[-1]], copy=True)
             medians.append(float(np.median(rt.frame_s[start:])))
+            t_pass = time.perf_counter() - t0
         model = reference_model(rt)
         ref = truth if model is None else glossy_truth(model)
         err = setting_error(radiance, ref)
