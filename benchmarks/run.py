@@ -23,6 +23,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import datetime
+import json
 import os
 import platform
 import shutil
@@ -153,6 +154,36 @@ def _vs_diffuse(r) -> bool:
     return r.get("reference", "diffuse") == "diffuse"
 
 
+def _front(points):
+    """The lower-left envelope (Pareto front) of ``(time, error)`` points, fastest first."""
+    front, best = [], np.inf
+    for x, y in sorted(points):
+        if y < best:
+            front.append((x, y))
+            best = y
+    return front
+
+
+def _labelled(sub) -> list:
+    """The rows of one scene's panel that get a text label: the Pareto front (among rows measured
+    against the diffuse reference) and each method's most accurate row and the per-frame ray tracer's rows, skipping any whose label
+    would land on one already placed (the table beside the chart names every row)."""
+    front = set(_front([(r["median_frame_ms"], r["error"]["rel_rms"]) for r in sub if _vs_diffuse(r)]))
+    best = {}
+    for r in sub:
+        if r["method"] not in best or r["error"]["rel_rms"] < best[r["method"]]["error"]["rel_rms"]:
+            best[r["method"]] = r
+    wanted = [r for r in sub if (r["median_frame_ms"], r["error"]["rel_rms"]) in front or best[r["method"]] is r
+              or r["method"] == "traced"]  # the per-frame ray tracer: the baseline to beat
+    placed, out = [], []
+    for r in sorted(wanted, key=lambda r: r["error"]["rel_rms"]):
+        lx, ly = np.log10(r["median_frame_ms"]), np.log10(max(r["error"]["rel_rms"], 1e-4))
+        if all(abs(lx - px) > 0.35 or abs(ly - py) > 0.06 for px, py in placed):
+            placed.append((lx, ly))
+            out.append(r)
+    return out
+
+
 def pareto_chart(results, path, title):
     import matplotlib
 
@@ -161,11 +192,11 @@ def pareto_chart(results, path, title):
 
     scenes = sorted({r["scene"] for r in results})
     methods = sorted({r["method"] for r in results})
-    cmap = plt.get_cmap("tab10")
-    colors = {m: cmap(i % 10) for i, m in enumerate(methods)}
+    cmap = plt.get_cmap("tab20" if len(methods) > 10 else "tab10")
+    colors = {m: cmap(i % cmap.N) for i, m in enumerate(methods)}
     cols = min(3, len(scenes))
     rows = (len(scenes) + cols - 1) // cols
-    fig, axes = plt.subplots(rows, cols, figsize=(5.2 * cols, 4.2 * rows), squeeze=False)
+    fig, axes = plt.subplots(rows, cols, figsize=(5.6 * cols, 4.4 * rows), squeeze=False)
     for ax, sc in zip(axes.flat, scenes):
         sub = [r for r in results if r["scene"] == sc]
         for r in sub:
@@ -173,21 +204,18 @@ def pareto_chart(results, path, title):
             other = not _vs_diffuse(r)  # measured against another reference
             ax.scatter(x, y, s=28, zorder=3, marker="D" if other else "o",
                        facecolors="none" if other else colors[r["method"]], edgecolors=colors[r["method"]])
-            ax.annotate(r["setting"], (x, y), fontsize=6, xytext=(3, 2), textcoords="offset points")
+        for r in _labelled(sub):
+            ax.annotate(f"{r['method']} {r['setting']}", (r["median_frame_ms"], max(r["error"]["rel_rms"], 1e-4)),
+                        fontsize=6.5, xytext=(4, 3), textcoords="offset points", color="0.15")
         # Pareto front per scene (lower-left envelope) over the rows that share the diffuse reference
-        pts = sorted((r["median_frame_ms"], r["error"]["rel_rms"]) for r in sub if _vs_diffuse(r))
-        front, best = [], np.inf
-        for x, y in pts:
-            if y < best:
-                front.append((x, y))
-                best = y
+        front = _front([(r["median_frame_ms"], r["error"]["rel_rms"]) for r in sub if _vs_diffuse(r)])
         if len(front) > 1:
             ax.plot(*zip(*front), color="0.6", lw=1, ls="--", zorder=1)
         noise = np.mean([r["error"].get("noise_rel_rms", np.nan) for r in sub if _vs_diffuse(r)])
         if np.isfinite(noise):
             ax.axhline(noise, color="0.3", lw=0.8, ls=":", label="ground-truth noise")
         vc = sub[0]["vertex_count"]
-        ax.set_title(f"{sc} ({vc:,} vertices)", fontsize=10)
+        ax.set_title(f"{sc} ({vc:,} vertices, {len(sub)} rows)", fontsize=10)
         ax.set_xscale("log")
         ax.set_yscale("log")
         ax.set_xlabel("time per frame (ms)")
@@ -200,9 +228,11 @@ def pareto_chart(results, path, title):
                           markerfacecolor="none" if m in glossy else colors[m],
                           label=f"{m} (vs glossy reference)" if m in glossy else m) for m in methods]
     handles.append(plt.Line2D([], [], ls=":", color="0.3", label="ground-truth noise"))
-    fig.legend(handles=handles, loc="lower center", ncol=len(handles), fontsize=9, frameon=False)
-    fig.suptitle(title, fontsize=11)
-    fig.tight_layout(rect=(0, 0.05, 1, 0.96))
+    fig.legend(handles=handles, loc="lower center", ncol=min(len(handles), 7), fontsize=9, frameon=False)
+    fig.suptitle(title + " -- labels: the Pareto front and each method's most accurate row; the table lists all",
+                 fontsize=11)
+    legend_rows = (len(handles) + 6) // 7
+    fig.tight_layout(rect=(0, 0.025 + 0.03 * legend_rows / rows, 1, 0.96))
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=110)
     plt.close(fig)
@@ -263,6 +293,9 @@ def main(argv=None) -> int:
     ap.add_argument("--temporal", action="store_true",
                     help="also measure noise (8 seeds at a held frame) and lag (error on the fastest-moving frames "
                          "relative to the clip's mean) for every row")
+    ap.add_argument("--resume", default=None, metavar="JSON",
+                    help="go on with an interrupted run: the scenes already in JSON (written after each scene) are "
+                         "kept and skipped, the rest measured and added to the same file")
     ap.add_argument("--replot", default=None, metavar="JSON",
                     help="redraw the chart and table of an earlier results JSON (next to it) without measuring")
     args = ap.parse_args(argv)
@@ -294,12 +327,44 @@ def main(argv=None) -> int:
     out_dir.mkdir(parents=True, exist_ok=True)
     date = datetime.date.today().isoformat()
 
+    earlier = None
+    if args.resume:
+        try:
+            earlier = json.loads(Path(args.resume).read_text())
+            earlier["meta"], earlier["results"]  # noqa: B018 -- both keys must be there
+        except (OSError, ValueError, KeyError) as exc:
+            ap.error(f"--resume {args.resume}: not a harness results file ({exc})")
+        if len(devices) != 1 or earlier["meta"]["device"] != devices[0]:
+            ap.error(f"--resume {args.resume}: it holds device {earlier['meta']['device']!r}; pass --device "
+                     f"{earlier['meta']['device']}")
+        out_dir = Path(args.resume).parent
+
     for device in devices:
-        results = []
+        tag = "cpu" if device == "cpu" else device.replace(":", "")
+        results = list(earlier["results"]) if earlier else []
+        done = {r["scene"] for r in results}
+        stem = Path(args.resume).name[: -len(".json")] if earlier else f"{date}-{tag}" + ("-quick" if args.quick else "")
+        seconds_before = earlier["meta"].get("seconds", 0.0) if earlier else 0.0
+        command = " ".join(["python", "benchmarks/run.py", *(argv if argv is not None else sys.argv[1:])])
+        meta = {
+            "date": earlier["meta"]["date"] if earlier else date, "device": device,
+            "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores",
+            "warp": wp.config.version, "gt_samples": gt_samples, "timing_frames": timing_frames, "quick": args.quick,
+            "rotate_degrees_per_frame": ROTATE_DEGREES_PER_FRAME,
+            "threads": cpu_workers() if device == "cpu" else None,
+            "command": earlier["meta"]["command"] if earlier else command,
+            "resumed_by": (earlier["meta"].get("resumed_by", []) + [command]) if earlier else [],
+            "seconds": seconds_before,
+            "temporal": args.temporal,
+            "scenes_done": sorted(done),
+        }
         scratch = tempfile.TemporaryDirectory(prefix="warpshade-harness-")
         precompute_cache = (ArtifactCache(scratch.name), {})  # ground truth stays in the shared truth cache
         t_all = time.perf_counter()
         for key in scene_keys:
+            if key in done:
+                print(f"[{device}] {key}: kept from {args.resume}", flush=True)
+                continue
             scene, lighting = load_bench_scene(key)
             if args.quick:
                 scene, lighting = coarse_lighting(scene)
@@ -335,24 +400,20 @@ def main(argv=None) -> int:
                               flush=True)
                     except Exception as exc:  # reported with the row, the row's other numbers kept
                         r["temporal"] = {"failed": repr(exc)}
+            # each finished scene is on disk: an interrupted run goes on with --resume and loses only its current scene
+            meta.update(seconds=seconds_before + time.perf_counter() - t_all, scenes_done=sorted(done | {key}))
+            done.add(key)
+            write_json_atomic(out_dir / f"{stem}.json", {"meta": meta, "results": results}, indent=1)
         ok = [r for r in results if "failed" not in r]
-        tag = "cpu" if device == "cpu" else device.replace(":", "")
-        meta = {
-            "date": date, "device": device, "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores",
-            "warp": wp.config.version, "gt_samples": gt_samples, "timing_frames": timing_frames, "quick": args.quick,
-            "rotate_degrees_per_frame": ROTATE_DEGREES_PER_FRAME,
-            "threads": cpu_workers() if device == "cpu" else None,
-            "command": " ".join(["python", "benchmarks/run.py", *(argv if argv is not None else sys.argv[1:])]),
-            "seconds": time.perf_counter() - t_all,
-            "temporal": args.temporal,
-        }
-        stem = f"{date}-{tag}" + ("-quick" if args.quick else "")
+        meta["seconds"] = seconds_before + time.perf_counter() - t_all
         write_json_atomic(out_dir / f"{stem}.json", {"meta": meta, "results": results}, indent=1)
         if ok:
-            pareto_chart(ok, out_dir / f"{stem}-pareto.png", f"warpshade: time per frame vs error ({device}, {date})")
+            pareto_chart(ok, out_dir / f"{stem}-pareto.png", f"warpshade: time per frame vs error ({device}, {meta['date']})")
             write_text_atomic(out_dir / f"{stem}.md", markdown_table(ok, meta))
-            for ext, src in (("json", f"{stem}.json"), ("png", f"{stem}-pareto.png"), ("md", f"{stem}.md")):
-                shutil.copyfile(out_dir / src, out_dir / f"latest-{tag}.{ext}")
+            # benchmarks/results/latest-* is a run over every scene; another --out directory keeps its own latest-*
+            if out_dir.resolve() != RESULTS.resolve() or done >= set(SCENES):
+                for ext, src in (("json", f"{stem}.json"), ("png", f"{stem}-pareto.png"), ("md", f"{stem}.md")):
+                    shutil.copyfile(out_dir / src, out_dir / f"latest-{tag}.{ext}")
         scratch.cleanup()
         print(f"[{device}] wrote {out_dir / stem}.json/.md and -pareto.png in {meta['seconds']:.0f} s")
     return 0
