@@ -52,7 +52,9 @@ from warpshade._wp import cpu_workers, launch_parallel, resolve_device, wp  # no
 from warpshade.geometry._bvh import RAY_MAX_DISTANCE, Visibility, _occlusion_kernel  # noqa: E402
 from warpshade.geometry._embree import EmbreeOcclusion, embree_available  # noqa: E402
 from warpshade.measure import load_bench_scene  # noqa: E402
-from warpshade.methods.hybrid._kernels import QUANTITY_TRANSFER, cycle_direction, frame_rotation, residual_kernel, residual_settings  # noqa: E402
+from warpshade.basis.sh_warp import sh_kernels  # noqa: E402
+from warpshade.methods.hybrid._kernels import (QUANTITY_TRANSFER, cycle_direction, cycle_table_kernel, frame_rotation,  # noqa: E402
+                                               residual_kernel, residual_settings)
 from warpshade.transfer import TransferTracer, sample_rays  # noqa: E402
 
 #: The scenes of a full run: three bundled scenes and a large mesh from Warp's assets.
@@ -151,8 +153,18 @@ def bench_scene(key, spec, args, dev, workers):
     no_control = wp.empty((0, coeffs), dtype=wp.float32, device=dev)
     offset = default_bvh.offset
     settings = residual_settings(quantity=QUANTITY_TRANSFER, count=IN_FRAME_RAYS, offset=offset)
-    paths["hybrid_trace"] = lambda: launch_parallel(hybrid_kernel, v, lambda lo, hi: [
-        default_bvh.id, state.points, state.normals, no_frames, no_control, settings, step, lo, residual, variance], dev, workers)
+    set_directions = wp.empty(IN_FRAME_RAYS, dtype=wp.vec3, device=dev)
+    set_basis = wp.empty((IN_FRAME_RAYS, coeffs), dtype=wp.float32, device=dev)
+    tables = sh_kernels(IN_FRAME_ORDER).tables(dev)
+
+    def hybrid_trace():  # as the stage launches it: the step's shared set, then the rays
+        wp.launch(cycle_table_kernel(IN_FRAME_ORDER), dim=IN_FRAME_RAYS, device=dev,
+                  inputs=[step, IN_FRAME_RAYS, 1, set_directions, set_basis])
+        launch_parallel(hybrid_kernel, v, lambda lo, hi: [
+            default_bvh.id, state.points, state.normals, no_frames, no_control, settings, step, set_directions, set_basis,
+            tables, lo, residual, variance], dev, workers)
+
+    paths["hybrid_trace"] = hybrid_trace
     h_o = wp.empty(v * IN_FRAME_RAYS, dtype=wp.vec3, device=dev)
     h_d = wp.empty(v * IN_FRAME_RAYS, dtype=wp.vec3, device=dev)
     h_above = wp.empty(v * IN_FRAME_RAYS, dtype=wp.int32, device=dev)

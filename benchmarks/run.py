@@ -94,6 +94,19 @@ def smoke_rows(rows) -> list:
     return out
 
 
+def _commit() -> str | None:
+    """The checkout's commit (with ``+changes`` when its tracked files differ), or None outside git."""
+    import subprocess
+
+    try:
+        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True,
+                              check=True).stdout.strip()
+        dirty = subprocess.run(["git", "diff", "--quiet", "HEAD"], cwd=ROOT, capture_output=True).returncode != 0
+    except (OSError, subprocess.CalledProcessError):
+        return None
+    return head + ("+changes" if dirty else "")
+
+
 def run_row(row, scene, lighting, device, timing_frames, gt_frames, truth_for, precompute_cache, progress=False):
     """Run one row; ``truth_for(model)`` gives the (cached) ground truth the row's output is
     measured against; ``precompute_cache`` = (ArtifactCache private to this harness run, dict of
@@ -353,7 +366,8 @@ def main(argv=None) -> int:
             "rotate_degrees_per_frame": ROTATE_DEGREES_PER_FRAME,
             "threads": cpu_workers() if device == "cpu" else None,
             "command": earlier["meta"]["command"] if earlier else command,
-            "resumed_by": (earlier["meta"].get("resumed_by", []) + [command]) if earlier else [],
+            "commit": earlier["meta"].get("commit") if earlier else _commit(),
+            "resumed_by": (earlier["meta"].get("resumed_by", []) + [f"{command} (at {_commit()})"]) if earlier else [],
             "seconds": seconds_before,
             "temporal": args.temporal,
             "scenes_done": sorted(done),

@@ -7,6 +7,7 @@ import trimesh
 
 from warpshade._wp import wp
 from warpshade.basis import quadrature
+from warpshade.basis.sh_warp import sh_kernels
 from warpshade.geometry._bvh import Visibility, trace_occlusion_f64
 from warpshade.geometry._normals import vertex_normals_f64
 from warpshade.graph import GraphSpec, StageSpec
@@ -50,7 +51,7 @@ def _frame_arrays(scene, device):
     return pts, nrm, bvh
 
 
-def _residual(device, pts, nrm, bvh, samples, control, seed=0, step=0, order=ORDER, cycle=1, quantity=0):
+def _residual(device, pts, nrm, bvh, samples, control, seed=0, step=0, order=ORDER, cycle=1, quantity=0, frames=None):
     v = pts.shape[0]
     c = order * order
     dev = wp.get_device(device)
@@ -61,10 +62,16 @@ def _residual(device, pts, nrm, bvh, samples, control, seed=0, step=0, order=ORD
     res = wp.zeros((v, c), dtype=wp.float32, device=dev)
     var = wp.zeros(v, dtype=wp.float32, device=dev)
     rot = wp.zeros(v, dtype=wp.mat33, device=dev)
+    directions = wp.zeros(samples, dtype=wp.vec3, device=dev)
+    basis = wp.zeros((samples, c), dtype=wp.float32, device=dev)
+    wp.launch(kernels.cycle_table_kernel(order), dim=samples, device=dev, inputs=[stp, samples, cycle, directions, basis])
     wp.launch(kernels.residual_kernel(order), dim=v, device=dev,
-              inputs=[bvh.id, p, n, wp.empty(0, dtype=wp.mat33, device=dev), ctl,
+              inputs=[bvh.id, p, n, wp.empty(0, dtype=wp.mat33, device=dev) if frames is None else
+                      wp.array(frames.astype(np.float32), dtype=wp.mat33, device=dev), ctl,
                       kernels.residual_settings(quantity=quantity, count=samples, cycle=cycle, seed=seed, offset=bvh.offset,
-                                                use_control=control is not None), stp, 0, res, var])
+                                                use_control=control is not None, use_local=frames is not None),
+                      stp, directions, basis,
+                      sh_kernels(order).tables(dev), 0, res, var])
     wp.launch(kernels.rotations_kernel, dim=v, device=dev, inputs=[seed, stp, cycle, rot])
     return res.numpy(), var.numpy(), rot.numpy()
 
@@ -76,17 +83,31 @@ def _hits(scene, pts, nrm, rot, samples, offset, step=0, cycle=1):
                                dirs.reshape(-1, 3)).reshape(len(pts), samples)
 
 
-@pytest.mark.parametrize("samples,cycle,quantity", [(1, 1, "transfer"), (16, 1, "transfer"), (16, 4, "transfer"),
-                                                   (16, 1, "visibility")])
-def test_residual_kernel_matches_mirror(device, samples, cycle, quantity, rng):
+def _tangent_frames(nrm):
+    """Rows t, b, n per vertex: an orthonormal frame about each normal."""
+    helper = np.where(np.abs(nrm[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    t = np.cross(helper, nrm)
+    t /= np.linalg.norm(t, axis=1, keepdims=True)
+    return np.stack([t, np.cross(nrm, t), nrm], axis=1)
+
+
+@pytest.mark.parametrize("samples,cycle,quantity,control,local", [
+    (1, 1, "transfer", True, False), (16, 1, "transfer", True, False), (16, 4, "transfer", True, False),
+    (16, 1, "visibility", True, False), (16, 1, "transfer", False, False), (16, 2, "transfer", True, True),
+    (16, 1, "visibility", False, True)])
+def test_residual_kernel_matches_mirror(device, samples, cycle, quantity, control, local, rng):
+    """The kernel (the step's SH table turned per vertex) against the float64 mirror (SH of every
+    ray's direction in the vertex's frame), with and without a control, world and tangent frames."""
     scene = _plane_box()
     pts, nrm, bvh = _frame_arrays(scene, device)
-    control = 0.3 * rng.standard_normal((pts.shape[0], ORDER * ORDER))
+    control = 0.3 * rng.standard_normal((pts.shape[0], ORDER * ORDER)) if control else None
+    frames = _tangent_frames(nrm) if local else None
     code = kernels.QUANTITY_VISIBILITY if quantity == "visibility" else kernels.QUANTITY_TRANSFER
-    res, var, rot = _residual(device, pts, nrm, bvh, samples, control, seed=5, step=3, cycle=cycle, quantity=code)
+    res, var, rot = _residual(device, pts, nrm, bvh, samples, control, seed=5, step=3, cycle=cycle, quantity=code,
+                              frames=frames)
     occluded = _hits(scene, pts, nrm, rot, samples, bvh.offset, step=3, cycle=cycle)
     r64, v64 = residual_f64(nrm, rot, cycle_directions_f64(samples, 3, cycle), occluded, ORDER, control,
-                            quantity=quantity)
+                            frames=frames, quantity=quantity)
     assert_close(res, r64, atol=ATOL_RESIDUAL, what="residual")
     assert_close(var, v64, rtol=RTOL_VARIANCE, atol=ATOL_RESIDUAL, what="one-frame variance")
     assert np.all(np.isfinite(res)) and np.all(var >= 0)

@@ -36,8 +36,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._wp import cpu_workers, launch_parallel, resolve_device, wp
-from ..basis import quadrature
-from ..basis.sh_warp import MAX_KERNEL_ORDER, sh_kernels
+from ..basis import quadrature, sh
+from ..basis.sh_warp import MAX_KERNEL_ORDER, SHTables, sh_kernels
 from ..geometry._bvh import RAY_MAX_DISTANCE, Visibility
 from ..geometry._embree import EmbreeOcclusion, ray_backend
 from ..geometry._frames import TangentFrames
@@ -155,11 +155,17 @@ def _visible_count_kernel(
 
 @functools.lru_cache(maxsize=None)
 def _transfer_kernel(order: int):
-    """The per-receiver transfer kernel specialised to an SH order (cached per order)."""
-    sh = sh_kernels(order)
-    N = sh.coeff_count
-    vec_t = sh.vec
-    sh_eval = sh.eval
+    """The per-receiver transfer kernel specialised to an SH order (cached per order).
+
+    A receiver's rays are ``w_s = R d_s`` (``R`` its random rotation, ``d_s`` the tracer's fixed
+    set), seen in its SH frame as ``M d_s`` (``M = R``, or ``F R`` in the tangent frame). SH
+    rotation commutes with evaluation, ``y(M d) = D(M) y(d)``, so the sums run over the set's
+    own SH (``basis``, (samples, order^2), computed once per tracer) and are turned by ``D(M)``
+    once per receiver (``sh_rotate`` with ``tables``) instead of evaluating SH per ray."""
+    bundle = sh_kernels(order)
+    N = bundle.coeff_count
+    vec_t = bundle.vec
+    sh_load, sh_rotate = bundle.load, bundle.rotate
     INV_PI = 1.0 / math.pi
 
     @wp.kernel(enable_backward=False, module="unique")
@@ -173,6 +179,8 @@ def _transfer_kernel(order: int):
         receivers: wp.array(dtype=wp.int32),
         receiver_start: int,
         samples: wp.array(dtype=wp.vec3),
+        basis: wp.array2d(dtype=wp.float32),
+        tables: SHTables,
         seed: int,
         offset: float,
         visibility: wp.array2d(dtype=wp.float32),
@@ -186,23 +194,25 @@ def _transfer_kernel(order: int):
         n = normals[v]
         origin = points[v] + offset * n
         rot = random_rotation(seed, v)
-        to_space = wp.identity(3, dtype=float)
+        to_set = rot  # y(to_set d_s): the SH of ray s in the receiver's frame
         if use_local != 0:
-            to_space = frames[v]
+            to_set = frames[v] * rot
         acc_v = vec_t()
         acc_t = vec_t()
         acc_ao = float(0.0)
         for s in range(samples.shape[0]):
             d = rot * samples[s]
-            if open_below != 0 and wp.dot(n, d) <= 0.0:
-                acc_v += sh_eval(to_space * d)  # below the horizon counts as visible (no ray)
+            c = wp.dot(n, d)
+            if open_below != 0 and c <= 0.0:
+                acc_v += sh_load(basis, s)  # below the horizon counts as visible (no ray)
             elif not _blocked(mesh_id, origin, d, occluded, r - occluded_start, s):
-                y = sh_eval(to_space * d)
+                y = sh_load(basis, s)
                 acc_v += y
-                c = wp.dot(n, d)
                 if c > 0.0:
                     acc_t += c * y
                     acc_ao += c
+        acc_v = sh_rotate(acc_v, to_set, tables)
+        acc_t = sh_rotate(acc_t, to_set, tables)
         weight = 4.0 * wp.pi / float(samples.shape[0])
         for i in range(N):
             visibility[r, i] = acc_v[i] * weight
@@ -329,9 +339,12 @@ class TransferTracer:
         self._no_frames = wp.empty(0, dtype=wp.mat33, device=self.device)
         self.vertices = receiver_indices(vertices, scene.vertex_count)
         self.receivers = wp.array(self.vertices.astype(np.int32), dtype=wp.int32, device=self.device)
-        self.sample_directions = wp.array(
-            quadrature.fibonacci(self.samples).directions.astype(np.float32), dtype=wp.vec3, device=self.device
-        )
+        directions = quadrature.fibonacci(self.samples).directions
+        self.sample_directions = wp.array(directions.astype(np.float32), dtype=wp.vec3, device=self.device)
+        # the set's own SH, turned per receiver in the kernel (float64, then rounded once)
+        self._sample_basis = wp.array(sh.basis(directions, self.order).astype(np.float32), dtype=wp.float32,
+                                      device=self.device)
+        self._sh_tables = sh_kernels(self.order).tables(self.device)
         count = self.receiver_count
         n2 = self.order * self.order
         self.visibility_sh = wp.zeros((count, n2), dtype=wp.float32, device=self.device)
@@ -391,7 +404,8 @@ class TransferTracer:
             def inputs(start, stop):
                 return [
                     mesh_id, points, normals, frames, use_local, 1 if self.below_horizon == "visible" else 0,
-                    self.receivers, lo + start, self.sample_directions, self.seed, self.bvh.offset,
+                    self.receivers, lo + start, self.sample_directions, self._sample_basis, self._sh_tables, self.seed,
+                    self.bvh.offset,
                     self.visibility_sh, self.transfer_sh, self.ambient_occlusion, occluded, occluded_start,
                 ]
 

@@ -14,6 +14,9 @@ a stratified set of ``K M`` directions; all of them rotated by one uniformly ran
 vertex and cycle, drawn from ``(seed + (step div M) * STEP_STRIDE, v)``. Every frame's set is a
 fixed point set under a uniform random rotation, so every frame's estimate is unbiased.
 
+* :func:`cycle_table_kernel` -- the step's directions ``d_k`` and their SH, once per frame for every
+  vertex (:func:`residual_kernel` turns each vertex's rotation onto its control and its sum
+  instead of evaluating SH per ray).
 * :func:`residual_kernel` -- the control-variate residual and the variance of that one-frame
   estimate::
 
@@ -182,13 +185,42 @@ def residual_settings(*, quantity: int = 0, count: int, cycle: int = 1, seed: in
 
 
 @functools.lru_cache(maxsize=None)
+def cycle_table_kernel(order: int):
+    """The step's sample set, shared by every vertex (cached per order): ``kernel(step, count,
+    cycle, directions, basis)`` over ``dim = count`` writes :func:`cycle_direction` ``k`` of the
+    current step into ``directions[k]`` and its real SH (order ``order``) into ``basis[k]``, for
+    :func:`residual_kernel` (launched before it in the same frame)."""
+    sh = sh_kernels(order)
+    sh_eval, sh_store = sh.eval, sh.store
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def kernel(step: wp.array(dtype=wp.int32), count: int, cycle: int, directions: wp.array(dtype=wp.vec3),
+               basis: wp.array2d(dtype=wp.float32)):
+        k = wp.tid()
+        d = cycle_direction(k, count, step[0], cycle)
+        directions[k] = d
+        sh_store(basis, k, sh_eval(d))
+
+    return kernel
+
+
+@functools.lru_cache(maxsize=None)
 def residual_kernel(order: int):
     """The per-vertex residual kernel at an SH order (cached): inputs ``mesh_id, points, normals,
-    frames, control, settings (ResidualSettings), step, start, residual, variance``."""
+    frames, control, settings (ResidualSettings), step, directions, basis, tables, start, residual,
+    variance`` (``directions``, ``basis``: the step's set from :func:`cycle_table_kernel`; ``tables``:
+    the order's :class:`~warpshade.basis.sh_warp.SHTables`).
+
+    A vertex's directions are ``w_k = R d_k`` (``R`` its rotation, ``d_k`` the step's set), seen in
+    its SH frame as ``M d_k`` (``M = R``, or ``F R`` in the tangent frame). SH rotation commutes with
+    evaluation, ``y(M d) = D(M) y(d)``, so the per-sample SH are the shared table ``y(d_k)``: the
+    control is turned into the set's frame once (``D(M)^T T_hat``, the same dot products), the sum
+    ``sum_k e_k y(d_k)`` is turned back once, and a sample with ``e_k = 0`` (shadowed or below the
+    horizon without a control) adds nothing."""
     sh = sh_kernels(order)
     C = sh.coeff_count
     vec_t = sh.vec
-    sh_eval = sh.eval
+    sh_rotate, sh_load = sh.rotate, sh.load
 
     @wp.kernel(enable_backward=False, module="unique")
     def kernel(
@@ -199,6 +231,9 @@ def residual_kernel(order: int):
         control: wp.array2d(dtype=wp.float32),
         settings: ResidualSettings,
         step: wp.array(dtype=wp.int32),
+        directions: wp.array(dtype=wp.vec3),
+        basis: wp.array2d(dtype=wp.float32),
+        tables: SHTables,
         start: int,
         residual: wp.array2d(dtype=wp.float32),
         variance: wp.array(dtype=wp.float32),
@@ -206,20 +241,19 @@ def residual_kernel(order: int):
         v = start + wp.tid()
         n = normals[v]
         origin = points[v] + settings.offset * n
-        st = step[0]
-        rot = frame_rotation(settings.seed, st, settings.cycle, v)
-        to_space = wp.identity(3, dtype=float)
+        rot = frame_rotation(settings.seed, step[0], settings.cycle, v)
+        to_set = rot  # the SH frame's turn of the shared set: y(to_set d_k)
         if settings.use_local != 0:
-            to_space = frames[v]
+            to_set = frames[v] * rot
         t_hat = vec_t()
+        t_set = vec_t()  # the control in the set's frame: t_hat . y(to_set d) = t_set . y(d)
         if settings.use_control != 0:
-            for i in range(C):
-                t_hat[i] = control[v, i]
+            t_hat = sh_load(control, v)
+            t_set = sh_rotate(t_hat, wp.transpose(to_set), tables)
         acc = vec_t()
         m2 = float(0.0)
         for s in range(settings.count):
-            d = rot * cycle_direction(s, settings.count, st, settings.cycle)
-            y = sh_eval(to_space * d)
+            d = rot * directions[s]
             f = float(0.0)
             c = wp.dot(n, d)
             if settings.quantity == QUANTITY_TRANSFER:
@@ -231,9 +265,15 @@ def residual_kernel(order: int):
                 if c > 0.0:
                     if wp.mesh_query_ray_anyhit(mesh_id, origin, d, _RAY_MAX):
                         f = 0.0
-            e = f - wp.dot(t_hat, y)
-            acc += e * y
-            m2 += e * e
+            if settings.use_control != 0:
+                y = sh_load(basis, s)
+                e = f - wp.dot(t_set, y)
+                acc += e * y
+                m2 += e * e
+            elif f != 0.0:
+                acc += f * sh_load(basis, s)
+                m2 += f * f
+        acc = sh_rotate(acc, to_set, tables)
         k = settings.count
         weight = 4.0 * wp.pi / float(k)
         norm2 = float(0.0)

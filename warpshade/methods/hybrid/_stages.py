@@ -223,10 +223,14 @@ class HybridTraceStage(FrameStage):
         tp.soft = 1 if p["reset"] == "soft" else 0
         tp.bias_weight = 1.0 / float(p["bias_frames"])
         self._params = tp
+        self._tables = sh_kernels(p["order"]).tables(dev)
         if p["reproject"]:
             self._prev_frames = wp.zeros(v, dtype=wp.mat33, device=dev)
             self._reproject_kernel = kernels.reproject_kernel(p["order"])
-            self._tables = sh_kernels(p["order"]).tables(dev)
+        # the step's sample set and its SH, shared by every vertex (written at the start of each frame)
+        self._set_directions = wp.zeros(p["samples"], dtype=wp.vec3, device=dev)
+        self._set_basis = wp.zeros((p["samples"], c), dtype=wp.float32, device=dev)
+        self._cycle_table_kernel = kernels.cycle_table_kernel(p["order"])
         self._residual_kernel = kernels.residual_kernel(p["order"])
         self._filter_kernel = kernels.filter_kernel(p["order"])
         self._temporal_kernel = kernels.temporal_kernel(p["order"])
@@ -250,7 +254,8 @@ class HybridTraceStage(FrameStage):
             quantity=kernels.QUANTITY_VISIBILITY if p["quantity"] == "visibility" else kernels.QUANTITY_TRANSFER,
             count=p["samples"], cycle=p["cycle"], seed=p["seed"], offset=self._bvh.offset, use_local=self._use_local,
             use_control=self._use_control, add_control=self._params.in_control)
-        fixed = [self._bvh.id, self._points, self._normals, self._frames_in, self._control, settings, self._step]
+        fixed = [self._bvh.id, self._points, self._normals, self._frames_in, self._control, settings, self._step,
+                 self._set_directions, self._set_basis, self._tables]
 
         def ray_inputs(start, stop):
             return [*fixed, start, self._raw, self._variance]
@@ -259,6 +264,8 @@ class HybridTraceStage(FrameStage):
             target = self._transfer if self._params.in_control else self._state.history
             wp.launch(self._reproject_kernel, dim=v, device=dev,
                       inputs=[self._frames_in, self._prev_frames, self._state.frames, self._tables, target])
+        wp.launch(self._cycle_table_kernel, dim=p["samples"], device=dev,
+                  inputs=[self._step, int(p["samples"]), int(p["cycle"]), self._set_directions, self._set_basis])
         launch_parallel(self._residual_kernel, v, ray_inputs, dev, self._workers, min_count=_CHUNK_MIN_VERTICES)
         src = self._raw
         for i in range(p["filter_iterations"]):
