@@ -179,8 +179,8 @@ def _front(points):
 
 def _labelled(sub) -> list:
     """The rows of one scene's panel that get a text label: the Pareto front (among rows measured
-    against the diffuse reference) and each method's most accurate row and the per-frame ray tracer's rows, skipping any whose label
-    would land on one already placed (the table beside the chart names every row)."""
+    against the diffuse reference), each method's most accurate row and the per-frame ray tracer's
+    rows, skipping any whose label would land on one already placed (the table names every row)."""
     front = set(_front([(r["median_frame_ms"], r["error"]["rel_rms"]) for r in sub if _vs_diffuse(r)]))
     best = {}
     for r in sub:
@@ -242,7 +242,8 @@ def pareto_chart(results, path, title):
                           label=f"{m} (vs glossy reference)" if m in glossy else m) for m in methods]
     handles.append(plt.Line2D([], [], ls=":", color="0.3", label="ground-truth noise"))
     fig.legend(handles=handles, loc="lower center", ncol=min(len(handles), 7), fontsize=9, frameon=False)
-    fig.suptitle(title + " -- labels: the Pareto front and each method's most accurate row; the table lists all",
+    fig.suptitle(title + " -- labels: the Pareto front, each method's most accurate row, the ray tracer; "
+                 "the table lists all",
                  fontsize=11)
     legend_rows = (len(handles) + 6) // 7
     fig.tight_layout(rect=(0, 0.025 + 0.03 * legend_rows / rows, 1, 0.96))
