@@ -23,6 +23,8 @@ warm-up and the median reported. Paths:
   every vertex);
 * ``hybrid_trace``: the in-frame residual kernel of ``hybrid.trace`` (order 6, 64 rays a vertex,
   rays only above the horizon: those are counted), rated against Embree on its own rays;
+* ``hybrid_rays_warp``: Warp's any-hit on exactly those rays, explicit (the same BVH): its time
+  over ``hybrid_trace``'s is ``rays_share``, the part of the kernel that is tracing;
 * ``embree``: Embree through ``embreex`` on the explicit rays, in this process (``embree_1``) and
   split over worker processes (``embree_n``, :class:`~warpshade.geometry._embree.EmbreeOcclusion`);
   the faster of the two is the reference of every ratio;
@@ -48,6 +50,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 
 from warpshade._fileio import atomic_path, write_json_atomic  # noqa: E402
+
+from _checkout import checkout_commit  # noqa: E402  (a sibling module: benchmarks/_checkout.py)
 from warpshade._wp import cpu_workers, launch_parallel, resolve_device, wp  # noqa: E402
 from warpshade.geometry._bvh import RAY_MAX_DISTANCE, Visibility, _occlusion_kernel  # noqa: E402
 from warpshade.geometry._embree import EmbreeOcclusion, embree_available  # noqa: E402
@@ -173,6 +177,12 @@ def bench_scene(key, spec, args, dev, workers):
     above = h_above.numpy().astype(bool)
     hybrid_o, hybrid_d = h_o.numpy()[above], h_d.numpy()[above]
     hybrid_rays = int(above.sum())
+    # the kernel's rays alone (Warp any-hit on the same rays, explicit): what in hybrid_trace is tracing
+    h_o_wp = wp.array(hybrid_o, dtype=wp.vec3, device=dev)
+    h_d_wp = wp.array(hybrid_d, dtype=wp.vec3, device=dev)
+    h_hits = wp.empty(hybrid_rays, dtype=wp.int32, device=dev)
+    paths["hybrid_rays_warp"] = lambda: launch_parallel(_occlusion_kernel, hybrid_rays, lambda lo, hi: [
+        default_bvh.mesh.id, h_o_wp[lo:hi], h_d_wp[lo:hi], float(RAY_MAX_DISTANCE), h_hits[lo:hi]], dev, workers)
 
     answers = {}
     if embree:
@@ -188,6 +198,7 @@ def bench_scene(key, spec, args, dev, workers):
     counts = {name: rays for name in paths}
     counts["prt_trace"] = v * IN_FRAME_RAYS
     counts["hybrid_trace"] = hybrid_rays
+    counts["hybrid_rays_warp"] = hybrid_rays
     for name in paths:
         if name.endswith("_hybrid_rays"):
             counts[name] = hybrid_rays
@@ -200,9 +211,10 @@ def bench_scene(key, spec, args, dev, workers):
         for name, t in times.items():
             if name.endswith("_hybrid_rays"):
                 continue
-            ref = ref_hybrid if name == "hybrid_trace" else ref_explicit
+            on_hybrid_rays = name in ("hybrid_trace", "hybrid_rays_warp")
+            ref = ref_hybrid if on_hybrid_rays else ref_explicit
             # per round: the best Embree of that round over this path (rays per second)
-            ref_rays = hybrid_rays if name == "hybrid_trace" else rays
+            ref_rays = hybrid_rays if on_hybrid_rays else rays
             best = np.max([ref_rays / r for r in ref.values()], axis=0)
             results[name]["ratio_to_embree"] = float(np.median((counts[name] / np.array(t)) / best))
         embree_hits = answers["embree_1"].astype(bool)
@@ -211,16 +223,19 @@ def bench_scene(key, spec, args, dev, workers):
         if "embree_n" in answers:
             results["embree_n"]["rays_disagreeing_with_embree"] = int(np.sum(answers["embree_n"].astype(bool) != embree_hits))
         # Warp's any-hit on the hybrid kernel's rays against Embree's
-        h_out = default_bvh.occluded(hybrid_o, hybrid_d).numpy().astype(bool)
+        h_out = h_hits.numpy().astype(bool)
         results["hybrid_trace"]["rays_disagreeing_with_embree"] = int(np.sum(h_out != answers["embree_1_hybrid_rays"].astype(bool)))
         if "bake_embree" in results:
             a, b = bakes["warp"].result(), bakes["embree"].result()
             results["bake_embree"]["max_abs_difference_vs_bake_warp"] = float(max(
                 np.abs(a.transfer - b.transfer).max(), np.abs(a.visibility - b.visibility).max()))
+    # the share of hybrid_trace's time that its rays alone take (per round, median)
+    results["hybrid_trace"]["rays_share"] = float(np.median(np.array(times["hybrid_rays_warp"]) / np.array(times["hybrid_trace"])))
     for name, r in results.items():
         ratio = f"  {r['ratio_to_embree']:.2f}x Embree" if "ratio_to_embree" in r else ""
         dis = f"  {r['rays_disagreeing_with_embree']} disagree" if "rays_disagreeing_with_embree" in r else ""
-        print(f"  {name:24s} {r['rays_per_second'] / 1e6:8.2f} Mrays/s  ({r['seconds'] * 1e3:8.1f} ms){ratio}{dis}", flush=True)
+        share = f"  rays {r['rays_share']:.0%} of it" if "rays_share" in r else ""
+        print(f"  {name:24s} {r['rays_per_second'] / 1e6:8.2f} Mrays/s  ({r['seconds'] * 1e3:8.1f} ms){ratio}{dis}{share}", flush=True)
 
     mitsuba = None
     if not args.no_mitsuba:
@@ -255,7 +270,7 @@ def chart(report: dict, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    names = [n for n in (*BULK_PATHS, *IN_FRAME_PATHS) if n != "embree_n"]
+    names = [n for n in (*BULK_PATHS, *IN_FRAME_PATHS, "hybrid_rays_warp") if n != "embree_n"]
     scenes = [k for k, sc in report["scenes"].items() if any("ratio_to_embree" in v for v in sc["results"].values())]
     fig, ax = plt.subplots(figsize=(max(6.0, 1.6 * len(scenes) + 3.0), 4.0))
     width = 0.8 / len(names)
@@ -385,6 +400,7 @@ def main(argv=None):
         "machine": {"cpu_count": os.cpu_count(), "platform": platform.platform(), "processor": platform.processor(),
                     "load_average": list(os.getloadavg()) if hasattr(os, "getloadavg") else None},
         "warp_version": warp.__version__,
+        "commit": checkout_commit(ROOT),
         "receivers": args.receivers,
         "samples": args.samples,
         "workers": workers,

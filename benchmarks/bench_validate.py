@@ -144,7 +144,10 @@ def main(argv=None) -> int:
     median = {side: {k: statistics.median(r[k] for r in rounds if r["side"] == side) for k in ("frame_ms", "ground_truth_s")}
               for side in trees}
     date = datetime.date.today().isoformat()
-    result = {"meta": {"date": date, "device": args.device, "graph": args.graph, "frames_timed": args.frames,
+    from _checkout import checkout_commit  # a sibling module: benchmarks/_checkout.py
+
+    result = {"meta": {"date": date, "device": args.device, "graph": args.graph, "commit": checkout_commit(ROOT),
+                       "frames_timed": args.frames,
                        "gt_frame": args.gt_frame, "samples": args.samples, "before": args.before, "rounds": args.rounds,
                        "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores",
                        "command": "python benchmarks/bench_validate.py " + " ".join(argv if argv is not None else sys.argv[1:])},

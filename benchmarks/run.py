@@ -58,6 +58,8 @@ from warpshade.measure import (  # noqa: E402
 from warpshade.measure._scenes import ROTATE_DEGREES_PER_FRAME  # noqa: E402
 from warpshade.methods._rows import all_rows  # noqa: E402
 
+from _checkout import checkout_commit  # noqa: E402  (a sibling module: benchmarks/_checkout.py)
+
 RESULTS = ROOT / "benchmarks" / "results"
 SCENES = BENCH_SCENES
 #: The ``--quick`` smoke profile: its default scene, and caps on the rows' stage parameters
@@ -92,19 +94,6 @@ def smoke_rows(rows) -> list:
                        for (n, t, p, i) in row.stages)
         out.append(dataclasses.replace(row, stages=stages))
     return out
-
-
-def _commit() -> str | None:
-    """The checkout's commit (with ``+changes`` when its tracked files differ), or None outside git."""
-    import subprocess
-
-    try:
-        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True,
-                              check=True).stdout.strip()
-        dirty = subprocess.run(["git", "diff", "--quiet", "HEAD"], cwd=ROOT, capture_output=True).returncode != 0
-    except (OSError, subprocess.CalledProcessError):
-        return None
-    return head + ("+changes" if dirty else "")
 
 
 def run_row(row, scene, lighting, device, timing_frames, gt_frames, truth_for, precompute_cache, progress=False):
@@ -367,8 +356,8 @@ def main(argv=None) -> int:
             "rotate_degrees_per_frame": ROTATE_DEGREES_PER_FRAME,
             "threads": cpu_workers() if device == "cpu" else None,
             "command": earlier["meta"]["command"] if earlier else command,
-            "commit": earlier["meta"].get("commit") if earlier else _commit(),
-            "resumed_by": (earlier["meta"].get("resumed_by", []) + [f"{command} (at {_commit()})"]) if earlier else [],
+            "commit": earlier["meta"].get("commit") if earlier else checkout_commit(ROOT),
+            "resumed_by": (earlier["meta"].get("resumed_by", []) + [f"{command} (at {checkout_commit(ROOT)})"]) if earlier else [],
             "seconds": seconds_before,
             "temporal": args.temporal,
             "scenes_done": sorted(done),

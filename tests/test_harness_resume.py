@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import sys
 from pathlib import Path
 
 import pytest
@@ -15,6 +16,11 @@ ROOT = Path(__file__).resolve().parents[1]
 
 @pytest.fixture(scope="module")
 def harness():
+    # the script imports its sibling module as ``python benchmarks/run.py`` finds it
+    sibling = importlib.util.spec_from_file_location("_checkout", ROOT / "benchmarks" / "_checkout.py")
+    checkout = importlib.util.module_from_spec(sibling)
+    sibling.loader.exec_module(checkout)
+    sys.modules.setdefault("_checkout", checkout)
     spec = importlib.util.spec_from_file_location("warpshade_harness", ROOT / "benchmarks" / "run.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)

@@ -82,6 +82,18 @@ PROJECTION_MIN_RIDGE = 1e-10
 SAME_AXIS_COS = 0.999
 #: Problems handled at once by the scan (bounds temporaries to a few tens of MB).
 SCAN_CHUNK = 128
+#: Start sets descended at once (problems x start sets a problem): bounds the descents' memory
+#: (about 13 KiB a set at order 6 with 4 lobes: BFGS state, Gram solves; ~200 MiB a chunk). Each
+#: problem descends on its own, so a problem's result does not depend on the chunk.
+DESCENT_CHUNK_SETS = 16384
+
+
+def _row_chunks(rows: int, sets_per_row: int):
+    """Slices of ``rows`` problems holding at most :data:`DESCENT_CHUNK_SETS` start sets (at
+    least one problem a slice)."""
+    step = max(1, DESCENT_CHUNK_SETS // max(int(sets_per_row), 1))
+    for lo in range(0, rows, step):
+        yield slice(lo, min(rows, lo + step))
 
 
 @dataclass
@@ -338,9 +350,14 @@ def _descend(target, axes0, order, fitted, mu, options: GlobalOptions, iteration
 def _descend_sets(target, starts_axes, order, fitted, mu, options, iterations):
     """BFGS (``iterations`` at most) from S sets per problem (B, S, N, 3): axes and phi (B, S)."""
     b, s, n_lobes = starts_axes.shape[:3]
-    rep = np.repeat(target, s, axis=0)
-    axes, phi = _descend(rep, starts_axes.reshape(b * s, n_lobes, 3), order, fitted, mu, options, iterations)
-    return axes.reshape(b, s, n_lobes, 3), phi.reshape(b, s)
+    axes = np.empty((b, s, n_lobes, 3))
+    phi = np.empty((b, s))
+    for sl in _row_chunks(b, s):
+        k = sl.stop - sl.start
+        rep = np.repeat(target[sl], s, axis=0)
+        a, p = _descend(rep, starts_axes[sl].reshape(k * s, n_lobes, 3), order, fitted, mu, options, iterations)
+        axes[sl], phi[sl] = a.reshape(k, s, n_lobes, 3), p.reshape(k, s)
+    return axes, phi
 
 
 def _best_of(target, starts_axes, order, fitted, mu, options, small=None):
@@ -359,11 +376,13 @@ def _best_of(target, starts_axes, order, fitted, mu, options, small=None):
         if np.any(big):
             axes[big], phi[big] = _descend_sets(target[big], starts_axes[big], order, fitted, mu, options,
                                                 options.max_iterations)
-        rep = np.repeat(target[small], s, axis=0)
-        k = int(small.sum())
-        a, p, _ = levenberg_marquardt(rep, starts_axes[small].reshape(k * s, n_lobes, 3), order, fitted, mu,
-                                      options.lm_iterations, options.lm_ftol)
-        axes[small], phi[small] = a.reshape(k, s, n_lobes, 3), p.reshape(k, s)
+        where = np.flatnonzero(small)
+        for sl in _row_chunks(where.size, s):
+            rows = where[sl]
+            k = rows.size
+            a, p, _ = levenberg_marquardt(np.repeat(target[rows], s, axis=0), starts_axes[rows].reshape(k * s, n_lobes, 3),
+                                          order, fitted, mu, options.lm_iterations, options.lm_ftol)
+            axes[rows], phi[rows] = a.reshape(k, s, n_lobes, 3), p.reshape(k, s)
     pick = np.argmin(phi, axis=1)
     return axes[np.arange(b), pick], phi[np.arange(b), pick]
 
@@ -435,17 +454,23 @@ def _restart(target, axes, phi, rows, order, fitted, lobe_count, mu, options, in
     rng = np.random.default_rng(options.seed)
     # screening effort follows the restarts asked for: random_sets at restarts >= 6
     screened = max(1, int(round(options.random_sets * min(options.restarts, 6) / 6)))
-    rand = rng.normal(size=(k, screened, lobe_count, 3))
-    rand /= np.linalg.norm(rand, axis=-1, keepdims=True)
-    if initial_axes is not None and initial_axes.shape[1] > 0:
-        rand[:, :, : initial_axes.shape[1]] = initial_axes[rows][:, None]
-    rand = np.concatenate([scanned, rand], axis=1)  # the scan's other sets are screened too
-    s = min(options.restarts, rand.shape[1])
-    if rand.shape[1] > s:  # screening: a short descent from every set, the best s go on
-        screened, phi_s = _descend_sets(target[rows], rand, order, fitted, mu, options, options.screen_iterations)
-        pick = np.argsort(phi_s, axis=1)[:, :s]
-        rand = screened[np.arange(k)[:, None], pick]
-    new_axes, new_phi = _best_of(target[rows], rand, order, fitted, mu, options)
+    per_row = scanned.shape[1] + screened
+    s = min(options.restarts, per_row)
+    new_axes = np.empty((k, lobe_count, 3))
+    new_phi = np.empty(k)
+    # in slices of problems (memory); the draws follow one another as one draw of (k, ...) would
+    for sl in _row_chunks(k, per_row):
+        c, sub = sl.stop - sl.start, rows[sl]
+        rand = rng.normal(size=(c, screened, lobe_count, 3))
+        rand /= np.linalg.norm(rand, axis=-1, keepdims=True)
+        if initial_axes is not None and initial_axes.shape[1] > 0:
+            rand[:, :, : initial_axes.shape[1]] = initial_axes[sub][:, None]
+        rand = np.concatenate([scanned[sl], rand], axis=1)  # the scan's other sets are screened too
+        if rand.shape[1] > s:  # screening: a short descent from every set, the best s go on
+            kept, phi_s = _descend_sets(target[sub], rand, order, fitted, mu, options, options.screen_iterations)
+            pick = np.argsort(phi_s, axis=1)[:, :s]
+            rand = kept[np.arange(c)[:, None], pick]
+        new_axes[sl], new_phi[sl] = _best_of(target[sub], rand, order, fitted, mu, options)
     gain = new_phi < phi[rows]
     axes[rows[gain]], phi[rows[gain]] = new_axes[gain], new_phi[gain]
     active = rows
