@@ -209,8 +209,6 @@ def compare(other: str, rounds: int, frames: int, out_dir: Path, suffix: str = "
 
 def hz(passes: int, out_dir: Path, suffix: str = "") -> int:
     """Absolute frame rate of the default graph of this tree (see the module docstring)."""
-    import subprocess
-
     import warpshade.methods.heightfield  # noqa: F401  (the height-field stages)
     from warpshade._wp import cpu_workers
     from warpshade.graph import load
@@ -230,10 +228,9 @@ def hz(passes: int, out_dir: Path, suffix: str = "") -> int:
     prof = rt.profile(clip[:8])
     load_after = os.getloadavg()
     med = float(np.median(frame_ms))
-    try:
-        commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
-    except OSError:
-        commit = None
+    from _checkout import checkout_commit  # a sibling module: benchmarks/_checkout.py
+
+    commit = checkout_commit(ROOT)
     today = datetime.date.today().isoformat()  # a re-run on a quiet machine gets its own file
     report = {"benchmark": "bench_heightfield --hz", "date": today, "graph": "stages/ripples_height_rpo.toml",
               "commit": commit, "cpu_count": os.cpu_count(), "threads": cpu_workers(), "platform": platform.platform(),

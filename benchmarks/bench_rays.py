@@ -50,8 +50,6 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 
 from warpshade._fileio import atomic_path, write_json_atomic  # noqa: E402
-
-from _checkout import checkout_commit  # noqa: E402  (a sibling module: benchmarks/_checkout.py)
 from warpshade._wp import cpu_workers, launch_parallel, resolve_device, wp  # noqa: E402
 from warpshade.geometry._bvh import RAY_MAX_DISTANCE, Visibility, _occlusion_kernel  # noqa: E402
 from warpshade.geometry._embree import EmbreeOcclusion, embree_available  # noqa: E402
@@ -60,6 +58,8 @@ from warpshade.basis.sh_warp import sh_kernels  # noqa: E402
 from warpshade.methods.hybrid._kernels import (QUANTITY_TRANSFER, cycle_direction, cycle_table_kernel, frame_rotation,  # noqa: E402
                                                residual_kernel, residual_settings)
 from warpshade.transfer import TransferTracer, sample_rays  # noqa: E402
+
+from _checkout import checkout_commit  # noqa: E402  (a sibling module: benchmarks/_checkout.py)
 
 #: The scenes of a full run: three bundled scenes and a large mesh from Warp's assets.
 SCENES = {"blockers": "blockers", "figure": "figure", "wanderer": "wanderer", "nonuniform": "warp-example:nonuniform"}
